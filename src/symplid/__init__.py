@@ -1,0 +1,49 @@
+"""symplid: Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
+
+The library puts a symplectic integrator inside the likelihood of a noisy state-space model
+and turns it into a marginal likelihood with an unscented Kalman filter (seed paper,
+Theorem 1 and eq. 14).
+
+Float64 is switched on when the package is imported: the filter's covariances and the
+sampler's acceptance ratios are not trustworthy in float32. This is the only global JAX
+setting the package touches.
+"""
+
+from __future__ import annotations
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+from symplid.data import DataError, Observations  # noqa: E402
+from symplid.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
+from symplid.models import HamiltonianModel  # noqa: E402
+from symplid.potentials import (  # noqa: E402
+    FunctionPotential,
+    Polynomial,
+    Potential,
+    hamiltonian,
+)
+from symplid.simulate import simulate, true_trajectory  # noqa: E402
+from symplid.systems import SYSTEMS, System, get_system  # noqa: E402
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "INTEGRATORS",
+    "SYSTEMS",
+    "DataError",
+    "FunctionPotential",
+    "HamiltonianModel",
+    "Integrator",
+    "Observations",
+    "Polynomial",
+    "Potential",
+    "System",
+    "__version__",
+    "get_integrator",
+    "get_system",
+    "hamiltonian",
+    "simulate",
+    "true_trajectory",
+]
