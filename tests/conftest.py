@@ -1,0 +1,85 @@
+"""Shared fixtures: the Hénon–Heiles system, its data, models and compiled log-likelihoods.
+
+Everything expensive (a jitted likelihood, its gradient) is session-scoped so that it is
+compiled once for the whole run.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import symplid
+
+# Irregular observation times for the small problems: gaps 0.7, 0.8, 0.5, 1.1, 0.5, 0.9,
+# so with dt = 0.25 the gaps take 3, 4, 2, 5, 2 and 4 substeps (never an exact multiple).
+SMALL_TIMES = np.array([0.7, 1.5, 2.0, 3.1, 3.6, 4.5])
+
+
+@pytest.fixture(scope="session")
+def hh():
+    """The Hénon–Heiles reference system (the paper's experiment)."""
+    return symplid.get_system("henon-heiles")
+
+
+@pytest.fixture(scope="session")
+def hh_data(hh):
+    """The paper's data: 20 full-state observations, 5 s apart, noise std 0.05, seed 0."""
+    return symplid.simulate(hh, seed=0)
+
+
+@pytest.fixture(scope="session")
+def hh_model(hh):
+    """The paper's learning model: cubic polynomial, leapfrog, dt = 0.25, default settings."""
+    return symplid.HamiltonianModel(hh.potential, integrator="leapfrog", dt=0.25)
+
+
+@pytest.fixture(scope="session")
+def hh_theta(hh, hh_model):
+    """True coefficients, process variance 1e-6, observation variance 0.05²."""
+    return hh_model.pack(hh.coefficients, 1e-6, 0.05**2)
+
+
+@pytest.fixture(scope="session")
+def hh_loglik(hh, hh_model, hh_data):
+    """θ ↦ log-likelihood of the paper's data, jitted once."""
+    return jax.jit(hh_model.log_likelihood_fn(hh_data, hh.initial_state))
+
+
+@pytest.fixture(scope="session")
+def small_data(hh):
+    """Six irregularly spaced full-state observations of Hénon–Heiles, one value missing."""
+    data = symplid.simulate(hh, times=SMALL_TIMES, noise_std=0.05, seed=1)
+    values = np.array(data.values)
+    values[2, 1] = np.nan
+    return symplid.Observations(data.times, values, data.names)
+
+
+@pytest.fixture(scope="session")
+def small_theta(hh, hh_model):
+    """A θ away from the truth (so that the gradient is not near zero), variances moderate."""
+    coeffs = hh.coefficients + 0.02 * np.arange(1, hh.potential.num_params + 1) / 9.0
+    return hh_model.pack(coeffs, 1e-4, 0.04**2)
+
+
+@pytest.fixture(scope="session")
+def small_x0(hh):
+    return np.asarray(hh.initial_state)
+
+
+@pytest.fixture(scope="session")
+def small_P0():
+    return 1e-4 * np.eye(4)
+
+
+@pytest.fixture(scope="session")
+def small_loglik(hh_model, small_data, small_x0, small_P0):
+    """θ ↦ log-likelihood of the small problem (default model), jitted once."""
+    return jax.jit(hh_model.log_likelihood_fn(small_data, small_x0, small_P0))
+
+
+@pytest.fixture(scope="session")
+def small_grad(hh_model, small_data, small_x0, small_P0):
+    """θ ↦ ∇ log-likelihood of the small problem, jitted once."""
+    return jax.jit(jax.grad(hh_model.log_likelihood_fn(small_data, small_x0, small_P0)))
