@@ -152,7 +152,12 @@ INTEGRATORS: dict[str, Integrator] = {
         4,
         False,
         runge_kutta(
-            ((0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0), (0.0, 0.5, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0)),
+            (
+                (0.0, 0.0, 0.0, 0.0),
+                (0.5, 0.0, 0.0, 0.0),
+                (0.0, 0.5, 0.0, 0.0),
+                (0.0, 0.0, 1.0, 0.0),
+            ),
             (1 / 6, 1 / 3, 1 / 3, 1 / 6),
         ),
         "classical Runge–Kutta",
@@ -198,22 +203,27 @@ def propagate(
     step_size: Array,
     num_steps: Array,
     max_steps: int,
-    unroll: int | bool = True,
+    unroll: int | bool = 1,
+    masked: bool = True,
 ) -> tuple[Array, Array]:
     """Ψ over one observation gap: ``num_steps`` steps of ``step_size`` (eq. 14).
 
+    ``q`` and ``p`` have shape ``(d,)`` or ``(d, ...)`` (a batch of points, coordinates first).
     ``max_steps`` is static (the largest ``num_steps`` over the data), so one compiled
-    function serves every gap: steps past ``num_steps`` leave the state unchanged.
+    function serves every gap: steps past ``num_steps`` leave the state unchanged. When every
+    gap has the same number of steps, pass ``masked=False`` to skip that test.
     """
 
     def body(i, carry):
         q, p = carry
         q_new, p_new = integrator.step(dynamics, q, p, step_size)
+        if not masked:
+            return q_new, p_new
         active = i < num_steps
         return jnp.where(active, q_new, q), jnp.where(active, p_new, p)
 
     if max_steps == 1:
-        return integrator.step(dynamics, q, p, step_size)
+        return body(0, (q, p))
     return jax.lax.fori_loop(0, max_steps, body, (q, p), unroll=unroll)
 
 
@@ -224,7 +234,7 @@ def integrate(
     dt: float,
     num_steps: int,
 ) -> Array:
-    """All states of ``num_steps`` fixed steps from ``x0 = (q, p)``; returns ``(num_steps+1, 2d)``."""
+    """All states of ``num_steps`` fixed steps from ``x0 = (q, p)``, shape ``(num_steps+1, 2d)``."""
     integrator = get_integrator(integrator)
     x0 = jnp.asarray(x0, dtype=float)
     d = x0.shape[-1] // 2

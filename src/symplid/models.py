@@ -27,6 +27,7 @@ from symplid.data import DataError, Observations
 from symplid.filters import (
     FilterResult,
     ObservationMoments,
+    cholesky,
     observation_moments_linear,
     observation_moments_unscented,
     run_filter,
@@ -54,6 +55,7 @@ class PreparedData(NamedTuple):
     ys: Array
     masks: Array
     max_steps: int
+    uniform_steps: bool  # every gap has max_steps substeps (no masking needed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +88,7 @@ class HamiltonianModel:
     jitter
         Added to the diagonal of every covariance after prediction and update.
     unroll
-        Unroll the substep loop of a gap (faster for small states, longer compile).
+        Unroll factor of the substep loop (``lax.fori_loop(unroll=...)``).
     """
 
     potential: Potential
@@ -100,7 +102,7 @@ class HamiltonianModel:
     beta: float = 2.0
     kappa: float = 0.0
     jitter: float = 1e-12
-    unroll: bool = True
+    unroll: int = 1
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -213,7 +215,9 @@ class HamiltonianModel:
             [np.ravel(coefficients), np.ravel(process_var), np.ravel(obs_var)]
         ).astype(float)
         if out.shape[0] != self.num_params:
-            raise ValueError(f"θ has {self.num_params} entries ({self.param_names}), got {out.shape[0]}")
+            raise ValueError(
+                f"θ has {self.num_params} entries ({self.param_names}), got {out.shape[0]}"
+            )
         return out
 
     # ------------------------------------------------------------------ data
@@ -228,7 +232,9 @@ class HamiltonianModel:
             )
         gaps = np.diff(np.concatenate([[float(t0)], data.times]))
         if gaps[0] <= 0:
-            raise DataError(f"the first observation time {data.times[0]:g} is not after t0 = {t0:g}")
+            raise DataError(
+                f"the first observation time {data.times[0]:g} is not after t0 = {t0:g}"
+            )
         num_steps, step_size = substeps(gaps, self.dt)
         mask = data.mask
         return PreparedData(
@@ -236,6 +242,7 @@ class HamiltonianModel:
             jnp.asarray(np.where(mask, data.values, 0.0)),
             jnp.asarray(mask),
             int(num_steps.max()),
+            bool(np.all(num_steps == num_steps.max())),
         )
 
     # ------------------------------------------------------------------ the filter
@@ -243,7 +250,7 @@ class HamiltonianModel:
         inv_mass = None if self.mass is None else jnp.asarray(np.linalg.inv(self.mass))
         return make_dynamics(self.potential, coefficients, inv_mass)
 
-    def _build_filter(self, max_steps: int) -> Callable[..., FilterResult]:
+    def _build_filter(self, max_steps: int, uniform_steps: bool) -> Callable[..., FilterResult]:
         weights = unscented_weights(self.state_dim, self.alpha, self.beta, self.kappa)
         d = self.potential.dim
         integrator = self.integrator
@@ -253,21 +260,25 @@ class HamiltonianModel:
         nc = self.num_coefficients
         per_step = self.process_noise_per == "step"
 
+        # Sigma points travel as one (2d, 2n+1) array of columns: every substep is then
+        # elementwise over the points, which XLA fuses into a couple of kernels per substep.
         def propagate_points(dynamics, points, step_size, num_steps):
-            def one(x):
-                q, p = propagate(
-                    integrator, dynamics, x[:d], x[d:], step_size, num_steps, max_steps, unroll
-                )
-                return jnp.concatenate([q, p])
-
-            return jax.vmap(one)(points)
+            q, p = propagate(
+                integrator,
+                dynamics,
+                points[:d],
+                points[d:],
+                step_size,
+                num_steps,
+                max_steps,
+                unroll,
+                masked=not uniform_steps,
+            )
+            return jnp.concatenate([q, p])
 
         def step_points(dynamics, points, step_size):
-            def one(x):
-                q, p = integrator.step(dynamics, x[:d], x[d:], step_size)
-                return jnp.concatenate([q, p])
-
-            return jax.vmap(one)(points)
+            q, p = integrator.step(dynamics, points[:d], points[d:], step_size)
+            return jnp.concatenate([q, p])
 
         if matrix is not None:
             h = jnp.asarray(matrix)
@@ -286,37 +297,51 @@ class HamiltonianModel:
 
             if per_step:
 
-                def predict(m, p, inp):
+                def predict(m, chol, inp):
                     def body(i, carry):
-                        mi, pi = carry
-                        mn, pn = unscented_predict(
-                            mi, pi, lambda pts: step_points(dynamics, pts, inp.step_size),
-                            proc, weights, jitter,
+                        mi, li, pi = carry
+                        mn, pn, _ = unscented_predict(
+                            mi,
+                            li,
+                            lambda pts: step_points(dynamics, pts, inp.step_size),
+                            proc,
+                            weights,
+                            jitter,
                         )
                         active = i < inp.num_steps
-                        return jnp.where(active, mn, mi), jnp.where(active, pn, pi)
+                        return (
+                            jnp.where(active, mn, mi),
+                            jnp.where(active, cholesky(pn), li),
+                            jnp.where(active, pn, pi),
+                        )
 
-                    return jax.lax.fori_loop(0, max_steps, body, (m, p))
+                    m, _, p = jax.lax.fori_loop(0, max_steps, body, (m, chol, chol @ chol.T))
+                    return m, p
             else:
 
-                def predict(m, p, inp):
-                    return unscented_predict(
-                        m, p,
+                def predict(m, chol, inp):
+                    mn, pn, _ = unscented_predict(
+                        m,
+                        chol,
                         lambda pts: propagate_points(dynamics, pts, inp.step_size, inp.num_steps),
-                        proc, weights, jitter,
+                        proc,
+                        weights,
+                        jitter,
                     )
+                    return mn, pn
 
-            result = run_filter(predict, moments, x0, p0, inputs, ys, masks, obs, jitter)
+            result = run_filter(predict, moments, x0, p0, inputs, ys, masks, obs)
             variances_ok = jnp.all(theta[nc:] > 0)
             ll = jnp.where(variances_ok, result.log_likelihood, -jnp.inf)
             return result._replace(log_likelihood=ll)
 
         return log_likelihood
 
-    def _compiled(self, max_steps: int):
-        if max_steps not in self._cache:
-            self._cache[max_steps] = jax.jit(self._build_filter(max_steps))
-        return self._cache[max_steps]
+    def _compiled(self, prepared: PreparedData):
+        key = (prepared.max_steps, prepared.uniform_steps)
+        if key not in self._cache:
+            self._cache[key] = jax.jit(self._build_filter(*key))
+        return self._cache[key]
 
     def _check_initial(self, x0, P0) -> tuple[Array, Array]:
         n = self.state_dim
@@ -355,7 +380,7 @@ class HamiltonianModel:
                 f"θ must have {self.num_params} entries ({', '.join(self.param_names)}), "
                 f"got {theta.shape[-1]}"
             )
-        fn = self._compiled(prepared.max_steps)
+        fn = self._compiled(prepared)
         return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
 
     def log_likelihood(
@@ -380,7 +405,7 @@ class HamiltonianModel:
         """A pure function θ ↦ log-likelihood with the data bound (prepared once)."""
         prepared = self.prepare(data, t0)
         x0, P0 = self._check_initial(x0, P0)
-        fn = self._compiled(prepared.max_steps)
+        fn = self._compiled(prepared)
         return partial(_loglik_only, fn, prepared, x0, P0)
 
     def hamiltonian(self, theta_or_coefficients: Array, state: Array) -> Array:

@@ -2,7 +2,9 @@
 
 A potential is an object with ``dim`` (number of generalised coordinates), ``num_params``,
 ``param_names``, ``value(q, coefficients)`` and ``gradient(q, coefficients)``; ``q`` is one
-point of shape ``(dim,)``. Two kinds ship with the library:
+point of shape ``(dim,)`` or a batch of points of shape ``(dim, ...)`` (coordinates first,
+batch axes trailing: the filter pushes all sigma points through at once in this layout).
+Two kinds ship with the library:
 
 * :class:`Polynomial`: every monomial of total degree 1..ℓ (eq. 13, the paper's model form),
   with a closed-form gradient.
@@ -223,11 +225,24 @@ class FunctionPotential:
             return tuple(self.names)
         return tuple(f"c{m + 1}" for m in range(self.num_params))
 
+    def _batched(self, f: Callable[[Array], Array], q: Array) -> Array:
+        """Apply ``f`` to each point of ``q`` with shape ``(dim, ...)`` (trailing batch axes)."""
+        if q.ndim == 1:
+            return f(q)
+        flat = q.reshape(q.shape[0], -1)
+        out = jax.vmap(f, in_axes=1, out_axes=-1)(flat)
+        return out.reshape(out.shape[:-1] + q.shape[1:])
+
     def value(self, q: Array, coefficients: Array) -> Array:
-        return self.fn(jnp.asarray(q), jnp.asarray(coefficients))
+        """U(q); ``q`` has shape ``(dim,)`` or ``(dim, ...)`` with trailing batch axes."""
+        coefficients = jnp.asarray(coefficients)
+        return self._batched(lambda x: self.fn(x, coefficients), jnp.asarray(q, dtype=float))
 
     def gradient(self, q: Array, coefficients: Array) -> Array:
-        return jax.grad(self.fn)(jnp.asarray(q, dtype=float), jnp.asarray(coefficients))
+        """∂U/∂q by ``jax.grad``; same shape as ``q``."""
+        coefficients = jnp.asarray(coefficients)
+        grad = jax.grad(lambda x: self.fn(x, coefficients))
+        return self._batched(grad, jnp.asarray(q, dtype=float))
 
 
 def kinetic_energy(p: Array, inv_mass: Array | None = None) -> Array:
