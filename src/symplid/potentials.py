@@ -129,10 +129,10 @@ class Polynomial:
     def _check(self, q: Array, coefficients: Array) -> None:
         if q.shape[0] != self.dim:
             raise ValueError(f"q has {q.shape[0]} coordinates, the potential has dim={self.dim}")
-        if coefficients.shape[-1] != self.num_params:
+        if coefficients.shape[0] != self.num_params:
             raise ValueError(
                 f"expected {self.num_params} coefficients ({', '.join(self.param_names)}), "
-                f"got {coefficients.shape[-1]}"
+                f"got {coefficients.shape[0]}"
             )
 
     def value(self, q: Array, coefficients: Array) -> Array:
