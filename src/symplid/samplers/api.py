@@ -1,0 +1,422 @@
+"""``sample``: posterior draws by DRAM or NUTS, returned as ArviZ ``InferenceData``.
+
+Layout of the result
+--------------------
+* ``posterior``: **one variable per parameter**, named by ``posterior.param_names``
+  (``q1``, ``q1^2``, ..., ``process_var``, ``obs_var``), each shaped ``(chain, draw)``.
+  ``az.summary`` then prints one row per parameter under its own name, which reads better
+  than ``theta[0]``..``theta[10]``. :func:`draws_array` stacks them back into
+  ``(chain, draw, num_params)`` in the posterior's order.
+* ``sample_stats``: ``lp`` (log posterior density over θ, in the constrained space, for both
+  samplers) and, for DRAM, ``accepted``, ``stage1_accepted``, ``stage2_attempted``,
+  ``stage2_accepted``; for NUTS, ``acceptance_rate``, ``diverging``, ``n_steps``,
+  ``tree_depth``, ``energy`` and ``step_size``.
+* ``attrs`` (of the ``InferenceData``): ``method``, ``seed``, ``settings`` (a JSON string of
+  every setting, defaults included), ``param_names``, ``map_theta``, ``map_log_posterior``,
+  ``hessian`` and ``map_covariance`` (nested lists), ``iterations`` (per chain, burn-in
+  included), ``interrupted`` (0/1), ``sampling_seconds``, and for DRAM
+  ``dram_adapted_covariance`` (each chain's final running covariance, nested lists). All
+  survive ``to_netcdf``.
+
+Starting points
+---------------
+Chains start from overdispersed points around the MAP, ``θ̂ + s·L z`` with ``L Lᵀ`` the MAP
+covariance, ``z ~ N(0, I)`` and ``s = init_spread`` (2 by default), a point being redrawn
+until its log density is finite (up to 100 times; then the chain starts at the MAP and a
+warning says so). ``init_spread=0`` starts every chain at the MAP, as in the paper.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from symplid.diagnostics import import_arviz
+from symplid.samplers import dram, nuts
+from symplid.samplers.run import ChainRun, ChunkReport, run_chains
+
+__all__ = ["METHODS", "draws_array", "overdispersed_starts", "sample"]
+
+METHODS = ("dram", "nuts")
+_POSTERIOR_ATTRIBUTES = ("num_params", "param_names", "log_density")
+_UNCONSTRAINED_ATTRIBUTES = ("to_unconstrained", "from_unconstrained",
+                             "log_density_unconstrained")
+
+
+def _check_posterior(posterior: Any, method: str) -> tuple[int, tuple[str, ...]]:
+    needed = _POSTERIOR_ATTRIBUTES + (_UNCONSTRAINED_ATTRIBUTES if method == "nuts" else ())
+    missing = [name for name in needed if not hasattr(posterior, name)]
+    if missing:
+        raise TypeError(
+            f"posterior lacks {', '.join(missing)}: sample() needs an object with "
+            f"{', '.join(needed)} (e.g. symplid.Posterior)"
+        )
+    num_params = int(posterior.num_params)
+    names = tuple(str(name) for name in posterior.param_names)
+    if len(names) != num_params:
+        raise ValueError(
+            f"posterior.param_names has {len(names)} names but num_params is {num_params}"
+        )
+    if len(set(names)) != len(names):
+        raise ValueError(f"posterior.param_names must be unique, got {names}")
+    return num_params, names
+
+
+def _check_map(init: Any, num_params: int, logdensity: Callable) -> tuple[np.ndarray, np.ndarray]:
+    for name in ("theta", "covariance"):
+        if not hasattr(init, name):
+            raise TypeError(
+                f"init lacks .{name}: pass the result of symplid.find_map (an object with "
+                ".theta and .covariance)"
+            )
+    theta = np.asarray(init.theta, dtype=np.float64)
+    cov = np.asarray(init.covariance, dtype=np.float64)
+    if theta.shape != (num_params,):
+        raise ValueError(f"init.theta must have shape ({num_params},), got {theta.shape}")
+    if cov.shape != (num_params, num_params):
+        raise ValueError(
+            f"init.covariance must have shape ({num_params}, {num_params}), got {cov.shape}"
+        )
+    if not np.all(np.isfinite(cov)):
+        raise ValueError("init.covariance contains non-finite entries")
+    try:
+        np.linalg.cholesky(0.5 * (cov + cov.T))
+    except np.linalg.LinAlgError:
+        raise ValueError("init.covariance is not positive definite") from None
+    value = float(logdensity(jnp.asarray(theta)))
+    if not np.isfinite(value):
+        raise ValueError(f"the log density at init.theta is not finite ({value})")
+    return theta, 0.5 * (cov + cov.T)
+
+
+def overdispersed_starts(
+    rng_key: jax.Array,
+    logdensity_fn: Callable[[jax.Array], jax.Array],
+    center: np.ndarray,
+    cov: np.ndarray,
+    num_chains: int,
+    spread: float = 2.0,
+    max_tries: int = 100,
+) -> np.ndarray:
+    """Starting points ``center + spread·L z`` with a finite log density, one per chain.
+
+    Parameters
+    ----------
+    rng_key
+        Key for the draws (round ``r`` uses ``fold_in(rng_key, r)``).
+    logdensity_fn
+        Log density over the parameters.
+    center, cov
+        The MAP and its covariance (``L`` is the Cholesky factor of ``cov``).
+    num_chains
+        Number of starting points.
+    spread
+        Multiplier of ``L z``; 0 puts every chain at ``center``.
+    max_tries
+        Rounds of redrawing before a chain falls back to ``center`` (with a warning).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(num_chains, d)``.
+    """
+    center = np.asarray(center, dtype=np.float64)
+    starts = np.tile(center, (num_chains, 1))
+    if spread == 0:
+        return starts
+    chol = np.linalg.cholesky(cov)
+    batch_logdensity = jax.jit(jax.vmap(logdensity_fn))
+    pending = np.ones(num_chains, dtype=bool)
+    for attempt in range(max_tries):
+        z = np.asarray(jax.random.normal(jax.random.fold_in(rng_key, attempt),
+                                         (num_chains, center.size)))
+        candidates = center + spread * z @ chol.T
+        finite = np.isfinite(np.asarray(batch_logdensity(jnp.asarray(candidates))))
+        take = pending & finite
+        starts[take] = candidates[take]
+        pending &= ~take
+        if not pending.any():
+            return starts
+    warnings.warn(
+        f"{int(pending.sum())} chain(s) found no start with a finite log density within "
+        f"{max_tries} draws at init_spread={spread}; they start at the MAP",
+        UserWarning,
+        stacklevel=3,
+    )
+    return starts
+
+
+def _make_settings(method: str, settings: Any):
+    cls = dram.DRAMSettings if method == "dram" else nuts.NUTSSettings
+    if settings is None:
+        return cls()
+    if isinstance(settings, cls):
+        return settings
+    if isinstance(settings, dict):
+        known = {field.name for field in dataclasses.fields(cls)}
+        unknown = sorted(set(settings) - known)
+        if unknown:
+            raise ValueError(
+                f"unknown {method} setting(s) {unknown}; known: {sorted(known)}"
+            )
+        return cls(**settings)
+    raise TypeError(
+        f"settings must be None, a dict or a {cls.__name__}, got {type(settings).__name__}"
+    )
+
+
+def sample(
+    posterior: Any,
+    method: str = "dram",
+    num_samples: int = 10_000,
+    num_chains: int = 4,
+    seed: int = 0,
+    init: Any = None,
+    *,
+    burn_in: int | None = None,
+    thin: int = 1,
+    settings: Any = None,
+    init_spread: float = 2.0,
+    initial_positions: Any = None,
+    chunk_size: int = 5000,
+    chain_method: str = "vectorized",
+    progress: bool = True,
+    callback: Callable[[ChunkReport], None] | None = None,
+):
+    """Draw from a posterior with DRAM or NUTS.
+
+    Parameters
+    ----------
+    posterior
+        Any object with ``num_params``, ``param_names`` and ``log_density(theta)``
+        (jit/vmap-able, −∞ outside the support); NUTS also needs ``to_unconstrained``,
+        ``from_unconstrained`` and ``log_density_unconstrained`` (Jacobian included).
+    method
+        ``"dram"`` (the paper's sampler, in the constrained space) or ``"nuts"`` (BlackJAX,
+        in the unconstrained space, draws mapped back).
+    num_samples
+        Draws kept per chain (after burn-in and thinning).
+    num_chains
+        Number of chains.
+    seed
+        Integer seed; the whole run is a deterministic function of it.
+    init
+        The MAP result (``.theta``, ``.covariance``; ``.hessian`` and ``.log_posterior`` are
+        recorded when present). ``None`` runs ``symplid.find_map(posterior, seed=seed)``.
+    burn_in
+        DRAM: iterations discarded first (default ``num_samples·thin``, i.e. half the run, as
+        the paper's 100,000 of 200,000). NUTS: window-adaptation steps (default 1000).
+    thin
+        Keep every ``thin``-th iteration after burn-in.
+    settings
+        Sampler settings: a :class:`~symplid.samplers.dram.DRAMSettings` /
+        :class:`~symplid.samplers.nuts.NUTSSettings` or a dict of their fields.
+    init_spread
+        Overdispersion of the starting points (module docstring); 0 starts at the MAP.
+    initial_positions
+        Explicit starting points ``(num_chains, d)`` (overrides ``init_spread``).
+    chunk_size
+        Iterations per compiled chunk; the progress bar moves once per chunk.
+    chain_method
+        ``"vectorized"`` (``vmap``) or ``"sequential"`` (``lax.map``) over chains.
+    progress
+        Show progress bars.
+    callback
+        Called after every chunk with a :class:`~symplid.samplers.run.ChunkReport`; raising
+        ``KeyboardInterrupt`` there stops the run like Ctrl-C.
+
+    Returns
+    -------
+    arviz.InferenceData
+        See the module docstring for the layout. A run stopped by ``KeyboardInterrupt``
+        returns the draws made so far with ``attrs["interrupted"] = 1`` and a
+        :class:`~symplid.samplers.run.SamplingInterrupted` warning.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    num_params, names = _check_posterior(posterior, method)
+    for name, value, low in (("num_samples", num_samples, 1), ("num_chains", num_chains, 1),
+                             ("thin", thin, 1)):
+        if int(value) != value or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    if burn_in is None:
+        burn_in = int(num_samples) * int(thin) if method == "dram" else 1000
+    if int(burn_in) != burn_in or burn_in < 0:
+        raise ValueError(f"burn_in must be an integer >= 0, got {burn_in!r}")
+    if int(seed) != seed:
+        raise ValueError(f"seed must be an integer, got {seed!r}")
+    if not (np.isfinite(init_spread) and init_spread >= 0):
+        raise ValueError(f"init_spread must be a finite number >= 0, got {init_spread}")
+    kernel_settings = _make_settings(method, settings)
+
+    logdensity = jax.jit(posterior.log_density)
+    if init is None:
+        from symplid.optimize import find_map
+
+        init = find_map(posterior, seed=seed)
+    theta_map, cov_map = _check_map(init, num_params, logdensity)
+
+    init_key, warmup_key, run_key = jax.random.split(jax.random.key(int(seed)), 3)
+    if initial_positions is None:
+        starts = overdispersed_starts(init_key, posterior.log_density, theta_map, cov_map,
+                                      int(num_chains), float(init_spread))
+    else:
+        starts = np.asarray(initial_positions, dtype=np.float64)
+        if starts.shape != (num_chains, num_params):
+            raise ValueError(
+                f"initial_positions must have shape ({num_chains}, {num_params}), "
+                f"got {starts.shape}"
+            )
+
+    common = dict(burn_in=0, thin=int(thin), chunk_size=int(chunk_size),
+                  chain_method=chain_method, progress=progress, callback=callback)
+    if method == "dram":
+        run, extra_attrs = _run_dram(posterior, kernel_settings, starts, cov_map, run_key,
+                                     int(num_samples), int(burn_in), common)
+    else:
+        run, extra_attrs = _run_nuts(posterior, kernel_settings, starts, cov_map, theta_map,
+                                     warmup_key, run_key, int(num_samples), int(burn_in),
+                                     common)
+    if not run.draws:
+        raise KeyboardInterrupt("sampling was interrupted before any draw was kept")
+
+    record_settings = {
+        "method": method, "num_samples": int(num_samples), "num_chains": int(num_chains),
+        "seed": int(seed), "burn_in": int(burn_in), "thin": int(thin),
+        "init_spread": float(init_spread), "chunk_size": int(chunk_size),
+        "chain_method": chain_method,
+        "explicit_initial_positions": initial_positions is not None,
+        "kernel": dataclasses.asdict(kernel_settings),
+    }
+    attrs = {
+        "method": method,
+        "seed": int(seed),
+        "settings": json.dumps(record_settings),
+        "param_names": list(names),
+        "map_theta": theta_map.tolist(),
+        "map_covariance": cov_map.tolist(),
+        "iterations": int(run.iterations_done),
+        "interrupted": int(run.interrupted),
+        "sampling_seconds": float(run.elapsed),
+        **extra_attrs,
+    }
+    if getattr(init, "hessian", None) is not None:
+        attrs["hessian"] = np.asarray(init.hessian, dtype=np.float64).tolist()
+    if getattr(init, "log_posterior", None) is not None:
+        attrs["map_log_posterior"] = float(init.log_posterior)
+    return _to_inference_data(run, names, attrs)
+
+
+def _run_dram(posterior, settings, starts, cov_map, run_key, num_samples, burn_in, common):
+    logdensity_fn = posterior.log_density
+    cov = jnp.asarray(cov_map)
+    states = jax.vmap(lambda p: dram.init(p, logdensity_fn, cov, settings))(jnp.asarray(starts))
+    step = dram.build_kernel(logdensity_fn, settings)
+
+    def record(state: dram.DRAMState, info: dram.DRAMInfo) -> dict[str, jax.Array]:
+        return {
+            "theta": state.position,
+            "lp": state.logdensity,
+            "accepted": info.is_accepted,
+            "stage1_accepted": info.stage1_accepted,
+            "stage2_attempted": info.stage2_attempted,
+            "stage2_accepted": info.stage2_accepted,
+        }
+
+    run = run_chains(step, states, run_key, num_samples, record=record,
+                     desc="DRAM", **{**common, "burn_in": burn_in})
+    adapted = np.asarray(run.states.cov)
+    return run, {"dram_adapted_covariance": adapted.tolist()}
+
+
+def _unconstrained_covariance(posterior, theta_map, cov_map) -> np.ndarray:
+    """Laplace covariance pushed to the unconstrained space: ``J Σ Jᵀ``, ``J = ∂z/∂θ``."""
+    jac = np.asarray(jax.jacfwd(posterior.to_unconstrained)(jnp.asarray(theta_map)))
+    cov_z = jac @ cov_map @ jac.T
+    cov_z = 0.5 * (cov_z + cov_z.T)
+    if not np.all(np.isfinite(cov_z)):
+        raise ValueError("the MAP covariance mapped to the unconstrained space is not finite "
+                         "(is the MAP on a bound?)")
+    try:
+        np.linalg.cholesky(cov_z)
+    except np.linalg.LinAlgError:
+        cov_z = np.diag(np.maximum(np.diag(cov_z), 1e-12))
+    return cov_z
+
+
+def _run_nuts(posterior, settings, starts, cov_map, theta_map, warmup_key, run_key,
+              num_samples, num_warmup, common):
+    logdensity_z = posterior.log_density_unconstrained
+    from_z = posterior.from_unconstrained
+    cov_z = jnp.asarray(_unconstrained_covariance(posterior, theta_map, cov_map))
+    z_starts = jax.vmap(posterior.to_unconstrained)(jnp.asarray(starts))
+    num_chains = starts.shape[0]
+
+    def adapt(key, z0):
+        if num_warmup == 0:
+            return nuts.init(z0, logdensity_z, settings.initial_step_size, cov_z)
+        return nuts.warmup(key, z0, logdensity_z, num_warmup, cov_z, settings)
+
+    keys = jax.random.split(warmup_key, num_chains)
+    bar = _warmup_bar(num_warmup, common["progress"])
+    if common["chain_method"] == "vectorized":
+        states = jax.vmap(adapt)(keys, z_starts)
+    else:
+        states = jax.lax.map(lambda a: adapt(*a), (keys, z_starts))
+    if bar is not None:
+        bar.update(num_warmup)
+        bar.close()
+    step = nuts.build_kernel(logdensity_z, settings)
+
+    def record(state: nuts.NUTSState, info) -> dict[str, jax.Array]:
+        z = state.hmc.position
+        log_det = jnp.linalg.slogdet(jax.jacfwd(from_z)(z))[1]
+        return {
+            "theta": from_z(z),
+            "lp": state.hmc.logdensity - log_det,
+            "acceptance_rate": info.acceptance_rate,
+            "diverging": info.is_divergent,
+            "n_steps": info.num_integration_steps,
+            "tree_depth": info.num_trajectory_expansions,
+            "energy": info.energy,
+            "step_size": state.step_size,
+        }
+
+    run = run_chains(step, states, run_key, num_samples, record=record, desc="NUTS", **common)
+    return run, {
+        "nuts_step_size": np.asarray(states.step_size).tolist(),
+        "nuts_inverse_mass_matrix": np.asarray(states.inverse_mass_matrix).tolist(),
+        "unconstrained_map_covariance": np.asarray(cov_z).tolist(),
+    }
+
+
+def _warmup_bar(total: int, enabled: bool):
+    if not enabled or total == 0:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="NUTS warmup", unit="it", dynamic_ncols=True)
+
+
+def _to_inference_data(run: ChainRun, names: tuple[str, ...], attrs: dict):
+    az = import_arviz()
+    theta = run.draws["theta"]
+    posterior = {name: theta[..., i] for i, name in enumerate(names)}
+    stats = {name: value for name, value in run.draws.items() if name != "theta"}
+    return az.from_dict(posterior=posterior, sample_stats=stats, attrs=attrs)
+
+
+def draws_array(idata) -> np.ndarray:
+    """Posterior draws of a :func:`sample` result stacked as ``(chain, draw, num_params)``.
+
+    The last axis follows ``idata.attrs["param_names"]``, the posterior's own order.
+    """
+    names = list(idata.attrs["param_names"])
+    return np.stack([idata.posterior[name].values for name in names], axis=-1)

@@ -1,0 +1,250 @@
+"""Chunked, multi-chain driver for any ``step(rng_key, state) -> (state, info)`` kernel.
+
+A run of ``burn_in + num_samples·thin`` iterations is cut into chunks of ``chunk_size``
+iterations. Each chunk is **one** compiled ``lax.scan`` over iterations whose body advances
+all chains at once (``vmap``, or ``lax.map`` for ``chain_method="sequential"``). Between
+chunks control returns to Python: the progress bar moves, a callback runs, and a
+``KeyboardInterrupt`` stops the run while keeping every draw already made.
+
+Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c], t)`` with
+``chain_key = split(rng_key, num_chains)``. The draws therefore depend only on the key and
+the kernel, not on the chunk size, and an interrupted run is a prefix of the full run.
+Every chunk has the same length (the last one masks its unused iterations with
+``lax.cond``), so a run compiles exactly once.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+__all__ = ["ChainRun", "ChunkReport", "SamplingInterrupted", "run_chains"]
+
+StepFn = Callable[[jax.Array, Any], tuple[Any, Any]]
+RecordFn = Callable[[Any, Any], dict[str, jax.Array]]
+CHAIN_METHODS = ("vectorized", "sequential")
+
+
+class SamplingInterrupted(UserWarning):
+    """Warning: a run was stopped by ``KeyboardInterrupt``; the draws made so far are kept."""
+
+
+class ChunkReport(NamedTuple):
+    """Passed to the ``callback`` of :func:`run_chains` after every chunk.
+
+    Attributes
+    ----------
+    chunk
+        Index of the chunk just finished (0-based).
+    iterations_done
+        Iterations completed so far (burn-in included).
+    total_iterations
+        Iterations planned.
+    draws_kept
+        Draws kept per chain so far.
+    states
+        The chain states after the chunk (stacked over chains).
+    """
+
+    chunk: int
+    iterations_done: int
+    total_iterations: int
+    draws_kept: int
+    states: Any
+
+
+class ChainRun(NamedTuple):
+    """Result of :func:`run_chains`.
+
+    Attributes
+    ----------
+    draws
+        ``name -> array`` of shape ``(num_chains, num_kept, ...)`` from the ``record`` function.
+    states
+        Final chain states (stacked over chains), e.g. to continue the run.
+    iterations_done
+        Iterations completed (burn-in included).
+    interrupted
+        Whether a ``KeyboardInterrupt`` ended the run early.
+    elapsed
+        Wall time in seconds, compilation included.
+    """
+
+    draws: dict[str, np.ndarray]
+    states: Any
+    iterations_done: int
+    interrupted: bool
+    elapsed: float
+
+
+def _over_chains(fn: Callable, chain_method: str) -> Callable:
+    if chain_method == "vectorized":
+        return jax.vmap(fn)
+    return lambda *args: lax.map(lambda a: fn(*a), args)
+
+
+def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str):
+    """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` run."""
+
+    def one_chain(key, state, t):
+        new_state, info = step(jax.random.fold_in(key, t), state)
+        return new_state, record(new_state, info)
+
+    advance = _over_chains(one_chain, chain_method)
+
+    def chunk(states, chain_keys, start, num_active):
+        def run_all(c, t):
+            return advance(chain_keys, c, jnp.broadcast_to(t, chain_keys.shape[:1]))
+
+        # Record shapes, for the masked (inactive) iterations at the end of the last chunk.
+        shapes = jax.eval_shape(run_all, states, start)[1]
+
+        def body(carry, i):
+            def active(c):
+                return run_all(c, start + i)
+
+            def idle(c):
+                return c, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+            return lax.cond(i < num_active, active, idle, carry)
+
+        return lax.scan(body, states, jnp.arange(chunk_len))
+
+    return jax.jit(chunk)
+
+
+def run_chains(
+    step: StepFn,
+    states: Any,
+    rng_key: jax.Array,
+    num_samples: int,
+    *,
+    record: RecordFn,
+    burn_in: int = 0,
+    thin: int = 1,
+    chunk_size: int = 5000,
+    chain_method: str = "vectorized",
+    progress: bool = True,
+    desc: str = "sampling",
+    callback: Callable[[ChunkReport], None] | None = None,
+) -> ChainRun:
+    """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
+
+    Parameters
+    ----------
+    step
+        Pure transition of one chain, ``step(rng_key, state) -> (state, info)``.
+    states
+        Initial states stacked over chains (leading axis = chain).
+    rng_key
+        Root key; split once into one key per chain.
+    num_samples
+        Draws to keep per chain after burn-in and thinning.
+    record
+        ``record(state, info) -> dict`` of arrays kept at each kept iteration.
+    burn_in
+        Iterations run first and discarded.
+    thin
+        Keep one iteration in ``thin`` after burn-in; ``num_samples·thin`` iterations run.
+    chunk_size
+        Iterations per compiled chunk (the progress bar moves once per chunk).
+    chain_method
+        ``"vectorized"`` (``vmap``: all chains in lockstep) or ``"sequential"``
+        (``lax.map``: a ``lax.cond`` inside the kernel then really skips work).
+    progress
+        Show a tqdm progress bar.
+    desc
+        Label of the progress bar.
+    callback
+        Called with a :class:`ChunkReport` after each chunk; it may raise
+        ``KeyboardInterrupt`` to stop the run (used in tests to simulate Ctrl-C).
+
+    Returns
+    -------
+    ChainRun
+        Draws ``(num_chains, kept, ...)``, final states and run information. An interrupted
+        run returns the draws of the chunks that finished and warns.
+    """
+    for name, value, low in (("num_samples", num_samples, 1), ("burn_in", burn_in, 0),
+                             ("thin", thin, 1), ("chunk_size", chunk_size, 1)):
+        if int(value) != value or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    if chain_method not in CHAIN_METHODS:
+        raise ValueError(f"chain_method must be one of {CHAIN_METHODS}, got {chain_method!r}")
+    leaves = jax.tree.leaves(states)
+    if not leaves:
+        raise ValueError("states must be a non-empty pytree stacked over chains")
+    num_chains = int(leaves[0].shape[0])
+
+    total = int(burn_in) + int(num_samples) * int(thin)
+    chunk_len = min(int(chunk_size), total)
+    chunk_fn = _build_chunk(step, record, chunk_len, chain_method)
+    chain_keys = jax.random.split(rng_key, num_chains)
+
+    kept: dict[str, list[np.ndarray]] = {}
+    draws_kept = 0
+    done = 0
+    interrupted = False
+    bar = _progress_bar(total, desc, progress)
+    started = time.perf_counter()
+    try:
+        chunk_index = 0
+        while done < total:
+            num_active = min(chunk_len, total - done)
+            try:
+                new_states, records = chunk_fn(states, chain_keys, jnp.int64(done),
+                                               jnp.int64(num_active))
+                records = jax.device_get(records)
+                jax.block_until_ready(new_states)
+            except KeyboardInterrupt:
+                interrupted = True
+                break
+            states = new_states
+            # Iterations done + 1 .. done + num_active; keep those past burn-in on the thin grid.
+            iterations = np.arange(done + 1, done + num_active + 1)
+            keep = (iterations > burn_in) & ((iterations - burn_in) % thin == 0)
+            if keep.any():
+                for name, value in records.items():
+                    kept.setdefault(name, []).append(np.asarray(value)[:num_active][keep])
+                draws_kept += int(keep.sum())
+            done += num_active
+            if bar is not None:
+                bar.update(num_active)
+            if callback is not None:
+                try:
+                    callback(ChunkReport(chunk_index, done, total, draws_kept, states))
+                except KeyboardInterrupt:
+                    interrupted = done < total
+                    break
+            chunk_index += 1
+    finally:
+        if bar is not None:
+            bar.close()
+    elapsed = time.perf_counter() - started
+
+    if interrupted:
+        warnings.warn(
+            f"{desc} interrupted after {done} of {total} iterations; keeping the "
+            f"{draws_kept} draws per chain made so far",
+            SamplingInterrupted,
+            stacklevel=2,
+        )
+    draws = {
+        name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1) for name, parts in kept.items()
+    }
+    return ChainRun(draws, states, done, interrupted, elapsed)
+
+
+def _progress_bar(total: int, desc: str, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="it", unit_scale=True, dynamic_ncols=True)
