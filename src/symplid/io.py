@@ -280,6 +280,8 @@ def _parse_cell(cell: str, path: Path, line: int, column: str) -> float:
 
 
 def _read_npz(path: Path) -> Observations:
+    if not zipfile.is_zipfile(path):
+        raise DataError(f"{path}: not a valid NPZ file (not a zip archive)")
     try:
         with np.load(path, allow_pickle=False) as archive:
             arrays = {name: archive[name] for name in archive.files}
