@@ -47,7 +47,7 @@ def make_dynamics(potential, coefficients: Array, inv_mass: Array | None = None)
         inv_mass = jnp.asarray(inv_mass)
 
         def velocity(p: Array) -> Array:
-            return inv_mass @ p
+            return jnp.tensordot(inv_mass, p, axes=1)  # works for p of shape (d, ...)
 
     return Dynamics(lambda q: potential.gradient(q, coefficients), velocity)
 
@@ -57,6 +57,7 @@ def _identity(p: Array) -> Array:
 
 
 StepFn = Callable[[Dynamics, Array, Array, Array], tuple[Array, Array]]
+ForceStepFn = Callable[[Dynamics, Array, Array, Array, Array], tuple[Array, Array, Array]]
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,9 @@ class Integrator:
     symplectic: bool
     step: StepFn
     description: str = ""
+    force_step: ForceStepFn | None = None
+    """Optional ``(dynamics, q, p, ∂U(q), dt) -> (q⁺, p⁺, ∂U(q⁺))``: the same step, reusing the
+    force at the start (first-same-as-last), so a run of steps costs one force per step."""
 
 
 def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
@@ -81,16 +85,42 @@ def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Ar
     return q_next, p_next
 
 
-def symplectic_composition(weights: tuple[float, ...]) -> StepFn:
-    """A step made of leapfrog sub-steps of sizes ``w_i·Δt`` (symmetric composition)."""
+def leapfrog_force_step(
+    dynamics: Dynamics, q: Array, p: Array, force: Array, dt: Array
+) -> tuple[Array, Array, Array]:
+    """Eqs (5)–(6) with ``force = ∂U(q)`` given; returns the new state and ∂U(q⁺)."""
+    q_next = q + dt * dynamics.velocity(p) - 0.5 * dt * dt * dynamics.velocity(force)
+    force_next = dynamics.grad_potential(q_next)
+    p_next = p - 0.5 * dt * (force + force_next)
+    return q_next, p_next, force_next
+
+
+def symplectic_composition(weights: tuple[float, ...]) -> tuple[StepFn, ForceStepFn]:
+    """A step made of leapfrog sub-steps of sizes ``w_i·Δt`` (symmetric composition).
+
+    Returns the plain step and its first-same-as-last form.
+    """
     weights = tuple(float(w) for w in weights)
 
-    def step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
+    def force_step(
+        dynamics: Dynamics, q: Array, p: Array, force: Array, dt: Array
+    ) -> tuple[Array, Array, Array]:
         for w in weights:
-            q, p = leapfrog_step(dynamics, q, p, w * dt)
+            q, p, force = leapfrog_force_step(dynamics, q, p, force, w * dt)
+        return q, p, force
+
+    def step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
+        q, p, _ = force_step(dynamics, q, p, dynamics.grad_potential(q), dt)
         return q, p
 
-    return step
+    return step, force_step
+
+
+def symplectic_integrator(
+    name: str, order: int, weights: tuple[float, ...], description: str
+) -> Integrator:
+    step, force_step = symplectic_composition(weights)
+    return Integrator(name, order, True, step, description, force_step)
 
 
 def runge_kutta(a: tuple[tuple[float, ...], ...], b: tuple[float, ...]) -> StepFn:
@@ -126,14 +156,11 @@ _YOSHIDA_W1 = 1.0 / (2.0 - _CBRT2)
 _YOSHIDA_W0 = -_CBRT2 / (2.0 - _CBRT2)
 
 INTEGRATORS: dict[str, Integrator] = {
-    "leapfrog": Integrator(
-        "leapfrog", 2, True, symplectic_composition((1.0,)), "Störmer–Verlet, eqs (5)–(6)"
-    ),
-    "yoshida4": Integrator(
+    "leapfrog": symplectic_integrator("leapfrog", 2, (1.0,), "Störmer–Verlet, eqs (5)–(6)"),
+    "yoshida4": symplectic_integrator(
         "yoshida4",
         4,
-        True,
-        symplectic_composition((_YOSHIDA_W1, _YOSHIDA_W0, _YOSHIDA_W1)),
+        (_YOSHIDA_W1, _YOSHIDA_W0, _YOSHIDA_W1),
         "Yoshida's 4th-order composition of three leapfrog steps",
     ),
     "euler": Integrator("euler", 1, False, runge_kutta(((0.0,),), (1.0,)), "forward Euler"),
@@ -214,17 +241,31 @@ def propagate(
     gap has the same number of steps, pass ``masked=False`` to skip that test.
     """
 
+    if integrator.force_step is not None:
+        # First-same-as-last: the force at the end of a step starts the next one.
+        def advance(carry):
+            return integrator.force_step(dynamics, *carry, step_size)
+
+        carry = (q, p, dynamics.grad_potential(q))
+    else:
+
+        def advance(carry):
+            return integrator.step(dynamics, *carry, step_size)
+
+        carry = (q, p)
+
     def body(i, carry):
-        q, p = carry
-        q_new, p_new = integrator.step(dynamics, q, p, step_size)
+        new = advance(carry)
         if not masked:
-            return q_new, p_new
+            return new
         active = i < num_steps
-        return jnp.where(active, q_new, q), jnp.where(active, p_new, p)
+        return tuple(jnp.where(active, a, b) for a, b in zip(new, carry, strict=True))
 
     if max_steps == 1:
-        return body(0, (q, p))
-    return jax.lax.fori_loop(0, max_steps, body, (q, p), unroll=unroll)
+        carry = body(0, carry)
+    else:
+        carry = jax.lax.fori_loop(0, max_steps, body, carry, unroll=unroll)
+    return carry[0], carry[1]
 
 
 def integrate(
