@@ -43,8 +43,8 @@ def hh_theta(hh, hh_model):
 
 @pytest.fixture(scope="session")
 def hh_loglik(hh, hh_model, hh_data):
-    """θ ↦ log-likelihood of the paper's data, jitted once."""
-    return jax.jit(hh_model.log_likelihood_fn(hh_data, hh.initial_state))
+    """θ ↦ log-likelihood of the paper's data (compiled on first call, cached by the model)."""
+    return hh_model.log_likelihood_fn(hh_data, hh.initial_state)
 
 
 @pytest.fixture(scope="session")
@@ -75,8 +75,12 @@ def small_P0():
 
 @pytest.fixture(scope="session")
 def small_loglik(hh_model, small_data, small_x0, small_P0):
-    """θ ↦ log-likelihood of the small problem (default model), jitted once."""
-    return jax.jit(hh_model.log_likelihood_fn(small_data, small_x0, small_P0))
+    """θ ↦ log-likelihood of the small problem (default model).
+
+    Not wrapped in another ``jax.jit``: the model caches its compiled filter, so this shares
+    one compilation with ``hh_model.log_likelihood`` and ``hh_model.filter`` on the same data.
+    """
+    return hh_model.log_likelihood_fn(small_data, small_x0, small_P0)
 
 
 @pytest.fixture(scope="session")

@@ -7,8 +7,8 @@ formulas, so that agreement with the JAX filter means something.
   model with one transition matrix per observation gap (irregular gaps) and missing values.
 * :func:`numpy_ukf_loglik`: a plain vectorised unscented Kalman filter with the library's
   conventions (scaled sigma points from lower-Cholesky columns, process noise added once per gap
-  after all substeps, or once per substep; linear observation update; jitter). Also used as the
-  NumPy baseline of ``benchmarks/likelihood.py``.
+  after all substeps, or once per substep; linear observation update; jitter on the predicted
+  covariance). Also used as the NumPy baseline of ``benchmarks/likelihood.py``.
 * :func:`numpy_leapfrog` and :func:`polynomial_gradient`: a vectorised NumPy leapfrog step
   (eqs 5–6) and the gradient of a polynomial potential from its exponent table.
 """
@@ -148,8 +148,9 @@ def numpy_ukf_loglik(
     alpha, beta, kappa
         Scaled unscented transform settings.
     jitter
-        ``jitter·I`` added to every covariance after symmetrising, after each prediction and
-        each update, as the library does.
+        ``jitter·I`` added to the predicted covariance after symmetrising (after every
+        prediction, so after every substep when ``process_noise_per="step"``), as the library
+        does; the filtered covariance gets none.
 
     Returns
     -------
@@ -188,7 +189,6 @@ def numpy_ukf_loglik(
                 if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
                     return -math.inf
                 mean, cov, ll = kalman_update(mean, cov, ys[k], H, R)
-                cov = cov + jitter * eye
                 total += ll
         except np.linalg.LinAlgError:
             return -math.inf
