@@ -86,7 +86,8 @@ class HamiltonianModel:
         Scaled unscented transform settings. The defaults α = 1, β = 2, κ = 0 give λ = 0:
         2n points of weight 1/(2n) and a centre point that only enters the covariance.
     jitter
-        Added to the diagonal of every covariance after prediction and update.
+        Added to the diagonal of the predicted covariance after every prediction (the
+        filtered covariance is kept as a Cholesky factor and needs none).
     unroll
         Unroll factor of the substep loop (``lax.fori_loop(unroll=...)``).
     """
@@ -292,6 +293,13 @@ class HamiltonianModel:
                 return observation_moments_unscented(m, p, lambda x: jnp.ravel(observe(x)), weights)
 
         def log_likelihood(theta, inputs, ys, masks, x0, p0):
+            # Invalid variances give −∞; meanwhile the filter runs on their absolute values (a
+            # nearby valid point) so that no NaN reaches the gradient through the discarded branch.
+            variances = theta[nc:]
+            variances_ok = jnp.all(variances > 0)
+            theta = theta.at[nc:].set(
+                jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12)
+            )
             coeffs, proc, obs = self.split(theta)
             dynamics = self._dynamics(coeffs)
 
@@ -331,7 +339,6 @@ class HamiltonianModel:
                     return mn, pn
 
             result = run_filter(predict, moments, x0, p0, inputs, ys, masks, obs)
-            variances_ok = jnp.all(theta[nc:] > 0)
             ll = jnp.where(variances_ok, result.log_likelihood, -jnp.inf)
             return result._replace(log_likelihood=ll)
 
