@@ -56,8 +56,8 @@ def test_positions_only_round_trip(tmp_path, irregular_obs, suffix):
     assert observation_layout(back) == Layout("positions", 2)
 
 
-def test_simulated_data_round_trip(tmp_path):
-    data = symplid.simulate(symplid.get_system("henon-heiles"), seed=0)
+def test_simulated_data_round_trip(tmp_path, hh_data):
+    data = hh_data
     back = read_observations(write_observations(data, tmp_path / "hh.csv"))
     np.testing.assert_array_equal(back.values, data.values)
     np.testing.assert_array_equal(back.times, np.arange(5.0, 101.0, 5.0))
@@ -217,3 +217,21 @@ def test_npz_refuses_pickles_and_garbage(tmp_path):
     garbage.write_bytes(b"this is not a zip file")
     with pytest.raises(DataError, match="not a valid NPZ file"):
         read_observations(garbage)
+
+
+def test_file_feeds_the_likelihood_like_the_original(tmp_path, hh, small_data, small_theta):
+    """Irregular times and a missing value, through a positions-only file and the settings
+    that read its layout, give the same log-likelihood as the in-memory observations."""
+    from symplid.settings import resolve_for_data, settings_from_dict
+
+    q_only = positions_only(small_data)
+    back = read_observations(write_observations(q_only, tmp_path / "q.csv"))
+    settings = resolve_for_data(
+        settings_from_dict({"initial_state": {"x0": list(np.asarray(hh.initial_state))}}), back
+    )
+    model = symplid.HamiltonianModel(hh.potential, observation=settings.model.observation)
+    x0, P0 = np.asarray(settings.initial_state.x0), 1e-4 * np.eye(4)
+    from_file = model.log_likelihood(small_theta, back, x0=x0, P0=P0)
+    in_memory = model.log_likelihood(small_theta, q_only, x0=x0, P0=P0)
+    assert settings.model.observation == "positions"
+    assert np.isfinite(from_file) and from_file == in_memory
