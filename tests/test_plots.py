@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from matplotlib.collections import PolyCollection
+from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
 
 import symplid
@@ -31,6 +31,10 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 def assert_png(path, min_bytes: int = 5000) -> None:
     data = path.read_bytes()
     assert data[:8] == PNG_MAGIC and len(data) > min_bytes
+
+
+def sample_collections(ax) -> list[LineCollection]:
+    return [c for c in ax.collections if isinstance(c, LineCollection)]
 
 
 def legend_texts(ax) -> list[str]:
@@ -92,6 +96,7 @@ def test_hamiltonians(tmp_path, t):
         Curves("rk2", t, h_true - 0.0016, samples=0.1211 + 3e-4 * rng.standard_normal((5, 21)),
                sample_times=t[::10]),
     ]
+    fine[1].samples[0, -1] = np.inf  # a diverged sample is a gap, not a crash
     growth = 0.1211 + 0.001 * t
     growth[-3:] = -1e200  # escaped: must not flatten the panel
     coarse = [Curves("rk2 by RK2, Δt = 0.25", t, growth, color=COLORS["rk2"])]
@@ -99,8 +104,13 @@ def test_hamiltonians(tmp_path, t):
     fig = plot_hamiltonians(fine, (t, h_true), coarse, t_data_end=10.0, path=path)
     assert_png(path)
     ax_a, ax_b = fig.get_axes()
-    # (a): 2 × 5 samples, 2 MAPs, truth, end-of-data line
-    assert len(ax_a.get_lines()) == 14
+    # (a): 2 MAPs, truth, end-of-data line; 5 samples per approach as one collection each
+    assert len(ax_a.get_lines()) == 4
+    samples = sample_collections(ax_a)
+    assert [len(c.get_segments()) for c in samples] == [5, 5]
+    np.testing.assert_allclose(samples[1].get_segments()[2][:, 1], fine[1].samples[2])
+    np.testing.assert_allclose(samples[1].get_segments()[2][:, 0], t[::10])
+    assert np.isnan(samples[1].get_segments()[0][-1, 1])
     assert {"leapfrog MAP", "rk2 MAP", "truth", "end of data", "leapfrog samples"} <= set(
         legend_texts(ax_a)
     )
@@ -137,8 +147,9 @@ def test_trajectory_bands(tmp_path, t, orbit):
     axes = fig.get_axes()
     assert len(axes) == 2 and axes[-1].get_xlabel() == "t [s]"
     for ax, a in zip(axes, approaches, strict=True):
-        # 4 samples + MAP + truth + data + end-of-data line, and one band
-        assert len(ax.get_lines()) == 8
+        # MAP + truth + data + end-of-data line, 4 samples in one collection, one band
+        assert len(ax.get_lines()) == 4
+        assert [len(c.get_segments()) for c in sample_collections(ax)] == [4]
         bands = [c for c in ax.collections if isinstance(c, PolyCollection)]
         assert len(bands) == 1
         texts = legend_texts(ax)
@@ -245,8 +256,11 @@ def test_predictive(tmp_path, t, orbit):
     axes = fig.get_axes()
     assert [ax.get_ylabel() for ax in axes] == ["q1", "p1"]  # the observed components
     for ax, col in zip(axes, (0, 2), strict=True):
-        # 5 sample paths, median, MAP, truth, data, end-of-data line; one band
-        assert len(ax.get_lines()) == 10
+        # median, MAP, truth, data, end-of-data line; 5 sample paths; one band
+        assert len(ax.get_lines()) == 5
+        segments = sample_collections(ax)[0].get_segments()
+        assert len(segments) == 5
+        np.testing.assert_allclose(segments[4][:, 1], pred.paths[4, :, col])
         assert len([c for c in ax.collections if isinstance(c, PolyCollection)]) == 1
         data_line = next(ln for ln in ax.get_lines() if ln.get_label() == "data")
         np.testing.assert_allclose(data_line.get_ydata(), orbit[10:101:10, col])

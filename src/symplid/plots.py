@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
@@ -233,6 +234,17 @@ def _legend_above(ax, handles=None, ncol: int = 6, fontsize: float = 8) -> None:
     )
 
 
+def _sample_lines(ax, times: np.ndarray, samples: np.ndarray, color, lw: float, alpha: float):
+    """Many sample curves as one :class:`~matplotlib.collections.LineCollection` (one artist
+    draws hundreds of curves far faster than as many lines). Non-finite points are gaps."""
+    samples = np.where(np.isfinite(samples), samples, np.nan)
+    segments = np.stack([np.broadcast_to(times, samples.shape), samples], axis=-1)
+    lines = LineCollection(segments, colors=color, linewidths=lw, alpha=alpha, zorder=2)
+    ax.add_collection(lines, autolim=True)
+    ax.autoscale_view()
+    return lines
+
+
 def _as_xy(data: Any) -> tuple[np.ndarray, np.ndarray]:
     """(times, values) from an Observations-like object or a (times, values) pair."""
     if hasattr(data, "times") and hasattr(data, "values"):
@@ -356,8 +368,7 @@ def plot_hamiltonians(
         for k, c in enumerate(curves):
             color = c.color or _color_for(c.label, k)
             if c.samples is not None:
-                for s in c.samples:
-                    ax.plot(c.sample_times, s, color=color, lw=0.5, alpha=0.12, zorder=2)
+                _sample_lines(ax, c.sample_times, c.samples, color, lw=0.5, alpha=0.12)
                 handles.append(
                     Line2D([], [], color=color, lw=1.0, alpha=0.35, label=f"{c.label} samples")
                 )
@@ -434,8 +445,7 @@ def plot_trajectory_bands(
                             zorder=1)
             handles.append(Patch(color=color, alpha=0.3, label=band_label))
         if a.samples is not None:
-            for s in a.samples:
-                ax.plot(a.sample_times, s, color=color, lw=0.4, alpha=0.15, zorder=2)
+            _sample_lines(ax, a.sample_times, a.samples, color, lw=0.4, alpha=0.15)
             handles.append(Line2D([], [], color=color, lw=0.8, alpha=0.5,
                                   label=f"{a.samples.shape[0]} posterior samples"))
         handles += ax.plot(a.times, a.values, color=color, lw=1.5, label="MAP", zorder=4)
@@ -786,8 +796,8 @@ def plot_predictive(
     for ax, c in zip(axes, components, strict=True):
         ax.fill_between(times, predictive.quantiles[0][:, c], predictive.quantiles[-1][:, c],
                         color=color, alpha=0.22, lw=0, label=band)
-        for s in paths:
-            ax.plot(times, s[:, c], color=color, lw=0.4, alpha=0.15)
+        if paths.shape[0]:
+            _sample_lines(ax, times, paths[:, :, c], color, lw=0.4, alpha=0.15)
         ax.plot(times, predictive.median[:, c], color=color, lw=1.0, ls=":", label="median")
         if map_path is not None:
             ax.plot(map_path[0], np.asarray(map_path[1])[:, c], color=color, lw=1.5, label="MAP")
