@@ -110,7 +110,7 @@ def test_hamiltonians(tmp_path, t):
     assert [len(c.get_segments()) for c in samples] == [5, 5]
     np.testing.assert_allclose(samples[1].get_segments()[2][:, 1], fine[1].samples[2])
     np.testing.assert_allclose(samples[1].get_segments()[2][:, 0], t[::10])
-    assert np.isnan(samples[1].get_segments()[0][-1, 1])
+    assert np.isnan(samples[1].get_paths()[0].vertices[-1, 1])
     assert {"leapfrog MAP", "rk2 MAP", "truth", "end of data", "leapfrog samples"} <= set(
         legend_texts(ax_a)
     )
