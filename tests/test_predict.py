@@ -210,7 +210,9 @@ def test_hamiltonian_along_matches_formula(hh, draws):
     )
     assert henon_heiles_energy(hh.initial_state) == pytest.approx(0.12271, abs=1e-5)
     # one coefficient vector per path (vmap) agrees with a loop
-    pp = posterior_predictive(hh.potential, draws, hh.initial_state, 5.0, num_paths=7, every=5)
+    pp = posterior_predictive(  # same shapes as test_posterior_predictive_matches_loop
+        hh.potential, draws, hh.initial_state, 10.0, num_paths=7, every=25, batch_size=3
+    )
     batch = hamiltonian_along(hh.potential, draws[pp.path_indices], pp.paths)
     loop = [hamiltonian_along(hh.potential, draws[i], p)
             for i, p in zip(pp.path_indices, pp.paths, strict=True)]
