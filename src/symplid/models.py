@@ -282,7 +282,7 @@ class HamiltonianModel:
             return jnp.concatenate([q, p])
 
         if matrix is not None:
-            h = jnp.asarray(matrix)
+            h = np.asarray(matrix)  # a constant: built outside any trace
 
             def moments(m, p) -> ObservationMoments:
                 return observation_moments_linear(m, p, h)
