@@ -13,7 +13,8 @@ Layout of the result
   ``tree_depth``, ``energy`` and ``step_size``.
 * ``attrs`` (of the ``InferenceData``): ``method``, ``seed``, ``settings`` (a JSON string of
   every setting, defaults included), ``param_names``, ``map_theta``, ``map_log_posterior``,
-  ``hessian`` and ``map_covariance`` (nested lists), ``iterations`` (per chain, burn-in
+  ``hessian`` and ``map_covariance`` (nested lists), ``initial_positions`` (one row per
+  chain), ``iterations`` (per chain, burn-in
   included), ``interrupted`` (0/1), ``sampling_seconds``, and for DRAM
   ``dram_adapted_covariance`` (each chain's final running covariance, nested lists). All
   survive ``to_netcdf``.
@@ -29,10 +30,11 @@ warning says so). ``init_spread=0`` starts every chain at the MAP, as in the pap
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -45,6 +47,8 @@ from symplid.samplers.run import ChainRun, ChunkReport, run_chains
 __all__ = ["METHODS", "draws_array", "overdispersed_starts", "sample"]
 
 METHODS = ("dram", "nuts")
+#: Chain layout used when ``sample(chain_method=None)``.
+DEFAULT_CHAIN_METHOD = {"dram": "vectorized", "nuts": "sequential"}
 _POSTERIOR_ATTRIBUTES = ("num_params", "param_names", "log_density")
 _UNCONSTRAINED_ATTRIBUTES = ("to_unconstrained", "from_unconstrained",
                              "log_density_unconstrained")
@@ -69,7 +73,8 @@ def _check_posterior(posterior: Any, method: str) -> tuple[int, tuple[str, ...]]
     return num_params, names
 
 
-def _check_map(init: Any, num_params: int, logdensity: Callable) -> tuple[np.ndarray, np.ndarray]:
+def _check_map(init: Any, num_params: int,
+               batch_logdensity: Callable) -> tuple[np.ndarray, np.ndarray]:
     for name in ("theta", "covariance"):
         if not hasattr(init, name):
             raise TypeError(
@@ -90,7 +95,7 @@ def _check_map(init: Any, num_params: int, logdensity: Callable) -> tuple[np.nda
         np.linalg.cholesky(0.5 * (cov + cov.T))
     except np.linalg.LinAlgError:
         raise ValueError("init.covariance is not positive definite") from None
-    value = float(logdensity(jnp.asarray(theta)))
+    value = float(batch_logdensity(jnp.asarray(theta)[None])[0])
     if not np.isfinite(value):
         raise ValueError(f"the log density at init.theta is not finite ({value})")
     return theta, 0.5 * (cov + cov.T)
@@ -98,7 +103,7 @@ def _check_map(init: Any, num_params: int, logdensity: Callable) -> tuple[np.nda
 
 def overdispersed_starts(
     rng_key: jax.Array,
-    logdensity_fn: Callable[[jax.Array], jax.Array],
+    batch_logdensity: Callable[[jax.Array], jax.Array],
     center: np.ndarray,
     cov: np.ndarray,
     num_chains: int,
@@ -111,8 +116,9 @@ def overdispersed_starts(
     ----------
     rng_key
         Key for the draws (round ``r`` uses ``fold_in(rng_key, r)``).
-    logdensity_fn
-        Log density over the parameters.
+    batch_logdensity
+        Log density over the parameters, vectorised over a leading axis
+        (e.g. ``jax.jit(jax.vmap(posterior.log_density))``).
     center, cov
         The MAP and its covariance (``L`` is the Cholesky factor of ``cov``).
     num_chains
@@ -132,7 +138,6 @@ def overdispersed_starts(
     if spread == 0:
         return starts
     chol = np.linalg.cholesky(cov)
-    batch_logdensity = jax.jit(jax.vmap(logdensity_fn))
     pending = np.ones(num_chains, dtype=bool)
     for attempt in range(max_tries):
         z = np.asarray(jax.random.normal(jax.random.fold_in(rng_key, attempt),
@@ -186,7 +191,7 @@ def sample(
     init_spread: float = 2.0,
     initial_positions: Any = None,
     chunk_size: int = 5000,
-    chain_method: str = "vectorized",
+    chain_method: str | None = None,
     progress: bool = True,
     callback: Callable[[ChunkReport], None] | None = None,
 ):
@@ -225,7 +230,10 @@ def sample(
     chunk_size
         Iterations per compiled chunk; the progress bar moves once per chunk.
     chain_method
-        ``"vectorized"`` (``vmap``) or ``"sequential"`` (``lax.map``) over chains.
+        ``"vectorized"`` (``vmap``) or ``"sequential"`` (``lax.map``) over chains; ``None``
+        picks the default of the method (:data:`DEFAULT_CHAIN_METHOD`). NUTS defaults to
+        sequential: vectorised, every chain waits for the deepest tree of the batch, and
+        the batched ``while`` loops take about twice as long to compile.
     progress
         Show progress bars.
     callback
@@ -255,17 +263,20 @@ def sample(
     if not (np.isfinite(init_spread) and init_spread >= 0):
         raise ValueError(f"init_spread must be a finite number >= 0, got {init_spread}")
     kernel_settings = _make_settings(method, settings)
+    if chain_method is None:
+        chain_method = DEFAULT_CHAIN_METHOD[method]
 
-    logdensity = jax.jit(posterior.log_density)
+    parts = _kernel_parts(posterior, method, kernel_settings,
+                          int(burn_in) if method == "nuts" else 0)
     if init is None:
         from symplid.optimize import find_map
 
         init = find_map(posterior, seed=seed)
-    theta_map, cov_map = _check_map(init, num_params, logdensity)
+    theta_map, cov_map = _check_map(init, num_params, parts.batch_logdensity)
 
-    init_key, warmup_key, run_key = jax.random.split(jax.random.key(int(seed)), 3)
+    init_key, run_key = jax.random.split(jax.random.key(int(seed)), 2)
     if initial_positions is None:
-        starts = overdispersed_starts(init_key, posterior.log_density, theta_map, cov_map,
+        starts = overdispersed_starts(init_key, parts.batch_logdensity, theta_map, cov_map,
                                       int(num_chains), float(init_spread))
     else:
         starts = np.asarray(initial_positions, dtype=np.float64)
@@ -275,15 +286,23 @@ def sample(
                 f"got {starts.shape}"
             )
 
-    common = dict(burn_in=0, thin=int(thin), chunk_size=int(chunk_size),
+    common = dict(thin=int(thin), chunk_size=int(chunk_size),
                   chain_method=chain_method, progress=progress, callback=callback)
     if method == "dram":
-        run, extra_attrs = _run_dram(posterior, kernel_settings, starts, cov_map, run_key,
-                                     int(num_samples), int(burn_in), common)
+        states = parts.init_states(jnp.asarray(starts), jnp.asarray(cov_map))
+        extra_attrs: dict[str, Any] = {}
     else:
-        run, extra_attrs = _run_nuts(posterior, kernel_settings, starts, cov_map, theta_map,
-                                     warmup_key, run_key, int(num_samples), int(burn_in),
-                                     common)
+        cov_z = _unconstrained_covariance(posterior, theta_map, cov_map)
+        states = parts.init_states(jnp.asarray(starts), jnp.asarray(cov_z))
+        extra_attrs = {"unconstrained_map_covariance": cov_z.tolist()}
+    run = run_chains(parts.step, states, run_key, int(num_samples), record=parts.record,
+                     burn_in=int(burn_in), desc=method.upper(), **common)
+    if method == "dram":
+        extra_attrs["dram_adapted_covariance"] = np.asarray(run.states.cov).tolist()
+    else:
+        extra_attrs["nuts_step_size"] = np.asarray(run.states.step_size).tolist()
+        extra_attrs["nuts_inverse_mass_matrix"] = np.asarray(
+            run.states.inverse_mass_matrix).tolist()
     if not run.draws:
         raise KeyboardInterrupt("sampling was interrupted before any draw was kept")
 
@@ -302,6 +321,7 @@ def sample(
         "param_names": list(names),
         "map_theta": theta_map.tolist(),
         "map_covariance": cov_map.tolist(),
+        "initial_positions": np.asarray(starts).tolist(),
         "iterations": int(run.iterations_done),
         "interrupted": int(run.interrupted),
         "sampling_seconds": float(run.elapsed),
@@ -312,28 +332,6 @@ def sample(
     if getattr(init, "log_posterior", None) is not None:
         attrs["map_log_posterior"] = float(init.log_posterior)
     return _to_inference_data(run, names, attrs)
-
-
-def _run_dram(posterior, settings, starts, cov_map, run_key, num_samples, burn_in, common):
-    logdensity_fn = posterior.log_density
-    cov = jnp.asarray(cov_map)
-    states = jax.vmap(lambda p: dram.init(p, logdensity_fn, cov, settings))(jnp.asarray(starts))
-    step = dram.build_kernel(logdensity_fn, settings)
-
-    def record(state: dram.DRAMState, info: dram.DRAMInfo) -> dict[str, jax.Array]:
-        return {
-            "theta": state.position,
-            "lp": state.logdensity,
-            "accepted": info.is_accepted,
-            "stage1_accepted": info.stage1_accepted,
-            "stage2_attempted": info.stage2_attempted,
-            "stage2_accepted": info.stage2_accepted,
-        }
-
-    run = run_chains(step, states, run_key, num_samples, record=record,
-                     desc="DRAM", **{**common, "burn_in": burn_in})
-    adapted = np.asarray(run.states.cov)
-    return run, {"dram_adapted_covariance": adapted.tolist()}
 
 
 def _unconstrained_covariance(posterior, theta_map, cov_map) -> np.ndarray:
@@ -351,31 +349,58 @@ def _unconstrained_covariance(posterior, theta_map, cov_map) -> np.ndarray:
     return cov_z
 
 
-def _run_nuts(posterior, settings, starts, cov_map, theta_map, warmup_key, run_key,
-              num_samples, num_warmup, common):
+class _KernelParts(NamedTuple):
+    """Compiled pieces of one sampler on one posterior, reused across ``sample`` calls."""
+
+    batch_logdensity: Callable
+    init_states: Callable
+    step: Callable
+    record: Callable
+
+
+def _kernel_parts(posterior: Any, method: str, settings: Any, num_warmup: int) -> _KernelParts:
+    """The kernel pieces, cached for hashable posteriors so that a second run on the same
+    posterior with the same settings does not compile again (see :func:`_build_parts`)."""
+    try:
+        hash(posterior)
+    except TypeError:
+        return _build_parts.__wrapped__(posterior, method, settings, num_warmup)
+    return _build_parts(posterior, method, settings, num_warmup)
+
+
+@functools.lru_cache(maxsize=8)
+def _build_parts(posterior: Any, method: str, settings: Any, num_warmup: int) -> _KernelParts:
+    # A small cache: it keeps at most 8 posteriors alive.
+    batch_logdensity = jax.jit(jax.vmap(posterior.log_density))
+    if method == "dram":
+        logdensity_fn = posterior.log_density
+
+        @jax.jit
+        def init_dram(thetas, cov):
+            return jax.vmap(lambda p: dram.init(p, logdensity_fn, cov, settings))(thetas)
+
+        def record_dram(state: dram.DRAMState, info: dram.DRAMInfo) -> dict[str, jax.Array]:
+            return {
+                "theta": state.position,
+                "lp": state.logdensity,
+                "accepted": info.is_accepted,
+                "stage1_accepted": info.stage1_accepted,
+                "stage2_attempted": info.stage2_attempted,
+                "stage2_accepted": info.stage2_accepted,
+            }
+
+        return _KernelParts(batch_logdensity, init_dram,
+                            dram.build_kernel(logdensity_fn, settings), record_dram)
+
     logdensity_z = posterior.log_density_unconstrained
     from_z = posterior.from_unconstrained
-    cov_z = jnp.asarray(_unconstrained_covariance(posterior, theta_map, cov_map))
-    z_starts = jax.vmap(posterior.to_unconstrained)(jnp.asarray(starts))
-    num_chains = starts.shape[0]
+    to_z = posterior.to_unconstrained
 
-    def adapt(key, z0):
-        if num_warmup == 0:
-            return nuts.init(z0, logdensity_z, settings.initial_step_size, cov_z)
-        return nuts.warmup(key, z0, logdensity_z, num_warmup, cov_z, settings)
+    @jax.jit
+    def init_nuts(thetas, cov_z):
+        return jax.vmap(lambda t: nuts.init(to_z(t), logdensity_z, cov_z, settings))(thetas)
 
-    keys = jax.random.split(warmup_key, num_chains)
-    bar = _warmup_bar(num_warmup, common["progress"])
-    if common["chain_method"] == "vectorized":
-        states = jax.vmap(adapt)(keys, z_starts)
-    else:
-        states = jax.lax.map(lambda a: adapt(*a), (keys, z_starts))
-    if bar is not None:
-        bar.update(num_warmup)
-        bar.close()
-    step = nuts.build_kernel(logdensity_z, settings)
-
-    def record(state: nuts.NUTSState, info) -> dict[str, jax.Array]:
+    def record_nuts(state: nuts.NUTSState, info) -> dict[str, jax.Array]:
         z = state.hmc.position
         log_det = jnp.linalg.slogdet(jax.jacfwd(from_z)(z))[1]
         return {
@@ -389,20 +414,8 @@ def _run_nuts(posterior, settings, starts, cov_map, theta_map, warmup_key, run_k
             "step_size": state.step_size,
         }
 
-    run = run_chains(step, states, run_key, num_samples, record=record, desc="NUTS", **common)
-    return run, {
-        "nuts_step_size": np.asarray(states.step_size).tolist(),
-        "nuts_inverse_mass_matrix": np.asarray(states.inverse_mass_matrix).tolist(),
-        "unconstrained_map_covariance": np.asarray(cov_z).tolist(),
-    }
-
-
-def _warmup_bar(total: int, enabled: bool):
-    if not enabled or total == 0:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc="NUTS warmup", unit="it", dynamic_ncols=True)
+    return _KernelParts(batch_logdensity, init_nuts,
+                        nuts.build_kernel(logdensity_z, settings, num_warmup), record_nuts)
 
 
 def _to_inference_data(run: ChainRun, names: tuple[str, ...], attrs: dict):

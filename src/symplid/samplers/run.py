@@ -15,6 +15,7 @@ Every chunk has the same length (the last one masks its unused iterations with
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from collections.abc import Callable
@@ -90,8 +91,13 @@ def _over_chains(fn: Callable, chain_method: str) -> Callable:
     return lambda *args: lax.map(lambda a: fn(*a), args)
 
 
+@functools.lru_cache(maxsize=8)
 def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str):
-    """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` run."""
+    """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` run.
+
+    Cached on the (step, record) function objects, so that running the same kernel again
+    (another seed, more draws) reuses the compiled chunk.
+    """
 
     def one_chain(key, state, t):
         new_state, info = step(jax.random.fold_in(key, t), state)

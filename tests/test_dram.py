@@ -1,0 +1,248 @@
+"""DRAM: the delayed-rejection formula, the adaptive covariance, and the moments it samples."""
+
+from __future__ import annotations
+
+from decimal import Decimal, localcontext
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+import symplid  # noqa: F401  (float64)
+from sampler_targets import Banana, GammaVariance, Gaussian2D, moment_z_scores
+from symplid.samplers import dram, draws_array, run_chains, sample
+
+# ----------------------------------------------------------------------------------------
+# Independent NumPy versions of the target and of the delayed-rejection formula
+# (Haario et al. 2006, eq. for α2), evaluated in probability space, not in log space.
+
+
+def banana_density_np(theta: np.ndarray, b: float = 1.0) -> float:
+    x1, x2 = theta
+    return float(np.exp(-0.5 * x1**2 - 0.5 * (x2 - b * (x1**2 - 1.0)) ** 2))
+
+
+def alpha2_np(density, x, y1, y2, proposal_cov) -> float:
+    def q1(start, end):
+        return stats.multivariate_normal(mean=start, cov=proposal_cov).pdf(end)
+
+    def alpha1(start, end):
+        return min(1.0, density(end) / density(start))
+
+    numerator = density(y2) * q1(y2, y1) * (1.0 - alpha1(y2, y1))
+    denominator = density(x) * q1(x, y1) * (1.0 - alpha1(x, y1))
+    return min(1.0, numerator / denominator)
+
+
+def _stack_state(state: dram.DRAMState) -> dram.DRAMState:
+    return jax.tree.map(lambda leaf: leaf[None], state)
+
+
+# ----------------------------------------------------------------------------------------
+
+
+def test_log1mexp_matches_high_precision():
+    points = [-1e-300, -1e-20, -1e-8, -1e-3, -0.3, -np.log(2.0), -0.9, -5.0, -40.0, -700.0]
+    values = np.asarray(dram.log1mexp(jnp.asarray(points)))
+    for a, value in zip(points, values, strict=True):
+        with localcontext() as context:
+            context.prec = 400  # enough digits for 1 − e^(−1e-300)
+            reference = float((1 - Decimal(a).exp()).ln())
+        assert value == pytest.approx(reference, rel=1e-13, abs=1e-300)
+    assert np.asarray(dram.log1mexp(jnp.asarray(0.0))) == -np.inf
+    assert np.asarray(dram.log1mexp(jnp.asarray(-np.inf))) == 0.0
+
+
+@pytest.fixture(scope="module")
+def banana_step():
+    target = Banana()
+    return target, jax.jit(dram.build_kernel(target.log_density, dram.DRAMSettings()))
+
+
+@pytest.mark.parametrize("start", [(0.3, -0.8), (1.5, 0.4), (-1.0, 1.2)])
+def test_stage2_acceptance_matches_direct_formula(banana_step, start):
+    """α2 reported by the kernel equals the textbook formula at the kernel's own proposals."""
+    target, step = banana_step
+    # A wide stage-1 proposal so that stage 1 rejects often and stage 2 runs.
+    cov0 = np.array([[2.0, 0.5], [0.5, 3.0]])
+    state = dram.init(jnp.asarray(start), target.log_density, jnp.asarray(cov0))
+    proposal_cov = np.asarray(state.chol @ state.chol.T)
+    checked = interior = 0
+    for seed in range(60):
+        _, info = step(jax.random.key(seed), state)
+        if not bool(info.stage2_attempted):
+            continue
+        expected = alpha2_np(banana_density_np, np.asarray(start),
+                             np.asarray(info.proposal1), np.asarray(info.proposal2),
+                             proposal_cov)
+        assert float(info.acceptance_rate2) == pytest.approx(expected, rel=1e-9, abs=1e-300)
+        checked += 1
+        interior += 0.0 < expected < 1.0
+    assert checked >= 10 and interior >= 3
+
+
+def test_stage2_log_acceptance_edge_cases():
+    x, y1, y2 = jnp.array([0.0, 0.0]), jnp.array([1.0, -0.5]), jnp.array([0.1, 0.05])
+    chol = jnp.linalg.cholesky(jnp.array([[1.0, 0.3], [0.3, 2.0]]))
+    proposal_cov = np.asarray(chol @ chol.T)
+
+    compiled = jax.jit(dram.stage2_log_acceptance)
+
+    def log_alpha2(lx, ly1, ly2):
+        return float(compiled(x, lx, y1, ly1, y2, ly2, chol))
+
+    # y2 outside the support (−∞) or broken (NaN, +∞): never accepted, never NaN.
+    for bad in (-jnp.inf, jnp.nan, jnp.inf):
+        assert log_alpha2(-1.0, -3.0, bad) == -np.inf
+    # π(y1) ≥ π(y2): 1 − α1(y2, y1) = 0, so α2 = 0.
+    assert log_alpha2(-1.0, -0.5, -0.7) == -np.inf
+    # y1 outside the support: α1 = 0 at both ends, α2 = min(1, π(y2) q1(y2,y1) / π(x) q1(x,y1)).
+    for ly1 in (-jnp.inf, jnp.nan):
+        densities = {0: np.exp(-1.0), 2: np.exp(-1.3)}
+        expected = min(1.0, densities[2] * stats.multivariate_normal(y2, proposal_cov).pdf(y1)
+                       / (densities[0] * stats.multivariate_normal(x, proposal_cov).pdf(y1)))
+        assert np.exp(log_alpha2(-1.0, ly1, -1.3)) == pytest.approx(expected, rel=1e-12)
+    # Log space: shifting every log density by −1e5 (where exp underflows) changes nothing.
+    base = log_alpha2(-1.0, -2.5, -1.2)
+    assert np.isfinite(base) and base < 0
+    assert log_alpha2(-1.0 - 1e5, -2.5 - 1e5, -1.2 - 1e5) == pytest.approx(base, abs=1e-9)
+
+
+def test_recursive_moments_and_adaptation_start():
+    """Running mean/cov equal NumPy's over all states; adaptation starts at 200 states."""
+    target = Gaussian2D()
+    settings = dram.DRAMSettings(nugget=1e-6)
+    cov0 = np.array([[0.5, 0.1], [0.1, 0.8]])
+    start = np.array([0.2, -1.0])
+    state = _stack_state(dram.init(jnp.asarray(start), target.log_density, jnp.asarray(cov0),
+                                   settings))
+
+    def record(state, info):
+        return {"position": state.position, "mean": state.mean, "cov": state.cov,
+                "count": state.count, "chol": state.chol}
+
+    run = run_chains(dram.build_kernel(target.log_density, settings), state,
+                     jax.random.key(3), 600, record=record, progress=False)
+    draws = {name: value[0] for name, value in run.draws.items()}
+    chain = np.vstack([start, draws["position"]])
+    s_d = 2.4**2 / 2
+    for steps in (1, 2, 197, 198, 199, 200, 600):
+        states = chain[: steps + 1]  # the start and the states after `steps` iterations
+        i = steps - 1
+        assert draws["count"][i] == steps + 1
+        np.testing.assert_allclose(draws["mean"][i], states.mean(axis=0), rtol=1e-12,
+                                   atol=1e-13)
+        np.testing.assert_allclose(draws["cov"][i], np.cov(states.T), rtol=1e-10, atol=1e-13)
+        if steps + 1 < settings.adapt_start:
+            expected = s_d * cov0
+        else:
+            expected = s_d * (np.cov(states.T) + settings.nugget * np.diag(np.diag(cov0)))
+        chol = draws["chol"][i]
+        np.testing.assert_allclose(chol @ chol.T, expected, rtol=1e-10, err_msg=f"{steps=}")
+
+
+def test_far_start_reaches_the_mode():
+    """Started 30 standard deviations away with a poor proposal, the chain finds the mass."""
+    target = Gaussian2D()
+    start = np.array([30.0, -60.0])
+    state = _stack_state(dram.init(jnp.asarray(start), target.log_density, jnp.eye(2)))
+
+    def record(state, info):
+        return {"position": state.position, "lp": state.logdensity}
+
+    run = run_chains(dram.build_kernel(target.log_density), state, jax.random.key(11), 10_000,
+                     record=record, burn_in=0, progress=False)
+    lp = run.draws["lp"][0]
+    assert lp[0] < -400
+    # −2·lp is χ²(2) at equilibrium: its mean over the second half is about 2.
+    assert np.mean(-2.0 * lp[5000:]) == pytest.approx(2.0, abs=0.3)
+    draws = run.draws["position"][:, 5000:]
+    scores = moment_z_scores(draws, target.mean, target.cov)
+    assert max(abs(z) for z in scores.values()) < 4, scores
+
+
+@pytest.fixture(scope="module", params=["gaussian", "banana", "gamma"])
+def dram_run(request):
+    target = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}[request.param]()
+    idata = sample(target, "dram", num_samples=8000, num_chains=4, seed=5,
+                   init=target.map_result(), burn_in=2000, progress=False)
+    return target, idata
+
+
+def test_dram_moments_within_monte_carlo_error(dram_run):
+    target, idata = dram_run
+    draws = draws_array(idata)
+    scores = moment_z_scores(draws, target.mean, target.cov)
+    assert max(abs(z) for z in scores.values()) < 4, scores
+    stage1 = float(idata.sample_stats["stage1_accepted"].mean())
+    assert 0.1 < stage1 < 0.7
+    # Stage 2 runs exactly when stage 1 rejects, and only then can it accept.
+    stats_ = idata.sample_stats
+    np.testing.assert_array_equal(stats_["stage2_attempted"], ~stats_["stage1_accepted"])
+    assert not np.any(stats_["stage2_accepted"] & stats_["stage1_accepted"])
+    np.testing.assert_array_equal(stats_["accepted"],
+                                  stats_["stage1_accepted"] | stats_["stage2_accepted"])
+
+
+def test_dram_stays_in_support(dram_run):
+    target, idata = dram_run
+    draws = draws_array(idata)
+    assert np.all(np.isfinite(draws))
+    assert np.all(draws > target.lower) and np.all(draws < target.upper)
+    lp = np.asarray(jax.vmap(target.log_density)(jnp.asarray(draws.reshape(-1, 2))))
+    np.testing.assert_allclose(idata.sample_stats["lp"].values.ravel(), lp, rtol=1e-12)
+
+
+def test_nan_log_density_is_a_rejection():
+    """A log density that returns NaN outside its support is treated as −∞."""
+
+    class NaNOutside(GammaVariance):
+        def log_density(self, theta):
+            value = super().log_density(theta)
+            return jnp.where(jnp.isfinite(value), value, jnp.nan)
+
+    target = NaNOutside()
+    settings = dram.DRAMSettings(gamma=4.0)  # a wide second stage, to hit v < 0 often
+    state = _stack_state(dram.init(jnp.array([0.0, 0.2]), target.log_density,
+                                   jnp.diag(jnp.array([1.0, 4.0])), settings))
+
+    def record(state, info):
+        return {"position": state.position, "lp": state.logdensity,
+                "y1": info.proposal1, "mean": state.mean, "cov": state.cov}
+
+    run = run_chains(dram.build_kernel(target.log_density, settings), state,
+                     jax.random.key(0), 2000, record=record, progress=False)
+    assert np.any(run.draws["y1"][..., 1] < 0)  # proposals did leave the support
+    for name in ("position", "lp", "mean", "cov"):
+        assert np.all(np.isfinite(run.draws[name])), name
+    assert np.all(run.draws["position"][..., 1] > 0)
+
+
+def test_without_delayed_rejection_stage2_never_runs():
+    target = Gaussian2D()
+    idata = sample(target, "dram", num_samples=500, num_chains=2, seed=0,
+                   init=target.map_result(), progress=False,
+                   settings={"delayed_rejection": False})
+    assert not idata.sample_stats["stage2_attempted"].any()
+    np.testing.assert_array_equal(idata.sample_stats["accepted"],
+                                  idata.sample_stats["stage1_accepted"])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"adapt_start": 0}, "adapt_start"), ({"gamma": 0.0}, "gamma"),
+     ({"nugget": -1.0}, "nugget"), ({"scale": float("nan")}, "scale"),
+     ({"adapt_stop": -3}, "adapt_stop")],
+)
+def test_settings_are_validated(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        dram.DRAMSettings(**kwargs)
+
+
+def test_init_checks_shapes():
+    with pytest.raises(ValueError, match="cov must have shape"):
+        dram.init(jnp.zeros(3), lambda x: -jnp.sum(x**2), jnp.eye(2))
+    with pytest.raises(ValueError, match="1-D"):
+        dram.init(jnp.zeros((2, 2)), lambda x: -jnp.sum(x**2), jnp.eye(2))
