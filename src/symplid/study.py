@@ -85,10 +85,11 @@ FULL_BUDGET: dict[str, Any] = {
     "num_chains": 4,
     "num_starts": 4,
 }
-#: A small budget to try the study out (minutes, not the paper's posterior quality).
+#: A small budget to try the study out (that of ``symplid reproduce --quick``): minutes, not
+#: the paper's posterior quality.
 QUICK_BUDGET: dict[str, Any] = {
-    "num_samples": 4_000,
-    "burn_in": 2_000,
+    "num_samples": 3_000,
+    "burn_in": 1_500,
     "num_chains": 2,
     "num_starts": 2,
 }

@@ -87,6 +87,7 @@ import itertools
 import json
 import logging
 import math
+import numbers
 import os
 import socket
 import time
@@ -698,16 +699,19 @@ def run_sweep(
         A cell function that cannot be resolved, ``workers`` < 1 or given with ``scheduler``, an
         unreachable scheduler.
     """
-    spec = _as_spec(spec)
-    fn = cell_fn if cell_fn is not None else (spec.cell_fn or DEFAULT_CELL_FN)
-    fn_name = _cell_fn_name(fn)
-    resolve_cell_fn(fn)  # fail fast, in the client, on a name that does not resolve
-    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
+    if workers is not None and (
+        isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1
+    ):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     if workers is not None and scheduler is not None:
         raise ValueError(
             "workers sets the size of the local cluster; do not give it with scheduler"
         )
+
+    spec = _as_spec(spec)
+    fn = cell_fn if cell_fn is not None else (spec.cell_fn or DEFAULT_CELL_FN)
+    fn_name = _cell_fn_name(fn)
+    resolve_cell_fn(fn)  # fail fast, in the client, on a name that does not resolve
 
     out = Path(out_dir)
     cells_dir = out / CELLS_DIR

@@ -1,0 +1,418 @@
+"""Sweeps on Dask (symplid.sweep) and the paper-claims study (symplid.study).
+
+The cell functions are the stand-ins of ``sweep_cells.py`` (real but cheap work with the core).
+One local cluster of two workers is shared by the tests that need a cluster but not the
+default one; the 4-cell sweep starts its own through ``run_sweep`` (the default path).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import sweep_cells
+import symplid
+from symplid.results import read_json
+from symplid.study import (
+    FULL_BUDGET,
+    PAPER_SETTING,
+    QUICK_BUDGET,
+    evaluate_claims,
+    paper_claims_spec,
+    run_paper_claims,
+)
+from symplid.sweep import (
+    CELL_KEYS,
+    SweepError,
+    cell_data,
+    cell_settings,
+    load_results,
+    load_sweep_spec,
+    run_sweep,
+    sweep_spec_from_dict,
+    worker_environment,
+)
+
+TESTS_DIR = Path(__file__).resolve().parent
+SMALL = {"base": {"num_samples": 20, "burn_in": 10}}
+
+
+def _calls(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.glob("*.call"))
+
+
+def _small_spec(seeds=(0, 1), **sweep) -> dict:
+    grid = {"seed": list(seeds), "integrator": ["leapfrog", "rk2-midpoint"]}
+    return {**SMALL, "sweep": {"grid": grid, **sweep}}
+
+
+# ----------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def shared_cluster(tmp_path_factory):
+    """Two single-threaded worker processes with the sweep's worker environment."""
+    from dask.distributed import LocalCluster
+
+    calls = tmp_path_factory.mktemp("shared-calls")
+    flag = tmp_path_factory.mktemp("flag") / "fail-now"
+    env = worker_environment(
+        {
+            "PYTHONPATH": str(TESTS_DIR),
+            sweep_cells.CALLS_ENV: str(calls),
+            sweep_cells.FAIL_ENV: str(flag),
+        }
+    )
+    with LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        env=env,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+    ) as cluster:
+        yield SimpleNamespace(address=cluster.scheduler_address, calls=calls, flag=flag)
+
+
+@pytest.fixture(scope="module")
+def four_cells(tmp_path_factory):
+    """A 4-cell sweep (2 seeds × 2 propagators) run by run_sweep's own 2-worker cluster."""
+    out = tmp_path_factory.mktemp("four-cells")
+    calls = tmp_path_factory.mktemp("four-calls")
+    spec = sweep_spec_from_dict(_small_spec(), source="four.toml")
+    table = run_sweep(
+        spec,
+        out,
+        workers=2,
+        cell_fn="sweep_cells:loglik_cell",
+        progress=False,
+        worker_env={"PYTHONPATH": str(TESTS_DIR), sweep_cells.CALLS_ENV: str(calls)},
+    )
+    return SimpleNamespace(spec=spec, out=out, calls=calls, table=table)
+
+
+# ----------------------------------------------------------------------------- running
+def test_four_cell_sweep_on_two_workers(four_cells):
+    table, spec, out = four_cells.table, four_cells.spec, four_cells.out
+    assert table.attrs["sweep"]["ran"] == 4 and table.attrs["sweep"]["failed"] == 0
+    assert list(table["status"]) == ["ok"] * 4
+    assert len(_calls(four_cells.calls)) == 4
+    assert sorted(p.stem for p in (out / "cells").glob("*.json")) == sorted(spec.ids)
+    # one row per cell, in the spec's order: the grid product, last key fastest
+    assert list(zip(table["seed"], table["integrator"], strict=True)) == [
+        (0, "leapfrog"),
+        (0, "rk2-midpoint"),
+        (1, "leapfrog"),
+        (1, "rk2-midpoint"),
+    ]
+    for row in table.itertuples():
+        cell = spec.cells[row.Index].settings
+        # the data: an independent call of the simulator with the cell's settings spelt out
+        data = symplid.simulate("henon-heiles", times=5.0 * np.arange(1, 21), seed=row.seed)
+        assert row.first_obs_q1 == data.values[0, 0]
+        # the log-likelihood computed in the worker equals this process's, to float64 rounding
+        assert row.loglik == pytest.approx(sweep_cells.loglik_at_truth(cell), rel=1e-12)
+        assert row.x64
+        assert "--xla_cpu_multi_thread_eigen=false" in row.xla_flags
+        assert row.elapsed_s > 0
+    assert table["pid"].nunique() <= 2
+    # the leapfrog model at the truth explains the data better than RK2 at dt = 0.25
+    by = table.set_index(["seed", "integrator"])["loglik"]
+    assert by[(0, "leapfrog")] > by[(0, "rk2-midpoint")]
+
+
+def test_results_files_hold_the_same_table(four_cells):
+    out, table = four_cells.out, four_cells.table
+    csv = pd.read_csv(out / "results.csv")
+    parquet = pd.read_parquet(out / "results.parquet")
+    assert list(csv.columns) == list(table.columns) == list(parquet.columns)
+    pd.testing.assert_frame_equal(parquet, table)
+    for col in ("cell_id", "seed", "integrator", "status"):
+        assert list(csv[col]) == list(table[col])
+    for col in ("dt", "loglik", "elapsed_s"):
+        np.testing.assert_allclose(csv[col], table[col], rtol=1e-15)
+    assert list(load_results(out)["cell_id"]) == list(table["cell_id"])
+    record = read_json(out / "cells" / f"{table['cell_id'][0]}.json")
+    assert record["cell_fn"] == "sweep_cells:loglik_cell"
+    assert record["settings"] == four_cells.spec.cells[0].settings
+    assert record["status"] == "ok" and record["error"] is None
+
+
+def test_rerun_skips_finished_cells(four_cells):
+    out = four_cells.out
+    before = {p.name: read_json(p)["started"] for p in (out / "cells").glob("*.json")}
+    mtimes = {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")}
+    table = run_sweep(four_cells.spec, out, cell_fn="sweep_cells:loglik_cell", progress=False)
+    assert table.attrs["sweep"]["skipped"] == 4 and table.attrs["sweep"]["ran"] == 0
+    assert len(_calls(four_cells.calls)) == 4  # the cell function did not run again
+    after = {p.name: read_json(p)["started"] for p in (out / "cells").glob("*.json")}
+    assert after == before
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.json")} == mtimes
+    pd.testing.assert_frame_equal(table, four_cells.table)
+
+
+def test_another_cell_function_in_the_same_folder_is_refused(four_cells):
+    with pytest.raises(SweepError, match="cell_fn 'sweep_cells:loglik_cell'"):
+        run_sweep(four_cells.spec, four_cells.out, cell_fn="sweep_cells:flaky_cell")
+
+
+def test_failing_cell_is_recorded_and_retried(shared_cluster, tmp_path):
+    out = tmp_path / "flaky"
+    calls = shared_cluster.calls
+    shared_cluster.flag.write_text("fail\n")
+    n0 = len(_calls(calls))
+    spec = sweep_spec_from_dict(_small_spec(seeds=(0, 1)), source="flaky.toml")
+    table = run_sweep(
+        spec, out, scheduler=shared_cluster.address, cell_fn=sweep_cells.flaky_cell, progress=False
+    )
+    assert len(_calls(calls)) - n0 == 4
+    failed = table[table["status"] == "failed"]
+    assert list(failed["seed"]) == [1, 1]
+    assert (table[table["seed"] == 0]["status"] == "ok").all()
+    assert failed["loglik"].isna().all() and table[table["seed"] == 0]["loglik"].notna().all()
+    assert failed["error"].str.startswith("RuntimeError: planned failure for seed 1").all()
+    record = read_json(out / "cells" / f"{failed['cell_id'].iloc[0]}.json")
+    assert "flaky_cell" in record["traceback"] and "Traceback" in record["traceback"]
+    assert record["cell_fn"] == "sweep_cells:flaky_cell"
+    # the rerun retries only the two failed cells
+    shared_cluster.flag.unlink()
+    table = run_sweep(
+        spec, out, scheduler=shared_cluster.address, cell_fn=sweep_cells.flaky_cell, progress=False
+    )
+    assert len(_calls(calls)) - n0 == 6
+    assert table.attrs["sweep"]["skipped"] == 2 and table.attrs["sweep"]["ran"] == 2
+    assert list(table["status"]) == ["ok"] * 4
+
+
+def test_unimportable_cell_function_is_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match="cannot import 'no_such_module'"):
+        run_sweep(_small_spec(), tmp_path, cell_fn="no_such_module:run")
+    with pytest.raises(ValueError, match="has no function 'nothing'"):
+        run_sweep(_small_spec(), tmp_path, cell_fn="sweep_cells:nothing")
+    with pytest.raises(ValueError, match="do not give it with scheduler"):
+        run_sweep(_small_spec(), tmp_path, scheduler="tcp://127.0.0.1:1", workers=2)
+
+
+# ----------------------------------------------------------------------------- spec
+def test_grid_and_cells_combine_and_ids_are_stable(tmp_path):
+    path = tmp_path / "sweep.toml"
+    path.write_text(
+        """
+[base]
+num_samples = 2000
+burn_in = 1000
+
+[sweep]
+name = "demo"
+grid = { seed = [0, 1], integrator = ["leapfrog", "RK2"] }
+cells = [{}, { dt = 0.1 }, { noise_std = 0.01, "model.process_noise_per" = "step" }]
+"""
+    )
+    spec = load_sweep_spec(path)
+    assert spec.name == "demo" and len(spec.cells) == 12
+    assert {c.settings["integrator"] for c in spec.cells} == {"leapfrog", "rk2-midpoint"}
+    assert [c.settings["dt"] for c in spec.cells] == [0.25] * 4 + [0.1] * 4 + [0.25] * 4
+    last = spec.cells[-1].settings
+    assert last["noise_std"] == 0.01 and last["model.process_noise_per"] == "step"
+    assert list(last)[: len(CELL_KEYS)] == list(CELL_KEYS)
+    # the id is SHA-256 of the sorted JSON of every setting, defaults included
+    for cell in spec.cells:
+        text = json.dumps(cell.settings, sort_keys=True, separators=(",", ":"))
+        assert cell.id == hashlib.sha256(text.encode()).hexdigest()[:12]
+    # explicit defaults and another key order give the same ids; a changed value another id
+    explicit = dict(reversed(list(spec.cells[0].settings.items())))
+    same = sweep_spec_from_dict({"base": explicit})
+    assert same.ids == [spec.cells[0].id]
+    other = sweep_spec_from_dict({"base": {**explicit, "dt": 0.2500001}})
+    assert other.ids != same.ids
+    assert len(set(spec.ids)) == 12
+
+
+def test_cell_settings_and_data():
+    spec = sweep_spec_from_dict(
+        {"base": {"seed": 3, "dt": 0.1, "num_obs": 5, "obs_interval": 2.0, "num_chains": 2}}
+    )
+    cell = spec.cells[0].settings
+    settings = cell_settings(cell)
+    assert settings.model.dt == 0.1 and settings.sampler.num_chains == 2
+    assert settings.seed == settings.map.seed == settings.sampler.seed == 3
+    assert settings.initial_state.x0 == (0.2, -0.25, 0.3, -0.25)
+    system, data = cell_data(cell)
+    np.testing.assert_array_equal(data.times, [2.0, 4.0, 6.0, 8.0, 10.0])
+    direct = symplid.simulate(system, times=data.times, noise_std=0.05, seed=3)
+    np.testing.assert_array_equal(data.values, direct.values)
+
+
+BAD_SPECS = [
+    ("[base]\nnois_std = 0.1\n", "unknown key 'nois_std' in [base]; did you mean 'noise_std'?"),
+    ("[base]\ndt = -0.25\n", "[base] dt must be > 0, got -0.25"),
+    ("[base]\nnum_chains = 2.5\n", "[base] num_chains must be an integer, got 2.5"),
+    ("[base]\nintegrator = 'leapfrg'\n", "not a known integrator; did you mean 'leapfrog'?"),
+    ("[base]\nsystem = 'henon'\n", "[base] system must be one of"),
+    ("[sweep]\ngrid = { seed = 3 }\n", "sweep.grid.seed must be a list of values"),
+    ("[sweep]\ngrid = { seed = [] }\n", "sweep.grid.seed is an empty list"),
+    ("[sweep]\ngrid = { sed = [1] }\n", "unknown key 'sed' in sweep.grid; did you mean 'seed'?"),
+    ("[sweep]\ngrid = { dt = [0.1, 0.1] }\n", "same resolved settings as the cell at grid point"),
+    (
+        "[sweep]\ngrid = { dt = [0.1] }\ncells = [{ dt = 0.5 }]\n",
+        "sweep.cells[0].dt is also a sweep.grid axis",
+    ),
+    ("[sweep]\ncells = []\n", "sweep.cells must be a non-empty list"),
+    ("[sweep]\ncell = [{}]\n", "unknown key 'cell' in [sweep]; did you mean 'cells'?"),
+    ("[sweep]\ncell_fn = 'run_cell'\n", "sweep.cell_fn must be a 'module:function' string"),
+    ("[bases]\ndt = 0.1\n", "unknown table [bases]; did you mean 'base'?"),
+    ("[base]\nnum_samples = 100\nburn_in = 100\n", "num_samples (100) must be greater than"),
+    ("[base]\n'model.dt' = 0.1\n", "is set by the short key 'dt' in a sweep"),
+    ("[base]\n'sampler.gama' = 0.1\n", "did you mean 'sampler.gamma'?"),
+    ("[base]\n'sampler.gamma' = -1.0\n", "sampler.gamma must be > 0"),
+    ("[base\n", "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize(("text", "message"), BAD_SPECS)
+def test_bad_spec_names_the_file_and_the_key(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(SweepError) as info:
+        load_sweep_spec(path)
+    assert str(info.value).startswith(f"{path}: ")
+    assert message in str(info.value)
+
+
+def test_missing_spec_file(tmp_path):
+    with pytest.raises(SweepError, match="no such sweep spec file"):
+        load_sweep_spec(tmp_path / "nope.toml")
+
+
+# ----------------------------------------------------------------------------- claims
+def _row(dt, seed, integrator, h_err, noise, horizon, status="ok"):
+    return {
+        "cell_id": f"{dt}-{seed}-{integrator}",
+        "seed": seed,
+        "integrator": integrator,
+        "dt": dt,
+        "noise_std": 0.05,
+        "status": status,
+        "hamiltonian_rel_error": h_err,
+        "process_noise_median": noise,
+        "prediction_horizon_s": horizon,
+    }
+
+
+@pytest.fixture(scope="module")
+def claims_table():
+    """Two settings; every answer below is counted by hand."""
+    lf, rk = "leapfrog", "rk2-midpoint"
+    nan = math.nan
+    rows = [
+        # dt = 0.25: H errors (lf < rk2 for seeds 0, 2; seed 3 undecided), noise ratios
+        # 10, 2, 50, 5, horizons: lf longer for 0 and 3, a tie for 1, shorter for 2
+        _row(0.25, 0, lf, 0.01, 1e-6, 150.0),
+        _row(0.25, 0, rk, 0.02, 1e-5, 20.0),
+        _row(0.25, 1, lf, 0.02, 1e-6, 200.0),
+        _row(0.25, 1, rk, 0.01, 2e-6, 200.0),
+        _row(0.25, 2, lf, 0.05, 2e-6, 30.0),
+        _row(0.25, 2, rk, 0.06, 1e-4, 40.0),
+        _row(0.25, 3, lf, 0.01, 1e-6, 200.0),
+        _row(0.25, 3, rk, nan, 5e-6, 25.0),
+        _row(0.25, 3, "rk4", 0.0, 1.0, 0.0),  # another propagator: ignored
+        # dt = 0.1: seed 1's RK2 cell failed, so only seed 0 is paired
+        _row(0.1, 0, lf, 0.03, 1e-6, 100.0),
+        _row(0.1, 0, rk, 0.04, 1e-4, 10.0),
+        _row(0.1, 1, lf, 0.01, 1e-6, 100.0),
+        _row(0.1, 1, rk, nan, nan, nan, status="failed"),
+    ]
+    return pd.DataFrame(rows)
+
+
+def test_claims_on_a_hand_made_table(claims_table):
+    result = evaluate_claims(claims_table, baseline={"dt": 0.25, "noise_std": 0.05})
+    assert [s["label"] for s in result["settings"]] == ["baseline", "dt=0.1"]
+    assert [s["pairs"] for s in result["settings"]] == [4, 1]
+    assert [s["unpaired"] for s in result["settings"]] == [0, 1]
+    h, pn, pr = (result["claims"][k]["per_setting"] for k in CLAIMS_ORDER)
+
+    assert (h[0]["n"], h[0]["holds"], h[0]["undecided"]) == (3, 2, 1)
+    assert h[0]["fraction"] == pytest.approx(2 / 3)
+    assert h[0]["median_symplectic"] == pytest.approx(0.02)  # of 0.01, 0.02, 0.05
+    assert (h[1]["n"], h[1]["holds"], h[1]["fraction"], h[1]["unpaired"]) == (1, 1, 1.0, 1)
+
+    assert (pn[0]["n"], pn[0]["holds"]) == (4, 3)  # ratios 10, 2, 50, 5: three ≥ √10
+    assert pn[0]["fraction"] == 0.75 and pn[0]["fraction_smaller"] == 1.0
+    ratio = pn[0]["ratio"]
+    assert ratio["median"] == pytest.approx(7.5)
+    assert ratio["geometric_mean"] == pytest.approx(5000.0**0.25)
+    assert (ratio["min"], ratio["max"]) == pytest.approx((2.0, 50.0))
+    assert ratio["q25"] == pytest.approx(np.quantile([10, 2, 50, 5], 0.25))
+    assert pn[1]["ratio"]["median"] == pytest.approx(100.0) and pn[1]["holds"] == 1
+
+    assert (pr[0]["n"], pr[0]["holds"], pr[0]["ties"], pr[0]["fraction"]) == (4, 2, 1, 0.5)
+    assert pr[0]["median_reference"] == pytest.approx(32.5)  # of 20, 200, 40, 25
+
+
+CLAIMS_ORDER = ("hamiltonian", "process_noise", "prediction")
+
+
+def test_claims_labels_errors_and_purity(claims_table):
+    copy = claims_table.copy()
+    result = evaluate_claims(claims_table)
+    pd.testing.assert_frame_equal(claims_table, copy)  # the table is not modified
+    assert [s["label"] for s in result["settings"]] == ["dt=0.25", "dt=0.1"]
+    assert evaluate_claims(claims_table) == result
+    swapped = evaluate_claims(claims_table, symplectic="rk2-midpoint", reference="leapfrog")
+    assert swapped["claims"]["process_noise"]["per_setting"][0]["fraction_smaller"] == 0.0
+    with pytest.raises(ValueError, match="more than one ok row for seed 0"):
+        evaluate_claims(pd.concat([claims_table, claims_table.iloc[:1]]))
+    with pytest.raises(ValueError, match="no metric column 'prediction_horizon_s'"):
+        evaluate_claims(claims_table.drop(columns="prediction_horizon_s"))
+
+
+# ----------------------------------------------------------------------------- the study
+def test_paper_claims_spec_varies_one_setting_at_a_time():
+    spec = paper_claims_spec(seeds=3)
+    assert len(spec.cells) == 3 * 2 * 5 and len(set(spec.ids)) == 30
+    for cell in (c.settings for c in spec.cells):
+        changed = {k for k, v in PAPER_SETTING.items() if cell[k] != v}
+        assert changed in (set(), {"dt"}, {"noise_std"})
+        assert cell["num_samples"] == FULL_BUDGET["num_samples"]
+    assert sorted({c.settings["dt"] for c in spec.cells}) == [0.1, 0.25, 0.5]
+    assert sorted({c.settings["noise_std"] for c in spec.cells}) == [0.01, 0.05, 0.1]
+    quick = paper_claims_spec(seeds=2, quick=True, variants=False)
+    assert len(quick.cells) == 4
+    assert all(c.settings["num_samples"] == QUICK_BUDGET["num_samples"] for c in quick.cells)
+    with pytest.raises(ValueError, match="seeds must be a positive integer"):
+        paper_claims_spec(seeds=0)
+
+
+def test_paper_claims_study_end_to_end(shared_cluster, tmp_path):
+    out = tmp_path / "study"
+    claims = run_paper_claims(
+        out,
+        seeds=2,
+        quick=True,
+        scheduler=shared_cluster.address,
+        variants=False,
+        cell_fn="sweep_cells:claims_cell",
+        progress=False,
+    )
+    stored = read_json(out / "claims.json")
+    table = load_results(out)
+    again = evaluate_claims(table, baseline=PAPER_SETTING, baseline_label="paper setting")
+    assert stored["claims"] == json.loads(json.dumps(again["claims"]))
+    assert stored["study"]["cells"] == 4 and stored["study"]["cells_failed"] == 0
+    assert claims["settings"][0]["label"] == "paper setting"
+    # the stand-in makes RK2's horizon 130 s shorter and its H error twice leapfrog's
+    assert claims["claims"]["prediction"]["per_setting"][0]["fraction"] == 1.0
+    assert claims["claims"]["hamiltonian"]["per_setting"][0]["fraction"] == 1.0
+    report = (out / "report.md").read_text()
+    for name in ("claim_hamiltonian", "claim_process_noise", "claim_prediction"):
+        png = out / "figures" / f"{name}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"(figures/{name}.png)" in report
+    assert "| paper setting | 2 |" in report
