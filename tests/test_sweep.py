@@ -142,6 +142,9 @@ def test_results_files_hold_the_same_table(four_cells):
     assert record["cell_fn"] == "sweep_cells:loglik_cell"
     assert record["settings"] == four_cells.spec.cells[0].settings
     assert record["status"] == "ok" and record["error"] is None
+    # one figure per numeric metric of the stand-in
+    for metric in ("loglik", "first_obs_q1"):
+        assert (out / "figures" / f"{metric}.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def test_rerun_skips_finished_cells(four_cells):
@@ -169,7 +172,12 @@ def test_failing_cell_is_recorded_and_retried(shared_cluster, tmp_path):
     n0 = len(_calls(calls))
     spec = sweep_spec_from_dict(_small_spec(seeds=(0, 1)), source="flaky.toml")
     table = run_sweep(
-        spec, out, scheduler=shared_cluster.address, cell_fn=sweep_cells.flaky_cell, progress=False
+        spec,
+        out,
+        scheduler=shared_cluster.address,
+        cell_fn=sweep_cells.flaky_cell,
+        progress=False,
+        figures=False,
     )
     assert len(_calls(calls)) - n0 == 4
     failed = table[table["status"] == "failed"]
@@ -183,7 +191,12 @@ def test_failing_cell_is_recorded_and_retried(shared_cluster, tmp_path):
     # the rerun retries only the two failed cells
     shared_cluster.flag.unlink()
     table = run_sweep(
-        spec, out, scheduler=shared_cluster.address, cell_fn=sweep_cells.flaky_cell, progress=False
+        spec,
+        out,
+        scheduler=shared_cluster.address,
+        cell_fn=sweep_cells.flaky_cell,
+        progress=False,
+        figures=False,
     )
     assert len(_calls(calls)) - n0 == 6
     assert table.attrs["sweep"]["skipped"] == 2 and table.attrs["sweep"]["ran"] == 2

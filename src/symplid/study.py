@@ -57,6 +57,7 @@ __all__ = [
     "format_claims_report",
     "paper_claims_spec",
     "plot_claims",
+    "plot_sweep",
     "run_paper_claims",
 ]
 
@@ -494,6 +495,95 @@ def plot_claims(
         ax.grid(axis="y", alpha=0.3)
         paths[name] = save_figure(fig, folder / f"claim_{name}.png")
     return paths
+
+
+#: Metrics drawn by :func:`plot_sweep` when the table has them (the paper cell's metrics).
+SWEEP_METRICS = (
+    "hamiltonian_rel_error",
+    "process_noise_median",
+    "prediction_horizon_s",
+    "acceptance_rate",
+    "rhat_max",
+    "ess_min",
+)
+_NOT_METRICS = ("cell_id", "status", "elapsed_s", "error", "started", "finished")
+
+
+def plot_sweep(
+    table: Any, folder: str | os.PathLike, metrics: Sequence[str] | None = None
+) -> dict[str, Path]:
+    """One PNG per metric of a sweep's results table: every cell's value, grouped by setting.
+
+    The x axis has one group per setting (the values of the setting columns that vary, seeds
+    aside); within a group each propagator has its own colour, with a box over the seeds.
+    ``metrics`` defaults to those of :data:`SWEEP_METRICS` in the table, else every numeric
+    metric column (at most 12). Positive metrics spanning more than a decade get a log axis.
+    Returns the paths by metric (``folder/<metric>.png``).
+    """
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    from symplid.plots import COLORS, save_figure
+
+    ok = table[table["status"] == "ok"]
+    settings = [c for c in table.columns if (c in CELL_KEYS or "." in c) and c != "seed"]
+    if metrics is None:
+        metrics = [m for m in SWEEP_METRICS if m in table.columns]
+        if not metrics:
+            metrics = [
+                c
+                for c in table.columns
+                if c not in settings
+                and c not in _NOT_METRICS
+                and c != "seed"
+                and table[c].dtype.kind in "if"
+            ][:12]
+    by = [c for c in settings if c != "integrator" and table[c].nunique(dropna=False) > 1]
+    groups = _groups(table, by)
+    hues = list(dict.fromkeys(ok["integrator"])) if "integrator" in ok else [None]
+    palette = {"leapfrog": COLORS["leapfrog"], "rk2-midpoint": COLORS["rk2"]}
+    colors = {h: palette.get(h, _PALETTE[i % len(_PALETTE)]) for i, h in enumerate(hues)}
+    folder = Path(folder)
+    paths: dict[str, Path] = {}
+    for metric in metrics:
+        values = _numeric(ok[metric]) if metric in ok else None
+        if values is None or not np.isfinite(values).any():
+            continue
+        fig = Figure(figsize=(max(5.0, 1.5 * len(groups) + 2), 4.0), layout="constrained")
+        ax = fig.add_subplot()
+        rng = np.random.default_rng(0)  # jitter of the points only
+        width = 0.7 / max(len(hues), 1)
+        for i, g in enumerate(groups):
+            rows = _equal_rows(ok, g)
+            for j, h in enumerate(hues):
+                sub = rows if h is None else rows[rows["integrator"] == h]
+                v = _numeric(sub[metric])
+                x = i + (j - (len(hues) - 1) / 2) * width
+                _strip(ax, x, v[np.isfinite(v)], colors[h], rng, width=0.85 * width)
+        finite = values[np.isfinite(values)]
+        if finite.min() > 0 and finite.max() / finite.min() > 10:
+            ax.set_yscale("log")
+        labels = [", ".join(f"{c}={_fmt(g[c])}" for c in by) or "all cells" for g in groups]
+        ax.set_xticks(range(len(groups)), labels, fontsize=8)
+        ax.set_ylabel(metric)
+        if hues != [None]:
+            handles = [
+                Line2D([], [], marker="o", ls="", color=colors[h], label=str(h)) for h in hues
+            ]
+            ax.legend(handles=handles, fontsize=8, loc="best")
+        ax.grid(axis="y", alpha=0.3)
+        paths[metric] = save_figure(fig, folder / f"{metric}.png")
+    return paths
+
+
+_PALETTE = ("#7b3fa0", "#d98a00", "#16867f", "#6b6b6b", "#1f5fa8", "#c0392b")
+
+
+def _numeric(column: Any) -> np.ndarray:
+    """A column as floats (non-numbers become NaN)."""
+    import pandas as pd
+
+    return pd.to_numeric(column, errors="coerce").to_numpy(float)
 
 
 def _strip(ax: Any, x: float, values: np.ndarray, color: str, rng: Any, width: float = 0.5) -> None:

@@ -56,6 +56,7 @@ The output folder::
                         error and traceback, start and end times, the worker
     results.csv         one row per cell: id, settings, status, elapsed_s, metrics, error
     results.parquet     the same table
+    figures/<metric>.png  every cell's value of a metric, by setting and propagator
 
 The cell function
 -----------------
@@ -137,6 +138,7 @@ DEFAULT_CELL_FN = "symplid.experiments.paper:run_cell"
 XLA_SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
 CELLS_DIR = "cells"
+FIGURES_DIR = "figures"
 MANIFEST = "sweep.json"
 RESULTS_CSV = "results.csv"
 RESULTS_PARQUET = "results.parquet"
@@ -659,6 +661,7 @@ def run_sweep(
     *,
     progress: bool = True,
     worker_env: Mapping[str, str] | None = None,
+    figures: bool = True,
 ) -> Any:
     """Run every unfinished cell of a sweep on Dask and gather the results table.
 
@@ -682,6 +685,8 @@ def run_sweep(
         Show a progress bar that moves once per finished cell.
     worker_env
         Extra environment variables for the local workers (see :func:`worker_environment`).
+    figures
+        Draw one figure per metric into ``out_dir/figures`` (:func:`symplid.study.plot_sweep`).
 
     Returns
     -------
@@ -740,6 +745,10 @@ def run_sweep(
             bar.close()
     table = load_results(out, spec)
     _write_table(table, out)
+    if figures:
+        from symplid.study import plot_sweep  # the study module builds on this one
+
+        plot_sweep(table, out / FIGURES_DIR)
     table.attrs["sweep"] = {
         "cells": len(spec.cells),
         "skipped": len(done),
