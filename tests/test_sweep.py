@@ -122,6 +122,9 @@ def test_four_cell_sweep_on_two_workers(four_cells):
         assert "--xla_cpu_multi_thread_eigen=false" in row.xla_flags
         assert row.elapsed_s > 0
     assert table["pid"].nunique() <= 2
+    # the local workers keep their compiled programs, one cache folder each
+    caches = sorted(p.name for p in (out / ".jax_cache").iterdir())
+    assert caches and set(caches) <= {"worker-0", "worker-1"}
     # the leapfrog model at the truth explains the data better than RK2 at dt = 0.25
     by = table.set_index(["seed", "integrator"])["loglik"]
     assert by[(0, "leapfrog")] > by[(0, "rk2-midpoint")]

@@ -57,6 +57,7 @@ The output folder::
     results.csv         one row per cell: id, settings, status, elapsed_s, metrics, error
     results.parquet     the same table
     figures/<metric>.png  every cell's value of a metric, by setting and propagator
+    .jax_cache/         JAX's compilation cache of the local workers (safe to delete)
 
 The cell function
 -----------------
@@ -74,7 +75,9 @@ with one thread each. Each worker process runs JAX single-threaded (``XLA_FLAGS`
 use N cores and no more. With ``scheduler="tcp://host:8786"`` the cells go to an existing Dask
 cluster instead; start its workers with ``--nthreads 1`` and the environment of
 :func:`worker_environment` (the task also sets ``XLA_FLAGS`` itself when the worker has not used
-JAX yet).
+JAX yet). Local workers keep JAX's persistent compilation cache in ``out_dir/.jax_cache`` (one
+folder per worker), so a program compiled for one cell is loaded, not recompiled, by the next
+cells and by a rerun.
 """
 
 from __future__ import annotations
@@ -139,6 +142,8 @@ XLA_SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_thr
 
 CELLS_DIR = "cells"
 FIGURES_DIR = "figures"
+JAX_CACHE_DIR = ".jax_cache"
+CACHE_MIN_COMPILE_S = 0.1
 MANIFEST = "sweep.json"
 RESULTS_CSV = "results.csv"
 RESULTS_PARQUET = "results.parquet"
@@ -615,10 +620,20 @@ def _now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds")
 
 
-def _run_cell_task(settings: dict[str, Any], cell_fn: str | Callable) -> dict[str, Any]:
-    """Run one cell in a worker; never raises: a failure becomes a record with its traceback."""
+def _run_cell_task(
+    settings: dict[str, Any], cell_fn: str | Callable, cache_dir: str | None = None
+) -> dict[str, Any]:
+    """Run one cell in a worker; never raises: a failure becomes a record with its traceback.
+
+    ``cache_dir``: a folder for JAX's persistent compilation cache, one subfolder per worker
+    (so that no two processes write the same files), set unless the worker already has one.
+    """
     os.environ.setdefault("XLA_FLAGS", XLA_SINGLE_THREAD)  # if this worker has not used JAX yet
     import jax  # symplid is imported with this module, so float64 is on
+
+    if cache_dir and not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir", str(Path(cache_dir) / _worker_name()))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", CACHE_MIN_COMPILE_S)
 
     started = _now()
     t0 = time.perf_counter()
@@ -649,6 +664,15 @@ def _run_cell_task(settings: dict[str, Any], cell_fn: str | Callable) -> dict[st
         },
     )
     return record
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return f"worker-{get_worker().name}"
+    except (ImportError, ValueError):  # not in a Dask worker
+        return f"process-{os.getpid()}"
 
 
 # ----------------------------------------------------------------------------- running
@@ -739,8 +763,9 @@ def run_sweep(
             dynamic_ncols=True,
         )
         try:
-            with _client(scheduler, workers, len(todo), worker_env) as client:
-                num_failed = _execute(client, todo, fn, fn_name, cells_dir, bar)
+            with _client(scheduler, workers, len(todo), worker_env) as (client, local):
+                cache = str((out / JAX_CACHE_DIR).resolve()) if local else None
+                num_failed = _execute(client, todo, fn, fn_name, cells_dir, bar, cache)
         finally:
             bar.close()
     table = load_results(out, spec)
@@ -769,7 +794,13 @@ def _as_spec(spec: SweepSpec | Mapping[str, Any] | str | os.PathLike) -> SweepSp
 
 
 def _execute(
-    client: Any, todo: list[Cell], fn: Any, fn_name: str, cells_dir: Path, bar: Any
+    client: Any,
+    todo: list[Cell],
+    fn: Any,
+    fn_name: str,
+    cells_dir: Path,
+    bar: Any,
+    cache_dir: str | None,
 ) -> int:
     """Submit one task per cell; write each record as it completes. Returns the failures."""
     import uuid
@@ -779,7 +810,12 @@ def _execute(
     tag = uuid.uuid4().hex[:8]  # keys unique per call: a shared cluster never reuses a result
     futures = {
         client.submit(
-            _run_cell_task, c.settings, fn, key=f"symplid-cell-{c.id}-{tag}", pure=False
+            _run_cell_task,
+            c.settings,
+            fn,
+            cache_dir,
+            key=f"symplid-cell-{c.id}-{tag}",
+            pure=False,
         ): c
         for c in todo
     }
@@ -821,11 +857,12 @@ def _lost_record(err: BaseException) -> dict[str, Any]:
 @contextlib.contextmanager
 def _client(
     scheduler: Any, workers: int | None, num_tasks: int, worker_env: Mapping[str, str] | None
-) -> Iterator[Any]:
+) -> Iterator[tuple[Any, bool]]:
+    """A Dask client, and whether its workers are local processes started here."""
     from dask.distributed import Client, LocalCluster
 
     if isinstance(scheduler, Client):
-        yield scheduler
+        yield scheduler, False
         return
     if scheduler is not None:
         try:
@@ -833,7 +870,7 @@ def _client(
         except (OSError, TimeoutError) as err:
             raise ValueError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from None
         try:
-            yield client
+            yield client, False
         finally:
             client.close()
         return
@@ -850,7 +887,7 @@ def _client(
         ) as cluster,
         Client(cluster) as client,
     ):
-        yield client
+        yield client, True
 
 
 def _num_cores() -> int:
