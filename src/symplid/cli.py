@@ -1,0 +1,362 @@
+"""The ``symplid`` command line: reproduce, simulate, fit, predict, report.
+
+Every user mistake (a bad file, a misspelt setting, an impossible value) ends with one line on
+stderr and exit code 2, never a traceback; Ctrl-C ends with exit code 130 and keeps whatever
+the sampler had drawn.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+class UserError(click.ClickException):
+    exit_code = EXIT_USER_ERROR
+
+    def show(self, file=None) -> None:
+        click.echo(f"symplid: error: {self.format_message()}", err=True)
+
+
+def _user_errors(fn: Callable) -> Callable:
+    """Turn the library's validation errors into one line and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from symplid.data import DataError
+        from symplid.settings import SettingsError
+
+        try:
+            return fn(*args, **kwargs)
+        except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
+            raise UserError(str(err)) from None
+        except ValueError as err:  # the library's argument checks
+            raise UserError(str(err)) from None
+        except KeyboardInterrupt:
+            click.echo("symplid: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+
+    return wrapper
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="symplid")
+def main() -> None:
+    """Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
+
+    A symplectic integrator inside a UKF marginal likelihood, MAP and DRAM/NUTS posterior
+    sampling, and predictions with uncertainty. Start with `symplid reproduce --quick`.
+    """
+
+
+# ----------------------------------------------------------------------------- reproduce
+@main.command()
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("runs/paper"),
+    show_default=True,
+    help="Run folder to write.",
+)
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Seed of the data noise and of the sampler.",
+)
+@click.option(
+    "--chains",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Chains per approach [default: 4; 2 with --quick].",
+)
+@click.option(
+    "--iterations",
+    type=click.IntRange(min=2),
+    default=None,
+    help="DRAM iterations per chain, burn-in included [default: 200000].",
+)
+@click.option(
+    "--burn-in",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Iterations discarded per chain [default: half of --iterations].",
+)
+@click.option(
+    "--rk2",
+    type=click.Choice(["midpoint", "heun"]),
+    default="midpoint",
+    show_default=True,
+    help="The non-symplectic RK2 variant.",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=2,
+    show_default=True,
+    help="Processes (the two approaches run in parallel).",
+)
+@click.option("--quick", is_flag=True, help="A small budget for a smoke test (under a minute).")
+@click.option("--no-progress", is_flag=True, help="No progress bars.")
+@_user_errors
+def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_progress) -> None:
+    """The paper's Hénon–Heiles experiment: leapfrog against RK2, all figures and a table."""
+    from symplid.experiments.paper import PaperConfig
+    from symplid.experiments.paper import reproduce as run
+
+    overrides = {
+        "seed": seed,
+        "chains": chains,
+        "iterations": iterations,
+        "burn_in": burn_in,
+        "rk2": f"rk2-{rk2}",
+        "workers": workers,
+    }
+    if quick:
+        config = PaperConfig.quick(**overrides)
+    else:
+        config = PaperConfig(**{k: v for k, v in overrides.items() if v is not None})
+    if config.resolved_burn_in >= config.iterations:
+        raise UserError(
+            f"--burn-in ({config.resolved_burn_in}) must be below --iterations "
+            f"({config.iterations})"
+        )
+    summary = run(out, config, progress=not no_progress, echo=click.echo)
+    lf, rk = summary["leapfrog"], summary["rk2"]
+    click.echo(
+        f"H: true {summary['true_hamiltonian']:.4f}, leapfrog {lf['map_hamiltonian']:.4f}, "
+        f"RK2 {rk['map_hamiltonian']:.4f}; process noise ratio "
+        f"{summary['process_noise_ratio']:.1f}; valid predictions {lf['prediction_horizon_s']:.0f}"
+        f" s vs {rk['prediction_horizon_s']:.0f} s; {summary['wall_time_s']:.0f} s"
+    )
+
+
+# ----------------------------------------------------------------------------- simulate
+def _floats(text: str | None, name: str) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        return [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        raise UserError(f"{name} must be numbers separated by commas, got {text!r}") from None
+
+
+@main.command()
+@click.argument("system", type=str)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Data file to write (.csv or .npz).",
+)
+@click.option(
+    "--t-end",
+    type=float,
+    default=None,
+    help="Last observation time [default: the system's schedule].",
+)
+@click.option(
+    "--num-obs",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Number of equally spaced observations up to --t-end.",
+)
+@click.option(
+    "--times", type=str, default=None, help="Explicit observation times, comma-separated."
+)
+@click.option(
+    "--noise-std",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="Observation noise standard deviation [default: the system's, 0.05].",
+)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option(
+    "--observation", type=click.Choice(["full", "positions"]), default="full", show_default=True
+)
+@click.option("--x0", type=str, default=None, help="Initial state q1..qd,p1..pd (comma-separated).")
+@click.option(
+    "--missing",
+    type=click.FloatRange(0, 1, max_open=True),
+    default=0.0,
+    show_default=True,
+    help="Fraction of values to blank out at random (NaN).",
+)
+@_user_errors
+def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x0, missing) -> None:
+    """Noisy observations of a named SYSTEM (henon-heiles, harmonic, double-well, fpu-chain)."""
+    import numpy as np
+
+    from symplid.data import Observations
+    from symplid.io import write_observations
+    from symplid.simulate import simulate as run
+    from symplid.systems import get_system
+
+    sys_ = get_system(system)
+    grid = _floats(times, "--times")
+    if grid is None and (t_end is not None or num_obs is not None):
+        n = num_obs or sys_.num_obs
+        end = t_end if t_end is not None else sys_.obs_interval * n
+        if end <= 0:
+            raise UserError(f"--t-end must be positive, got {end}")
+        grid = list(end / n * np.arange(1, n + 1))
+    obs = run(
+        sys_,
+        times=grid,
+        noise_std=noise_std,
+        seed=seed,
+        x0=_floats(x0, "--x0"),
+        observation=observation,
+    )
+    if missing > 0:
+        rng = np.random.default_rng(seed + 1)
+        values = np.array(obs.values)
+        values[rng.random(values.shape) < missing] = np.nan
+        obs = Observations(obs.times, values, obs.names)
+    path = write_observations(obs, out)
+    click.echo(
+        f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} "
+        f"(x0 = {', '.join(f'{v:g}' for v in (x0 and _floats(x0, '--x0')) or sys_.initial_state)})"
+    )
+
+
+# ----------------------------------------------------------------------------- fit
+@main.command()
+@click.argument("data", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Run folder to write (must not exist, or be empty).",
+)
+@click.option(
+    "--config",
+    "config",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Settings file (TOML); command-line options override it.",
+)
+@click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
+@click.option(
+    "--integrator",
+    type=str,
+    default=None,
+    help="leapfrog, yoshida4, rk2-midpoint, rk2-heun, rk4, euler.",
+)
+@click.option("--dt", type=float, default=None, help="Learning step.")
+@click.option("--method", type=click.Choice(["dram", "nuts"]), default=None, help="Sampler.")
+@click.option(
+    "--samples",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Iterations per chain, burn-in included.",
+)
+@click.option("--burn-in", type=click.IntRange(min=0), default=None)
+@click.option("--chains", type=click.IntRange(min=1), default=None)
+@click.option("--seed", type=click.IntRange(min=0), default=None)
+@click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
+@click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
+@click.option("--no-progress", is_flag=True)
+@_user_errors
+def fit(
+    data,
+    out,
+    config,
+    order,
+    integrator,
+    dt,
+    method,
+    samples,
+    burn_in,
+    chains,
+    seed,
+    x0,
+    learn_initial_state,
+    sets,
+    overwrite,
+    no_progress,
+) -> None:
+    """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder."""
+    from symplid.io import read_observations
+    from symplid.settings import Settings, load_settings, merge_overrides, parse_override
+    from symplid.workflow import fit as run
+
+    obs = read_observations(data)
+    settings = load_settings(config) if config is not None else Settings()
+    source = str(config) if config is not None else "command line"
+    overrides: dict[str, Any] = {
+        "model.order": order,
+        "model.integrator": integrator,
+        "model.dt": dt,
+        "sampler.method": method,
+        "sampler.num_samples": samples,
+        "sampler.burn_in": burn_in,
+        "sampler.num_chains": chains,
+        "seed": seed,
+        "initial_state.x0": _floats(x0, "--x0"),
+        "initial_state.mode": "learned" if learn_initial_state else None,
+    }
+    for text in sets:
+        key, value = parse_override(text)
+        overrides[key] = value
+    settings = merge_overrides(settings, overrides, source="command line")
+    start = time.perf_counter()
+    outcome = run(
+        obs, settings, out=out, progress=not no_progress, source=source, overwrite=overwrite
+    )
+    s = outcome.summary
+    extra = ""
+    if "rhat_max" in s:
+        extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
+    click.echo(
+        f"{out}: MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
+        f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
+    )
+
+
+# ----------------------------------------------------------------------------- predict
+@main.command()
+@click.argument("run", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--t-end", type=float, required=True, help="Predict up to this time.")
+@click.option("--dt", type=float, default=None, help="Prediction step [default: the run's].")
+@click.option("--num-paths", type=click.IntRange(min=0), default=None)
+@_user_errors
+def predict(run, t_end, dt, num_paths) -> None:
+    """Predict from a finished run: MAP path and posterior band, saved with a figure."""
+    from symplid.run_tools import predict_run
+
+    result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths)
+    click.echo(result)
+
+
+# ----------------------------------------------------------------------------- report
+@main.command()
+@click.argument("run", type=click.Path(file_okay=False, path_type=Path))
+@_user_errors
+def report(run) -> None:
+    """Write report.md (tables and figures) for a finished run."""
+    from symplid.run_tools import report_run
+
+    click.echo(report_run(run))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,344 @@
+"""The seed paper's experiment (Section IV): Hénon–Heiles learned with leapfrog against RK2.
+
+``reproduce`` runs it end to end: the truth and the data, then for each propagator a full fit
+(MAP, Hessian, DRAM with the paper's budget) in its own run folder, the predictions with
+leapfrog at the fine step for 200 s from the true initial state, the paper's four figures,
+``summary.json`` and a table beside the paper's numbers. The two fits run in parallel
+processes (one per core).
+
+Conventions: the paper's θ1..θ9 are the coefficients of −U; this library reports U's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from symplid.data import Observations
+from symplid.potentials import hamiltonian
+from symplid.settings import Settings, merge_overrides
+from symplid.systems import get_system
+
+# What the paper reports (Section IV, Figs 2–4), for the table printed beside ours.
+PAPER = {
+    "true_hamiltonian": 0.1227,
+    "leapfrog": {"map_hamiltonian": 0.1219, "prediction_horizon_s": 150.0},
+    "rk2": {"map_hamiltonian": 0.1211, "prediction_horizon_s": 20.0},
+    "process_noise_ratio": 10.0,
+}
+
+APPROACHES = ("leapfrog", "rk2")
+HORIZON_THRESHOLD = 0.1  # |q1 − q1_true| that ends a valid prediction (DESIGN.md)
+QUICK = {"iterations": 3000, "burn_in": 1500, "chains": 2, "num_starts": 2, "num_paths": 20}
+TRUTH_DT = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperConfig:
+    """Settings of one reproduction (defaults: the paper's budget, 4 chains)."""
+
+    seed: int = 0
+    chains: int = 4
+    iterations: int = 200_000
+    burn_in: int | None = None  # None: half the iterations, the paper's 100,000 of 200,000
+    rk2: str = "rk2-midpoint"
+    num_starts: int = 4
+    num_paths: int = 100
+    noise_std: float = 0.05
+    num_obs: int = 20
+    obs_interval: float = 5.0
+    dt: float = 0.25
+    order: int = 3
+    t_end: float = 200.0
+    prediction_dt: float = 0.01
+    workers: int = 2
+
+    @classmethod
+    def quick(cls, **overrides: Any) -> PaperConfig:
+        """A small budget for smoke tests (well under a minute on two cores)."""
+        base = {
+            "iterations": QUICK["iterations"],
+            "burn_in": QUICK["burn_in"],
+            "chains": QUICK["chains"],
+            "num_starts": QUICK["num_starts"],
+            "num_paths": QUICK["num_paths"],
+        }
+        base.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**base)
+
+    @property
+    def resolved_burn_in(self) -> int:
+        return self.iterations // 2 if self.burn_in is None else self.burn_in
+
+    def integrator(self, approach: str) -> str:
+        return "leapfrog" if approach == "leapfrog" else self.rk2
+
+
+def paper_data(config: PaperConfig) -> tuple[Observations, Any]:
+    """The experiment's truth and data: 20 full-state observations, σ = 0.05, seeded."""
+    from symplid.simulate import simulate
+
+    system = get_system("henon-heiles")
+    times = config.obs_interval * np.arange(1, config.num_obs + 1)
+    obs = simulate(system, times=times, noise_std=config.noise_std, seed=config.seed)
+    return obs, system
+
+
+def paper_settings(config: PaperConfig, approach: str) -> Settings:
+    """Run settings for one approach: the paper's priors and DRAM, known initial state."""
+    system = get_system("henon-heiles")
+    return merge_overrides(
+        Settings(),
+        {
+            "seed": config.seed,
+            "model.order": config.order,
+            "model.integrator": config.integrator(approach),
+            "model.dt": config.dt,
+            "initial_state.x0": [float(v) for v in system.initial_state],
+            "map.num_starts": config.num_starts,
+            "sampler.num_samples": config.iterations,
+            "sampler.burn_in": config.resolved_burn_in,
+            "sampler.num_chains": config.chains,
+            "prediction.dt": config.prediction_dt,
+            "prediction.t_end": config.t_end,
+            "prediction.num_paths": config.num_paths,
+        },
+    )
+
+
+def _limit_threads() -> None:
+    """One XLA thread per process: the parallelism is across processes."""
+    os.environ.setdefault(
+        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    )
+
+
+def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
+    """Fit one approach into ``out/approach`` (runs in a worker process)."""
+    config, approach, out, progress, position = args
+    _limit_threads()
+    from symplid.workflow import fit
+
+    obs, _ = paper_data(config)
+    outcome = fit(
+        obs,
+        paper_settings(config, approach),
+        out=Path(out) / approach,
+        progress=progress,
+        progress_label=f"DRAM {approach}",
+        progress_position=position,
+        overwrite=True,
+    )
+    return {"approach": approach, "timings": outcome.timings, "interrupted": outcome.interrupted}
+
+
+def run_fits(
+    config: PaperConfig, out: Path, progress: bool = True, workers: int | None = None
+) -> list[dict[str, Any]]:
+    """Fit both approaches, in parallel processes when ``workers`` > 1."""
+    workers = config.workers if workers is None else workers
+    jobs = [(config, a, str(out), progress, i) for i, a in enumerate(APPROACHES)]
+    if workers <= 1:
+        return [_fit_one(job) for job in jobs]
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context) as pool:
+        return list(pool.map(_fit_one, jobs))
+
+
+@dataclasses.dataclass
+class ApproachResult:
+    """Everything the figures and the summary need from one approach."""
+
+    name: str
+    integrator: str
+    map_theta: np.ndarray
+    draws: np.ndarray  # (chain, draw, param)
+    param_names: tuple[str, ...]
+    fit_summary: dict[str, Any]
+
+    @property
+    def coefficients_map(self) -> np.ndarray:
+        return self.map_theta[: self.num_coefficients]
+
+    @property
+    def num_coefficients(self) -> int:
+        return self.param_names.index("process_var")
+
+    @property
+    def process_noise_draws(self) -> np.ndarray:
+        return self.draws[..., self.param_names.index("process_var")].ravel()
+
+    @property
+    def coefficient_draws(self) -> np.ndarray:
+        return self.draws[..., : self.num_coefficients].reshape(-1, self.num_coefficients)
+
+
+def load_approach(out: Path, approach: str, integrator: str) -> ApproachResult:
+    """Read one approach's run folder back."""
+    from symplid.results import RunFolder
+    from symplid.samplers import draws_array
+
+    folder = RunFolder(out / approach, "r", allow_incomplete=True)
+    map_info = folder.read_map()
+    idata = folder.read_posterior()
+    names = tuple(map_info["param_names"])
+    return ApproachResult(
+        approach,
+        integrator,
+        np.asarray(map_info["theta"], dtype=float),
+        draws_array(idata),
+        names,
+        folder.read_summary(),
+    )
+
+
+def analyse_approach(
+    result: ApproachResult, system, truth_times: np.ndarray, truth: np.ndarray, config: PaperConfig
+) -> dict[str, Any]:
+    """The summary numbers of one approach (issue's ``summary.json`` keys)."""
+    from symplid.predict import predict_trajectory, prediction_horizon
+
+    x0 = system.initial_state
+    h_true = float(hamiltonian(system.potential, system.coefficients, x0))
+    h_map = float(hamiltonian(system.potential, result.coefficients_map, x0))
+    times, path = predict_trajectory(
+        system.potential, result.coefficients_map, x0, config.t_end, dt=config.prediction_dt
+    )
+    truth_on_grid = np.stack([np.interp(times, truth_times, col) for col in truth.T], axis=1)
+    horizon = prediction_horizon(times, path, truth_on_grid, HORIZON_THRESHOLD, 0)
+    noise = result.process_noise_draws
+    fs = result.fit_summary
+    return {
+        "integrator": result.integrator,
+        "map_hamiltonian": h_map,
+        "hamiltonian_rel_error": abs(h_map - h_true) / h_true,
+        "process_noise_map": float(result.map_theta[result.param_names.index("process_var")]),
+        "process_noise_median": float(np.median(noise)),
+        "process_noise_q025": float(np.quantile(noise, 0.025)),
+        "process_noise_q975": float(np.quantile(noise, 0.975)),
+        "prediction_horizon_s": float(horizon),
+        "acceptance_rate": fs.get("acceptance_rate"),
+        "rhat_max": fs.get("rhat_max"),
+        "ess_min": fs.get("ess_min"),
+        "map": dict(zip(result.param_names, result.map_theta.tolist(), strict=True)),
+    }
+
+
+def truth_path(system, config: PaperConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV)."""
+    from symplid.simulate import true_trajectory
+
+    n = round(config.t_end / config.prediction_dt)
+    times = config.prediction_dt * np.arange(1, n + 1)
+    states = true_trajectory(
+        system.potential, system.coefficients, system.initial_state, times, TRUTH_DT
+    )
+    return np.concatenate([[0.0], times]), np.concatenate([system.initial_state[None], states])
+
+
+def reproduce(
+    out: str | Path,
+    config: PaperConfig | None = None,
+    progress: bool = True,
+    echo: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Run the paper's experiment end to end into ``out``; returns ``summary.json``'s content."""
+    from symplid.experiments.paper_figures import draw_figures
+    from symplid.results import RunFolder
+
+    config = config or PaperConfig()
+    out = Path(out)
+    start = time.perf_counter()
+    folder = RunFolder(out, "w", overwrite=True)
+    obs, system = paper_data(config)
+    folder.write_data(obs)
+    folder.write_json("config.json", dataclasses.asdict(config))
+    echo(
+        f"Hénon–Heiles, seed {config.seed}: {config.num_obs} observations, σ = "
+        f"{config.noise_std}; {config.chains} chains × {config.iterations:,} DRAM iterations "
+        f"per approach ({config.resolved_burn_in:,} burn-in)"
+    )
+    run_fits(config, out, progress)
+    results = {a: load_approach(out, a, config.integrator(a)) for a in APPROACHES}
+    truth_times, truth = truth_path(system, config)
+    h_true = hamiltonian(system.potential, system.coefficients, system.initial_state)
+    summary: dict[str, Any] = {"true_hamiltonian": float(h_true)}
+    for name, result in results.items():
+        summary[name] = analyse_approach(result, system, truth_times, truth, config)
+    summary["process_noise_ratio"] = (
+        summary["rk2"]["process_noise_median"] / summary["leapfrog"]["process_noise_median"]
+    )
+    summary["seed"] = config.seed
+    draw_figures(folder, results, system, obs, truth_times, truth, config, progress)
+    summary["wall_time_s"] = time.perf_counter() - start
+    table = comparison_table(summary)
+    folder.write_summary(summary, table)
+    folder.write_report(report_text(summary, table, config))
+    folder.finish(required=("data.csv", "summary.json"))
+    echo(table)
+    echo(f"Run folder: {out}  (wall time {summary['wall_time_s']:.0f} s)")
+    return summary
+
+
+def comparison_table(summary: dict[str, Any]) -> str:
+    """This run's numbers beside the paper's (Section IV)."""
+    lf, rk = summary["leapfrog"], summary["rk2"]
+    rows = [
+        ("true H", f"{summary['true_hamiltonian']:.4f}", f"{PAPER['true_hamiltonian']:.4f}"),
+        ("MAP H, leapfrog", f"{lf['map_hamiltonian']:.4f}", "0.1219"),
+        ("MAP H, RK2", f"{rk['map_hamiltonian']:.4f}", "0.1211"),
+        ("|ΔH|/H, leapfrog", f"{lf['hamiltonian_rel_error']:.2%}", "0.7%"),
+        ("|ΔH|/H, RK2", f"{rk['hamiltonian_rel_error']:.2%}", "1.3%"),
+        ("process noise median, leapfrog", f"{lf['process_noise_median']:.2e}", ""),
+        ("process noise median, RK2", f"{rk['process_noise_median']:.2e}", ""),
+        ("process noise RK2 / leapfrog", f"{summary['process_noise_ratio']:.1f}", "≈ 10"),
+        ("valid prediction, leapfrog [s]", f"{lf['prediction_horizon_s']:.1f}", "≈ 150"),
+        ("valid prediction, RK2 [s]", f"{rk['prediction_horizon_s']:.1f}", "≈ 20"),
+        ("acceptance, leapfrog / RK2", _pair(lf, rk, "acceptance_rate", "{:.2f}"), ""),
+        ("max R-hat, leapfrog / RK2", _pair(lf, rk, "rhat_max", "{:.3f}"), ""),
+        ("min bulk ESS, leapfrog / RK2", _pair(lf, rk, "ess_min", "{:.0f}"), ""),
+    ]
+    width = max(len(r[0]) for r in rows)
+    lines = [f"{'':<{width}}  {'this run':>14}  {'paper':>8}"]
+    lines += [f"{a:<{width}}  {b:>14}  {c:>8}" for a, b, c in rows]
+    return "\n".join(lines)
+
+
+def _pair(a: dict, b: dict, key: str, fmt: str) -> str:
+    def one(d: dict) -> str:
+        v = d.get(key)
+        return "n/a" if v is None else fmt.format(v)
+
+    return f"{one(a)} / {one(b)}"
+
+
+def report_text(summary: dict[str, Any], table: str, config: PaperConfig) -> str:
+    """``report.md`` of a reproduction: the table and the four figures."""
+    return f"""# Hénon–Heiles: leapfrog against RK2 ({config.rk2})
+
+Seed {config.seed}; {config.chains} chains × {config.iterations:,} DRAM iterations per approach,
+the first {config.resolved_burn_in:,} discarded; wall time {summary["wall_time_s"]:.0f} s.
+Coefficients are those of U (the paper's θ1..θ9 are those of −U).
+
+```
+{table}
+```
+
+![Phase portraits](figures/fig1_phase_portraits.png)
+
+![Hamiltonians](figures/fig2_hamiltonians.png)
+
+![q1 with posterior bands](figures/fig3_trajectories.png)
+
+![Process-noise posteriors](figures/fig4_process_noise.png)
+
+Per-approach runs (settings, data, MAP, Hessian, posterior) are in `leapfrog/` and `rk2/`.
+"""
