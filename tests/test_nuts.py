@@ -119,3 +119,18 @@ def test_in_kernel_warmup_equals_blackjax_window_adaptation():
 def test_settings_are_validated(kwargs, message):
     with pytest.raises(ValueError, match=message):
         nuts.NUTSSettings(**kwargs)
+
+
+def test_pushed_forward_covariance_is_capped_near_a_bound():
+    """A MAP variance at 1e-8 with Laplace sd 0.7 would get a log-scale variance of 5e15."""
+    from symplid.samplers.api import MAX_UNCONSTRAINED_VARIANCE, _unconstrained_covariance
+
+    target = GammaVariance()
+    cov = np.array([[1.0, 0.3], [0.3, 0.5]])
+    capped = _unconstrained_covariance(target, np.array([0.0, 1e-8]), cov)
+    assert capped[0, 0] == 1.0 and capped[1, 1] == pytest.approx(MAX_UNCONSTRAINED_VARIANCE)
+    correlation = capped[0, 1] / np.sqrt(capped[0, 0] * capped[1, 1])
+    assert correlation == pytest.approx(0.3 / np.sqrt(0.5))
+    # Exactly on the bound: the push-forward is infinite; the cap, uncorrelated.
+    on_bound = _unconstrained_covariance(target, np.array([0.0, 0.0]), cov)
+    np.testing.assert_array_equal(on_bound, np.diag([1.0, MAX_UNCONSTRAINED_VARIANCE]))

@@ -293,6 +293,12 @@ def sample(
         extra_attrs: dict[str, Any] = {}
     else:
         cov_z = _unconstrained_covariance(posterior, theta_map, cov_map)
+        z_starts = np.asarray(jax.vmap(posterior.to_unconstrained)(jnp.asarray(starts)))
+        if not np.all(np.isfinite(z_starts)):
+            raise ValueError(
+                "a NUTS starting point lies on a bound of the parameters (its unconstrained "
+                "value is infinite); use init_spread > 0 or move initial_positions inside"
+            )
         states = parts.init_states(jnp.asarray(starts), jnp.asarray(cov_z))
         extra_attrs = {"unconstrained_map_covariance": cov_z.tolist()}
     run = run_chains(parts.step, states, run_key, int(num_samples), record=parts.record,
@@ -334,14 +340,31 @@ def sample(
     return _to_inference_data(run, names, attrs)
 
 
+#: Cap on each variance of the Laplace covariance pushed to the unconstrained space.
+MAX_UNCONSTRAINED_VARIANCE = 4.0
+
+
 def _unconstrained_covariance(posterior, theta_map, cov_map) -> np.ndarray:
-    """Laplace covariance pushed to the unconstrained space: ``J Σ Jᵀ``, ``J = ∂z/∂θ``."""
+    """Laplace covariance pushed to the unconstrained space: ``J Σ Jᵀ``, ``J = ∂z/∂θ``.
+
+    Near a bound the push-forward is meaningless: a variance whose MAP sits at 1e-14 with a
+    Laplace standard deviation of 1e-6 would get a log-scale variance of 1e16. Each
+    unconstrained variance is therefore capped at :data:`MAX_UNCONSTRAINED_VARIANCE` (a
+    factor e² either way on a log scale) by rescaling its row and column, which keeps the
+    correlations; a coordinate whose push-forward is not finite (MAP exactly on a bound)
+    gets the cap and no correlation. The window adaptation of NUTS refines all of this.
+    """
     jac = np.asarray(jax.jacfwd(posterior.to_unconstrained)(jnp.asarray(theta_map)))
+    broken = ~np.all(np.isfinite(jac), axis=1)
+    jac = np.where(broken[:, None], 0.0, jac)
     cov_z = jac @ cov_map @ jac.T
     cov_z = 0.5 * (cov_z + cov_z.T)
-    if not np.all(np.isfinite(cov_z)):
-        raise ValueError("the MAP covariance mapped to the unconstrained space is not finite "
-                         "(is the MAP on a bound?)")
+    cov_z[broken, :] = 0.0
+    cov_z[:, broken] = 0.0
+    cov_z[broken, broken] = MAX_UNCONSTRAINED_VARIANCE
+    variance = np.diag(cov_z)
+    shrink = np.sqrt(np.minimum(1.0, MAX_UNCONSTRAINED_VARIANCE / np.maximum(variance, 1e-300)))
+    cov_z = shrink[:, None] * cov_z * shrink[None, :]
     try:
         np.linalg.cholesky(cov_z)
     except np.linalg.LinAlgError:

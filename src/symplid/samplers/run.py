@@ -85,14 +85,26 @@ class ChainRun(NamedTuple):
     elapsed: float
 
 
-def _over_chains(fn: Callable, chain_method: str) -> Callable:
+def _over_chains(fn: Callable, chain_method: str, num_chains: int) -> Callable:
+    """Apply a one-chain function to stacked chains.
+
+    A single chain is run unbatched: under ``vmap`` a ``lax.cond`` in the kernel (DRAM's
+    second stage) becomes a ``select`` that evaluates both branches.
+    """
+    if num_chains == 1:
+        def single(*args):
+            out = fn(*jax.tree.map(lambda leaf: leaf[0], args))
+            return jax.tree.map(lambda leaf: leaf[None], out)
+
+        return single
     if chain_method == "vectorized":
         return jax.vmap(fn)
     return lambda *args: lax.map(lambda a: fn(*a), args)
 
 
 @functools.lru_cache(maxsize=8)
-def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str):
+def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,
+                 num_chains: int):
     """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` run.
 
     Cached on the (step, record) function objects, so that running the same kernel again
@@ -103,7 +115,7 @@ def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, chain_method: s
         new_state, info = step(jax.random.fold_in(key, t), state)
         return new_state, record(new_state, info)
 
-    advance = _over_chains(one_chain, chain_method)
+    advance = _over_chains(one_chain, chain_method, num_chains)
 
     def chunk(states, chain_keys, start, num_active):
         def run_all(c, t):
@@ -191,7 +203,7 @@ def run_chains(
 
     total = int(burn_in) + int(num_samples) * int(thin)
     chunk_len = min(int(chunk_size), total)
-    chunk_fn = _build_chunk(step, record, chunk_len, chain_method)
+    chunk_fn = _build_chunk(step, record, chunk_len, chain_method, num_chains)
     chain_keys = jax.random.split(rng_key, num_chains)
 
     kept: dict[str, list[np.ndarray]] = {}
