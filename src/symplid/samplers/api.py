@@ -73,8 +73,8 @@ def _check_posterior(posterior: Any, method: str) -> tuple[int, tuple[str, ...]]
     return num_params, names
 
 
-def _check_map(init: Any, num_params: int,
-               batch_logdensity: Callable) -> tuple[np.ndarray, np.ndarray]:
+def _check_map(init: Any, num_params: int, batch_logdensity: Callable,
+               num_chains: int) -> tuple[np.ndarray, np.ndarray]:
     for name in ("theta", "covariance"):
         if not hasattr(init, name):
             raise TypeError(
@@ -95,7 +95,8 @@ def _check_map(init: Any, num_params: int,
         np.linalg.cholesky(0.5 * (cov + cov.T))
     except np.linalg.LinAlgError:
         raise ValueError("init.covariance is not positive definite") from None
-    value = float(batch_logdensity(jnp.asarray(theta)[None])[0])
+    # Same batch shape as the starting points: one compilation serves both.
+    value = float(batch_logdensity(jnp.tile(jnp.asarray(theta), (num_chains, 1)))[0])
     if not np.isfinite(value):
         raise ValueError(f"the log density at init.theta is not finite ({value})")
     return theta, 0.5 * (cov + cov.T)
@@ -272,7 +273,7 @@ def sample(
         from symplid.optimize import find_map
 
         init = find_map(posterior, seed=seed)
-    theta_map, cov_map = _check_map(init, num_params, parts.batch_logdensity)
+    theta_map, cov_map = _check_map(init, num_params, parts.batch_logdensity, int(num_chains))
 
     init_key, run_key = jax.random.split(jax.random.key(int(seed)), 2)
     if initial_positions is None:
@@ -399,8 +400,14 @@ def _build_parts(posterior: Any, method: str, settings: Any, num_warmup: int) ->
         logdensity_fn = posterior.log_density
 
         @jax.jit
+        def init_from_values(thetas, cov, values):
+            return jax.vmap(
+                lambda p, value: dram.init(p, logdensity_fn, cov, settings, logdensity=value)
+            )(thetas, values)
+
         def init_dram(thetas, cov):
-            return jax.vmap(lambda p: dram.init(p, logdensity_fn, cov, settings))(thetas)
+            # The log densities come from the batch function, already compiled for the starts.
+            return init_from_values(thetas, cov, batch_logdensity(thetas))
 
         def record_dram(state: dram.DRAMState, info: dram.DRAMInfo) -> dict[str, jax.Array]:
             return {

@@ -269,7 +269,7 @@ def _proposal_chol(cov: Array, nugget: Array, factor: float) -> Array:
 
 
 def init(position: Array, logdensity_fn: LogDensityFn, cov: Array,
-         settings: DRAMSettings | None = None) -> DRAMState:
+         settings: DRAMSettings | None = None, logdensity: Array | None = None) -> DRAMState:
     """Initial DRAM state at ``position`` with initial proposal covariance ``cov``.
 
     Parameters
@@ -283,6 +283,9 @@ def init(position: Array, logdensity_fn: LogDensityFn, cov: Array,
         Initial covariance ``C0`` (positive definite), e.g. the inverse Hessian at the MAP.
     settings
         Kernel settings (for the nugget and the initial scale); defaults if ``None``.
+    logdensity
+        The log density at ``position`` if already known (it is then not evaluated again,
+        which spares compiling an expensive log density once more).
     """
     settings = DRAMSettings() if settings is None else settings
     position = jnp.asarray(position, dtype=jnp.float64)
@@ -294,7 +297,9 @@ def init(position: Array, logdensity_fn: LogDensityFn, cov: Array,
         raise ValueError(f"cov must have shape {(dim, dim)}, got {cov.shape}")
     nugget = settings.nugget * jnp.diag(cov)
     chol = jnp.linalg.cholesky(settings.resolved_initial_scale(dim) * 0.5 * (cov + cov.T))
-    logdensity = _finite_or_neg_inf(logdensity_fn(position))
+    if logdensity is None:
+        logdensity = logdensity_fn(position)
+    logdensity = _finite_or_neg_inf(logdensity)
     return DRAMState(
         position=position,
         logdensity=logdensity,
@@ -314,6 +319,16 @@ def _update_moments(state: DRAMState, position: Array) -> tuple[Array, Array, Ar
     mean = state.mean + delta / (n + 1.0)
     cov = ((n - 1.0) / n) * state.cov + jnp.outer(delta, delta) / (n + 1.0)
     return mean, cov, state.count + 1
+
+
+class _Stages(NamedTuple):
+    """Carry of the delayed-rejection loop (index 0: stage 1, index 1: stage 2)."""
+
+    stage: Array
+    accepted: Array
+    proposals: Array
+    logdensities: Array
+    log_alphas: Array
 
 
 def build_kernel(logdensity_fn: LogDensityFn,
@@ -339,38 +354,55 @@ def build_kernel(logdensity_fn: LogDensityFn,
     def logdensity(position: Array) -> Array:
         return _finite_or_neg_inf(logdensity_fn(position))
 
+    num_stages = 2 if settings.delayed_rejection else 1
+    stage_scales = jnp.array([1.0, sqrt_gamma])
+
     def step(rng_key: Array, state: DRAMState) -> tuple[DRAMState, DRAMInfo]:
         x, logdensity_x, chol = state.position, state.logdensity, state.chol
         dim = x.shape[0]
         key1, key_u1, key2, key_u2 = jax.random.split(rng_key, 4)
+        normals = jnp.stack([jax.random.normal(key1, (dim,), dtype=x.dtype),
+                             jax.random.normal(key2, (dim,), dtype=x.dtype)])
+        log_uniforms = jnp.log(jnp.stack([jax.random.uniform(key_u1, dtype=x.dtype),
+                                          jax.random.uniform(key_u2, dtype=x.dtype)]))
 
-        # Stage 1: Gaussian random walk with covariance C = L Lᵀ.
-        y1 = x + chol @ jax.random.normal(key1, (dim,), dtype=x.dtype)
-        logdensity_y1 = logdensity(y1)
-        log_alpha1 = _log_alpha1(logdensity_x, logdensity_y1)
-        accept1 = jnp.log(jax.random.uniform(key_u1, dtype=x.dtype)) < log_alpha1
+        # The stages run in a loop with one call site of the log density, so that it is
+        # compiled once (an expensive filter would otherwise be compiled twice), and stage 2
+        # runs only when stage 1 rejects. Stage 1: y1 ~ N(x, C); stage 2: y2 ~ N(x, γ C).
+        def keep_going(carry: _Stages) -> Array:
+            return (carry.stage < num_stages) & jnp.logical_not(carry.accepted)
 
-        # Stage 2, only when stage 1 rejects: y2 ~ N(x, γ C).
-        def second_stage(_):
-            y2 = x + sqrt_gamma * (chol @ jax.random.normal(key2, (dim,), dtype=x.dtype))
-            logdensity_y2 = logdensity(y2)
-            log_alpha2 = stage2_log_acceptance(
-                x, logdensity_x, y1, logdensity_y1, y2, logdensity_y2, chol
+        def one_stage(carry: _Stages) -> _Stages:
+            s = carry.stage
+            y = x + stage_scales[s] * (chol @ normals[s])
+            logdensity_y = logdensity(y)
+            log_alpha = jnp.where(
+                s == 0,
+                _log_alpha1(logdensity_x, logdensity_y),
+                stage2_log_acceptance(x, logdensity_x, carry.proposals[0],
+                                      carry.logdensities[0], y, logdensity_y, chol),
             )
-            accept2 = jnp.log(jax.random.uniform(key_u2, dtype=x.dtype)) < log_alpha2
-            return y2, logdensity_y2, log_alpha2, accept2
+            return _Stages(
+                stage=s + 1,
+                accepted=log_uniforms[s] < log_alpha,
+                proposals=carry.proposals.at[s].set(y),
+                logdensities=carry.logdensities.at[s].set(logdensity_y),
+                log_alphas=carry.log_alphas.at[s].set(log_alpha),
+            )
 
-        def skip(_):
-            return x, logdensity_x, jnp.asarray(-jnp.inf, x.dtype), jnp.asarray(False)
-
-        if settings.delayed_rejection:
-            y2, logdensity_y2, log_alpha2, accept2 = lax.cond(accept1, skip, second_stage, None)
-        else:
-            y2, logdensity_y2, log_alpha2, accept2 = skip(None)
-
-        new_position = jnp.where(accept1, y1, jnp.where(accept2, y2, x))
-        new_logdensity = jnp.where(accept1, logdensity_y1,
-                                   jnp.where(accept2, logdensity_y2, logdensity_x))
+        start = _Stages(
+            stage=jnp.asarray(0, dtype=jnp.int32),
+            accepted=jnp.asarray(False),
+            proposals=jnp.stack([x, x]),
+            logdensities=jnp.stack([logdensity_x, logdensity_x]),
+            log_alphas=jnp.full((2,), -jnp.inf, dtype=x.dtype),
+        )
+        stages = lax.while_loop(keep_going, one_stage, start)
+        accept1 = stages.accepted & (stages.stage == 1)
+        accept2 = stages.accepted & (stages.stage == 2)
+        last = stages.stage - 1
+        new_position = jnp.where(stages.accepted, stages.proposals[last], x)
+        new_logdensity = jnp.where(stages.accepted, stages.logdensities[last], logdensity_x)
 
         # Adaptive Metropolis: running moments, then the proposal for the next step.
         mean, cov, count = _update_moments(state, new_position)
@@ -395,12 +427,12 @@ def build_kernel(logdensity_fn: LogDensityFn,
         info = DRAMInfo(
             is_accepted=accept1 | accept2,
             stage1_accepted=accept1,
-            stage2_attempted=jnp.logical_not(accept1) & settings.delayed_rejection,
+            stage2_attempted=stages.stage == 2,
             stage2_accepted=accept2,
-            acceptance_rate1=jnp.exp(log_alpha1),
-            acceptance_rate2=jnp.exp(log_alpha2),
-            proposal1=y1,
-            proposal2=y2,
+            acceptance_rate1=jnp.exp(stages.log_alphas[0]),
+            acceptance_rate2=jnp.exp(stages.log_alphas[1]),
+            proposal1=stages.proposals[0],
+            proposal2=stages.proposals[1],
             logdensity=new_logdensity,
         )
         return new_state, info
