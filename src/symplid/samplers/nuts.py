@@ -27,20 +27,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
-import blackjax
 import jax
 import jax.numpy as jnp
-from blackjax.adaptation.mass_matrix import MassMatrixAdaptationState, mass_matrix_adaptation
-from blackjax.adaptation.step_size import (
-    DualAveragingAdaptationState,
-    dual_averaging_adaptation,
-)
-from blackjax.adaptation.window_adaptation import build_schedule
-from blackjax.mcmc.hmc import HMCState
-from blackjax.mcmc.nuts import NUTSInfo
 from jax import lax
+
+if TYPE_CHECKING:  # BlackJAX is imported on first use: it takes a second or two to load.
+    from blackjax.adaptation.mass_matrix import MassMatrixAdaptationState
+    from blackjax.adaptation.step_size import DualAveragingAdaptationState
+    from blackjax.mcmc.hmc import HMCState
+    from blackjax.mcmc.nuts import NUTSInfo
 
 Array = jax.Array
 LogDensityFn = Callable[[Array], Array]
@@ -115,6 +112,9 @@ class NUTSState(NamedTuple):
 
 
 def _adaptation(settings: NUTSSettings):
+    from blackjax.adaptation.mass_matrix import mass_matrix_adaptation
+    from blackjax.adaptation.step_size import dual_averaging_adaptation
+
     mass = mass_matrix_adaptation(is_diagonal_matrix=not settings.dense_mass)
     step_size = dual_averaging_adaptation(settings.target_acceptance_rate)
     return mass, step_size
@@ -146,6 +146,8 @@ def init(position: Array, logdensity_fn: LogDensityFn, inverse_mass_matrix: Arra
     step_size
         Initial step size (default ``settings.initial_step_size``).
     """
+    import blackjax
+
     settings = NUTSSettings() if settings is None else settings
     position = jnp.asarray(position, dtype=jnp.float64)
     if position.ndim != 1:
@@ -187,6 +189,9 @@ def build_kernel(
         The transition. Its info is BlackJAX's :class:`~blackjax.mcmc.nuts.NUTSInfo`
         (``is_divergent``, ``acceptance_rate``, ``num_integration_steps``, ...).
     """
+    import blackjax
+    from blackjax.adaptation.window_adaptation import build_schedule
+
     settings = NUTSSettings() if settings is None else settings
     if int(num_warmup) != num_warmup or num_warmup < 0:
         raise ValueError(f"num_warmup must be an integer >= 0, got {num_warmup!r}")

@@ -10,7 +10,9 @@ Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c],
 ``chain_key = split(rng_key, num_chains)``. The draws therefore depend only on the key and
 the kernel, not on the chunk size, and an interrupted run is a prefix of the full run.
 Every chunk has the same length (the last one masks its unused iterations with
-``lax.cond``), so a run compiles exactly once.
+``lax.cond``), so a run compiles exactly once; the compiled chunk is cached on the
+``(step, record)`` function objects, so a second run of the same kernel does not compile.
+A single chain runs unbatched.
 """
 
 from __future__ import annotations
@@ -174,8 +176,10 @@ def run_chains(
     chunk_size
         Iterations per compiled chunk (the progress bar moves once per chunk).
     chain_method
-        ``"vectorized"`` (``vmap``: all chains in lockstep) or ``"sequential"``
-        (``lax.map``: a ``lax.cond`` inside the kernel then really skips work).
+        ``"vectorized"`` (``vmap``: all chains in lockstep; data-dependent branches such as
+        DRAM's second stage run for every chain whenever one needs them) or
+        ``"sequential"`` (``lax.map``: one chain after the other, branches really skipped).
+        Irrelevant for one chain, which always runs unbatched.
     progress
         Show a tqdm progress bar.
     desc
