@@ -432,3 +432,51 @@ def test_paper_claims_study_end_to_end(shared_cluster, tmp_path):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"(figures/{name}.png)" in report
     assert "| paper setting | 2 |" in report
+
+
+# ----------------------------------------------------------------------------- the real cell
+PAPER_METRICS = (
+    "map_hamiltonian",
+    "true_hamiltonian",
+    "hamiltonian_rel_error",
+    "process_noise_map",
+    "process_noise_median",
+    "process_noise_q025",
+    "process_noise_q975",
+    "prediction_horizon_s",
+    "acceptance_rate",
+    "rhat_max",
+    "ess_min",
+    "wall_time_s",
+)
+
+
+def _has_run_cell() -> bool:
+    try:
+        from symplid.experiments import paper
+    except ImportError:
+        return False
+    return callable(getattr(paper, "run_cell", None))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not _has_run_cell(), reason="symplid.experiments.paper.run_cell not written yet"
+)
+def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
+    """The real cell function (quick budget): seed 0, leapfrog and RK2, on 2 local workers."""
+    spec = paper_claims_spec(seeds=1, quick=True, variants=False)
+    table = run_sweep(spec, tmp_path, workers=2, progress=False, figures=False)
+    assert list(table["status"]) == ["ok", "ok"], list(table["error"])
+    for metric in PAPER_METRICS:
+        assert metric in table.columns
+    system = symplid.get_system("henon-heiles")
+    h_true = float(symplid.hamiltonian(system.potential, system.coefficients, system.initial_state))
+    np.testing.assert_allclose(table["true_hamiltonian"], h_true, rtol=1e-12)
+    rel = (table["map_hamiltonian"] - h_true).abs() / h_true
+    np.testing.assert_allclose(table["hamiltonian_rel_error"], rel, rtol=1e-9)
+    q = table[["process_noise_q025", "process_noise_median", "process_noise_q975"]].to_numpy()
+    assert (q[:, 0] <= q[:, 1]).all() and (q[:, 1] <= q[:, 2]).all()
+    assert ((table["prediction_horizon_s"] > 0) & (table["prediction_horizon_s"] <= 200)).all()
+    claims = evaluate_claims(table, baseline=PAPER_SETTING)
+    assert all(c["per_setting"][0]["n"] == 1 for c in claims["claims"].values())
