@@ -12,6 +12,24 @@ import pytest
 
 import symplid
 
+
+def pytest_configure(config):
+    """Share compiled programs between tests and xdist workers through JAX's disk cache.
+
+    Many tests build the same model structure afresh; XLA compiles it to the same program,
+    which the persistent cache then serves instead of compiling again.
+    """
+    import os
+    import tempfile
+
+    from symplid import compilation_cache
+
+    folder = os.environ.get("SYMPLID_TEST_CACHE_DIR") or os.path.join(
+        tempfile.gettempdir(), f"symplid-test-jax-cache-{os.getuid()}"
+    )
+    compilation_cache.enable(folder)
+
+
 # Irregular observation times for the small problems: gaps 0.7, 0.8, 0.5, 1.1, 0.5, 0.9,
 # so with dt = 0.25 the gaps take 3, 4, 2, 5, 2 and 4 substeps (never an exact multiple).
 SMALL_TIMES = np.array([0.7, 1.5, 2.0, 3.1, 3.6, 4.5])

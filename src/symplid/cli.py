@@ -55,7 +55,12 @@ def main() -> None:
 
     A symplectic integrator inside a UKF marginal likelihood, MAP and DRAM/NUTS posterior
     sampling, and predictions with uncertainty. Start with `symplid reproduce --quick`.
+
+    Compiled code is cached in ~/.cache/symplid/jax (SYMPLID_CACHE_DIR=off disables it).
     """
+    from symplid import compilation_cache
+
+    compilation_cache.enable()
 
 
 # ----------------------------------------------------------------------------- reproduce

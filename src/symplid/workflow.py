@@ -122,10 +122,13 @@ def sample_for(
     options: dict[str, Any] = {}
     if s.method == "dram":
         options = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
+    # The settings count every iteration (burn-in included, as the paper's 200,000 with
+    # 100,000 discarded); the sampler counts the draws it keeps.
+    kept = (s.num_samples - s.burn_in) // s.thin
     return sample(
         posterior,
         method=s.method,
-        num_samples=s.num_samples,
+        num_samples=kept,
         num_chains=s.num_chains,
         seed=s.seed,
         init=map_result,

@@ -125,6 +125,9 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
     """Fit one approach into ``out/approach`` (runs in a worker process)."""
     config, approach, out, progress, position = args
     _limit_threads()
+    from symplid import compilation_cache
+
+    compilation_cache.enable()
     from symplid.workflow import fit
 
     obs, _ = paper_data(config)
