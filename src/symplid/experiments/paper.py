@@ -204,19 +204,30 @@ def load_approach(out: Path, approach: str, integrator: str) -> ApproachResult:
 
 
 def analyse_approach(
-    result: ApproachResult, system, truth_times: np.ndarray, truth: np.ndarray, config: PaperConfig
+    result: ApproachResult,
+    system,
+    truth_times: np.ndarray,
+    truth: np.ndarray,
+    t_end: float,
+    prediction_dt: float,
+    threshold: float = HORIZON_THRESHOLD,
 ) -> dict[str, Any]:
-    """The summary numbers of one approach (issue's ``summary.json`` keys)."""
+    """The summary numbers of one approach (the keys of ``summary.json``).
+
+    H is evaluated at the true initial state under the learned potential (the learned model's
+    energy along its own leapfrog path from there); the horizon is the first time the MAP
+    path, integrated by leapfrog at ``prediction_dt``, leaves the truth by ``threshold`` in q1.
+    """
     from symplid.predict import predict_trajectory, prediction_horizon
 
     x0 = system.initial_state
     h_true = float(hamiltonian(system.potential, system.coefficients, x0))
     h_map = float(hamiltonian(system.potential, result.coefficients_map, x0))
     times, path = predict_trajectory(
-        system.potential, result.coefficients_map, x0, config.t_end, dt=config.prediction_dt
+        system.potential, result.coefficients_map, x0, t_end, dt=prediction_dt
     )
     truth_on_grid = np.stack([np.interp(times, truth_times, col) for col in truth.T], axis=1)
-    horizon = prediction_horizon(times, path, truth_on_grid, HORIZON_THRESHOLD, 0)
+    horizon = prediction_horizon(times, path, truth_on_grid, threshold, 0)
     noise = result.process_noise_draws
     fs = result.fit_summary
     return {
@@ -235,12 +246,12 @@ def analyse_approach(
     }
 
 
-def truth_path(system, config: PaperConfig) -> tuple[np.ndarray, np.ndarray]:
+def truth_path(system, t_end: float, prediction_dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV)."""
     from symplid.simulate import true_trajectory
 
-    n = round(config.t_end / config.prediction_dt)
-    times = config.prediction_dt * np.arange(1, n + 1)
+    n = round(t_end / prediction_dt)
+    times = prediction_dt * np.arange(1, n + 1)
     states = true_trajectory(
         system.potential, system.coefficients, system.initial_state, times, TRUTH_DT
     )
@@ -271,11 +282,13 @@ def reproduce(
     )
     run_fits(config, out, progress)
     results = {a: load_approach(out, a, config.integrator(a)) for a in APPROACHES}
-    truth_times, truth = truth_path(system, config)
+    truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
     h_true = hamiltonian(system.potential, system.coefficients, system.initial_state)
     summary: dict[str, Any] = {"true_hamiltonian": float(h_true)}
     for name, result in results.items():
-        summary[name] = analyse_approach(result, system, truth_times, truth, config)
+        summary[name] = analyse_approach(
+            result, system, truth_times, truth, config.t_end, config.prediction_dt
+        )
     summary["process_noise_ratio"] = (
         summary["rk2"]["process_noise_median"] / summary["leapfrog"]["process_noise_median"]
     )
@@ -345,3 +358,45 @@ Coefficients are those of U (the paper's θ1..θ9 are those of −U).
 
 Per-approach runs (settings, data, MAP, Hessian, posterior) are in `leapfrog/` and `rk2/`.
 """
+
+
+def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
+    """One cell of a sweep: simulate, fit (MAP + sampler), predict; returns flat metrics.
+
+    ``cell`` holds the keys of :data:`symplid.sweep.CELL_KEYS` (and dotted run settings); the
+    metrics are those of ``summary.json`` for one approach, plus the true H and the wall time.
+    """
+    from symplid.samplers import draws_array
+    from symplid.sweep import cell_data, cell_settings
+    from symplid.workflow import fit
+
+    start = time.perf_counter()
+    system, obs = cell_data(cell)
+    settings = cell_settings(cell)
+    outcome = fit(obs, settings, out=None, progress=False)
+    integrator = settings.model.integrator
+    result = ApproachResult(
+        integrator,
+        integrator,
+        np.asarray(outcome.map_result.theta, dtype=float),
+        draws_array(outcome.idata),
+        tuple(outcome.posterior.param_names),
+        outcome.summary,
+    )
+    p = settings.prediction
+    truth_times, truth = truth_path(system, p.t_end, p.dt)
+    metrics = analyse_approach(
+        result,
+        system,
+        truth_times,
+        truth,
+        p.t_end,
+        p.dt,
+        float(cell.get("horizon_tol", HORIZON_THRESHOLD)),
+    )
+    metrics.pop("map")
+    metrics["true_hamiltonian"] = float(
+        hamiltonian(system.potential, system.coefficients, system.initial_state)
+    )
+    metrics["wall_time_s"] = time.perf_counter() - start
+    return metrics
