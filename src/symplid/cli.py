@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -61,6 +62,12 @@ def main() -> None:
     from symplid import compilation_cache
 
     compilation_cache.enable()
+    warnings.showwarning = _show_warning
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings as one readable line (no source path): ``symplid: warning: ...``."""
+    click.echo(f"symplid: warning: {message}", err=True)
 
 
 # ----------------------------------------------------------------------------- reproduce

@@ -136,6 +136,8 @@ def sample_for(
         thin=s.thin,
         settings=options,
         progress=progress,
+        progress_label=progress_label,
+        progress_position=progress_position,
     )
 
 

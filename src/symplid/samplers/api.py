@@ -195,6 +195,8 @@ def sample(
     chain_method: str | None = None,
     progress: bool = True,
     callback: Callable[[ChunkReport], None] | None = None,
+    progress_label: str | None = None,
+    progress_position: int | None = None,
 ):
     """Draw from a posterior with DRAM or NUTS.
 
@@ -237,6 +239,9 @@ def sample(
         the batched ``while`` loops take about twice as long to compile.
     progress
         Show progress bars.
+    progress_label, progress_position
+        Text and line of the progress bar (several processes sampling at once each get
+        their own line).
     callback
         Called after every chunk with a :class:`~symplid.samplers.run.ChunkReport`; raising
         ``KeyboardInterrupt`` there stops the run like Ctrl-C.
@@ -303,7 +308,8 @@ def sample(
         states = parts.init_states(jnp.asarray(starts), jnp.asarray(cov_z))
         extra_attrs = {"unconstrained_map_covariance": cov_z.tolist()}
     run = run_chains(parts.step, states, run_key, int(num_samples), record=parts.record,
-                     burn_in=int(burn_in), desc=method.upper(), **common)
+                     burn_in=int(burn_in), desc=progress_label or method.upper(),
+                     position=progress_position, **common)
     if method == "dram":
         extra_attrs["dram_adapted_covariance"] = np.asarray(run.states.cov).tolist()
     else:

@@ -153,6 +153,7 @@ def run_chains(
     chain_method: str = "vectorized",
     progress: bool = True,
     desc: str = "sampling",
+    position: int | None = None,
     callback: Callable[[ChunkReport], None] | None = None,
 ) -> ChainRun:
     """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
@@ -214,7 +215,7 @@ def run_chains(
     draws_kept = 0
     done = 0
     interrupted = False
-    bar = _progress_bar(total, desc, progress)
+    bar = _progress_bar(total, desc, progress, position)
     started = time.perf_counter()
     try:
         chunk_index = 0
@@ -264,9 +265,11 @@ def run_chains(
     return ChainRun(draws, states, done, interrupted, elapsed)
 
 
-def _progress_bar(total: int, desc: str, enabled: bool):
+def _progress_bar(total: int, desc: str, enabled: bool, position: int | None = None):
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, unit="it", unit_scale=True, dynamic_ncols=True)
+    return tqdm(
+        total=total, desc=desc, unit="it", unit_scale=True, dynamic_ncols=True, position=position
+    )
