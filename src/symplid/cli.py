@@ -308,13 +308,10 @@ def fit(
 ) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder."""
     from symplid.io import read_observations
-    from symplid.settings import Settings, load_settings, merge_overrides, parse_override
     from symplid.workflow import fit as run
 
     obs = read_observations(data)
-    settings = load_settings(config) if config is not None else Settings()
-    source = str(config) if config is not None else "command line"
-    overrides: dict[str, Any] = {
+    overrides = {
         "model.order": order,
         "model.integrator": integrator,
         "model.dt": dt,
@@ -326,10 +323,7 @@ def fit(
         "initial_state.x0": _floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
     }
-    for text in sets:
-        key, value = parse_override(text)
-        overrides[key] = value
-    settings = merge_overrides(settings, overrides, source="command line")
+    settings, source = _settings(config, overrides, sets)
     start = time.perf_counter()
     outcome = run(
         obs, settings, out=out, progress=not no_progress, source=source, overwrite=overwrite
@@ -368,6 +362,146 @@ def report(run) -> None:
     from symplid.run_tools import report_run
 
     click.echo(report_run(run))
+
+
+# ----------------------------------------------------------------------------- compare
+@main.command()
+@click.argument("data", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Folder for compare.csv and compare.txt.",
+)
+@click.option(
+    "--config",
+    "config",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Settings file (TOML) shared by every candidate.",
+)
+@click.option(
+    "--orders",
+    type=str,
+    default="2..5",
+    show_default=True,
+    help="Polynomial orders, e.g. 2..5 or 2,3,5.",
+)
+@click.option(
+    "--integrators",
+    type=str,
+    default=None,
+    help="Comma-separated propagators [default: the settings' one].",
+)
+@click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
+@click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Any setting.")
+@click.option("--no-progress", is_flag=True)
+@_user_errors
+def compare(
+    data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
+) -> None:
+    """Rank polynomial orders (and propagators) for DATA by the Laplace log evidence."""
+    from symplid.compare import compare_models, parse_orders
+    from symplid.io import read_observations
+
+    obs = read_observations(data)
+    overrides = {
+        "initial_state.x0": _floats(x0, "--x0"),
+        "initial_state.mode": "learned" if learn_initial_state else None,
+    }
+    settings, source = _settings(config, overrides, sets)
+    names = [n.strip() for n in integrators.split(",")] if integrators else None
+    table = compare_models(
+        obs,
+        settings,
+        orders=parse_orders(orders),
+        integrators=names,
+        out=out,
+        progress=not no_progress,
+        source=source,
+    )
+    click.echo(table.to_string(index=False))
+    best = table.iloc[0]
+    click.echo(
+        f"best: order {best['order']} with {best['integrator']}"
+        + (f"; table in {out}" if out is not None else "")
+    )
+
+
+def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...]):
+    """Settings from the defaults, then ``config``, then the options and ``--set`` pairs."""
+    from symplid.settings import Settings, load_settings, merge_overrides, parse_override
+
+    settings = load_settings(config) if config is not None else Settings()
+    source = str(config) if config is not None else "command line"
+    for text in sets:
+        key, value = parse_override(text)
+        overrides[key] = value
+    return merge_overrides(settings, overrides, source="command line"), source
+
+
+# ----------------------------------------------------------------------------- sweep, study
+@main.command()
+@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Sweep folder (a rerun skips the finished cells).",
+)
+@click.option(
+    "--scheduler",
+    type=str,
+    default=None,
+    help="A dask.distributed scheduler address [default: a local cluster].",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Local worker processes [default: one per core].",
+)
+@click.option("--no-progress", is_flag=True)
+@_user_errors
+def sweep(spec, out, scheduler, workers, no_progress) -> None:
+    """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
+    from symplid.sweep import run_sweep
+
+    table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress)
+    counts = table["status"].value_counts().to_dict() if "status" in table else {}
+    done = ", ".join(f"{v} {k}" for k, v in counts.items())
+    click.echo(f"{out}: {len(table)} cells ({done}); results.csv and results.parquet")
+
+
+@main.group()
+def study() -> None:
+    """Named studies: sweeps with their own analysis."""
+
+
+@study.command("paper-claims")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--seeds", type=click.IntRange(min=1), default=20, show_default=True)
+@click.option("--quick", is_flag=True, help="A small sampler budget per cell.")
+@click.option("--no-variants", is_flag=True, help="Only the paper's setting (no dt, σ variants).")
+@click.option("--scheduler", type=str, default=None)
+@click.option("--workers", type=click.IntRange(min=1), default=None)
+@click.option("--no-progress", is_flag=True)
+@_user_errors
+def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
+    """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""
+    from symplid.study import run_paper_claims
+
+    run_paper_claims(
+        out,
+        seeds=seeds,
+        quick=quick,
+        scheduler=scheduler,
+        workers=workers,
+        variants=not no_variants,
+        progress=not no_progress,
+    )
+    click.echo(f"{out}: claims.json, report.md and figures/")
 
 
 if __name__ == "__main__":  # pragma: no cover
