@@ -225,6 +225,7 @@ def _harmonic_pinned():
     return post, np.linalg.solve(A, b), A
 
 
+@pytest.mark.slow
 def test_real_posterior_closed_form_learned_state():
     post, mode, precision = _harmonic_pinned()
     with warnings.catch_warnings():
@@ -247,6 +248,7 @@ def hh_map(hh_model, hh, hh_data):
     return post, result
 
 
+@pytest.mark.slow
 def test_henon_heiles_map_recovers_the_truth(hh, hh_map):
     """Under the model the MAP error is ≈ N(0, Laplace covariance): the noise (σ = 0.05,
     80 numbers) sets standard errors of 0.01–0.06 on the coefficients, and |error| < 4 sd
@@ -279,6 +281,7 @@ def test_henon_heiles_learned_initial_state(hh, hh_model, hh_data):
     assert np.all(np.abs(r.theta[:9] - hh.coefficients) < 4 * r.std[:9])
 
 
+@pytest.mark.slow
 def test_default_start_of_the_real_posterior(hh_map):
     post, _ = hh_map
     start = default_start(post)
