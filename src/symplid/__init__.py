@@ -15,15 +15,21 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from symplid import predict  # noqa: E402
 from symplid.data import DataError, Observations  # noqa: E402
+from symplid.diagnostics import summary  # noqa: E402
 from symplid.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
 from symplid.models import HamiltonianModel  # noqa: E402
+from symplid.optimize import BoundWarning, MapResult, find_map  # noqa: E402
+from symplid.posterior import Posterior  # noqa: E402
 from symplid.potentials import (  # noqa: E402
     FunctionPotential,
     Polynomial,
     Potential,
     hamiltonian,
 )
+from symplid.priors import HalfNormal, Laplace, LogNormal, Normal, Uniform  # noqa: E402
+from symplid.samplers import sample  # noqa: E402
 from symplid.simulate import simulate, true_trajectory  # noqa: E402
 from symplid.systems import SYSTEMS, System, get_system  # noqa: E402
 
@@ -32,18 +38,30 @@ __version__ = "0.1.0"
 __all__ = [
     "INTEGRATORS",
     "SYSTEMS",
+    "BoundWarning",
     "DataError",
     "FunctionPotential",
+    "HalfNormal",
     "HamiltonianModel",
     "Integrator",
+    "Laplace",
+    "LogNormal",
+    "MapResult",
+    "Normal",
     "Observations",
     "Polynomial",
+    "Posterior",
     "Potential",
     "System",
+    "Uniform",
     "__version__",
+    "find_map",
     "get_integrator",
     "get_system",
     "hamiltonian",
+    "predict",
+    "sample",
     "simulate",
+    "summary",
     "true_trajectory",
 ]
