@@ -267,8 +267,10 @@ class MapResult:
         )
 
     def __repr__(self) -> str:
-        lines = [f"MapResult(log_posterior={self.log_posterior:.6g}, success={self.success}, "
-                 f"starts={self.num_starts}, log_evidence={self.log_evidence:.6g})"]
+        lines = [
+            f"MapResult(log_posterior={self.log_posterior:.6g}, success={self.success}, "
+            f"starts={self.num_starts}, log_evidence={self.log_evidence:.6g})"
+        ]
         std = self.std
         for i, name in enumerate(self.param_names):
             sd = "" if std is None else f" ± {std[i]:.3g}"
@@ -309,8 +311,9 @@ class _Space:
             if lg:
                 out.append((math.log(self.floor), None))
             else:
-                out.append((float(lo) if np.isfinite(lo) else None,
-                            float(hi) if np.isfinite(hi) else None))
+                out.append(
+                    (float(lo) if np.isfinite(lo) else None, float(hi) if np.isfinite(hi) else None)
+                )
         return out
 
     def at_bounds(self, u: np.ndarray, tol: float = 1e-8) -> np.ndarray:
@@ -332,16 +335,26 @@ def _compiled(posterior: Any, space: _Space) -> dict[str, Callable]:
     except TypeError:  # not weak-referenceable: no cache
         entry = {}
     key = ("u", space.log.tobytes(), space.lower.tobytes())
+    # A posterior that takes its data as an argument keeps the data out of the compiled
+    # programs, so another data set of the same shape reuses them (persistent cache).
+    with_data = getattr(posterior, "log_density_with", None)
+    data = getattr(posterior, "data", None)
+    if with_data is None or data is None:
+        log_density = posterior.log_density
+
+        def with_data(_, theta):
+            return log_density(theta)
+
     if key not in entry:
-        log_density = posterior.log_density
 
-        def negative_u(u: Array) -> Array:
-            return -log_density(space.to_theta(u))
+        def negative_u(u: Array, data: Any) -> Array:
+            return -with_data(data, space.to_theta(u))
 
-        entry[key] = jax.jit(jax.value_and_grad(negative_u))
+        vg = jax.jit(jax.value_and_grad(negative_u))
+        entry[key] = lambda u: vg(u, data)
     if "hessian" not in entry:
-        log_density = posterior.log_density
-        entry["hessian"] = _LowOptimisationJit(jax.hessian(lambda t: -log_density(t)))
+        hessian = _LowOptimisationJit(jax.hessian(lambda t, data: -with_data(data, t)))
+        entry["hessian"] = lambda t: hessian(t, data)
     return {"value_and_grad": entry[key], "hessian": entry["hessian"]}
 
 
@@ -567,8 +580,9 @@ def find_map(
     starts = [first]
     for k in range(1, int(num_starts)):
         starts.append(
-            _perturbed_start(jax.random.fold_in(root, k), posterior, space, first,
-                             start_spread, is_finite)
+            _perturbed_start(
+                jax.random.fold_in(root, k), posterior, space, first, start_spread, is_finite
+            )
         )
 
     results = [
@@ -581,8 +595,12 @@ def find_map(
             if np.isfinite(r.log_posterior):
                 hessians[k] = np.asarray(fns["hessian"](jnp.asarray(r.theta)), dtype=float)
                 results[k] = _judge_with_hessian(r, hessians[k], space, value_and_grad)
-    k_best = max(range(len(results)), key=lambda k: results[k].log_posterior
-                 if np.isfinite(results[k].log_posterior) else -np.inf)
+    k_best = max(
+        range(len(results)),
+        key=lambda k: (
+            results[k].log_posterior if np.isfinite(results[k].log_posterior) else -np.inf
+        ),
+    )
     best = results[k_best]
     theta, log_post = best.theta, best.log_posterior
     u_best = space.to_u(theta)
@@ -597,8 +615,7 @@ def find_map(
             hessian = np.asarray(fns["hessian"](jnp.asarray(theta)), dtype=float)
         bound_idx = [names.index(n) for n in at_bounds]
         scans = [
-            _scan_from_bound(log_density, theta, i, space, u_best, log_post)
-            for i in bound_idx
+            _scan_from_bound(log_density, theta, i, space, u_best, log_post) for i in bound_idx
         ]
         covariance, repaired, log_evidence = _laplace(hessian, log_post, bound_idx, scans)
         if covariance is None:
@@ -636,9 +653,14 @@ def find_map(
             stacklevel=2,
         )
     settings = {
-        "num_starts": int(num_starts), "start_spread": float(start_spread),
-        "positive_floor": float(positive_floor), "maxiter": int(maxiter), "ftol": float(ftol),
-        "gtol": float(gtol), "maxcor": int(maxcor), "init": init is not None,
+        "num_starts": int(num_starts),
+        "start_spread": float(start_spread),
+        "positive_floor": float(positive_floor),
+        "maxiter": int(maxiter),
+        "ftol": float(ftol),
+        "gtol": float(gtol),
+        "maxcor": int(maxcor),
+        "init": init is not None,
     }
     return MapResult(
         theta=theta,
@@ -708,9 +730,18 @@ def _run_start(
 
     def search(u: np.ndarray) -> Any:
         return scipy.optimize.minimize(
-            fun, u, jac=True, method="L-BFGS-B", bounds=bounds,
-            options={"maxiter": int(maxiter), "ftol": ftol, "gtol": gtol,
-                     "maxcor": int(maxcor), "maxfun": 4 * int(maxiter)},
+            fun,
+            u,
+            jac=True,
+            method="L-BFGS-B",
+            bounds=bounds,
+            options={
+                "maxiter": int(maxiter),
+                "ftol": ftol,
+                "gtol": gtol,
+                "maxcor": int(maxcor),
+                "maxfun": 4 * int(maxiter),
+            },
         )
 
     res = search(u0)
@@ -727,9 +758,7 @@ def _run_start(
     log_post = -value if np.isfinite(value) else -math.inf
     projected = _projected_gradient(np.asarray(res.x), np.asarray(grad, dtype=float), bounds)
     converged = (
-        bool(res.success)
-        and np.isfinite(log_post)
-        and projected <= 1e-3 * max(1.0, abs(log_post))
+        bool(res.success) and np.isfinite(log_post) and projected <= 1e-3 * max(1.0, abs(log_post))
     )
     message = res.message if isinstance(res.message, str) else str(res.message)
     return StartResult(

@@ -210,9 +210,7 @@ class Posterior:
             prepared = model.prepare(rest, start)
             leaves, treedef = jax.tree_util.tree_flatten(prepared)
             arrays = tuple(jnp.asarray(v) for v in leaves if _is_array_leaf(v))
-            static = tuple(
-                (i, v) for i, v in enumerate(leaves) if not _is_array_leaf(v)
-            )
+            static = tuple((i, v) for i, v in enumerate(leaves) if not _is_array_leaf(v))
             key = (treedef, static, tuple((a.shape, a.dtype) for a in arrays), first is None)
             self._static.append((key, len(leaves)))
             self._trajectories.append(
@@ -246,13 +244,19 @@ class Posterior:
         self._reference = jnp.asarray(self._interior_point())
 
         # ---- compiled functions
+        # The observations enter the compiled programs as arguments (``self.data``), not as
+        # constants: the same model structure then compiles to the same program for any data
+        # set of the same shape, which JAX's persistent compilation cache can serve.
+        self.data: tuple[tuple[Array, ...], ...] = tuple(t.leaves for t in self._trajectories)
         self._groups = self._group_trajectories()
-        self.log_likelihood: Callable[[Array], Array] = jax.jit(self._log_likelihood)
         self.log_prior: Callable[[Array], Array] = jax.jit(self._log_prior)
-        self.log_density: Callable[[Array], Array] = jax.jit(self._log_density)
-        self.log_density_unconstrained: Callable[[Array], Array] = jax.jit(
-            self._log_density_unconstrained
-        )
+        self._with_data = {
+            "log_likelihood": jax.jit(lambda data, t: self._log_likelihood(t, data)),
+            "log_density": jax.jit(lambda data, t: self._log_density(t, data)),
+            "log_density_unconstrained": jax.jit(
+                lambda data, z: self._log_density_unconstrained(z, data)
+            ),
+        }
         self._vg_cache: dict[str, Callable] = {}
 
     # ------------------------------------------------------------------ construction helpers
@@ -379,7 +383,31 @@ class Posterior:
             x0, P0, extra = self._first_update(model_theta, first, x0, P0)
         return self.model.log_likelihood(model_theta, prepared, x0, P0) + extra
 
-    def _log_likelihood(self, theta: Array) -> Array:
+    # ------------------------------------------------------------------ public densities
+    def log_likelihood(self, theta: Array) -> Array:
+        """Σ_k log p(y^(k) | θ) over the trajectories (Theorem 1); jit/vmap/grad-able."""
+        return self._with_data["log_likelihood"](self.data, theta)
+
+    def log_density(self, theta: Array) -> Array:
+        """log prior + log likelihood; −∞ outside the bounds or when the filter fails."""
+        return self._with_data["log_density"](self.data, theta)
+
+    def log_density_unconstrained(self, z: Array) -> Array:
+        """The log density of z = to_unconstrained(θ), log-Jacobian included."""
+        return self._with_data["log_density_unconstrained"](self.data, z)
+
+    def log_density_with(self, data: Any, theta: Array) -> Array:
+        """:meth:`log_density` with the observations passed in (``data`` like ``self.data``).
+
+        Jitting a function of ``(θ, data)`` rather than of θ alone keeps the data out of the
+        compiled program as constants (see the constructor).
+        """
+        return self._log_density(theta, data)
+
+    def _leaves(self, k: int, data: Any) -> Any:
+        return self._trajectories[k].leaves if data is None else data[k]
+
+    def _log_likelihood(self, theta: Array, data: Any = None) -> Array:
         theta = jnp.asarray(theta, dtype=float)
         self._check_theta(theta)
         model_theta = theta[: self.num_model_params]
@@ -392,12 +420,17 @@ class Posterior:
                 for j, k in enumerate(ks):
                     traj = self._trajectories[k]
                     total = total + self._trajectory_loglik(
-                        model_theta, traj.leaves, x0s[j], P0s[j], key, num_leaves, traj.first
+                        model_theta,
+                        self._leaves(k, data),
+                        x0s[j],
+                        P0s[j],
+                        key,
+                        num_leaves,
+                        traj.first,
                     )
                 continue
             stacked = tuple(
-                jnp.stack(parts)
-                for parts in zip(*(self._trajectories[k].leaves for k in ks), strict=True)
+                jnp.stack(parts) for parts in zip(*(self._leaves(k, data) for k in ks), strict=True)
             )
 
             def one(arrays, x0, P0, key=key, num_leaves=num_leaves):
@@ -416,14 +449,14 @@ class Posterior:
         lp = jnp.where(self._in_bounds(theta), lp, -jnp.inf)
         return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
 
-    def _log_density(self, theta: Array) -> Array:
+    def _log_density(self, theta: Array, data: Any = None) -> Array:
         theta = jnp.asarray(theta, dtype=float)
         self._check_theta(theta)
         inside = self._in_bounds(theta)
         # Outside the bounds the likelihood is evaluated at a fixed interior point instead, so
         # that nothing there (an overflow, a failed factorisation) can leak NaN into a gradient.
         safe = jnp.where(inside, theta, self._reference)
-        total = self._log_prior(safe) + self._log_likelihood(safe)
+        total = self._log_prior(safe) + self._log_likelihood(safe, data)
         total = jnp.where(inside, total, -jnp.inf)
         return jnp.where(jnp.isnan(total), -jnp.inf, total)
 
@@ -472,9 +505,9 @@ class Posterior:
         terms = jnp.where(both, logistic, terms)
         return jnp.sum(terms, axis=-1)
 
-    def _log_density_unconstrained(self, z: Array) -> Array:
+    def _log_density_unconstrained(self, z: Array, data: Any = None) -> Array:
         z = jnp.asarray(z, dtype=float)
-        total = self._log_density(self.from_unconstrained(z)) + self.log_abs_det_jacobian(z)
+        total = self._log_density(self.from_unconstrained(z), data) + self.log_abs_det_jacobian(z)
         return jnp.where(jnp.isnan(total), -jnp.inf, total)
 
     # ------------------------------------------------------------------ conveniences
@@ -483,7 +516,8 @@ class Posterior:
         key = "z" if unconstrained else "theta"
         if key not in self._vg_cache:
             fn = self._log_density_unconstrained if unconstrained else self._log_density
-            self._vg_cache[key] = jax.jit(jax.value_and_grad(fn))
+            jitted = jax.jit(jax.value_and_grad(fn))
+            self._vg_cache[key] = lambda x: jitted(x, self.data)
         return self._vg_cache[key]
 
     def sample_prior(self, key: Array, num: int) -> np.ndarray:
