@@ -45,6 +45,13 @@ TESTS_DIR = Path(__file__).resolve().parent
 SMALL = {"base": {"num_samples": 20, "burn_in": 10}}
 
 
+def _test_cache_env() -> dict[str, str]:
+    """The workers use the tests' compilation cache (set up in conftest.py), or none."""
+    import jax
+
+    return {"SYMPLID_CACHE_DIR": jax.config.jax_compilation_cache_dir or "off"}
+
+
 def _calls(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.glob("*.call"))
 
@@ -67,6 +74,7 @@ def shared_cluster(tmp_path_factory):
             "PYTHONPATH": str(TESTS_DIR),
             sweep_cells.CALLS_ENV: str(calls),
             sweep_cells.FAIL_ENV: str(flag),
+            **_test_cache_env(),
         }
     )
     with LocalCluster(
@@ -74,7 +82,7 @@ def shared_cluster(tmp_path_factory):
         threads_per_worker=1,
         processes=True,
         env=env,
-        dashboard_address=None,
+        dashboard_address="127.0.0.1:0",  # a free port: no clash with other clusters
         silence_logs=logging.ERROR,
     ) as cluster:
         yield SimpleNamespace(address=cluster.scheduler_address, calls=calls, flag=flag)
@@ -92,7 +100,11 @@ def four_cells(tmp_path_factory):
         workers=2,
         cell_fn="sweep_cells:loglik_cell",
         progress=False,
-        worker_env={"PYTHONPATH": str(TESTS_DIR), sweep_cells.CALLS_ENV: str(calls)},
+        worker_env={
+            "PYTHONPATH": str(TESTS_DIR),
+            sweep_cells.CALLS_ENV: str(calls),
+            **_test_cache_env(),
+        },
     )
     return SimpleNamespace(spec=spec, out=out, calls=calls, table=table)
 
@@ -121,10 +133,11 @@ def test_four_cell_sweep_on_two_workers(four_cells):
         assert row.x64
         assert "--xla_cpu_multi_thread_eigen=false" in row.xla_flags
         assert row.elapsed_s > 0
+        assert row.warnings == f"UserWarning: stand-in warning for seed {row.seed}"
     assert table["pid"].nunique() <= 2
-    # the local workers keep their compiled programs, one cache folder each
-    caches = sorted(p.name for p in (out / ".jax_cache").iterdir())
-    assert caches and set(caches) <= {"worker-0", "worker-1"}
+    # the workers share the tests' compilation cache
+    record = read_json(out / "cells" / f"{row.cell_id}.json")
+    assert record["worker"]["jax_cache"] == _test_cache_env()["SYMPLID_CACHE_DIR"]
     # the leapfrog model at the truth explains the data better than RK2 at dt = 0.25
     by = table.set_index(["seed", "integrator"])["loglik"]
     assert by[(0, "leapfrog")] > by[(0, "rk2-midpoint")]
@@ -466,7 +479,9 @@ def _has_run_cell() -> bool:
 def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     """The real cell function (quick budget): seed 0, leapfrog and RK2, on 2 local workers."""
     spec = paper_claims_spec(seeds=1, quick=True, variants=False)
-    table = run_sweep(spec, tmp_path, workers=2, progress=False, figures=False)
+    table = run_sweep(
+        spec, tmp_path, workers=2, progress=False, figures=False, worker_env=_test_cache_env()
+    )
     assert list(table["status"]) == ["ok", "ok"], list(table["error"])
     for metric in PAPER_METRICS:
         assert metric in table.columns

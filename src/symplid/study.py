@@ -506,7 +506,7 @@ SWEEP_METRICS = (
     "rhat_max",
     "ess_min",
 )
-_NOT_METRICS = ("cell_id", "status", "elapsed_s", "error", "started", "finished")
+_NOT_METRICS = ("cell_id", "status", "elapsed_s", "error", "warnings", "started", "finished")
 
 
 def plot_sweep(

@@ -53,11 +53,11 @@ The output folder::
 
     sweep.json          the spec, the cell function's name and the ids of the cells
     cells/<id>.json     one record per cell: settings, status ("ok" / "failed"), metrics,
-                        error and traceback, start and end times, the worker
-    results.csv         one row per cell: id, settings, status, elapsed_s, metrics, error
+                        error and traceback, the warnings raised, start and end times, the worker
+    results.csv         one row per cell: id, settings, status, elapsed_s, metrics, error,
+                        warnings
     results.parquet     the same table
     figures/<metric>.png  every cell's value of a metric, by setting and propagator
-    .jax_cache/         JAX's compilation cache of the local workers (safe to delete)
 
 The cell function
 -----------------
@@ -75,9 +75,10 @@ with one thread each. Each worker process runs JAX single-threaded (``XLA_FLAGS`
 use N cores and no more. With ``scheduler="tcp://host:8786"`` the cells go to an existing Dask
 cluster instead; start its workers with ``--nthreads 1`` and the environment of
 :func:`worker_environment` (the task also sets ``XLA_FLAGS`` itself when the worker has not used
-JAX yet). Local workers keep JAX's persistent compilation cache in ``out_dir/.jax_cache`` (one
-folder per worker), so a program compiled for one cell is loaded, not recompiled, by the next
-cells and by a rerun.
+JAX yet). Every worker turns on JAX's persistent compilation cache
+(:mod:`symplid.compilation_cache`: ``$SYMPLID_CACHE_DIR``, by default ``~/.cache/symplid/jax``;
+``SYMPLID_CACHE_DIR=off`` disables it), so a program compiled for one cell is loaded, not
+recompiled, by the next cells, the other workers and later runs.
 """
 
 from __future__ import annotations
@@ -97,6 +98,7 @@ import socket
 import time
 import tomllib
 import traceback
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -142,12 +144,11 @@ XLA_SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_thr
 
 CELLS_DIR = "cells"
 FIGURES_DIR = "figures"
-JAX_CACHE_DIR = ".jax_cache"
-CACHE_MIN_COMPILE_S = 0.1
 MANIFEST = "sweep.json"
 RESULTS_CSV = "results.csv"
 RESULTS_PARQUET = "results.parquet"
 ID_LENGTH = 12
+MAX_WARNINGS = 20  # distinct warning messages kept per cell
 
 
 class SweepError(SettingsError):
@@ -620,38 +621,42 @@ def _now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds")
 
 
-def _run_cell_task(
-    settings: dict[str, Any], cell_fn: str | Callable, cache_dir: str | None = None
-) -> dict[str, Any]:
+def _run_cell_task(settings: dict[str, Any], cell_fn: str | Callable) -> dict[str, Any]:
     """Run one cell in a worker; never raises: a failure becomes a record with its traceback.
 
-    ``cache_dir``: a folder for JAX's persistent compilation cache, one subfolder per worker
-    (so that no two processes write the same files), set unless the worker already has one.
+    The worker uses JAX's persistent compilation cache (:mod:`symplid.compilation_cache`), so
+    a program compiled for one cell is loaded from disk by the next cells, the other workers
+    and later runs.
     """
     os.environ.setdefault("XLA_FLAGS", XLA_SINGLE_THREAD)  # if this worker has not used JAX yet
     import jax  # symplid is imported with this module, so float64 is on
 
-    if cache_dir and not jax.config.jax_compilation_cache_dir:
-        jax.config.update("jax_compilation_cache_dir", str(Path(cache_dir) / _worker_name()))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", CACHE_MIN_COMPILE_S)
+    from symplid import compilation_cache
+
+    compilation_cache.enable()
 
     started = _now()
     t0 = time.perf_counter()
     record: dict[str, Any] = {"status": "ok", "metrics": None, "error": None, "traceback": None}
-    try:
-        fn = resolve_cell_fn(cell_fn)
-        metrics = fn(dict(settings))
-        if not isinstance(metrics, Mapping):
-            raise TypeError(
-                f"the cell function returned {type(metrics).__name__}, expected a dict of metrics"
+    with warnings.catch_warnings(record=True) as caught:  # kept in the record, not printed
+        warnings.simplefilter("always")
+        try:
+            fn = resolve_cell_fn(cell_fn)
+            metrics = fn(dict(settings))
+            if not isinstance(metrics, Mapping):
+                raise TypeError(
+                    f"the cell function returned {type(metrics).__name__}, "
+                    "expected a dict of metrics"
+                )
+            record["metrics"] = to_jsonable({str(k): v for k, v in metrics.items()})
+        except Exception as err:
+            record.update(
+                status="failed",
+                error=f"{type(err).__name__}: {err}",
+                traceback=traceback.format_exc(),
             )
-        record["metrics"] = to_jsonable({str(k): v for k, v in metrics.items()})
-    except Exception as err:
-        record.update(
-            status="failed",
-            error=f"{type(err).__name__}: {err}",
-            traceback=traceback.format_exc(),
-        )
+    messages = [f"{w.category.__name__}: {w.message}" for w in caught]
+    record["warnings"] = list(dict.fromkeys(messages))[:MAX_WARNINGS]
     record.update(
         started=started,
         finished=_now(),
@@ -661,18 +666,10 @@ def _run_cell_task(
             "pid": os.getpid(),
             "x64": bool(jax.config.jax_enable_x64),
             "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "jax_cache": jax.config.jax_compilation_cache_dir,
         },
     )
     return record
-
-
-def _worker_name() -> str:
-    try:
-        from distributed import get_worker
-
-        return f"worker-{get_worker().name}"
-    except (ImportError, ValueError):  # not in a Dask worker
-        return f"process-{os.getpid()}"
 
 
 # ----------------------------------------------------------------------------- running
@@ -717,7 +714,8 @@ def run_sweep(
     pandas.DataFrame
         The results table, also written to ``results.csv`` and ``results.parquet``: one row per
         cell of the spec with ``cell_id``, the settings, ``status``, ``elapsed_s`` (the task's
-        wall time), the metrics, ``error``, ``started``, ``finished``. The table's
+        wall time), the metrics, ``error``, ``warnings`` (the distinct warnings the cell raised,
+        joined by " | "), ``started``, ``finished``. The table's
         ``attrs["sweep"]`` holds the counts and this call's wall time.
 
     Raises
@@ -763,9 +761,8 @@ def run_sweep(
             dynamic_ncols=True,
         )
         try:
-            with _client(scheduler, workers, len(todo), worker_env) as (client, local):
-                cache = str((out / JAX_CACHE_DIR).resolve()) if local else None
-                num_failed = _execute(client, todo, fn, fn_name, cells_dir, bar, cache)
+            with _client(scheduler, workers, len(todo), worker_env) as client:
+                num_failed = _execute(client, todo, fn, fn_name, cells_dir, bar)
         finally:
             bar.close()
     table = load_results(out, spec)
@@ -800,7 +797,6 @@ def _execute(
     fn_name: str,
     cells_dir: Path,
     bar: Any,
-    cache_dir: str | None,
 ) -> int:
     """Submit one task per cell; write each record as it completes. Returns the failures."""
     import uuid
@@ -813,7 +809,6 @@ def _execute(
             _run_cell_task,
             c.settings,
             fn,
-            cache_dir,
             key=f"symplid-cell-{c.id}-{tag}",
             pure=False,
         ): c
@@ -847,6 +842,7 @@ def _lost_record(err: BaseException) -> dict[str, Any]:
         "metrics": None,
         "error": f"{type(err).__name__}: {err} (the task did not return; its worker may have died)",
         "traceback": "".join(traceback.format_exception(err)),
+        "warnings": [],
         "started": None,
         "finished": now,
         "elapsed_s": math.nan,
@@ -857,12 +853,11 @@ def _lost_record(err: BaseException) -> dict[str, Any]:
 @contextlib.contextmanager
 def _client(
     scheduler: Any, workers: int | None, num_tasks: int, worker_env: Mapping[str, str] | None
-) -> Iterator[tuple[Any, bool]]:
-    """A Dask client, and whether its workers are local processes started here."""
+) -> Iterator[Any]:
     from dask.distributed import Client, LocalCluster
 
     if isinstance(scheduler, Client):
-        yield scheduler, False
+        yield scheduler
         return
     if scheduler is not None:
         try:
@@ -870,7 +865,7 @@ def _client(
         except (OSError, TimeoutError) as err:
             raise ValueError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from None
         try:
-            yield client, False
+            yield client
         finally:
             client.close()
         return
@@ -881,13 +876,13 @@ def _client(
             threads_per_worker=1,
             processes=True,
             env=worker_environment(worker_env),
-            dashboard_address=None,
+            dashboard_address="127.0.0.1:0",  # a free port: no clash with other clusters
             silence_logs=logging.ERROR,
             memory_limit=0,
         ) as cluster,
         Client(cluster) as client,
     ):
-        yield client, True
+        yield client
 
 
 def _num_cores() -> int:
@@ -933,7 +928,7 @@ def _write_manifest(out: Path, spec: SweepSpec, fn_name: str) -> None:
 
 
 # ----------------------------------------------------------------------------- the table
-_BOOKKEEPING = ("cell_id", "status", "elapsed_s", "error", "started", "finished")
+_BOOKKEEPING = ("cell_id", "status", "elapsed_s", "error", "warnings", "started", "finished")
 
 
 def load_results(out_dir: str | os.PathLike, spec: SweepSpec | None = None) -> Any:
@@ -966,13 +961,14 @@ def load_results(out_dir: str | os.PathLike, spec: SweepSpec | None = None) -> A
         row["status"] = record.get("status", "pending")
         for key in ("elapsed_s", "error", "started", "finished"):
             row[key] = record.get(key)
+        row["warnings"] = " | ".join(record.get("warnings") or []) or None
         for k, v in _flatten(record.get("metrics") or {}).items():
             name = f"metric_{k}" if k in settings or k in _BOOKKEEPING else k
             if name not in metric_cols:
                 metric_cols.append(name)
             row[name] = v
         rows.append(row)
-    columns = ["cell_id", *setting_cols, "status", "elapsed_s", *metric_cols, "error"]
+    columns = ["cell_id", *setting_cols, "status", "elapsed_s", *metric_cols, "error", "warnings"]
     columns += ["started", "finished"]
     table = pd.DataFrame(rows, columns=columns)
     return _tidy_types(table)
