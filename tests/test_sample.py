@@ -26,7 +26,7 @@ from symplid.samplers import (
 az = import_arviz()
 
 RUN = dict(num_samples=600, num_chains=3, seed=7, burn_in=300, progress=False)
-CHUNK = 200  # one chunk length for every chunked run below, so they share one compilation
+CHUNK = 300  # one chunk length for every chunked run below, so they share one compilation
 
 
 @pytest.fixture(scope="module")
@@ -64,15 +64,15 @@ def test_interrupted_run_keeps_its_draws(gaussian, reference_run):
     """Ctrl-C (simulated from the per-chunk callback) keeps the chunks already finished."""
     reports = []
 
-    def stop_after_three_chunks(report):
+    def stop_after_two_chunks(report):
         reports.append(report)
-        if report.chunk == 2:
+        if report.chunk == 1:
             raise KeyboardInterrupt
 
     with pytest.warns(SamplingInterrupted, match="interrupted after 600 of 900 iterations"):
         partial = sample(gaussian, "dram", init=gaussian.map_result(), chunk_size=CHUNK,
-                         callback=stop_after_three_chunks, **RUN)
-    assert [r.iterations_done for r in reports] == [200, 400, 600]
+                         callback=stop_after_two_chunks, **RUN)
+    assert [r.iterations_done for r in reports] == [300, 600]
     assert partial.attrs["interrupted"] == 1 and partial.attrs["iterations"] == 600
     # 600 iterations minus 300 of burn-in: the first 300 draws of the full run, exactly.
     kept = draws_array(partial)
@@ -126,8 +126,8 @@ def test_inference_data_layout(gaussian, reference_run, tmp_path):
 
 
 def test_chunks_compile_once(gaussian):
-    """Every chunk has the same length (the last one masks its tail), so the kernel is
-    traced while compiling the first chunk and never again."""
+    """Every chunk has the same length (the last one discards its surplus), so the kernel
+    is traced while compiling the first chunk and never again."""
     traces = []
 
     def logdensity(theta):
@@ -145,7 +145,8 @@ def test_chunks_compile_once(gaussian):
     run = run_chains(dram.build_kernel(logdensity), state, jax.random.key(0), 1050,
                      record=lambda s, i: {"x": s.position}, chunk_size=100, progress=False,
                      callback=callback)
-    assert run.draws["x"].shape == (2, 1050, 2)  # 11 chunks, the last with 50 iterations
+    # 11 chunks of 96 iterations, the last with 90 of them kept.
+    assert run.draws["x"].shape == (2, 1050, 2)
     assert after_first_chunk[0] > 0
     assert len(traces) == after_first_chunk[0]
 

@@ -2,15 +2,18 @@
 
 A run of ``burn_in + num_samples·thin`` iterations is cut into chunks of ``chunk_size``
 iterations. Each chunk is **one** compiled ``lax.scan`` over iterations whose body advances
-all chains at once (``vmap``, or ``lax.map`` for ``chain_method="sequential"``). Between
+all chains at once (``vmap``), or, for ``chain_method="sequential"``, one chain (the same
+compiled one-chain chunk is then called for each chain in turn, which compiles faster than
+a batched kernel and lets data-dependent branches skip work). Between
 chunks control returns to Python: the progress bar moves, a callback runs, and a
 ``KeyboardInterrupt`` stops the run while keeping every draw already made.
 
 Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c], t)`` with
 ``chain_key = split(rng_key, num_chains)``. The draws therefore depend only on the key and
 the kernel, not on the chunk size, and an interrupted run is a prefix of the full run.
-Every chunk has the same length (the last one masks its unused iterations with
-``lax.cond``), so a run compiles exactly once; the compiled chunk is cached on the
+Every chunk has the same length (``total`` is split into equal chunks of at most
+``chunk_size``; the few iterations the last chunk has too many are computed and discarded),
+so a run compiles exactly once; the compiled chunk is cached on the
 ``(step, record)`` function objects, so a second run of the same kernel does not compile.
 A single chain runs unbatched.
 """
@@ -87,57 +90,75 @@ class ChainRun(NamedTuple):
     elapsed: float
 
 
-def _over_chains(fn: Callable, chain_method: str, num_chains: int) -> Callable:
-    """Apply a one-chain function to stacked chains.
+def _over_chains(fn: Callable, batched: bool) -> Callable:
+    """Apply a one-chain function to chains stacked on a leading axis.
 
-    A single chain is run unbatched: under ``vmap`` a ``lax.cond`` in the kernel (DRAM's
-    second stage) becomes a ``select`` that evaluates both branches.
+    Unbatched (one chain, leading axis of length 1), a ``lax.cond`` in the kernel really
+    skips work; under ``vmap`` it becomes a ``select`` that evaluates both branches.
     """
-    if num_chains == 1:
-        def single(*args):
-            out = fn(*jax.tree.map(lambda leaf: leaf[0], args))
-            return jax.tree.map(lambda leaf: leaf[None], out)
-
-        return single
-    if chain_method == "vectorized":
+    if batched:
         return jax.vmap(fn)
-    return lambda *args: lax.map(lambda a: fn(*a), args)
+
+    def single(*args):
+        out = fn(*jax.tree.map(lambda leaf: leaf[0], args))
+        return jax.tree.map(lambda leaf: leaf[None], out)
+
+    return single
 
 
 @functools.lru_cache(maxsize=8)
-def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,
-                 num_chains: int):
-    """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` run.
+def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
+    """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` count.
 
-    Cached on the (step, record) function objects, so that running the same kernel again
-    (another seed, more draws) reuses the compiled chunk.
+    ``batched`` vmaps over the chains; otherwise the chunk advances one chain (leading axis
+    of length 1). Cached on the (step, record) function objects, so that running the same
+    kernel again (another seed, more draws) reuses the compiled chunk.
     """
 
     def one_chain(key, state, t):
         new_state, info = step(jax.random.fold_in(key, t), state)
         return new_state, record(new_state, info)
 
-    advance = _over_chains(one_chain, chain_method, num_chains)
+    advance = _over_chains(one_chain, batched)
 
     def chunk(states, chain_keys, start, num_active):
-        def run_all(c, t):
-            return advance(chain_keys, c, jnp.broadcast_to(t, chain_keys.shape[:1]))
-
-        # Record shapes, for the masked (inactive) iterations at the end of the last chunk.
-        shapes = jax.eval_shape(run_all, states, start)[1]
-
         def body(carry, i):
-            def active(c):
-                return run_all(c, start + i)
-
-            def idle(c):
-                return c, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-
-            return lax.cond(i < num_active, active, idle, carry)
+            t = jnp.broadcast_to(start + i, chain_keys.shape[:1])
+            new, records = advance(chain_keys, carry, t)
+            # Iterations past `num_active` (a few, at the end of the last chunk) are computed
+            # and thrown away: a select, which unlike a cond around the whole step does not
+            # slow the loop down.
+            active = i < num_active
+            new = jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry)
+            return new, records
 
         return lax.scan(body, states, jnp.arange(chunk_len))
 
     return jax.jit(chunk)
+
+
+def _chunk_runner(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,
+                  num_chains: int) -> Callable:
+    """``run(states, chain_keys, start, num_active) -> (states, records)`` for all chains."""
+    if chain_method == "vectorized" and num_chains > 1:
+        return _build_chunk(step, record, chunk_len, True)
+    single = _build_chunk(step, record, chunk_len, False)
+    if num_chains == 1:
+        return single
+
+    def one_after_another(states, chain_keys, start, num_active):
+        outputs = [
+            single(jax.tree.map(lambda leaf, c=c: leaf[c:c + 1], states),
+                   chain_keys[c:c + 1], start, num_active)
+            for c in range(num_chains)
+        ]
+        states = jax.tree.map(lambda *parts: jnp.concatenate(parts), *[o[0] for o in outputs])
+        # Records are (iteration, chain, ...): the chains go along axis 1.
+        records = jax.tree.map(lambda *parts: jnp.concatenate(parts, axis=1),
+                               *[o[1] for o in outputs])
+        return states, records
+
+    return one_after_another
 
 
 def run_chains(
@@ -179,8 +200,9 @@ def run_chains(
     chain_method
         ``"vectorized"`` (``vmap``: all chains in lockstep; data-dependent branches such as
         DRAM's second stage run for every chain whenever one needs them) or
-        ``"sequential"`` (``lax.map``: one chain after the other, branches really skipped).
-        Irrelevant for one chain, which always runs unbatched.
+        ``"sequential"`` (the compiled one-chain chunk called for each chain in turn;
+        branches really skipped, one compilation for all chains). Irrelevant for one chain,
+        which always runs unbatched.
     progress
         Show a tqdm progress bar.
     desc
@@ -207,8 +229,11 @@ def run_chains(
     num_chains = int(leaves[0].shape[0])
 
     total = int(burn_in) + int(num_samples) * int(thin)
-    chunk_len = min(int(chunk_size), total)
-    chunk_fn = _build_chunk(step, record, chunk_len, chain_method, num_chains)
+    # Equal chunks of at most `chunk_size` iterations; the last one runs fewer than
+    # `chunk_len` iterations only when `total` does not divide evenly (then by < num_chunks).
+    num_chunks = -(-total // int(chunk_size))
+    chunk_len = -(-total // num_chunks)
+    chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
     chain_keys = jax.random.split(rng_key, num_chains)
 
     kept: dict[str, list[np.ndarray]] = {}
