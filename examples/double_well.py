@@ -167,7 +167,8 @@ def main() -> None:
     truth = [*system.coefficients, np.nan, 0.05**2, *system.initial_state]
     for name, value, sd, t in zip(posterior.param_names, result.theta, result.std, truth,
                                   strict=True):
-        print(f"  {name:<14} {value: .4g} ± {sd:.2g}   (truth {t:.4g})")
+        truth_text = "-" if np.isnan(t) else f"{t:.4g}"
+        print(f"  {name:<12} {value:>11.4g} ± {sd:<8.2g} truth {truth_text}")
 
     # 4. figures: the learned potential and the predictive band past the data
     draws = draws_array(outcome.idata).reshape(-1, posterior.num_params)
