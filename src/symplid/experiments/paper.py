@@ -125,9 +125,13 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
     """Fit one approach into ``out/approach`` (runs in a worker process)."""
     config, approach, out, progress, position = args
     _limit_threads()
+    import warnings
+
     from symplid import compilation_cache
+    from symplid.cli import _show_warning
 
     compilation_cache.enable()
+    warnings.showwarning = _show_warning  # one line per warning, as in the parent process
     from symplid.workflow import fit
 
     obs, _ = paper_data(config)
