@@ -4,7 +4,8 @@ irregular times and missing values in a data file, end to end.
 Each test checks an answer against the known truth of a simulated system. Tolerances are in
 units of the Laplace standard deviation at the MAP (the inverse Hessian, symplid.find_map): a
 correctly identified model has its truth within a few of them; 4 sd leaves a chance of about
-6e-5 per parameter of a false alarm under the Gaussian approximation.
+6e-5 per parameter of a false alarm under the Gaussian approximation. (The positions-only
+Hénon–Heiles test, MAP only, uses a fixed tolerance justified in place.)
 """
 
 from __future__ import annotations
@@ -37,10 +38,14 @@ def _z(result, truth, index) -> np.ndarray:
 # ----------------------------------------------------------------------------- positions only
 @pytest.fixture(scope="module")
 def hh_positions(hh_data, hh):
-    """The paper's data with the momenta dropped: 20 noisy (q1, q2), known initial state."""
+    """The paper's data with the momenta dropped: 20 noisy (q1, q2), known initial state.
+    MAP only: the Hessian of this 11-parameter posterior would double the cost."""
     data = positions_only(hh_data)
     model = symplid.HamiltonianModel(hh.potential, dt=0.25, observation="positions")
-    return model, _map(Posterior(model, data, x0=hh.initial_state))
+    posterior = Posterior(model, data, x0=hh.initial_state)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return model, find_map(posterior, seed=0, num_starts=1, compute_hessian=False)
 
 
 @pytest.mark.slow
@@ -48,13 +53,16 @@ def test_positions_only_recovers_henon_heiles(hh, hh_positions):
     model, result = hh_positions
     nc = model.num_coefficients
     assert result.theta.shape == (nc + 2,)
-    # every coefficient of U within 4 Laplace sd of the truth (the sd are 0.01–0.08 here,
-    # comparable to the full-state fit's 0.01–0.05: the positions carry most of the information
-    # because the dynamics tie the momenta to the positions' changes)
-    z = _z(result, hh.coefficients, slice(0, nc))
-    assert np.all(np.abs(z) < Z_MAX), z
-    assert np.all(result.std[:nc] < 0.1)
-    # the learned energy at the true initial state (the paper's 0.7 % with the full state)
+    # Tolerance: the Laplace sd of this fit's coefficients are 0.010–0.083 (q1·q2² the
+    # loosest; examples/henon_heiles_positions.py prints them), those of the paper's full-state
+    # fit 0.010–0.054, whose largest error is 0.060. An error below 0.1 everywhere is thus what
+    # a correct identification gives, while a wrong potential misses by far more (the
+    # coefficients that matter are 0.5, 1 and −1/3; a model without the cubic terms has
+    # errors of 0.33 to 1).
+    errors = np.abs(result.theta[:nc] - hh.coefficients)
+    assert np.all(errors < 0.1), errors
+    # the learned energy at the true initial state (the paper's 0.7 % with the full state;
+    # 1.5 % with the full state of this data set)
     h_true = float(symplid.hamiltonian(hh.potential, hh.coefficients, hh.initial_state))
     h_map = float(symplid.hamiltonian(hh.potential, result.theta[:nc], hh.initial_state))
     assert abs(h_map - h_true) / h_true < 0.02
