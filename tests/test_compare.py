@@ -208,8 +208,11 @@ def test_compare_models_checks_its_inputs(double_well, settings):
         compare_models(data, settings, orders="x", progress=False)
     with pytest.raises(ValueError, match="'rk3' is not a known integrator"):
         compare_models(data, settings, orders="4", integrators="rk3", progress=False)
+    with pytest.raises(ValueError, match="mode is 'known' but 2 trajectories were given"):
+        compare_models([data, data], settings, orders="4", progress=False)
+    learned = merge_overrides(settings, {"initial_state.mode": "learned"})
     positions = positions_only(data)
     with pytest.raises(symplid.DataError, match="trajectories compared together must share"):
-        compare_models([data, positions], settings, orders="4", progress=False)
+        compare_models([data, positions], learned, orders="4", progress=False)
     with pytest.raises(TypeError, match=r"obs\[1\] must be a symplid.Observations"):
         compare_models([data, "x"], settings, orders="4", progress=False)

@@ -219,6 +219,12 @@ def _resolve_all(settings: Settings, datasets: list[Observations], source: str) 
     from symplid.io import observation_layout
 
     resolved = resolve_for_data(settings, datasets[0], source)
+    if len(datasets) > 1 and settings.initial_state.mode == "known":
+        raise ValueError(
+            f"{source}: initial_state.mode is 'known' but {len(datasets)} trajectories were "
+            "given and initial_state.x0 holds one state; set initial_state.mode = \"learned\" "
+            "(each trajectory's initial state is then learned)"
+        )
     layout = observation_layout(datasets[0])
     for k, obs in enumerate(datasets[1:], start=1):
         other = observation_layout(obs)
