@@ -421,7 +421,9 @@ def compare(
         progress=not no_progress,
         source=source,
     )
-    click.echo(table.to_string(index=False))
+    from symplid.compare import format_table
+
+    click.echo(format_table(table))
     best = table.iloc[0]
     click.echo(
         f"best: order {best['order']} with {best['integrator']}"
