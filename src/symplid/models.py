@@ -35,7 +35,7 @@ from symplid.filters import (
     unscented_weights,
 )
 from symplid.integrators import Integrator, get_integrator, make_dynamics, propagate, substeps
-from symplid.potentials import Potential
+from symplid.potentials import Potential, hamiltonian, inverse_mass, mass_matrix
 
 Array = jax.Array
 ObservationSpec = str | np.ndarray | Callable[[Array], Array]
@@ -119,16 +119,7 @@ class HamiltonianModel:
         if self.jitter < 0:
             raise ValueError("jitter must be ≥ 0")
         unscented_weights(self.state_dim, self.alpha, self.beta, self.kappa)  # validates
-        d = self.potential.dim
-        if self.mass is not None:
-            mass = np.asarray(self.mass, dtype=float)
-            if mass.ndim == 1:
-                mass = np.diag(mass)
-            if mass.shape != (d, d):
-                raise ValueError(f"mass must be ({d}, {d}) or a length-{d} vector")
-            if not np.allclose(mass, mass.T) or np.any(np.linalg.eigvalsh(mass) <= 0):
-                raise ValueError("mass must be symmetric positive definite")
-            object.__setattr__(self, "mass", mass)
+        object.__setattr__(self, "mass", mass_matrix(self.mass, self.potential.dim))
         obs = self.observation
         if isinstance(obs, str):
             if obs not in ("full", "positions"):
@@ -248,8 +239,9 @@ class HamiltonianModel:
 
     # ------------------------------------------------------------------ the filter
     def _dynamics(self, coefficients: Array):
-        inv_mass = None if self.mass is None else jnp.asarray(np.linalg.inv(self.mass))
-        return make_dynamics(self.potential, coefficients, inv_mass)
+        return make_dynamics(
+            self.potential, coefficients, inverse_mass(self.mass, self.potential.dim)
+        )
 
     def _build_filter(self, max_steps: int, uniform_steps: bool) -> Callable[..., FilterResult]:
         weights = unscented_weights(self.state_dim, self.alpha, self.beta, self.kappa)
@@ -417,11 +409,8 @@ class HamiltonianModel:
 
     def hamiltonian(self, theta_or_coefficients: Array, state: Array) -> Array:
         """H(q, p) under the model's potential and mass, for θ or bare coefficients."""
-        from symplid.potentials import hamiltonian
-
         c = jnp.asarray(theta_or_coefficients)[..., : self.num_coefficients]
-        inv_mass = None if self.mass is None else jnp.asarray(np.linalg.inv(self.mass))
-        return hamiltonian(self.potential, c, state, inv_mass)
+        return hamiltonian(self.potential, c, state, inverse_mass(self.mass, self.potential.dim))
 
 
 def _loglik_only(fn, prepared: PreparedData, x0, P0, theta):

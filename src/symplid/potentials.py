@@ -25,7 +25,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -243,6 +243,30 @@ class FunctionPotential:
         coefficients = jnp.asarray(coefficients)
         grad = jax.grad(lambda x: self.fn(x, coefficients))
         return self._batched(grad, jnp.asarray(q, dtype=float))
+
+
+def mass_matrix(mass: Any, dim: int) -> np.ndarray | None:
+    """A validated constant mass matrix M from a ``(d, d)`` array or a length-d vector.
+
+    ``None`` stands for the identity. Raises ``ValueError`` unless M is symmetric positive
+    definite and of the right size.
+    """
+    if mass is None:
+        return None
+    m = np.asarray(mass, dtype=float)
+    if m.ndim == 1:
+        m = np.diag(m)
+    if m.shape != (dim, dim):
+        raise ValueError(f"mass must be ({dim}, {dim}) or a length-{dim} vector, got {m.shape}")
+    if not np.allclose(m, m.T) or np.any(np.linalg.eigvalsh(m) <= 0):
+        raise ValueError("mass must be symmetric positive definite")
+    return m
+
+
+def inverse_mass(mass: Any, dim: int) -> Array | None:
+    """M⁻¹ for :func:`mass_matrix`'s inputs (None for the identity)."""
+    m = mass_matrix(mass, dim)
+    return None if m is None else jnp.asarray(np.linalg.inv(m))
 
 
 def kinetic_energy(p: Array, inv_mass: Array | None = None) -> Array:

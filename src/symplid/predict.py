@@ -36,7 +36,7 @@ import numpy as np
 from symplid.data import Observations
 from symplid.integrators import Integrator, get_integrator, make_dynamics, propagate
 from symplid.models import HamiltonianModel
-from symplid.potentials import Potential, hamiltonian
+from symplid.potentials import Potential, hamiltonian, inverse_mass
 
 Array = jax.Array
 
@@ -107,20 +107,6 @@ class PosteriorPredictive:
 
 
 # ---------------------------------------------------------------------------- helpers
-def _inverse_mass(mass: Any, dim: int) -> Array | None:
-    """M⁻¹ from a ``(d, d)`` matrix or a length-d vector (identity when None)."""
-    if mass is None:
-        return None
-    m = np.asarray(mass, dtype=float)
-    if m.ndim == 1:
-        m = np.diag(m)
-    if m.shape != (dim, dim):
-        raise ValueError(f"mass must be ({dim}, {dim}) or a length-{dim} vector, got {m.shape}")
-    if not np.allclose(m, m.T) or np.any(np.linalg.eigvalsh(m) <= 0):
-        raise ValueError("mass must be symmetric positive definite")
-    return jnp.asarray(np.linalg.inv(m))
-
-
 def _resolve(model_or_potential: Any, coefficients: Any, mass: Any = None):
     """(potential, coefficients with trailing axis num_params, M⁻¹) from a model or a potential.
 
@@ -155,7 +141,7 @@ def _resolve(model_or_potential: Any, coefficients: Any, mass: Any = None):
             "expected a potential (symplid.Polynomial, FunctionPotential, ...) or a "
             f"HamiltonianModel, got {type(model_or_potential).__name__}"
         )
-    return potential, coefficients, _inverse_mass(mass, potential.dim)
+    return potential, coefficients, inverse_mass(mass, potential.dim)
 
 
 def _check_state(x0: Any, dim: int, name: str = "x0") -> np.ndarray:
@@ -548,7 +534,7 @@ def forecast_from_filter(
         cov = np.asarray(res.filtered_covs[-1])
         starts[i] = m + _cholesky_or_nan(cov) @ z[i]
     starts[~np.all(np.isfinite(starts), axis=1)] = np.nan
-    inv_mass = _inverse_mass(model.mass, model.potential.dim)
+    inv_mass = inverse_mass(model.mass, model.potential.dim)
     coefficients = theta[used, : model.num_coefficients]
     return _predictive(
         model.potential, inv_mass, coefficients, starts, used, t_last, t_end, dt, integrator,

@@ -15,7 +15,7 @@ import numpy as np
 
 from symplid.data import Observations
 from symplid.integrators import get_integrator, make_dynamics, substeps
-from symplid.potentials import Potential
+from symplid.potentials import Potential, inverse_mass
 from symplid.systems import System, get_system
 
 
@@ -61,7 +61,7 @@ def true_trajectory(
     if x0.shape != (2 * potential.dim,):
         raise ValueError(f"x0 must have shape ({2 * potential.dim},), got {x0.shape}")
     num_steps, step_sizes = substeps(np.diff(np.concatenate([[t0], times])), dt)
-    inv_mass = None if mass is None else jnp.asarray(np.linalg.inv(np.asarray(mass)))
+    inv_mass = inverse_mass(mass, potential.dim)
     xs = _trajectory(
         potential,
         get_integrator(integrator).name,
