@@ -73,16 +73,8 @@ def build_posterior(settings: Settings, obs: Observations, model: HamiltonianMod
         x0=x0,
         P0=init.p0_var,
         t0=init.t0,
-        learn_initial_state=learned,
-        initial_state_prior=None if not learned else _initial_state_prior(settings),
+        learn_initial_state=learned,  # its prior is the "initial_state" group above
     )
-
-
-def _initial_state_prior(settings: Settings):
-    from symplid.priors import prior_from_dict
-
-    spec = settings_to_dict(settings)["priors"]["initial_state"]
-    return prior_from_dict(spec)
 
 
 @dataclass
