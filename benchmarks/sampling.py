@@ -41,8 +41,8 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import symplid  # noqa: E402
-from symplid.diagnostics import import_arviz  # noqa: E402
-from symplid.samplers import dram, run_chains, sample  # noqa: E402
+from symplid.inference.diagnostics import import_arviz  # noqa: E402
+from symplid.inference.samplers import dram, run_chains, sample  # noqa: E402
 
 TARGET_ITERATIONS_PER_SECOND = 15_000
 
@@ -52,18 +52,18 @@ TARGET_ITERATIONS_PER_SECOND = 15_000
 
 def build_posterior() -> tuple[Any, Any, str]:
     """The paper's leapfrog posterior and its MAP; falls back to an inline posterior (the
-    model's log-likelihood plus the paper's priors) if ``symplid.posterior`` is absent."""
+    model's log-likelihood plus the paper's priors) if ``symplid.model.posterior`` is absent."""
     system = symplid.get_system("henon-heiles")
     data = symplid.simulate(system, seed=0)
     model = symplid.HamiltonianModel(system.potential, integrator="leapfrog", dt=0.25)
     try:
-        from symplid.posterior import Posterior
+        from symplid.model.posterior import Posterior
     except ImportError:
         posterior, source = _InlinePosterior(model, data, system.initial_state), "inline"
     else:
         posterior, source = Posterior(model, data, x0=system.initial_state), "symplid.Posterior"
     try:
-        from symplid.optimize import find_map
+        from symplid.inference.map import find_map
     except ImportError:
         start = model.pack(system.coefficients, 1e-4, 0.05**2)
         return posterior, _inline_map(posterior, start), source + " + inline MAP"

@@ -5,11 +5,11 @@ What it shows
 1. Data as a user has them: a CSV (``t, q1, p1``) with irregular times (gaps of 0.3–1.7 s,
    never a multiple of the learning dt) and missing values (empty cells), and a TOML settings
    file. Both are written into the output folder and read back, as ``symplid fit`` would.
-2. **Model comparison** (:func:`symplid.compare.compare_models`): polynomial orders 2..5 of
+2. **Model comparison** (:func:`symplid.workflow.compare.compare_models`): polynomial orders 2..5 of
    U(q) ranked by the Laplace evidence. The true U = −½q² + ¼q⁴ needs the quartic term: orders
    2 and 3 have one well and lose by tens of nats; order 5 fits as well as 4 but pays an Occam
    factor for its unneeded q⁵ coefficient.
-3. A fit of order 4 from the settings file (:func:`symplid.workflow.fit`): MAP, Laplace sd and
+3. A fit of order 4 from the settings file (:func:`symplid.workflow.fit.fit`): MAP, Laplace sd and
    a short DRAM run, with the **initial state learned** with θ (its prior centred on the
    first observation, which lacks p here).
 4. Figures: ``compare.png`` (log evidence by order), ``potential.png`` (learned U(q) with its
@@ -32,14 +32,14 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import symplid
-from symplid import compilation_cache
-from symplid.compare import compare_models, format_table
+from symplid import runtime
+from symplid.inference.predict import posterior_predictive
+from symplid.inference.samplers import draws_array
 from symplid.io import read_observations
-from symplid.plots import plot_predictive, save_figure
-from symplid.predict import posterior_predictive
-from symplid.samplers import draws_array
-from symplid.settings import load_settings
-from symplid.workflow import fit
+from symplid.plotting.figures import plot_predictive, save_figure
+from symplid.workflow.compare import compare_models, format_table
+from symplid.workflow.fit import fit
+from symplid.workflow.settings import load_settings
 
 SETTINGS = """\
 # Settings shared by the comparison and the fit (every key not given takes its default).
@@ -136,7 +136,7 @@ def main() -> None:
     args = parser.parse_args()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    compilation_cache.enable()  # reruns reuse the compiled models (as the CLI does)
+    runtime.enable_compilation_cache()  # reruns reuse the compiled models (as the CLI does)
     system = symplid.get_system("double-well")
 
     # 1. the data file and the settings file, read back as a user would

@@ -33,9 +33,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import symplid
-from symplid import compilation_cache
-from symplid.plots import save_figure
-from symplid.predict import hamiltonian_along, predict_trajectory, prediction_horizon
+from symplid import runtime
+from symplid.inference.predict import hamiltonian_along, predict_trajectory, prediction_horizon
+from symplid.plotting.figures import save_figure
 
 T_PREDICT = 80.0
 NOISE = 0.02
@@ -106,7 +106,7 @@ def main() -> None:
     args = parser.parse_args()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    compilation_cache.enable()  # reruns reuse the compiled models (as the CLI does)
+    runtime.enable_compilation_cache()  # reruns reuse the compiled models (as the CLI does)
     system = symplid.get_system("fpu-chain")
 
     # Trajectory a: the system's default start, 40 observations 1 s apart.

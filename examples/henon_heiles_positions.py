@@ -37,10 +37,15 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import symplid
-from symplid import compilation_cache
+from symplid import runtime
+from symplid.inference.predict import predict_trajectory, prediction_horizon, time_grid
 from symplid.io import positions_only
-from symplid.plots import Curves, plot_phase_portraits, plot_trajectory_bands, save_figure
-from symplid.predict import predict_trajectory, prediction_horizon, time_grid
+from symplid.plotting.figures import (
+    Curves,
+    plot_phase_portraits,
+    plot_trajectory_bands,
+    save_figure,
+)
 
 T_END = 200.0
 FINE_DT = 0.01
@@ -81,7 +86,7 @@ def main() -> None:
     args = parser.parse_args()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    compilation_cache.enable()  # reruns reuse the compiled models (as the CLI does)
+    runtime.enable_compilation_cache()  # reruns reuse the compiled models (as the CLI does)
     hh = symplid.get_system("henon-heiles")
     x0 = hh.initial_state
 

@@ -22,12 +22,12 @@ def pytest_configure(config):
     import os
     import tempfile
 
-    from symplid import compilation_cache
+    from symplid import runtime
 
     folder = os.environ.get("SYMPLID_TEST_CACHE_DIR") or os.path.join(
         tempfile.gettempdir(), f"symplid-test-jax-cache-{os.getuid()}"
     )
-    compilation_cache.enable(folder)
+    runtime.enable_compilation_cache(folder)
 
 
 # Irregular observation times for the small problems: gaps 0.7, 0.8, 0.5, 1.1, 0.5, 0.9,

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 import symplid
+from symplid.inference.map import find_map
 from symplid.io import positions_only, read_observations
-from symplid.optimize import find_map
-from symplid.posterior import Posterior
-from symplid.settings import load_settings
-from symplid.workflow import fit
+from symplid.model.posterior import Posterior
+from symplid.workflow.fit import fit
+from symplid.workflow.settings import load_settings
 
 Z_MAX = 4.0
 

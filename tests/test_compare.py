@@ -1,4 +1,4 @@
-"""Model comparison by the Laplace evidence (symplid.compare).
+"""Model comparison by the Laplace evidence (symplid.workflow.compare).
 
 The end-to-end check: on the quartic double well U = −½q² + ¼q⁴ (30 full-state observations,
 noise sd 0.05), the evidence over polynomial orders 2..5 must pick the true order 4. Orders 2
@@ -15,7 +15,8 @@ import pandas as pd
 import pytest
 
 import symplid
-from symplid.compare import (
+from symplid.io import positions_only
+from symplid.workflow.compare import (
     COLUMNS,
     compare_models,
     comparison_table,
@@ -23,8 +24,7 @@ from symplid.compare import (
     parse_integrators,
     parse_orders,
 )
-from symplid.io import positions_only
-from symplid.settings import Settings, merge_overrides
+from symplid.workflow.settings import Settings, merge_overrides
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -184,7 +184,7 @@ def test_table_ranks_nan_evidence_last():
             self.log_evidence, self.log_posterior = ev, 0.0
             self.theta, self.at_bounds, self.success = np.array([1.0, 2.0, 3.0]), (), True
 
-    from symplid.compare import CandidateFit
+    from symplid.workflow.compare import CandidateFit
 
     fits = [
         CandidateFit(o, "leapfrog", None, _Posterior(), _Map(ev), -1.0, 0.1)

@@ -12,7 +12,7 @@ from scipy import stats
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, MapResult, moment_z_scores
-from symplid.samplers import dram, draws_array, run_chains, sample
+from symplid.inference.samplers import dram, draws_array, run_chains, sample
 
 # ----------------------------------------------------------------------------------------
 # Independent NumPy versions of the target and of the delayed-rejection formula
@@ -253,7 +253,7 @@ def test_short_dram_run_on_the_papers_posterior(hh, hh_model, hh_data, hh_theta)
     """Hénon–Heiles, leapfrog at dt = 0.25 (the paper's posterior): a short DRAM run from
     near the truth with a rough diagonal proposal adapts to a finite, positive-definite
     covariance, accepts at a sane rate and keeps every draw inside the support."""
-    from symplid.posterior import Posterior
+    from symplid.model.posterior import Posterior
 
     posterior = Posterior(hh_model, hh_data, x0=hh.initial_state)
     # Rough scales: about the Laplace standard deviations at the MAP (coefficients ~0.02,

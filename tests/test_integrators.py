@@ -11,14 +11,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import symplid
-from symplid.integrators import (
-    INTEGRATORS,
-    get_integrator,
-    integrate,
-    make_dynamics,
-    propagate,
-    substeps,
-)
+from symplid.dynamics.integrators import INTEGRATORS, get_integrator, make_dynamics
+from symplid.dynamics.trajectory import integrate, propagate, substeps
 
 OMEGA = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.eye(2), np.zeros((2, 2))]])
 NON_SYMPLECTIC = [name for name, integ in INTEGRATORS.items() if not integ.symplectic]

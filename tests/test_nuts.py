@@ -11,7 +11,7 @@ from blackjax.adaptation.base import get_filter_adapt_info_fn
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, moment_z_scores
-from symplid.samplers import draws_array, nuts, sample
+from symplid.inference.samplers import draws_array, nuts, sample
 
 TARGETS = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}
 
@@ -123,7 +123,7 @@ def test_settings_are_validated(kwargs, message):
 
 def test_pushed_forward_covariance_is_capped_near_a_bound():
     """A MAP variance at 1e-8 with Laplace sd 0.7 would get a log-scale variance of 5e15."""
-    from symplid.samplers.api import MAX_UNCONSTRAINED_VARIANCE, _unconstrained_covariance
+    from symplid.inference.samplers.api import MAX_UNCONSTRAINED_VARIANCE, _unconstrained_covariance
 
     target = GammaVariance()
     cov = np.array([[1.0, 0.3], [0.3, 0.5]])

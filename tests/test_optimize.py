@@ -16,9 +16,9 @@ from scipy import integrate
 
 import symplid
 from reference_filters import numpy_leapfrog, numpy_substeps, polynomial_gradient
-from symplid.optimize import BoundWarning, MapResult, default_start, find_map
-from symplid.posterior import Posterior
-from symplid.priors import PriorSpec, Uniform
+from symplid.inference.map import BoundWarning, MapResult, default_start, find_map
+from symplid.model.posterior import Posterior
+from symplid.model.priors import PriorSpec, Uniform
 
 
 # ----------------------------------------------------------------------------- posterior-likes

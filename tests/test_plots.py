@@ -1,4 +1,4 @@
-"""Tests of symplid.plots: every figure draws what it should (axes, lines, bands) and saves a PNG.
+"""Tests of symplid.plotting: each figure draws what it should (axes, lines, bands) and saves a PNG.
 
 The inputs are small synthetic arrays; the checks read the Figure's artists back.
 """
@@ -11,7 +11,8 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
 
 import symplid
-from symplid.plots import (
+from symplid.inference.predict import PosteriorPredictive
+from symplid.plotting.figures import (
     COLORS,
     Curves,
     plot_hamiltonians,
@@ -23,7 +24,6 @@ from symplid.plots import (
     plot_trajectory_bands,
     save_figure,
 )
-from symplid.predict import PosteriorPredictive
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -19,9 +19,9 @@ from scipy import integrate, stats
 
 import symplid
 from reference_filters import kalman_loglik, numpy_leapfrog, numpy_substeps, polynomial_gradient
-from symplid.data import DataError
-from symplid.posterior import UNOBSERVED_SCALE_FACTOR, Posterior
-from symplid.priors import HalfNormal, Laplace, LogNormal, Normal, PriorSpec, Uniform
+from symplid.model.data import DataError
+from symplid.model.posterior import UNOBSERVED_SCALE_FACTOR, Posterior
+from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal, PriorSpec, Uniform
 
 JITTER = 1e-12  # the model's default, added to every predicted covariance
 

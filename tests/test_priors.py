@@ -11,7 +11,7 @@ import pytest
 from scipy import stats
 
 import symplid  # noqa: F401  (float64)
-from symplid.priors import (
+from symplid.model.priors import (
     HalfNormal,
     Laplace,
     LogNormal,

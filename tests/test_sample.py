@@ -13,8 +13,8 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import GammaVariance, Gaussian2D, MapResult
-from symplid.diagnostics import ConvergenceWarning, import_arviz, summary
-from symplid.samplers import (
+from symplid.inference.diagnostics import ConvergenceWarning, import_arviz, summary
+from symplid.inference.samplers import (
     SamplingInterrupted,
     dram,
     draws_array,
@@ -199,7 +199,7 @@ class _NoDensity:
 @pytest.mark.parametrize(
     ("kwargs", "error", "message"),
     [
-        ({"method": "hmc"}, ValueError, "method must be one of"),
+        ({"method": "hmc"}, ValueError, "unknown sampler"),
         ({"num_samples": 0}, ValueError, "num_samples"),
         ({"num_chains": 1.5}, ValueError, "num_chains"),
         ({"burn_in": -1}, ValueError, "burn_in"),

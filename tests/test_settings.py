@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.settings import (
+from symplid.workflow.settings import (
     PriorSpec,
     Settings,
     SettingsError,

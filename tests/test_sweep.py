@@ -1,4 +1,4 @@
-"""Sweeps on Dask (symplid.sweep) and the paper-claims study (symplid.study).
+"""Sweeps on Dask and the paper-claims study.
 
 The cell functions are the stand-ins of ``sweep_cells.py`` (real but cheap work with the core).
 One local cluster of two workers is shared by the tests that need a cluster but not the
@@ -20,8 +20,7 @@ import pytest
 
 import sweep_cells
 import symplid
-from symplid.results import read_json
-from symplid.study import (
+from symplid.experiments.paper_study import (
     FULL_BUDGET,
     PAPER_SETTING,
     QUICK_BUDGET,
@@ -29,7 +28,8 @@ from symplid.study import (
     paper_claims_spec,
     run_paper_claims,
 )
-from symplid.sweep import (
+from symplid.workflow.results import read_json
+from symplid.workflow.sweep import (
     CELL_KEYS,
     SweepError,
     cell_data,

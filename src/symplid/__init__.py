@@ -15,23 +15,23 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from symplid import predict  # noqa: E402
-from symplid.data import DataError, Observations  # noqa: E402
-from symplid.diagnostics import summary  # noqa: E402
-from symplid.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
-from symplid.models import HamiltonianModel  # noqa: E402
-from symplid.optimize import BoundWarning, MapResult, find_map  # noqa: E402
-from symplid.posterior import Posterior  # noqa: E402
-from symplid.potentials import (  # noqa: E402
+from symplid.dynamics.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
+from symplid.dynamics.potentials import (  # noqa: E402
     FunctionPotential,
     Polynomial,
     Potential,
     hamiltonian,
 )
-from symplid.priors import HalfNormal, Laplace, LogNormal, Normal, Uniform  # noqa: E402
-from symplid.samplers import sample  # noqa: E402
-from symplid.simulate import simulate, true_trajectory  # noqa: E402
-from symplid.systems import SYSTEMS, System, get_system  # noqa: E402
+from symplid.dynamics.systems import SYSTEMS, System, get_system  # noqa: E402
+from symplid.inference import predict, samplers  # noqa: E402
+from symplid.inference.diagnostics import summary  # noqa: E402
+from symplid.inference.map import BoundWarning, MapResult, find_map  # noqa: E402
+from symplid.inference.samplers import sample  # noqa: E402
+from symplid.model.data import DataError, Observations  # noqa: E402
+from symplid.model.posterior import Posterior  # noqa: E402
+from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal, Uniform  # noqa: E402
+from symplid.model.simulate import simulate, true_trajectory  # noqa: E402
+from symplid.model.statespace import HamiltonianModel  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -61,6 +61,7 @@ __all__ = [
     "hamiltonian",
     "predict",
     "sample",
+    "samplers",
     "simulate",
     "summary",
     "true_trajectory",

@@ -10,7 +10,6 @@ from __future__ import annotations
 import functools
 import sys
 import time
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -33,8 +32,8 @@ def _user_errors(fn: Callable) -> Callable:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from symplid.data import DataError
-        from symplid.settings import SettingsError
+        from symplid.model.data import DataError
+        from symplid.workflow.settings import SettingsError
 
         try:
             return fn(*args, **kwargs)
@@ -59,15 +58,10 @@ def main() -> None:
 
     Compiled code is cached in ~/.cache/symplid/jax (SYMPLID_CACHE_DIR=off disables it).
     """
-    from symplid import compilation_cache
+    from symplid import runtime
 
-    compilation_cache.enable()
-    warnings.showwarning = _show_warning
-
-
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Warnings as one readable line (no source path): ``symplid: warning: ...``."""
-    click.echo(f"symplid: warning: {message}", err=True)
+    runtime.enable_compilation_cache()
+    runtime.one_line_warnings()
 
 
 # ----------------------------------------------------------------------------- reproduce
@@ -209,10 +203,10 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     """Noisy observations of a named SYSTEM (henon-heiles, harmonic, double-well, fpu-chain)."""
     import numpy as np
 
-    from symplid.data import Observations
+    from symplid.dynamics.systems import get_system
     from symplid.io import write_observations
-    from symplid.simulate import simulate as run
-    from symplid.systems import get_system
+    from symplid.model.data import Observations
+    from symplid.model.simulate import simulate as run
 
     sys_ = get_system(system)
     grid = _floats(times, "--times")
@@ -308,7 +302,7 @@ def fit(
 ) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder."""
     from symplid.io import read_observations
-    from symplid.workflow import fit as run
+    from symplid.workflow.fit import fit as run
 
     obs = read_observations(data)
     overrides = {
@@ -347,7 +341,7 @@ def fit(
 @_user_errors
 def predict(run, t_end, dt, num_paths) -> None:
     """Predict from a finished run: MAP path and posterior band, saved with a figure."""
-    from symplid.run_tools import predict_run
+    from symplid.workflow.run_tools import predict_run
 
     result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths)
     click.echo(result)
@@ -359,7 +353,7 @@ def predict(run, t_end, dt, num_paths) -> None:
 @_user_errors
 def report(run) -> None:
     """Write report.md (tables and figures) for a finished run."""
-    from symplid.run_tools import report_run
+    from symplid.workflow.run_tools import report_run
 
     click.echo(report_run(run))
 
@@ -402,8 +396,8 @@ def compare(
     data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
 ) -> None:
     """Rank polynomial orders (and propagators) for DATA by the Laplace log evidence."""
-    from symplid.compare import compare_models, parse_orders
     from symplid.io import read_observations
+    from symplid.workflow.compare import compare_models, parse_orders
 
     obs = read_observations(data)
     overrides = {
@@ -421,7 +415,7 @@ def compare(
         progress=not no_progress,
         source=source,
     )
-    from symplid.compare import format_table
+    from symplid.workflow.compare import format_table
 
     click.echo(format_table(table))
     best = table.iloc[0]
@@ -433,7 +427,7 @@ def compare(
 
 def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...]):
     """Settings from the defaults, then ``config``, then the options and ``--set`` pairs."""
-    from symplid.settings import Settings, load_settings, merge_overrides, parse_override
+    from symplid.workflow.settings import Settings, load_settings, merge_overrides, parse_override
 
     settings = load_settings(config) if config is not None else Settings()
     source = str(config) if config is not None else "command line"
@@ -468,7 +462,7 @@ def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, .
 @_user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
-    from symplid.sweep import run_sweep
+    from symplid.workflow.sweep import run_sweep
 
     table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress)
     counts = table["status"].value_counts().to_dict() if "status" in table else {}
@@ -492,7 +486,7 @@ def study() -> None:
 @_user_errors
 def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
     """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""
-    from symplid.study import run_paper_claims
+    from symplid.experiments.paper_study import run_paper_claims
 
     run_paper_claims(
         out,

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from symplid.data import Observations
-from symplid.potentials import hamiltonian
-from symplid.settings import Settings, merge_overrides
-from symplid.systems import get_system
+from symplid.dynamics.potentials import hamiltonian
+from symplid.dynamics.systems import get_system
+from symplid.model.data import Observations
+from symplid.workflow.settings import Settings, merge_overrides
 
 # What the paper reports (Section IV, Figs 2–4), for the table printed beside ours.
 PAPER = {
@@ -84,7 +84,7 @@ class PaperConfig:
 
 def paper_data(config: PaperConfig) -> tuple[Observations, Any]:
     """The experiment's truth and data: 20 full-state observations, σ = 0.05, seeded."""
-    from symplid.simulate import simulate
+    from symplid.model.simulate import simulate
 
     system = get_system("henon-heiles")
     times = config.obs_interval * np.arange(1, config.num_obs + 1)
@@ -125,14 +125,11 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
     """Fit one approach into ``out/approach`` (runs in a worker process)."""
     config, approach, out, progress, position = args
     _limit_threads()
-    import warnings
+    from symplid import runtime
 
-    from symplid import compilation_cache
-    from symplid.cli import _show_warning
-
-    compilation_cache.enable()
-    warnings.showwarning = _show_warning  # one line per warning, as in the parent process
-    from symplid.workflow import fit
+    runtime.enable_compilation_cache()
+    runtime.one_line_warnings()  # one line per warning, as in the parent process
+    from symplid.workflow.fit import fit
 
     obs, _ = paper_data(config)
     outcome = fit(
@@ -190,8 +187,8 @@ class ApproachResult:
 
 def load_approach(out: Path, approach: str, integrator: str) -> ApproachResult:
     """Read one approach's run folder back."""
-    from symplid.results import RunFolder
-    from symplid.samplers import draws_array
+    from symplid.inference.samplers import draws_array
+    from symplid.workflow.results import RunFolder
 
     folder = RunFolder(out / approach, "r", allow_incomplete=True)
     map_info = folder.read_map()
@@ -222,7 +219,7 @@ def analyse_approach(
     energy along its own leapfrog path from there); the horizon is the first time the MAP
     path, integrated by leapfrog at ``prediction_dt``, leaves the truth by ``threshold`` in q1.
     """
-    from symplid.predict import predict_trajectory, prediction_horizon
+    from symplid.inference.predict import predict_trajectory, prediction_horizon
 
     x0 = system.initial_state
     h_true = float(hamiltonian(system.potential, system.coefficients, x0))
@@ -252,7 +249,7 @@ def analyse_approach(
 
 def truth_path(system, t_end: float, prediction_dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV)."""
-    from symplid.simulate import true_trajectory
+    from symplid.model.simulate import true_trajectory
 
     n = round(t_end / prediction_dt)
     times = prediction_dt * np.arange(1, n + 1)
@@ -270,7 +267,7 @@ def reproduce(
 ) -> dict[str, Any]:
     """Run the paper's experiment end to end into ``out``; returns ``summary.json``'s content."""
     from symplid.experiments.paper_figures import draw_figures
-    from symplid.results import RunFolder
+    from symplid.workflow.results import RunFolder
 
     config = config or PaperConfig()
     out = Path(out)
@@ -367,12 +364,12 @@ Per-approach runs (settings, data, MAP, Hessian, posterior) are in `leapfrog/` a
 def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
     """One cell of a sweep: simulate, fit (MAP + sampler), predict; returns flat metrics.
 
-    ``cell`` holds the keys of :data:`symplid.sweep.CELL_KEYS` (and dotted run settings); the
+    ``cell`` holds the keys of :data:`~.sweep.CELL_KEYS` (and dotted run settings); the
     metrics are those of ``summary.json`` for one approach, plus the true H and the wall time.
     """
-    from symplid.samplers import draws_array
-    from symplid.sweep import cell_data, cell_settings
-    from symplid.workflow import fit
+    from symplid.inference.samplers import draws_array
+    from symplid.workflow.fit import fit
+    from symplid.workflow.sweep import cell_data, cell_settings
 
     start = time.perf_counter()
     system, obs = cell_data(cell)

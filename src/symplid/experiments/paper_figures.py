@@ -6,14 +6,14 @@ from typing import Any
 
 import numpy as np
 
-from symplid.plots import (
+from symplid.inference.predict import hamiltonian_along, posterior_predictive, predict_trajectory
+from symplid.plotting.figures import (
     Curves,
     plot_hamiltonians,
     plot_phase_portraits,
     plot_process_noise,
     plot_trajectory_bands,
 )
-from symplid.predict import hamiltonian_along, posterior_predictive, predict_trajectory
 
 LABELS = {"leapfrog": "leapfrog", "rk2": "RK2"}
 EVERY = 10  # keep every 10th fine step (0.1 s) in the stored paths

@@ -1,0 +1,46 @@
+"""The one cache of compiled programs: stored on the object that owns them.
+
+A model compiles its filter once per data layout, a posterior its log density and gradient,
+a sampler its chunk. Each keeps what it compiled **on itself**, under a key of the static
+choices that shaped the program::
+
+    fn = cached(self, ("filter", max_steps, uniform), lambda: jax.jit(build()))
+
+so the compiled program lives exactly as long as its owner: there is no module-level
+table that keeps user objects (and their data) alive, and nothing to clear by hand.
+Works for frozen dataclasses too (the store is put in the instance ``__dict__``).
+
+This module imports nothing from symplid: every layer may use it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable
+from typing import Any, TypeVar
+
+F = TypeVar("F")
+
+_STORE = "_symplid_compiled"
+
+
+def cached(owner: Any, key: Hashable, build: Callable[[], F]) -> F:
+    """The program cached on ``owner`` under ``key``, built by ``build()`` on first use."""
+    store = _store(owner)
+    if key not in store:
+        store[key] = build()
+    return store[key]
+
+
+def clear(owner: Any) -> None:
+    """Forget everything compiled for ``owner`` (e.g. after changing a setting in place)."""
+    _store(owner).clear()
+
+
+def _store(owner: Any) -> dict[Hashable, Any]:
+    try:
+        namespace = vars(owner)
+    except TypeError:
+        raise TypeError(
+            f"{type(owner).__name__} has no __dict__ to keep compiled programs in"
+        ) from None
+    return namespace.setdefault(_STORE, {})

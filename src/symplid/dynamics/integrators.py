@@ -1,0 +1,223 @@
+"""One-step integrators for separable Hamiltonians, and the propagator over a gap (eq. 14).
+
+Every integrator has one call signature::
+
+    q_next, p_next = integrator.step(dynamics, q, p, dt)
+
+where ``dynamics`` bundles ∂U/∂q and the velocity map p ↦ M⁻¹p. Integrators are declared as
+data, each with its order and whether it is symplectic:
+
+* symplectic compositions: a tuple of leapfrog weights (leapfrog = ``(1,)``; Yoshida's
+  fourth-order method = ``(w1, w0, w1)``), each leapfrog sub-step written in the integer-step
+  form of eqs (5)–(6);
+* explicit Runge–Kutta methods: a Butcher tableau (forward Euler, RK2 midpoint and Heun, RK4).
+
+To add an integrator, register it in :data:`INTEGRATORS` (``INTEGRATORS.register(name,
+Integrator(...))``), from this module or any other: settings, the command line and sweeps
+read the registry.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from symplid.registry import Registry
+
+Array = jax.Array
+
+
+class Dynamics(NamedTuple):
+    """The right-hand side of Hamilton's equations (3) for H = ½pᵀM⁻¹p + U(q).
+
+    ``grad_potential(q)`` is ∂U/∂q and ``velocity(p)`` is M⁻¹p, so q̇ = velocity(p) and
+    ṗ = −grad_potential(q).
+    """
+
+    grad_potential: Callable[[Array], Array]
+    velocity: Callable[[Array], Array]
+
+
+def make_dynamics(potential, coefficients: Array, inv_mass: Array | None = None) -> Dynamics:
+    """Bind a potential's coefficients and the inverse mass matrix into :class:`Dynamics`."""
+    if inv_mass is None:
+        velocity = _identity
+    else:
+        inv_mass = jnp.asarray(inv_mass)
+
+        def velocity(p: Array) -> Array:
+            return jnp.tensordot(inv_mass, p, axes=1)  # works for p of shape (d, ...)
+
+    return Dynamics(lambda q: potential.gradient(q, coefficients), velocity)
+
+
+def _identity(p: Array) -> Array:
+    return p
+
+
+StepFn = Callable[[Dynamics, Array, Array, Array], tuple[Array, Array]]
+ForceStepFn = Callable[[Dynamics, Array, Array, Array, Array], tuple[Array, Array, Array]]
+
+
+@dataclass(frozen=True)
+class Integrator:
+    """A one-step method: its name, its order of accuracy, whether it is symplectic."""
+
+    name: str
+    order: int
+    symplectic: bool
+    step: StepFn
+    description: str = ""
+    force_step: ForceStepFn | None = None
+    """Optional ``(dynamics, q, p, ∂U(q), dt) -> (q⁺, p⁺, ∂U(q⁺))``: the same step, reusing the
+    force at the start (first-same-as-last), so a run of steps costs one force per step."""
+
+
+def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
+    """Leapfrog (Störmer–Verlet) at integer steps, eqs (5)–(6), with a mass matrix M.
+
+    q⁺ = q + Δt M⁻¹p − ½Δt² M⁻¹∂U(q);  p⁺ = p − ½Δt (∂U(q) + ∂U(q⁺)).
+    """
+    g = dynamics.grad_potential(q)
+    q_next = q + dt * dynamics.velocity(p) - 0.5 * dt * dt * dynamics.velocity(g)
+    p_next = p - 0.5 * dt * (g + dynamics.grad_potential(q_next))
+    return q_next, p_next
+
+
+def leapfrog_force_step(
+    dynamics: Dynamics, q: Array, p: Array, force: Array, dt: Array
+) -> tuple[Array, Array, Array]:
+    """Eqs (5)–(6) with ``force = ∂U(q)`` given; returns the new state and ∂U(q⁺)."""
+    q_next = q + dt * dynamics.velocity(p) - 0.5 * dt * dt * dynamics.velocity(force)
+    force_next = dynamics.grad_potential(q_next)
+    p_next = p - 0.5 * dt * (force + force_next)
+    return q_next, p_next, force_next
+
+
+def symplectic_composition(weights: tuple[float, ...]) -> tuple[StepFn, ForceStepFn]:
+    """A step made of leapfrog sub-steps of sizes ``w_i·Δt`` (symmetric composition).
+
+    Returns the plain step and its first-same-as-last form.
+    """
+    weights = tuple(float(w) for w in weights)
+
+    def force_step(
+        dynamics: Dynamics, q: Array, p: Array, force: Array, dt: Array
+    ) -> tuple[Array, Array, Array]:
+        for w in weights:
+            q, p, force = leapfrog_force_step(dynamics, q, p, force, w * dt)
+        return q, p, force
+
+    def step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
+        q, p, _ = force_step(dynamics, q, p, dynamics.grad_potential(q), dt)
+        return q, p
+
+    return step, force_step
+
+
+def symplectic_integrator(
+    name: str, order: int, weights: tuple[float, ...], description: str
+) -> Integrator:
+    step, force_step = symplectic_composition(weights)
+    return Integrator(name, order, True, step, description, force_step)
+
+
+def runge_kutta(a: tuple[tuple[float, ...], ...], b: tuple[float, ...]) -> StepFn:
+    """An explicit Runge–Kutta step from its Butcher tableau (strictly lower-triangular ``a``)."""
+    a_np = np.asarray(a, dtype=float)
+    b_np = np.asarray(b, dtype=float)
+    stages = len(b_np)
+    if a_np.shape != (stages, stages) or np.any(np.triu(a_np) != 0):
+        raise ValueError("an explicit Butcher tableau needs a strictly lower-triangular a")
+
+    def step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
+        kq: list[Array] = []
+        kp: list[Array] = []
+        for i in range(stages):
+            qi, pi = q, p
+            for j in range(i):
+                if a_np[i, j] != 0.0:
+                    qi = qi + dt * a_np[i, j] * kq[j]
+                    pi = pi + dt * a_np[i, j] * kp[j]
+            kq.append(dynamics.velocity(pi))
+            kp.append(-dynamics.grad_potential(qi))
+        for i in range(stages):
+            if b_np[i] != 0.0:
+                q = q + dt * b_np[i] * kq[i]
+                p = p + dt * b_np[i] * kp[i]
+        return q, p
+
+    return step
+
+
+_CBRT2 = 2.0 ** (1.0 / 3.0)
+_YOSHIDA_W1 = 1.0 / (2.0 - _CBRT2)
+_YOSHIDA_W0 = -_CBRT2 / (2.0 - _CBRT2)
+
+INTEGRATORS: Registry[Integrator] = Registry("integrator")
+"""Every one-step method by name; ``INTEGRATORS.register(name, Integrator(...))`` adds one."""
+
+INTEGRATORS.register(
+    "leapfrog",
+    symplectic_integrator("leapfrog", 2, (1.0,), "Störmer–Verlet, eqs (5)–(6)"),
+    aliases=("verlet", "stormer-verlet"),
+)
+INTEGRATORS.register(
+    "yoshida4",
+    symplectic_integrator(
+        "yoshida4",
+        4,
+        (_YOSHIDA_W1, _YOSHIDA_W0, _YOSHIDA_W1),
+        "Yoshida's 4th-order composition of three leapfrog steps",
+    ),
+)
+INTEGRATORS.register(
+    "euler", Integrator("euler", 1, False, runge_kutta(((0.0,),), (1.0,)), "forward Euler")
+)
+INTEGRATORS.register(
+    "rk2-midpoint",
+    Integrator(
+        "rk2-midpoint",
+        2,
+        False,
+        runge_kutta(((0.0, 0.0), (0.5, 0.0)), (0.0, 1.0)),
+        "explicit midpoint (the paper's non-symplectic RK2)",
+    ),
+    aliases=("rk2",),
+)
+INTEGRATORS.register(
+    "rk2-heun",
+    Integrator(
+        "rk2-heun", 2, False, runge_kutta(((0.0, 0.0), (1.0, 0.0)), (0.5, 0.5)), "Heun's method"
+    ),
+)
+INTEGRATORS.register(
+    "rk4",
+    Integrator(
+        "rk4",
+        4,
+        False,
+        runge_kutta(
+            (
+                (0.0, 0.0, 0.0, 0.0),
+                (0.5, 0.0, 0.0, 0.0),
+                (0.0, 0.5, 0.0, 0.0),
+                (0.0, 0.0, 1.0, 0.0),
+            ),
+            (1 / 6, 1 / 3, 1 / 3, 1 / 6),
+        ),
+        "classical Runge–Kutta",
+    ),
+)
+
+
+def get_integrator(name: str | Integrator) -> Integrator:
+    """An integrator by name (``'leapfrog'``, ``'rk2-midpoint'``, ...), or the one passed."""
+    if isinstance(name, Integrator):
+        return name
+    return INTEGRATORS.get_entry(name)

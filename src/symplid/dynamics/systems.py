@@ -1,0 +1,146 @@
+"""Named reference systems with their true potentials, used by the simulator and the tests.
+
+Each :class:`System` carries a :class:`~symplid.dynamics.potentials.Polynomial` and its true
+coefficients in the library's convention (coefficients of **U**, basis order of DESIGN.md),
+plus a default initial state and observation schedule.
+
+To add a system, register a factory in :data:`SYSTEMS` (``SYSTEMS.register(name, factory)``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from symplid.dynamics.potentials import Polynomial
+from symplid.registry import Registry
+
+
+@dataclass(frozen=True)
+class System:
+    """A reference Hamiltonian system H = ½|p|² + U(q) with a polynomial U."""
+
+    name: str
+    potential: Polynomial
+    coefficients: np.ndarray
+    initial_state: np.ndarray
+    description: str
+    obs_interval: float = 5.0
+    num_obs: int = 20
+    noise_std: float = 0.05
+
+    @property
+    def dim(self) -> int:
+        return self.potential.dim
+
+
+def henon_heiles() -> System:
+    """U = ½q1² + ½q2² + q1²q2 − ⅓q2³ (eq. 15), the paper's experiment.
+
+    Initial state (0.2, −0.25, 0.3, −0.25): the paper prints −(−1/4) for p2, a typo; its data
+    fit −0.25 and H = 0.12271 either way.
+    """
+    pot = Polynomial(2, 3)
+    c = pot.coefficients_from({"q1^2": 0.5, "q2^2": 0.5, "q1^2*q2": 1.0, "q2^3": -1.0 / 3.0})
+    return System(
+        "henon-heiles",
+        pot,
+        c,
+        np.array([0.2, -0.25, 0.3, -0.25]),
+        "Hénon–Heiles: U = ½q1² + ½q2² + q1²q2 − ⅓q2³",
+    )
+
+
+def harmonic() -> System:
+    """Unit harmonic oscillator U = ½q² (period 2π)."""
+    pot = Polynomial(1, 2)
+    return System(
+        "harmonic",
+        pot,
+        pot.coefficients_from({"q1^2": 0.5}),
+        np.array([1.0, 0.0]),
+        "harmonic oscillator: U = ½q²",
+        obs_interval=1.0,
+        num_obs=20,
+    )
+
+
+def double_well() -> System:
+    """Quartic double well U = −½q² + ¼q⁴ (minima at q = ±1, barrier height ¼)."""
+    pot = Polynomial(1, 4)
+    return System(
+        "double-well",
+        pot,
+        pot.coefficients_from({"q1^2": -0.5, "q1^4": 0.25}),
+        np.array([0.5, 0.6]),
+        "quartic double well: U = −½q² + ¼q⁴",
+        obs_interval=1.0,
+        num_obs=30,
+    )
+
+
+def _expand_power(linear: dict[tuple[int, ...], float], k: int) -> dict[tuple[int, ...], float]:
+    """Expand (Σ c_i q^{e_i})^k of a linear form into monomials."""
+    terms = list(linear.items())
+    out: dict[tuple[int, ...], float] = {}
+    for combo in itertools.combinations_with_replacement(range(len(terms)), k):
+        counts = [combo.count(i) for i in range(len(terms))]
+        multinom = math.factorial(k)
+        coeff = 1.0
+        exp = np.zeros(len(terms[0][0]), dtype=int)
+        for i, c in enumerate(counts):
+            multinom //= math.factorial(c)
+            coeff *= terms[i][1] ** c
+            exp += c * np.asarray(terms[i][0])
+        key = tuple(int(e) for e in exp)
+        out[key] = out.get(key, 0.0) + multinom * coeff
+    return out
+
+
+def fpu_chain(n: int = 3, alpha: float = 0.25) -> System:
+    """Fermi–Pasta–Ulam–Tsingou α chain of ``n`` masses with fixed ends.
+
+    U = Σ_{i=0}^{n} [½(q_{i+1} − q_i)² + (α/3)(q_{i+1} − q_i)³] with q_0 = q_{n+1} = 0:
+    coupled anharmonic oscillators with a cubic polynomial potential.
+    """
+    pot = Polynomial(n, 3)
+    terms: dict[tuple[int, ...], float] = {}
+    unit = np.eye(n, dtype=int)
+    for i in range(n + 1):
+        linear: dict[tuple[int, ...], float] = {}
+        if i < n:
+            linear[tuple(unit[i])] = 1.0  # + q_{i+1}
+        if i > 0:
+            linear[tuple(unit[i - 1])] = -1.0  # − q_i
+        for k, c in ((2, 0.5), (3, alpha / 3.0)):
+            for e, v in _expand_power(linear, k).items():
+                terms[e] = terms.get(e, 0.0) + c * v
+    x0 = np.zeros(2 * n)
+    x0[0] = 0.3
+    x0[n + n - 1] = -0.2
+    return System(
+        "fpu-chain",
+        pot,
+        pot.coefficients_from(terms),
+        x0,
+        f"FPUT-α chain of {n} masses, fixed ends, α = {alpha}",
+        obs_interval=1.0,
+        num_obs=40,
+    )
+
+
+SYSTEMS: Registry[Callable[[], System]] = Registry("system")
+"""Named reference systems: name → a function that builds the :class:`System`."""
+SYSTEMS.register("henon-heiles", henon_heiles)
+SYSTEMS.register("harmonic", harmonic)
+SYSTEMS.register("double-well", double_well)
+SYSTEMS.register("fpu-chain", fpu_chain)
+
+
+def get_system(name: str) -> System:
+    """A named reference system: one of :data:`SYSTEMS`."""
+    return SYSTEMS.get_entry(name)()

@@ -1,0 +1,46 @@
+"""Filters: the unscented Kalman filter and its log marginal likelihood (Theorem 1, eqs 10–12).
+
+Layer 2 of the package (above :mod:`symplid.dynamics`): small-matrix linear algebra
+(:mod:`~symplid.filters.linalg`), the unscented transform (:mod:`~symplid.filters.unscented`),
+the Gaussian update and the recursion (:mod:`~symplid.filters.update`).
+"""
+
+from symplid.filters.linalg import (
+    SMALL_DIM,
+    cholesky,
+    cholesky_columns,
+    matmul,
+    solve_lower,
+    symmetrize,
+)
+from symplid.filters.unscented import (
+    ObservationMoments,
+    UnscentedWeights,
+    observation_moments_linear,
+    observation_moments_unscented,
+    sigma_points,
+    unscented_predict,
+    unscented_weights,
+    weighted_moments,
+)
+from symplid.filters.update import FilterResult, gaussian_update, run_filter
+
+__all__ = [
+    "SMALL_DIM",
+    "FilterResult",
+    "ObservationMoments",
+    "UnscentedWeights",
+    "cholesky",
+    "cholesky_columns",
+    "gaussian_update",
+    "matmul",
+    "observation_moments_linear",
+    "observation_moments_unscented",
+    "run_filter",
+    "sigma_points",
+    "solve_lower",
+    "symmetrize",
+    "unscented_predict",
+    "unscented_weights",
+    "weighted_moments",
+]

@@ -1,0 +1,1 @@
+"""Inference (layer 4): MAP, Laplace, samplers (DRAM, NUTS), predictions, diagnostics."""

@@ -1,0 +1,140 @@
+"""Convergence diagnostics of sampler output: R-hat, bulk and tail ESS, with warnings.
+
+ArviZ does the statistics (rank-normalised split R-hat and the ESS of Vehtari et al. 2021);
+this module decides what to say about them. The thresholds are the usual ones: R-hat above
+1.01 or an effective sample size below 400 (100 per chain for four chains) means the draws
+are not yet to be trusted.
+"""
+
+from __future__ import annotations
+
+import warnings
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ConvergenceWarning", "import_arviz", "summary"]
+
+RHAT_THRESHOLD = 1.01
+ESS_THRESHOLD = 400.0
+
+
+class ConvergenceWarning(UserWarning):
+    """The chains have not converged or mixed enough (R-hat, ESS or divergences)."""
+
+
+def import_arviz() -> ModuleType:
+    """Import ArviZ without its import-time notice about a future refactor."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        import arviz
+
+    return arviz
+
+
+def _extreme(values: np.ndarray, pick) -> str:
+    finite = values[np.isfinite(values)]
+    return f"{pick(finite):.4g}" if finite.size else "nan"
+
+
+def _names(frame, mask) -> str:
+    return ", ".join(str(name) for name in frame.index[np.asarray(mask)])
+
+
+def summary(
+    idata: Any,
+    var_names: list[str] | None = None,
+    *,
+    rhat_threshold: float = RHAT_THRESHOLD,
+    ess_threshold: float = ESS_THRESHOLD,
+    show: bool = True,
+    warn: bool = True,
+):
+    """Summarise posterior draws and warn when they look unconverged.
+
+    Parameters
+    ----------
+    idata
+        ``arviz.InferenceData`` with a ``posterior`` group (as from
+        :func:`symplid.inference.samplers.sample`).
+    var_names
+        Parameters to summarise; all by default.
+    rhat_threshold, ess_threshold
+        A :class:`ConvergenceWarning` is issued when R-hat exceeds ``rhat_threshold`` (or
+        cannot be computed) or when the bulk or tail ESS is below ``ess_threshold``.
+    show
+        Print the table (mean, sd, HDI, MCSE, bulk and tail ESS, R-hat) and the sampler's
+        acceptance or divergence counts.
+    warn
+        Issue the warnings.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``az.summary`` at full precision, one row per parameter.
+    """
+    az = import_arviz()
+    if not hasattr(idata, "posterior"):
+        raise ValueError("idata has no posterior group; pass the result of symplid.sample")
+    table = az.summary(idata, var_names=var_names, round_to="none")
+    notes = _sampler_notes(idata)
+    if show:
+        import pandas as pd
+
+        with pd.option_context("display.max_columns", None, "display.width", 120):
+            print(table.to_string(float_format=lambda v: f"{v:.4g}"))
+        for note in notes:
+            print(note)
+    if warn:
+        _warn(table, idata, rhat_threshold, ess_threshold)
+    return table
+
+
+def _sampler_notes(idata: Any) -> list[str]:
+    if not hasattr(idata, "sample_stats"):
+        return []
+    stats = idata.sample_stats
+    notes = []
+    if "stage1_accepted" in stats:
+        stage1 = float(stats["stage1_accepted"].mean())
+        stage2 = float(stats["stage2_accepted"].mean())
+        overall = float(stats["accepted"].mean())
+        notes.append(f"DRAM acceptance: stage 1 {stage1:.1%}, stage 2 {stage2:.1%}, "
+                     f"overall {overall:.1%}")
+    if "diverging" in stats:
+        notes.append(f"NUTS divergences: {int(stats['diverging'].sum())} of "
+                     f"{stats['diverging'].size} transitions")
+    return notes
+
+
+def _warn(table, idata, rhat_threshold: float, ess_threshold: float) -> None:
+    rhat = table["r_hat"].to_numpy(dtype=float)
+    bad_rhat = ~(rhat <= rhat_threshold)
+    if bad_rhat.any():
+        warnings.warn(
+            f"R-hat above {rhat_threshold} (or not computable) for: "
+            f"{_names(table, bad_rhat)} (max {_extreme(rhat, max)}); the chains disagree, "
+            "run longer or check the starting points",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+    for column, label in (("ess_bulk", "bulk"), ("ess_tail", "tail")):
+        ess = table[column].to_numpy(dtype=float)
+        low = ~(ess >= ess_threshold)
+        if low.any():
+            warnings.warn(
+                f"{label} ESS below {ess_threshold:g} for: {_names(table, low)} "
+                f"(min {_extreme(ess, min)}); run longer or thin less",
+                ConvergenceWarning,
+                stacklevel=3,
+            )
+    stats = getattr(idata, "sample_stats", None)
+    if stats is not None and "diverging" in stats:
+        count = int(stats["diverging"].sum())
+        if count:
+            warnings.warn(
+                f"{count} divergent NUTS transition(s): the draws may be biased",
+                ConvergenceWarning,
+                stacklevel=3,
+            )

@@ -1,0 +1,1 @@
+"""Workflow (layer 6): settings, run folders, fit, compare, predictions of a run, sweeps on Dask."""

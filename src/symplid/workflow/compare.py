@@ -1,0 +1,483 @@
+"""Model comparison by the Laplace evidence: which polynomial order, which propagator.
+
+The paper fixes the model form (a cubic potential, eqs 17–18) and the propagator (leapfrog,
+eq. 14). With data of an unknown system both are choices, and the marginal likelihood of the
+data under each choice, p(Y | model) = ∫ L(θ; Y) π(θ) dθ (Section II-B.2, eqs 8–9), ranks
+them: it rewards fit and penalises parameters the data do not need (the Occam factor).
+
+:func:`compare_models` fits every (order, integrator) pair of a grid by MAP and Hessian
+(:func:`symplid.inference.map.find_map`; no sampling) and ranks them by the Laplace approximation
+
+    log p(Y | model) ≈ log π(θ*) + log L(θ*) + (d/2) log 2π − ½ log det H
+
+(with the 1-D treatment of parameters on a bound described in :mod:`symplid.inference.map`).
+Everything else in the settings (priors, dt, noise model, initial state, MAP starts and seed)
+is the same for every candidate, so the priors must be proper: the evidence of a candidate
+depends on the width of its coefficients' prior, and it is this width that makes an unneeded
+coefficient cost about log(prior width / posterior width) nats.
+
+The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
+
+========================  ==================================================================
+``rank``                  1 = the largest Laplace log evidence
+``order``, ``integrator``  the candidate
+``num_params``            the size of θ (coefficients, variances, learned initial states)
+``log_likelihood``        log L(θ*) at the MAP (Theorem 1, by the UKF)
+``log_posterior``         log π(θ*) + log L(θ*), the unnormalised log posterior at the MAP
+``log_evidence``          the Laplace log evidence (NaN if the Hessian was not finite)
+``delta_log_evidence``    log evidence minus the best one (0 for rank 1, negative below)
+``probability``           posterior probability of the candidate among those compared,
+                          with equal prior probabilities: softmax of the log evidences
+``bic``                   −2 log L(θ*) + num_params · log n, n = the number of measured
+                          values (a cruder, prior-free score; lower is better)
+``process_var``           MAP process-noise variance (the mean when ``noise = "diagonal"``)
+``obs_var``               MAP observation-noise variance (the same)
+``at_bounds``             parameters whose MAP sits on a bound (comma separated; the
+                          evidence is rougher then, see :mod:`symplid.inference.map`)
+``converged``             whether the best MAP start reported convergence
+``map_seconds``           wall time of the MAP search and Hessian (compilation included)
+========================  ==================================================================
+
+With ``out``, the table is written to ``out/compare.csv`` and ``out/compare.txt`` (the
+readable table that :func:`format_table` prints).
+
+Example::
+
+    from symplid.workflow.compare import compare_models, parse_orders
+    table = compare_models(obs, settings, orders=parse_orders("2..5"),
+                           integrators=["leapfrog", "rk2-midpoint"], out="runs/compare")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from symplid.dynamics.integrators import INTEGRATORS, get_integrator
+from symplid.model.data import DataError, Observations
+from symplid.workflow.settings import Settings, resolve_for_data
+
+__all__ = [
+    "COLUMNS",
+    "CandidateFit",
+    "compare_models",
+    "comparison_table",
+    "fit_candidates",
+    "format_table",
+    "parse_integrators",
+    "parse_orders",
+    "write_comparison",
+]
+
+COLUMNS = (
+    "rank",
+    "order",
+    "integrator",
+    "num_params",
+    "log_likelihood",
+    "log_posterior",
+    "log_evidence",
+    "delta_log_evidence",
+    "probability",
+    "bic",
+    "process_var",
+    "obs_var",
+    "at_bounds",
+    "converged",
+    "map_seconds",
+)
+"""The columns of the comparison table, in order."""
+
+_RANGE = re.compile(r"^(\d+)\s*(?:\.\.|-|:)\s*(\d+)$")
+
+
+# ----------------------------------------------------------------------------- parsing
+def parse_orders(text: str | int | Sequence[int]) -> list[int]:
+    """Polynomial orders from text such as ``"2..5"``, ``"2,3,5"``, ``"2..4,6"`` or ``"3"``.
+
+    A range ``a..b`` includes both ends (``a-b`` and ``a:b`` are read the same way). An
+    integer or a sequence of integers is accepted as is. The result is sorted, without
+    repeats.
+
+    Raises
+    ------
+    ValueError
+        For text that is not a list of orders or ranges, an empty range (``"5..2"``), or an
+        order below 1; the message quotes the offending part.
+    """
+    if isinstance(text, bool):
+        raise ValueError(f"orders: expected e.g. '2..5' or '2,3,4', got {text!r}")
+    if isinstance(text, int | np.integer):
+        values = [int(text)]
+    elif isinstance(text, str):
+        parts = [p.strip() for p in text.split(",")]
+        if not text.strip() or any(not p for p in parts):
+            raise ValueError(f"orders: expected e.g. '2..5' or '2,3,4', got {text!r}")
+        values = []
+        for part in parts:
+            match = _RANGE.match(part)
+            if match:
+                lo, hi = int(match.group(1)), int(match.group(2))
+                if hi < lo:
+                    raise ValueError(f"orders: {part!r} is an empty range (write '{hi}..{lo}')")
+                values.extend(range(lo, hi + 1))
+            elif part.isdigit():
+                values.append(int(part))
+            else:
+                raise ValueError(
+                    f"orders: {part!r} is not an order or a range (expected e.g. '2..5' or "
+                    "'2,3,4')"
+                )
+    elif isinstance(text, Sequence):
+        values = []
+        for v in text:
+            if isinstance(v, bool) or not isinstance(v, int | np.integer):
+                raise ValueError(f"orders: {v!r} is not an integer")
+            values.append(int(v))
+        if not values:
+            raise ValueError("orders: give at least one order")
+    else:
+        raise ValueError(f"orders: expected e.g. '2..5' or '2,3,4', got {text!r}")
+    for v in values:
+        if v < 1:
+            raise ValueError(f"orders: {v} is not a polynomial order (orders are ≥ 1)")
+    return sorted(set(values))
+
+
+def parse_integrators(text: str | Sequence[str]) -> list[str]:
+    """Integrator names from ``"leapfrog,rk2"`` or a list; canonical names, in the given order.
+
+    Aliases are resolved (``"rk2"`` → ``"rk2-midpoint"``); repeats are dropped.
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown integrator and listing the known ones.
+    """
+    if isinstance(text, str):
+        names = [p.strip() for p in text.split(",")]
+    else:
+        names = [str(p).strip() for p in text]
+    if not names or any(not n for n in names):
+        raise ValueError(f"integrators: expected e.g. 'leapfrog,rk2-midpoint', got {text!r}")
+    out: list[str] = []
+    for name in names:
+        try:
+            canonical = get_integrator(name).name
+        except ValueError:
+            raise ValueError(
+                f"integrators: {name!r} is not a known integrator (choose from "
+                f"{', '.join(INTEGRATORS)})"
+            ) from None
+        if canonical not in out:
+            out.append(canonical)
+    return out
+
+
+# ----------------------------------------------------------------------------- fitting
+@dataclass(frozen=True)
+class CandidateFit:
+    """One candidate of a comparison: its settings, posterior and MAP (with the Hessian)."""
+
+    order: int
+    integrator: str
+    settings: Settings
+    posterior: Any
+    map_result: Any
+    log_likelihood: float
+    seconds: float
+
+
+def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
+    if isinstance(obs, Observations):
+        return [obs]
+    if isinstance(obs, Sequence) and not isinstance(obs, str):
+        items = list(obs)
+        if not items:
+            raise DataError("no observations given: pass an Observations or a list of them")
+        for k, item in enumerate(items):
+            if not isinstance(item, Observations):
+                raise TypeError(
+                    f"obs[{k}] must be a symplid.Observations, got {type(item).__name__}"
+                )
+        return items
+    raise TypeError(f"obs must be an Observations or a list of them, got {type(obs).__name__}")
+
+
+def _resolve_all(settings: Settings, datasets: list[Observations], source: str) -> Settings:
+    """Settings resolved against every trajectory (they must share one layout)."""
+    from symplid.io import observation_layout
+
+    resolved = resolve_for_data(settings, datasets[0], source)
+    if len(datasets) > 1 and settings.initial_state.mode == "known":
+        raise ValueError(
+            f"{source}: initial_state.mode is 'known' but {len(datasets)} trajectories were "
+            "given and initial_state.x0 holds one state; set initial_state.mode = \"learned\" "
+            "(each trajectory's initial state is then learned)"
+        )
+    layout = observation_layout(datasets[0])
+    for k, obs in enumerate(datasets[1:], start=1):
+        other = observation_layout(obs)
+        if other != layout:
+            raise DataError(
+                f"trajectory {k} has columns for {other.kind} observations of {other.dim} "
+                f"degree(s) of freedom, trajectory 0 for {layout.kind} of {layout.dim}; "
+                "trajectories compared together must share their columns"
+            )
+        resolve_for_data(settings, obs, source)  # checks t0 against its first time
+    return resolved
+
+
+def fit_candidates(
+    obs: Observations | Sequence[Observations],
+    settings: Settings,
+    orders: Sequence[int] | str | int | None = None,
+    integrators: Sequence[str] | str | None = None,
+    progress: bool = True,
+    source: str = "settings",
+) -> list[CandidateFit]:
+    """MAP and Hessian of every (order, integrator) candidate, in grid order.
+
+    Parameters are those of :func:`compare_models`. Each candidate uses ``settings`` with
+    ``model.order`` and ``model.integrator`` replaced, and the MAP search of ``settings.map``
+    (its seed and number of starts), without the sampler.
+    """
+    from symplid.inference.map import find_map
+    from symplid.workflow.fit import build_model, build_posterior
+
+    datasets = _as_list(obs)
+    order_list = [settings.model.order] if orders is None else parse_orders(orders)
+    integrator_list = (
+        [settings.model.integrator] if integrators is None else parse_integrators(integrators)
+    )
+    base = _resolve_all(settings, datasets, source)
+    data: Observations | list[Observations] = datasets[0] if len(datasets) == 1 else datasets
+    grid = [(o, i) for i in integrator_list for o in order_list]
+    fits: list[CandidateFit] = []
+    bar = _progress(len(grid), progress)
+    try:
+        for order, integrator in grid:
+            bar.set_postfix_str(f"order {order}, {integrator}")
+            model_settings = dataclasses.replace(base.model, order=order, integrator=integrator)
+            s = dataclasses.replace(base, model=model_settings)
+            start = time.perf_counter()
+            model = build_model(s, datasets[0])
+            posterior = build_posterior(s, data, model)  # type: ignore[arg-type]
+            result = find_map(
+                posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False
+            )
+            seconds = time.perf_counter() - start
+            log_prior = float(posterior.log_prior(np.asarray(result.theta)))
+            fits.append(
+                CandidateFit(
+                    order, integrator, s, posterior, result, result.log_posterior - log_prior,
+                    seconds,
+                )
+            )
+            bar.update(1)
+    finally:
+        bar.close()
+    return fits
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="compare", unit="model", disable=not enabled, leave=False)
+
+
+# ----------------------------------------------------------------------------- the table
+def _num_measured(fit: CandidateFit) -> int:
+    return int(sum(int(np.sum(d.mask)) for d in fit.posterior.datasets))
+
+
+def _group_mean(fit: CandidateFit, group: str) -> float:
+    groups = np.asarray(fit.posterior.param_groups)
+    values = np.asarray(fit.map_result.theta)[groups == group]
+    return float(np.mean(values)) if values.size else math.nan
+
+
+def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
+    """The ranked table of :data:`COLUMNS` (module docstring) from fitted candidates."""
+    if not fits:
+        raise ValueError("no candidates to compare")
+    rows = []
+    for fit in fits:
+        r = fit.map_result
+        k = int(fit.posterior.num_params)
+        n = _num_measured(fit)
+        rows.append(
+            {
+                "order": int(fit.order),
+                "integrator": fit.integrator,
+                "num_params": k,
+                "log_likelihood": float(fit.log_likelihood),
+                "log_posterior": float(r.log_posterior),
+                "log_evidence": float(r.log_evidence),
+                "bic": -2.0 * float(fit.log_likelihood) + k * math.log(max(n, 1)),
+                "process_var": _group_mean(fit, "process_var"),
+                "obs_var": _group_mean(fit, "obs_var"),
+                "at_bounds": ",".join(r.at_bounds),
+                "converged": bool(r.success),
+                "map_seconds": float(fit.seconds),
+            }
+        )
+    df = pd.DataFrame(rows)
+    evidence = df["log_evidence"].to_numpy(dtype=float)
+    finite = np.isfinite(evidence)
+    best = float(np.max(evidence[finite])) if finite.any() else math.nan
+    df["delta_log_evidence"] = evidence - best
+    weights = np.where(finite, np.exp(np.where(finite, evidence - best, 0.0)), 0.0)
+    total = float(np.sum(weights))
+    df["probability"] = weights / total if total > 0 else np.nan
+    # Best evidence first; NaN evidences last, ordered among themselves by BIC.
+    df["_key"] = np.where(finite, -evidence, np.inf)
+    df = df.sort_values(["_key", "bic"], kind="stable").drop(columns="_key")
+    df.insert(0, "rank", np.arange(1, len(df) + 1))
+    return df.reset_index(drop=True)[list(COLUMNS)]
+
+
+def format_table(table: pd.DataFrame, title: str | None = None) -> str:
+    """The comparison table as aligned text (what ``compare.txt`` holds)."""
+    header = (
+        "rank", "order", "integrator", "params", "log L", "log post", "log evidence",
+        "Δ log ev", "prob", "BIC", "process var", "obs var", "MAP s", "on a bound",
+    )
+    lines_body = []
+    for row in table.itertuples(index=False):
+        lines_body.append(
+            (
+                str(row.rank),
+                str(row.order),
+                str(row.integrator),
+                str(row.num_params),
+                _num(row.log_likelihood, 2),
+                _num(row.log_posterior, 2),
+                _num(row.log_evidence, 2),
+                _num(row.delta_log_evidence, 2),
+                _prob(row.probability),
+                _num(row.bic, 2),
+                _sci(row.process_var),
+                _sci(row.obs_var),
+                f"{row.map_seconds:.1f}",
+                (row.at_bounds or "-") + ("" if row.converged else " (not converged)"),
+            )
+        )
+    widths = [max(len(h), *(len(r[j]) for r in lines_body)) for j, h in enumerate(header)]
+    left = {2, 13}
+
+    def fmt(cells: Sequence[str]) -> str:
+        out = [
+            c.ljust(w) if j in left else c.rjust(w)
+            for j, (c, w) in enumerate(zip(cells, widths, strict=True))
+        ]
+        return "  ".join(out).rstrip()
+
+    lines = [] if title is None else [title, ""]
+    lines.append(fmt(header))
+    lines.append("  ".join("-" * w for w in widths))
+    lines.extend(fmt(r) for r in lines_body)
+    lines += [
+        "",
+        "Ranked by the Laplace log evidence (higher is better); prob = posterior probability",
+        "among these candidates with equal prior weights; BIC = -2 log L + params·log n",
+        "(lower is better).",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _num(x: float, digits: int) -> str:
+    return "nan" if not np.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _sci(x: float) -> str:
+    return "nan" if not np.isfinite(x) else f"{x:.3g}"
+
+
+def _prob(x: float) -> str:
+    if not np.isfinite(x):
+        return "nan"
+    return "<0.001" if 0 < x < 1e-3 else f"{x:.3f}"
+
+
+def write_comparison(
+    table: pd.DataFrame, out: str | os.PathLike, title: str | None = None
+) -> tuple[Path, Path]:
+    """Write ``compare.csv`` and ``compare.txt`` into the folder ``out`` (created if needed)."""
+    folder = Path(out)
+    if folder.exists() and not folder.is_dir():
+        raise FileExistsError(f"{folder}: exists and is not a folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    csv_path, txt_path = folder / "compare.csv", folder / "compare.txt"
+    _atomic_write(csv_path, table.to_csv(index=False, float_format="%.10g"))
+    _atomic_write(txt_path, format_table(table, title))
+    return csv_path, txt_path
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------- entry point
+def compare_models(
+    obs: Observations | Sequence[Observations],
+    settings: Settings,
+    orders: Sequence[int] | str | int | None = None,
+    integrators: Sequence[str] | str | None = None,
+    out: str | os.PathLike | None = None,
+    progress: bool = True,
+    source: str = "settings",
+) -> pd.DataFrame:
+    """Rank polynomial orders and propagators by the Laplace log evidence (MAP only).
+
+    Parameters
+    ----------
+    obs
+        The data: one :class:`~symplid.model.data.Observations`, or a list of trajectories sharing
+        the potential (each with its own initial state; known initial states need one x0 per
+        trajectory, so from a settings file use ``initial_state.mode = "learned"``).
+    settings
+        Run settings; everything but ``model.order`` and ``model.integrator`` is shared by the
+        candidates (priors, dt, noise, initial state, ``[map]`` starts and seed). The sampler
+        settings are not used.
+    orders
+        Polynomial orders: a list, or text for :func:`parse_orders` (``"2..5"``); None: the
+        settings' order only.
+    integrators
+        Propagator names, or text for :func:`parse_integrators` (``"leapfrog,rk2"``); None:
+        the settings' integrator only.
+    out
+        A folder to write ``compare.csv`` and ``compare.txt`` into (None: write nothing).
+    progress
+        Show a progress bar over the candidates.
+    source
+        Where the settings came from (a file name), for error messages.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per candidate, best first, with the columns of :data:`COLUMNS`.
+    """
+    fits = fit_candidates(obs, settings, orders, integrators, progress, source)
+    table = comparison_table(fits)
+    if out is not None:
+        n = _num_measured(fits[0])
+        k = len(fits[0].posterior.datasets)
+        title = (
+            f"Model comparison: {len(fits)} candidate(s), {n} measured values in {k} "
+            f"trajectory(ies), learning dt = {fits[0].settings.model.dt:g}"
+        )
+        write_comparison(table, out, title)
+    return table

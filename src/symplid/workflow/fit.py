@@ -1,0 +1,213 @@
+"""From settings and data to a finished run: model, posterior, MAP, sampler, predictions.
+
+This is the layer the command line, the paper's experiment and the sweeps share. Each step is
+a function of plain inputs, so a notebook can run them one at a time:
+
+>>> settings = resolve_for_data(Settings(...), obs)         # doctest: +SKIP
+>>> model = build_model(settings, obs)                       # doctest: +SKIP
+>>> posterior = build_posterior(settings, obs, model)        # doctest: +SKIP
+>>> outcome = fit(obs, settings, out="runs/mine")            # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from symplid.dynamics.potentials import Polynomial
+from symplid.model.data import Observations
+from symplid.model.statespace import HamiltonianModel
+from symplid.workflow.settings import Settings, resolve_for_data, settings_to_dict
+
+
+def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
+    """The state-space model of eq. (7) that ``settings.model`` describes, for these data."""
+    from symplid.io import observation_layout
+
+    m = settings.model
+    layout = observation_layout(obs)
+    observation = layout.kind if m.observation == "auto" else m.observation
+    return HamiltonianModel(
+        Polynomial(layout.dim, m.order),
+        integrator=m.integrator,
+        dt=m.dt,
+        observation=observation,
+        process_noise_per=m.process_noise_per,
+        noise=m.noise,
+        mass=list(m.mass) if m.mass else None,
+        alpha=m.alpha,
+        beta=m.beta,
+        kappa=m.kappa,
+        jitter=m.jitter,
+    )
+
+
+def _prior_dict(settings: Settings) -> dict[str, Any]:
+    groups = settings_to_dict(settings)["priors"]
+    return {
+        "coefficients": groups["coefficients"],
+        "process_var": groups["variances"],
+        "obs_var": groups["variances"],
+        "initial_state": groups["initial_state"],
+    }
+
+
+def build_posterior(settings: Settings, obs: Observations, model: HamiltonianModel):
+    """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``."""
+    from symplid.model.posterior import Posterior
+
+    init = settings.initial_state
+    learned = init.mode == "learned"
+    x0 = np.asarray(init.x0, dtype=float) if init.x0 else None
+    prior = _prior_dict(settings)
+    if not learned:
+        prior.pop("initial_state")
+    return Posterior(
+        model,
+        obs,
+        prior=prior,
+        x0=x0,
+        P0=init.p0_var,
+        t0=init.t0,
+        learn_initial_state=learned,  # its prior is the "initial_state" group above
+    )
+
+
+@dataclass
+class FitOutcome:
+    """What :func:`fit` produced (the same content as the run folder, in memory)."""
+
+    settings: Settings
+    data: Observations
+    model: HamiltonianModel
+    posterior: Any
+    map_result: Any
+    idata: Any = None
+    summary: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    interrupted: bool = False
+
+
+def find_map_for(settings: Settings, posterior) -> Any:
+    """MAP by bounded quasi-Newton from ``settings.map.num_starts`` seeded starts."""
+    from symplid.inference.map import find_map
+
+    return find_map(posterior, seed=settings.map.seed, num_starts=settings.map.num_starts)
+
+
+def sample_for(
+    settings: Settings,
+    posterior,
+    map_result,
+    progress: bool = True,
+    progress_label: str | None = None,
+    progress_position: int = 0,
+) -> Any:
+    """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``."""
+    from symplid.inference.samplers import sample
+
+    s = settings.sampler
+    options: dict[str, Any] = {}
+    if s.method == "dram":
+        options = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
+    # The settings count every iteration (burn-in included, as the paper's 200,000 with
+    # 100,000 discarded); the sampler counts the draws it keeps.
+    kept = (s.num_samples - s.burn_in) // s.thin
+    return sample(
+        posterior,
+        method=s.method,
+        num_samples=kept,
+        num_chains=s.num_chains,
+        seed=s.seed,
+        init=map_result,
+        burn_in=s.burn_in,
+        thin=s.thin,
+        settings=options,
+        progress=progress,
+        progress_label=progress_label,
+        progress_position=progress_position,
+    )
+
+
+def fit(
+    obs: Observations,
+    settings: Settings,
+    out: str | Path | None = None,
+    progress: bool = True,
+    source: str = "settings",
+    progress_label: str | None = None,
+    overwrite: bool = False,
+    progress_position: int = 0,
+) -> FitOutcome:
+    """The whole fit: MAP, Hessian, sampler and the run folder (when ``out`` is given).
+
+    The run folder is marked incomplete until every file is written; a sampler interrupted
+    with Ctrl-C keeps the draws it made (they are saved and the folder says so).
+    """
+    from symplid.inference.diagnostics import summary as diagnostics_summary
+    from symplid.workflow.results import RunFolder
+
+    settings = resolve_for_data(settings, obs, source)
+    timings: dict[str, float] = {}
+    folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
+    if folder is not None:
+        folder.write_settings(settings)
+        folder.write_data(obs)
+    start = time.perf_counter()
+    model = build_model(settings, obs)
+    posterior = build_posterior(settings, obs, model)
+    map_result = find_map_for(settings, posterior)
+    timings["map_s"] = time.perf_counter() - start
+    if folder is not None:
+        folder.write_map(map_result)
+    start = time.perf_counter()
+    idata = sample_for(settings, posterior, map_result, progress, progress_label, progress_position)
+    timings["sampler_s"] = time.perf_counter() - start
+    interrupted = bool(idata.attrs.get("interrupted", False)) if idata is not None else False
+    table = diagnostics_summary(idata, show=False, warn=False) if idata is not None else None
+    summary = fit_summary(posterior, map_result, idata, table)
+    summary["timings"] = timings
+    summary["interrupted"] = interrupted
+    outcome = FitOutcome(
+        settings, obs, model, posterior, map_result, idata, summary, timings, interrupted
+    )
+    if folder is not None:
+        folder.write_posterior(idata)
+        folder.write_summary(summary)
+        folder.finish(required=("settings.toml", "data.csv", "map.json", "posterior.nc"))
+    return outcome
+
+
+def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
+    """A JSON-ready digest of a fit: MAP, posterior quantiles, convergence and acceptance."""
+    from symplid.inference.samplers import draws_array
+
+    names = list(posterior.param_names)
+    out: dict[str, Any] = {
+        "param_names": names,
+        "map": dict(zip(names, np.asarray(map_result.theta).tolist(), strict=True)),
+        "map_log_posterior": float(map_result.log_posterior),
+        "log_evidence_laplace": float(map_result.log_evidence),
+    }
+    if idata is None:
+        return out
+    draws = draws_array(idata)  # (chain, draw, param)
+    flat = draws.reshape(-1, draws.shape[-1])
+    q = np.quantile(flat, [0.025, 0.5, 0.975], axis=0)
+    out["posterior"] = {
+        name: {"q025": q[0, i], "median": q[1, i], "q975": q[2, i], "mean": flat[:, i].mean()}
+        for i, name in enumerate(names)
+    }
+    stats = idata.sample_stats
+    for key in ("acceptance_rate", "accepted"):
+        if key in stats:
+            out["acceptance_rate"] = float(np.asarray(stats[key]).mean())
+            break
+    if table is not None:
+        out["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy()))
+        out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
+    return out

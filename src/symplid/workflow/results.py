@@ -1,0 +1,557 @@
+"""Run folders: everything one run produced, written so that an unfinished run never looks done.
+
+A run folder holds::
+
+    settings.toml    every setting, defaults included (symplid.workflow.settings.dump_settings)
+    data.csv         the data the run used (symplid.io.write_observations)
+    map.json         the MAP point, its log posterior, the Hessian, ... (write_map)
+    posterior.nc     the draws as ArviZ InferenceData (netCDF through h5netcdf)
+    summary.json     the run's numbers, and summary.txt, the same as a readable table
+    figures/*.png
+    report.md
+
+Completeness rule (the marker)
+------------------------------
+Opening a folder for writing first writes a marker file ``.incomplete``; :meth:`RunFolder.finish`
+removes it, last. A run that fails or is killed midway therefore leaves the marker behind, and
+readers (``RunFolder(path, mode="r")``) refuse such a folder unless asked. A marker rather than
+a temporary folder renamed at the end was chosen so that a long run's partial results (settings,
+data, MAP, a partial chain) stay where the user looks for them, and so that ``predict`` and
+``report`` can add files to an existing run (``mode="a"``) under the same rule. When used as a
+context manager, a failure writes its one-line reason into the marker. Each file is itself
+written to a hidden temporary name and renamed, so no file is ever half written.
+
+JSON conventions
+----------------
+NumPy and JAX arrays become (nested) lists, NumPy scalars become numbers, tuples lists, dataclasses
+and NamedTuples objects. JSON has no NaN or infinity, so non-finite floats are written as the
+strings ``"nan"``, ``"inf"`` and ``"-inf"`` (not ``null``, which would lose which one it was);
+:func:`read_json` turns those strings back into floats. The files are strict JSON.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import math
+import os
+import shutil
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from symplid.io import read_observations, write_observations
+from symplid.model.data import DataError, Observations
+from symplid.workflow.settings import Settings, dump_settings, load_settings
+
+__all__ = [
+    "RunFolder",
+    "RunFolderError",
+    "format_summary",
+    "read_json",
+    "to_jsonable",
+    "write_json",
+]
+
+_NONFINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+
+
+class RunFolderError(DataError):
+    """A run folder that cannot be used (missing, unfinished, not a run folder, ...)."""
+
+
+# ----------------------------------------------------------------------------- JSON
+def to_jsonable(obj: Any, where: str = "") -> Any:
+    """Convert ``obj`` to plain JSON types (see the module docstring for the rules)."""
+    if obj is None or isinstance(obj, bool | str):
+        return obj
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return _float(float(obj))
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v, f"{where}.{k}" if where else str(k)) for k, v in obj.items()}
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {
+            f.name: to_jsonable(getattr(obj, f.name), f"{where}.{f.name}")
+            for f in dataclasses.fields(obj)
+        }
+    if isinstance(obj, tuple) and hasattr(obj, "_asdict"):  # NamedTuple
+        return to_jsonable(obj._asdict(), where)
+    if isinstance(obj, list | tuple | set | frozenset):
+        items = sorted(obj, key=str) if isinstance(obj, set | frozenset) else obj
+        return [to_jsonable(v, f"{where}[{i}]") for i, v in enumerate(items)]
+    if hasattr(obj, "__array__"):  # NumPy and JAX arrays
+        array = np.asarray(obj)
+        if array.dtype.kind in "biuf":
+            if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
+                return _nested(array.tolist())
+            return array.tolist()
+        if array.dtype.kind in "US":
+            return array.tolist()
+        raise TypeError(f"cannot write {array.dtype} array at {where or 'top level'} as JSON")
+    raise TypeError(f"cannot write {type(obj).__name__} at {where or 'top level'} as JSON")
+
+
+def _float(x: float) -> float | str:
+    if math.isfinite(x):
+        return x
+    return "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf")
+
+
+def _nested(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_nested(v) for v in value]
+    return _float(value) if isinstance(value, float) else value
+
+
+def _decode(value: Any) -> Any:
+    if isinstance(value, str):
+        return _NONFINITE.get(value, value)
+    if isinstance(value, list):
+        return [_decode(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _decode(v) for k, v in value.items()}
+    return value
+
+
+def write_json(obj: Any, path: str | os.PathLike) -> Path:
+    """Write ``obj`` as strict, indented JSON (atomically); returns the path."""
+    path = Path(path)
+    text = json.dumps(to_jsonable(obj), indent=2, allow_nan=False)
+    _atomic_write_text(path, text + "\n")
+    return path
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    """Read JSON written by :func:`write_json`; ``"nan"``/``"inf"``/``"-inf"`` become floats."""
+    path = Path(path)
+    try:
+        return _decode(json.loads(path.read_text(encoding="utf-8")))
+    except FileNotFoundError:
+        raise RunFolderError(f"{path}: no such file") from None
+    except json.JSONDecodeError as err:
+        raise RunFolderError(f"{path}: not valid JSON ({err})") from None
+
+
+def _arrays(value: Any) -> Any:
+    """Lists of numbers (rectangular, any depth) become arrays (int or float), also in dicts."""
+    if isinstance(value, dict):
+        return {k: _arrays(v) for k, v in value.items()}
+    if isinstance(value, list) and value:
+        try:
+            array = np.asarray(value)
+        except (TypeError, ValueError):  # ragged
+            array = None
+        if array is not None and array.dtype.kind in "iuf":
+            return array
+        return [_arrays(v) for v in value]
+    return value
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------- summary table
+def format_summary(summary: Mapping[str, Any]) -> str:
+    """A readable text table of a (possibly nested) summary.
+
+    Top-level scalars come first, one per line. Sub-tables whose values are scalars (e.g. one
+    per propagator) become the columns of one table, rows being their keys; anything nested
+    deeper is flattened with dotted keys.
+    """
+    summary = to_jsonable(summary)
+    scalars = {k: v for k, v in summary.items() if not isinstance(v, dict)}
+    groups = {k: _flatten(v) for k, v in summary.items() if isinstance(v, dict)}
+    lines = []
+    width = max([len(k) for k in scalars] + [len(k) for g in groups.values() for k in g] + [1])
+    for key, value in scalars.items():
+        lines.append(f"{key:<{width}}  {_cell(value)}")
+    if groups:
+        rows: list[str] = []
+        for group in groups.values():
+            rows += [k for k in group if k not in rows]
+        cells = {name: {k: _cell(v) for k, v in g.items()} for name, g in groups.items()}
+        widths = {
+            name: max([len(name)] + [len(c) for c in col.values()]) for name, col in cells.items()
+        }
+        if lines:
+            lines.append("")
+        lines.append(" " * width + "".join(f"  {name:>{widths[name]}}" for name in groups))
+        for row in rows:
+            lines.append(
+                f"{row:<{width}}"
+                + "".join(f"  {cells[n].get(row, '—'):>{widths[n]}}" for n in groups)
+            )
+    return "\n".join(lines) + "\n"
+
+
+def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return "—"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, list):
+        flat = np.ravel(np.asarray(_decode(value), dtype=object))
+        shown = ", ".join(_cell(v) for v in flat[:6])
+        return f"[{shown}{', …' if flat.size > 6 else ''}]"
+    return str(value)
+
+
+# ----------------------------------------------------------------------------- the folder
+Mode = Literal["w", "a", "r"]
+
+
+class RunFolder:
+    """One run's folder: write its files, mark it finished, read it back.
+
+    Parameters
+    ----------
+    path
+        The folder.
+    mode
+        ``"w"`` (default): a new run. The folder is created (parents too) and the
+        ``.incomplete`` marker written before anything else. An existing non-empty folder is
+        refused unless ``overwrite=True`` and it is a run folder (then its run files are
+        removed first; other files are left alone).
+        ``"r"``: read an existing, finished run; nothing can be written.
+        ``"a"``: add to an existing, finished run (``predict``, ``report``): the marker is
+        written again until :meth:`finish`.
+    overwrite
+        Only for ``mode="w"``.
+    allow_incomplete
+        For ``"r"`` and ``"a"``: open a folder whose run did not finish (to inspect it).
+
+    Use it as a context manager to call :meth:`finish` on success and to record the error in
+    the marker on failure::
+
+        with RunFolder(out) as run:
+            run.write_settings(settings)
+            run.write_data(data)
+            ...
+
+    Raises
+    ------
+    RunFolderError
+        (a :class:`~symplid.model.data.DataError`) when the folder cannot be used as asked, with a
+        one-line message naming it.
+    """
+
+    MARKER = ".incomplete"
+    SETTINGS = "settings.toml"
+    DATA = "data.csv"
+    MAP = "map.json"
+    POSTERIOR = "posterior.nc"
+    SUMMARY = "summary.json"
+    SUMMARY_TEXT = "summary.txt"
+    REPORT = "report.md"
+    FIGURES = "figures"
+    RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES)
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        mode: Mode = "w",
+        *,
+        overwrite: bool = False,
+        allow_incomplete: bool = False,
+    ) -> None:
+        if mode not in ("w", "a", "r"):
+            raise ValueError(f"mode must be 'w', 'a' or 'r', got {mode!r}")
+        self.path = Path(path)
+        self.mode: Mode = mode
+        self._finished = False
+        if mode == "w":
+            self._create(overwrite)
+        else:
+            self._check_existing(allow_incomplete)
+            if mode == "a":
+                self._write_marker("update started")
+
+    # ------------------------------------------------------------------ state
+    def _create(self, overwrite: bool) -> None:
+        path = self.path
+        if path.exists() and not path.is_dir():
+            raise RunFolderError(f"{path}: exists and is not a folder")
+        if path.is_dir() and any(path.iterdir()):
+            if not overwrite:
+                raise RunFolderError(
+                    f"{path}: the folder already exists and is not empty; choose another "
+                    "output folder or allow overwriting"
+                )
+            if not self._looks_like_run():
+                raise RunFolderError(
+                    f"{path}: not a run folder (no {self.SETTINGS} or {self.MARKER}); "
+                    "refusing to overwrite it"
+                )
+            self._write_marker("run started (overwriting an earlier run)")
+            for name in self.RUN_FILES:
+                target = path / name
+                if target.is_dir():
+                    shutil.rmtree(target)
+                elif target.exists():
+                    target.unlink()
+        path.mkdir(parents=True, exist_ok=True)
+        self._write_marker("run started")
+
+    def _looks_like_run(self) -> bool:
+        return (self.path / self.SETTINGS).exists() or (self.path / self.MARKER).exists()
+
+    def _check_existing(self, allow_incomplete: bool) -> None:
+        path = self.path
+        if not path.exists():
+            raise RunFolderError(f"{path}: no such run folder")
+        if not path.is_dir():
+            raise RunFolderError(f"{path}: not a folder")
+        if not self._looks_like_run():
+            raise RunFolderError(f"{path}: not a run folder (no {self.SETTINGS})")
+        if not allow_incomplete and not self.is_complete:
+            reason = self.incomplete_reason or "unknown reason"
+            raise RunFolderError(
+                f"{path}: the run that wrote this folder did not finish ({reason}); run it again"
+            )
+
+    def _write_marker(self, reason: str) -> None:
+        stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+        self.path.mkdir(parents=True, exist_ok=True)
+        (self.path / self.MARKER).write_text(f"{reason}\n{stamp} pid {os.getpid()}\n")
+
+    @property
+    def is_complete(self) -> bool:
+        """True when the folder exists and carries no ``.incomplete`` marker."""
+        return self.path.is_dir() and not (self.path / self.MARKER).exists()
+
+    @property
+    def incomplete_reason(self) -> str | None:
+        """The first line of the marker (why the run is unfinished), or None when finished."""
+        marker = self.path / self.MARKER
+        if not marker.exists():
+            return None
+        return marker.read_text(encoding="utf-8").splitlines()[0].strip() or "unfinished"
+
+    def finish(self, required: tuple[str, ...] = (SETTINGS, DATA)) -> None:
+        """Mark the run finished by removing the marker, after checking ``required`` files."""
+        self._check_writable()
+        missing = [name for name in required if not (self.path / name).exists()]
+        if missing:
+            raise RuntimeError(f"{self.path}: cannot finish the run, missing {', '.join(missing)}")
+        (self.path / self.MARKER).unlink(missing_ok=True)
+        self._finished = True
+
+    def fail(self, reason: str) -> None:
+        """Record why the run stopped (first line of the marker); the folder stays unfinished."""
+        if self.mode == "r":
+            return
+        first_line = (str(reason).strip().splitlines() or ["failed"])[0]
+        self._write_marker(f"failed: {first_line}")
+
+    def __enter__(self) -> RunFolder:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self.mode == "r" or self._finished:
+            return
+        if exc_type is None:
+            self.finish()
+        else:
+            self.fail(f"{exc_type.__name__}: {exc}" if str(exc) else exc_type.__name__)
+
+    def _check_writable(self) -> None:
+        if self.mode == "r":
+            raise RuntimeError(f"{self.path}: opened read-only (mode='r')")
+        if self._finished:
+            raise RuntimeError(f"{self.path}: the run is already finished")
+
+    def __repr__(self) -> str:
+        state = "complete" if self.is_complete else "incomplete"
+        return f"RunFolder({str(self.path)!r}, mode={self.mode!r}, {state})"
+
+    # ------------------------------------------------------------------ paths
+    def file(self, name: str) -> Path:
+        """Path of a file in the folder."""
+        return self.path / name
+
+    @property
+    def figures_dir(self) -> Path:
+        return self.path / self.FIGURES
+
+    def figure_path(self, name: str) -> Path:
+        """``figures/<name>`` (``.png`` added when there is no extension); creates figures/."""
+        self.figures_dir.mkdir(parents=True, exist_ok=True)
+        path = self.figures_dir / name
+        return path if path.suffix else path.with_suffix(".png")
+
+    def figures(self) -> list[Path]:
+        """The figure files, sorted by name."""
+        if not self.figures_dir.is_dir():
+            return []
+        return sorted(p for p in self.figures_dir.iterdir() if not p.name.startswith("."))
+
+    # ------------------------------------------------------------------ writers
+    def write_settings(self, settings: Settings) -> Path:
+        """settings.toml: every setting, defaults included."""
+        self._check_writable()
+        return dump_settings(settings, self.file(self.SETTINGS))
+
+    def write_data(self, obs: Observations) -> Path:
+        """data.csv: the observations the run used."""
+        self._check_writable()
+        return write_observations(obs, self.file(self.DATA))
+
+    def write_json(self, name: str, obj: Any) -> Path:
+        """Any JSON file in the folder (see the module's JSON conventions)."""
+        self._check_writable()
+        return write_json(obj, self.file(name))
+
+    def write_map(self, result: Any, **extra: Any) -> Path:
+        """map.json from a MAP result (a mapping, dataclass or NamedTuple with ``theta``,
+        ``log_posterior``, ``hessian``, ...), plus ``extra`` keys such as ``param_names``."""
+        content = to_jsonable(result, "map")
+        if not isinstance(content, dict):
+            raise TypeError("the MAP result must be a mapping, a dataclass or a NamedTuple")
+        content.update(to_jsonable(extra))
+        return self.write_json(self.MAP, content)
+
+    def write_posterior(self, idata: Any) -> Path:
+        """posterior.nc from ArviZ InferenceData (attributes that netCDF cannot hold, such as
+        dictionaries, booleans, None or matrices, are stored as JSON text and restored by
+        :meth:`read_posterior`)."""
+        self._check_writable()
+        path = self.file(self.POSTERIOR)
+        tmp = path.with_name(f".{path.name}.tmp")
+        safe = idata.copy()
+        for group in safe.groups():
+            dataset = getattr(safe, group)
+            dataset.attrs = _netcdf_attrs(dataset.attrs)
+        if hasattr(safe, "attrs"):
+            safe.attrs = _netcdf_attrs(dict(safe.attrs))
+        safe.to_netcdf(str(tmp))
+        os.replace(tmp, path)
+        return path
+
+    def write_summary(self, summary: Mapping[str, Any], table: str | None = None) -> Path:
+        """summary.json, and summary.txt: :func:`format_summary` plus an optional extra table
+        (e.g. the text of ``arviz.summary``)."""
+        path = self.write_json(self.SUMMARY, summary)
+        text = format_summary(summary)
+        if table:
+            text += "\n" + table.rstrip() + "\n"
+        _atomic_write_text(self.file(self.SUMMARY_TEXT), text)
+        return path
+
+    def save_figure(self, figure: Any, name: str, dpi: int = 150) -> Path:
+        """Save a matplotlib figure as ``figures/<name>`` (PNG unless ``name`` has a suffix)."""
+        self._check_writable()
+        path = self.figure_path(name)
+        tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+        figure.savefig(tmp, dpi=dpi, bbox_inches="tight")
+        os.replace(tmp, path)
+        return path
+
+    def write_report(self, text: str) -> Path:
+        """report.md (Markdown; refer to figures as ``figures/<name>.png``)."""
+        self._check_writable()
+        path = self.file(self.REPORT)
+        _atomic_write_text(path, text if text.endswith("\n") else text + "\n")
+        return path
+
+    # ------------------------------------------------------------------ readers
+    def _need(self, name: str) -> Path:
+        path = self.file(name)
+        if not path.exists():
+            raise RunFolderError(f"{self.path}: this run has no {name}")
+        return path
+
+    def read_settings(self) -> Settings:
+        return load_settings(self._need(self.SETTINGS))
+
+    def read_data(self) -> Observations:
+        return read_observations(self._need(self.DATA))
+
+    def read_json(self, name: str) -> Any:
+        return read_json(self._need(name))
+
+    def read_map(self) -> dict[str, Any]:
+        """map.json, with every list of numbers turned into a float array."""
+        return _arrays(self.read_json(self.MAP))
+
+    def read_summary(self) -> dict[str, Any]:
+        return self.read_json(self.SUMMARY)
+
+    def read_report(self) -> str:
+        return self._need(self.REPORT).read_text(encoding="utf-8")
+
+    def read_posterior(self) -> Any:
+        """posterior.nc as InferenceData, loaded into memory (the file is closed)."""
+        import arviz as az
+
+        path = self._need(self.POSTERIOR)
+        with az.rc_context({"data.load": "eager"}):
+            idata = az.from_netcdf(str(path))
+        for group in idata.groups():
+            dataset = getattr(idata, group)
+            dataset.attrs = _restore_attrs(dict(dataset.attrs))
+        if hasattr(idata, "attrs"):
+            idata.attrs = _restore_attrs(dict(idata.attrs))
+        return idata
+
+
+_JSON_ATTRS = "symplid_json_attrs"
+
+
+def _netcdf_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """Attributes netCDF can hold as they are; the rest as JSON text, listed in one attribute."""
+    out: dict[str, Any] = {}
+    encoded = []
+    for key, value in attrs.items():
+        if _netcdf_ok(value):
+            out[key] = value
+        else:
+            out[key] = json.dumps(to_jsonable(value, key), allow_nan=False)
+            encoded.append(key)
+    if encoded:
+        out[_JSON_ATTRS] = json.dumps(encoded)
+    return out
+
+
+def _netcdf_ok(value: Any) -> bool:
+    if isinstance(value, bool | np.bool_):
+        return False
+    if isinstance(value, str | int | float | np.integer | np.floating):
+        return True
+    if isinstance(value, np.ndarray):
+        return value.ndim == 1 and value.dtype.kind in "iuf" and value.size > 0
+    return False
+
+
+def _restore_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
+    encoded = attrs.pop(_JSON_ATTRS, None)
+    if encoded is None:
+        return attrs
+    for key in json.loads(encoded):
+        if key in attrs:
+            attrs[key] = _arrays(_decode(json.loads(attrs[key])))
+    return attrs
