@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import symplid
+from symplid.model.priors import HalfNormal, Laplace, Normal, Uniform
 from symplid.workflow.settings import (
-    PriorSpec,
     Settings,
     SettingsError,
     dump_settings,
@@ -50,11 +50,11 @@ def test_defaults_are_the_papers_numbers():
         0.0,
     )
     # Laplace(0, b = 10) on the coefficients, half-normal(1) on the variances.
-    assert s.priors.coefficients == PriorSpec("laplace", loc=0.0, scale=10.0)
-    assert s.priors.variances == PriorSpec("half-normal", scale=1.0)
+    assert s.priors.coefficients == Laplace(0.0, 10.0)
+    assert s.priors.variances == HalfNormal(1.0)
     assert s.priors.initial_state.family == "normal"
     # DRAM: 200,000 iterations, the first 100,000 discarded, γ = 0.01, adaptation after 200.
-    assert (s.sampler.method, s.sampler.num_samples, s.sampler.burn_in) == (
+    assert (s.sampler.method, s.sampler.num_iterations, s.sampler.burn_in) == (
         "dram",
         200_000,
         100_000,
@@ -116,7 +116,7 @@ def _custom() -> Settings:
                 "variances": {"family": "uniform", "low": 0.0, "high": 0.5},
                 "initial_state": {"family": "laplace", "scale": 0.3},
             },
-            "sampler": {"method": "nuts", "num_samples": 3000, "burn_in": 1000, "thin": 7},
+            "sampler": {"method": "nuts", "num_iterations": 3000, "burn_in": 1000, "thin": 7},
             "prediction": {"dt": 1e-3, "t_end": 50, "num_paths": 0},
         }
     )
@@ -150,13 +150,13 @@ def test_dump_writes_every_key(tmp_path):
     expected |= {"priors.initial_state.family", "priors.initial_state.loc"}
     expected |= {"priors.initial_state.scale"}
     assert keys(written) == expected
-    assert written["sampler"]["num_samples"] == 200_000
+    assert written["sampler"]["num_iterations"] == 200_000
 
 
 def test_custom_values_survive(tmp_path):
     s = _custom()
     assert s.model.mass == (1.0, 2.5) and s.initial_state.x0 == (0.2, -0.25, 0.3, -0.25)
-    assert s.priors.variances == PriorSpec("uniform", low=0.0, high=0.5)
+    assert s.priors.variances == Uniform(0.0, 0.5)
     assert settings_to_dict(s)["priors"]["variances"] == {
         "family": "uniform",
         "low": 0.0,
@@ -174,7 +174,11 @@ def test_top_level_seed_seeds_the_sections(tmp_path):
 # ----------------------------------------------------------------------------- errors
 MISSPELT = [
     ("[model]\nintergrator = 'rk4'\n", "unknown key 'model.intergrator'", "model.integrator"),
-    ("[sampler]\nnum_sample = 10\n", "unknown key 'sampler.num_sample'", "sampler.num_samples"),
+    (
+        "[sampler]\nnum_iteration = 10\n",
+        "unknown key 'sampler.num_iteration'",
+        "sampler.num_iterations",
+    ),
     ("[sampler]\nburnin = 10\n", "unknown key 'sampler.burnin'", "sampler.burn_in"),
     ("dt = 0.1\n", "unknown key 'dt'", "model.dt"),
     ("[modle]\ndt = 0.1\n", "unknown key 'modle'", "model"),
@@ -222,13 +226,17 @@ BAD_VALUES = [
     ("[priors.coefficients]\nfamily='laplace'\nhigh = 1\n", "priors.coefficients.high", "not used"),
     ("[priors.variances]\nfamily='uniform'\nlow=2\nhigh=1\n", "priors.variances.low", "less than"),
     ("[priors.initial_state]\nfamily='half-normal'\n", "priors.initial_state.family", "any real"),
-    ("[sampler]\nnum_samples = 1000\n", "sampler.num_samples", "greater than sampler.burn_in"),
-    ("[sampler]\nnum_samples = 10\nburn_in = 10\n", "sampler.num_samples", "greater than"),
+    (
+        "[sampler]\nnum_iterations = 1000\n",
+        "sampler.num_iterations",
+        "greater than sampler.burn_in",
+    ),
+    ("[sampler]\nnum_iterations = 10\nburn_in = 10\n", "sampler.num_iterations", "greater than"),
     ("[sampler]\nnum_chains = true\n", "sampler.num_chains", "must be an integer"),
     ("[sampler]\nnum_chains = 0\n", "sampler.num_chains", "≥ 1"),
     ("[sampler]\ngamma = 0\n", "sampler.gamma", "> 0"),
     ("[sampler]\nmethod = 'gibbs'\n", "sampler.method", "'dram', 'nuts'"),
-    ("[sampler]\nnum_samples=20\nburn_in=10\nthin=11\n", "sampler.thin", "larger than the 10"),
+    ("[sampler]\nnum_iterations=20\nburn_in=10\nthin=11\n", "sampler.thin", "larger than the 10"),
     ("[prediction]\ndt = 0\n", "prediction.dt", "> 0"),
     ("[prediction]\nt_end = 0\n", "prediction.t_end", "after initial_state.t0"),
     ("[prediction]\nnum_paths = -1\n", "prediction.num_paths", "≥ 0"),
@@ -275,11 +283,11 @@ def test_merge_overrides_skips_none_and_reseeds():
 
 def test_merge_overrides_prior_family_change():
     s = merge_overrides(Settings(), {"priors.coefficients.family": "normal"})
-    assert s.priors.coefficients == PriorSpec("normal", loc=0.0, scale=1.0)
+    assert s.priors.coefficients == Normal(0.0, 1.0)
     s = merge_overrides(
         Settings(), {"priors.variances.family": "uniform", "priors.variances.high": 2.0}
     )
-    assert s.priors.variances == PriorSpec("uniform", low=0.0, high=2.0)
+    assert s.priors.variances == Uniform(0.0, 2.0)
 
 
 @pytest.mark.parametrize(
@@ -290,7 +298,7 @@ def test_merge_overrides_prior_family_change():
         ({"model": 1}, "is a section"),
         ({"model.dt": -1.0}, "model.dt must be > 0"),
         ({"model.integrator": "rk3"}, "not a known integrator"),
-        ({"sampler.num_samples": 50}, "greater than sampler.burn_in"),
+        ({"sampler.num_iterations": 50}, "greater than sampler.burn_in"),
     ],
 )
 def test_merge_overrides_errors_name_the_command_line(overrides, words):
@@ -361,3 +369,63 @@ def test_resolve_positions_setting_on_full_data(full_data):
     s = settings_from_dict({**X0, "model": {"observation": "positions"}})
     with pytest.raises(SettingsError, match="positions and momenta"):
         resolve_for_data(s, full_data)
+
+
+# ----------------------------------------------------------------------------- renamed keys
+def test_old_num_samples_key_is_read_with_a_future_warning(tmp_path):
+    with pytest.warns(FutureWarning, match=r"sampler\.num_samples is deprecated; use sampler\."
+                      r"num_iterations"):
+        s = _load_text(tmp_path, "[sampler]\nnum_samples = 3000\nburn_in = 1000\n")
+    assert (s.sampler.num_iterations, s.sampler.burn_in, s.sampler.num_draws) == (3000, 1000, 2000)
+    with pytest.warns(FutureWarning, match="use sampler.num_iterations"):
+        s = merge_overrides(Settings(), {"sampler.num_samples": 300_000})
+    assert s.sampler.num_iterations == 300_000
+    with pytest.warns(FutureWarning), pytest.raises(SettingsError, match="give only"):
+        settings_from_dict({"sampler": {"num_samples": 10, "num_iterations": 10}})
+
+
+def test_written_settings_use_the_new_key(tmp_path):
+    text = dump_settings(Settings(), tmp_path / "s.toml").read_text()
+    assert "num_iterations = 200000" in text and "num_samples" not in text
+
+
+# ----------------------------------------------------------------------------- registries
+@pytest.mark.parametrize(
+    ("data", "key", "registry"),
+    [
+        ({"model": {"integrator": "magic"}}, "model.integrator", symplid.INTEGRATORS),
+        ({"prediction": {"integrator": "magic"}}, "prediction.integrator", symplid.INTEGRATORS),
+        ({"sampler": {"method": "gibbs"}}, "sampler.method", symplid.samplers.SAMPLERS),
+        (
+            {"priors": {"coefficients": {"family": "cauchy"}}},
+            "priors.coefficients.family",
+            symplid.model.priors.PRIOR_FAMILIES,
+        ),
+    ],
+)
+def test_unknown_names_list_the_registry(data, key, registry):
+    with pytest.raises(SettingsError) as info:
+        settings_from_dict(data, source="s.toml")
+    message = str(info.value)
+    assert message.startswith(f"s.toml: {key} must be one of ")
+    assert f"not a known {registry.kind}" in message
+    for name in registry.names():
+        assert repr(name) in message
+
+
+def test_a_registered_prior_family_is_a_setting():
+    """A family registered from outside (here, this test) is read, written and used."""
+    from symplid.model.priors import PRIOR_FAMILIES
+
+    @dataclasses.dataclass(frozen=True)
+    class Wide(Normal):
+        family = "wide-normal"
+
+    PRIOR_FAMILIES.register("wide-normal", Wide)
+    try:
+        s = settings_from_dict({"priors": {"coefficients": {"family": "wide_normal", "scale": 3}}})
+        assert s.priors.coefficients == Wide(0.0, 3.0)
+        assert settings_from_dict(settings_to_dict(s)) == s
+        assert s.priors.prior_spec(False).coefficients == Wide(0.0, 3.0)
+    finally:
+        PRIOR_FAMILIES.unregister("wide-normal")

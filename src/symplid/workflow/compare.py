@@ -64,7 +64,10 @@ import numpy as np
 import pandas as pd
 
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
+from symplid.inference.map import find_map
+from symplid.io import observation_layout
 from symplid.model.data import DataError, Observations
+from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.settings import Settings, resolve_for_data
 
 __all__ = [
@@ -216,7 +219,6 @@ def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
 
 def _resolve_all(settings: Settings, datasets: list[Observations], source: str) -> Settings:
     """Settings resolved against every trajectory (they must share one layout)."""
-    from symplid.io import observation_layout
 
     resolved = resolve_for_data(settings, datasets[0], source)
     if len(datasets) > 1 and settings.initial_state.mode == "known":
@@ -252,8 +254,6 @@ def fit_candidates(
     ``model.order`` and ``model.integrator`` replaced, and the MAP search of ``settings.map``
     (its seed and number of starts), without the sampler.
     """
-    from symplid.inference.map import find_map
-    from symplid.workflow.fit import build_model, build_posterior
 
     datasets = _as_list(obs)
     order_list = [settings.model.order] if orders is None else parse_orders(orders)

@@ -19,14 +19,19 @@ from typing import Any
 import numpy as np
 
 from symplid.dynamics.potentials import Polynomial
+from symplid.inference.diagnostics import summary as diagnostics_summary
+from symplid.inference.map import find_map
+from symplid.inference.samplers import draws_array, sample
+from symplid.io import observation_layout
 from symplid.model.data import Observations
+from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
-from symplid.workflow.settings import Settings, resolve_for_data, settings_to_dict
+from symplid.workflow.results import RunFolder
+from symplid.workflow.settings import Settings, resolve_for_data
 
 
 def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
     """The state-space model of eq. (7) that ``settings.model`` describes, for these data."""
-    from symplid.io import observation_layout
 
     m = settings.model
     layout = observation_layout(obs)
@@ -46,30 +51,16 @@ def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
     )
 
 
-def _prior_dict(settings: Settings) -> dict[str, Any]:
-    groups = settings_to_dict(settings)["priors"]
-    return {
-        "coefficients": groups["coefficients"],
-        "process_var": groups["variances"],
-        "obs_var": groups["variances"],
-        "initial_state": groups["initial_state"],
-    }
-
-
 def build_posterior(settings: Settings, obs: Observations, model: HamiltonianModel):
     """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``."""
-    from symplid.model.posterior import Posterior
 
     init = settings.initial_state
     learned = init.mode == "learned"
     x0 = np.asarray(init.x0, dtype=float) if init.x0 else None
-    prior = _prior_dict(settings)
-    if not learned:
-        prior.pop("initial_state")
     return Posterior(
         model,
         obs,
-        prior=prior,
+        prior=settings.priors.prior_spec(learned),
         x0=x0,
         P0=init.p0_var,
         t0=init.t0,
@@ -94,7 +85,6 @@ class FitOutcome:
 
 def find_map_for(settings: Settings, posterior) -> Any:
     """MAP by bounded quasi-Newton from ``settings.map.num_starts`` seeded starts."""
-    from symplid.inference.map import find_map
 
     return find_map(posterior, seed=settings.map.seed, num_starts=settings.map.num_starts)
 
@@ -108,7 +98,6 @@ def sample_for(
     progress_position: int = 0,
 ) -> Any:
     """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``."""
-    from symplid.inference.samplers import sample
 
     s = settings.sampler
     options: dict[str, Any] = {}
@@ -116,11 +105,10 @@ def sample_for(
         options = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
     # The settings count every iteration (burn-in included, as the paper's 200,000 with
     # 100,000 discarded); the sampler counts the draws it keeps.
-    kept = (s.num_samples - s.burn_in) // s.thin
     return sample(
         posterior,
         method=s.method,
-        num_samples=kept,
+        num_draws=s.num_draws,
         num_chains=s.num_chains,
         seed=s.seed,
         init=map_result,
@@ -148,8 +136,6 @@ def fit(
     The run folder is marked incomplete until every file is written; a sampler interrupted
     with Ctrl-C keeps the draws it made (they are saved and the folder says so).
     """
-    from symplid.inference.diagnostics import summary as diagnostics_summary
-    from symplid.workflow.results import RunFolder
 
     settings = resolve_for_data(settings, obs, source)
     timings: dict[str, float] = {}
@@ -184,7 +170,6 @@ def fit(
 
 def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
     """A JSON-ready digest of a fit: MAP, posterior quantiles, convergence and acceptance."""
-    from symplid.inference.samplers import draws_array
 
     names = list(posterior.param_names)
     out: dict[str, Any] = {

@@ -7,11 +7,14 @@ from typing import Any
 
 import numpy as np
 
+from symplid.inference.predict import posterior_predictive, predict_trajectory
+from symplid.inference.samplers import draws_array
+from symplid.plotting.figures import plot_pair, plot_predictive, plot_traces
+from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.results import RunFolder, format_summary
+
 
 def _load(run: str | Path, mode: str = "a"):
-    from symplid.workflow.fit import build_model, build_posterior
-    from symplid.workflow.results import RunFolder
-
     folder = RunFolder(run, mode)
     settings = folder.read_settings()
     obs = folder.read_data()
@@ -21,8 +24,6 @@ def _load(run: str | Path, mode: str = "a"):
 
 
 def _draws(folder) -> np.ndarray | None:
-    from symplid.inference.samplers import draws_array
-
     if not folder.file("posterior.nc").exists():
         return None
     return draws_array(folder.read_posterior())
@@ -39,8 +40,6 @@ def predict_run(
     The paths start from the known initial state or, when it was learned, from the MAP's
     (MAP path) and the posterior mean's (band). Returns a one-line description.
     """
-    from symplid.inference.predict import posterior_predictive, predict_trajectory
-    from symplid.plotting.figures import plot_predictive
 
     folder, settings, obs, model, posterior = _load(run)
     p = settings.prediction
@@ -105,8 +104,6 @@ def predict_run(
 
 def report_run(run: str | Path) -> str:
     """Write ``report.md`` with the summary table, trace, pair and predictive figures."""
-    from symplid.plotting.figures import plot_pair, plot_traces
-    from symplid.workflow.results import format_summary
 
     folder, settings, obs, _model, posterior = _load(run)
     summary = folder.read_summary() if folder.file("summary.json").exists() else {}
@@ -127,7 +124,7 @@ def report_run(run: str | Path) -> str:
         f"{obs.num_times} observations of {obs.dim} components, t = {obs.times[0]:g}..."
         f"{obs.times[-1]:g}; polynomial order {m.order}, {m.integrator} at dt = {m.dt:g}; "
         f"{settings.sampler.method.upper()}, {settings.sampler.num_chains} chains × "
-        f"{settings.sampler.num_samples:,} iterations ({settings.sampler.burn_in:,} burn-in).",
+        f"{settings.sampler.num_iterations:,} iterations ({settings.sampler.burn_in:,} burn-in).",
         "",
         "```",
         format_summary(summary) if summary else "(no summary)",

@@ -43,8 +43,8 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     seed = 0
 
     [sampler]
-    method = "dram"               # or "nuts"
-    num_samples = 200000          # iterations per chain, burn-in included
+    method = "dram"               # any name in symplid.inference.samplers.SAMPLERS
+    num_iterations = 200000       # iterations per chain, burn-in included
     burn_in = 100000
     num_chains = 4
     gamma = 0.01                  # DRAM second-stage scale
@@ -58,10 +58,19 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     t_end = 200.0
     num_paths = 100
 
-Prior families and their keys: ``laplace`` and ``normal`` and ``log-normal`` (``loc``,
-``scale``; for log-normal these are μ and σ of log x), ``half-normal`` (``scale``), ``uniform``
-(``low``, ``high``). A key that a family does not use is an error, so that what is written
-is what is used.
+Prior families are those of :data:`symplid.model.priors.PRIOR_FAMILIES` and their keys are
+the fields of the family's class: ``laplace`` and ``normal`` (``loc``, ``scale``),
+``half-normal`` (``scale``), ``uniform`` (``low``, ``high``), ``log-normal`` (``mu``, ``sigma``
+of log x; ``loc`` and ``scale`` are read as synonyms). A key that a family does not use is an
+error, so that what is written is what is used. Each group's value in :class:`PriorSettings` is
+a :class:`~symplid.model.priors.Prior`; :meth:`PriorSettings.prior_spec` turns the groups into
+the :class:`~symplid.model.priors.PriorSpec` the posterior takes.
+
+The key ``sampler.num_samples`` of older files (and ``--set sampler.num_samples=...``) is read
+as ``sampler.num_iterations`` with a ``FutureWarning``; files are written with the new key.
+
+Values are checked by the one validator of :mod:`symplid.workflow.validate`, which the sweeps
+use too.
 
 Every problem raises :class:`SettingsError` with a one-line message ``"<source>: <key> ..."``
 naming the file (or "command line") and the dotted key; a misspelt key gets the closest valid
@@ -71,19 +80,33 @@ key as a suggestion.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import os
 import tomllib
 import typing
+import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import tomli_w
 
-from symplid.dynamics.integrators import INTEGRATORS, get_integrator
+from symplid.io import observation_layout
+from symplid.model.priors import PRIOR_FAMILIES, Prior
+from symplid.workflow.settings_schema import (
+    PRIOR_DEFAULTS,
+    PRIOR_SPECS,
+    PRIOR_SYNONYMS,
+    RENAMED,
+    InitialStateSettings,
+    MapSettings,
+    ModelSettings,
+    PredictionSettings,
+    PriorSettings,
+    SamplerSettings,
+    Settings,
+)
+from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
 __all__ = [
     "InitialStateSettings",
@@ -91,7 +114,6 @@ __all__ = [
     "ModelSettings",
     "PredictionSettings",
     "PriorSettings",
-    "PriorSpec",
     "SamplerSettings",
     "Settings",
     "SettingsError",
@@ -105,134 +127,6 @@ __all__ = [
 ]
 
 
-class SettingsError(ValueError):
-    """A bad setting. The message names the source (file or "command line") and the key."""
-
-    def __init__(self, source: str, key: str | None, message: str) -> None:
-        self.source = source
-        self.key = key
-        text = f"{source}: {key} {message}" if key else f"{source}: {message}"
-        super().__init__(text)
-
-
-def _field(
-    default: Any,
-    *,
-    choices: tuple[str, ...] | None = None,
-    minimum: float | None = None,
-    strict: bool = False,
-    doc: str = "",
-) -> Any:
-    """A dataclass field with validation metadata (choices, lower bound, strict bound)."""
-    metadata = {"choices": choices, "minimum": minimum, "strict": strict, "doc": doc}
-    return field(default=default, metadata=metadata)
-
-
-# ----------------------------------------------------------------------------- sections
-@dataclass(frozen=True)
-class ModelSettings:
-    """The state-space model of eq. (7) and its unscented filter (Theorem 1)."""
-
-    order: int = _field(3, minimum=1)
-    integrator: str = _field("leapfrog")
-    dt: float = _field(0.25, minimum=0.0, strict=True)
-    process_noise_per: str = _field("gap", choices=("gap", "step"))
-    noise: str = _field("isotropic", choices=("isotropic", "diagonal"))
-    observation: str = _field("auto", choices=("auto", "full", "positions"))
-    mass: tuple[float, ...] = _field(())
-    alpha: float = _field(1.0, minimum=0.0, strict=True)
-    beta: float = _field(2.0)
-    kappa: float = _field(0.0)
-    jitter: float = _field(1e-12, minimum=0.0)
-
-
-@dataclass(frozen=True)
-class InitialStateSettings:
-    """The initial state X_0 ~ N(x0, p0_var·I) at time t0, known or learned with θ."""
-
-    mode: str = _field("known", choices=("known", "learned"))
-    x0: tuple[float, ...] = _field(())
-    p0_var: float = _field(1e-16, minimum=0.0)
-    t0: float = _field(0.0)
-
-
-@dataclass(frozen=True)
-class PriorSpec:
-    """One prior family and its parameters (see the module docstring for which keys apply)."""
-
-    family: str = _field(
-        "normal", choices=("laplace", "normal", "half-normal", "log-normal", "uniform")
-    )
-    loc: float = _field(0.0)
-    scale: float = _field(1.0, minimum=0.0, strict=True)
-    low: float = _field(0.0)
-    high: float = _field(1.0)
-
-
-PRIOR_KEYS: dict[str, tuple[str, ...]] = {
-    "laplace": ("loc", "scale"),
-    "normal": ("loc", "scale"),
-    "log-normal": ("loc", "scale"),
-    "half-normal": ("scale",),
-    "uniform": ("low", "high"),
-}
-_POSITIVE_FAMILIES = ("half-normal", "log-normal", "uniform")
-
-
-@dataclass(frozen=True)
-class PriorSettings:
-    """Priors by group of θ: the paper's Laplace(0, 10) and half-normal(1) (Section IV)."""
-
-    coefficients: PriorSpec = field(default_factory=lambda: PriorSpec("laplace", scale=10.0))
-    variances: PriorSpec = field(default_factory=lambda: PriorSpec("half-normal", scale=1.0))
-    initial_state: PriorSpec = field(default_factory=lambda: PriorSpec("normal", scale=1.0))
-
-
-@dataclass(frozen=True)
-class MapSettings:
-    """The MAP search: bounded quasi-Newton from several seeded starts."""
-
-    num_starts: int = _field(4, minimum=1)
-    seed: int = _field(0, minimum=0)
-
-
-@dataclass(frozen=True)
-class SamplerSettings:
-    """MCMC: DRAM with the paper's budget per chain (200,000 iterations, 100,000 burn-in)."""
-
-    method: str = _field("dram", choices=("dram", "nuts"))
-    num_samples: int = _field(200_000, minimum=1)
-    burn_in: int = _field(100_000, minimum=0)
-    num_chains: int = _field(4, minimum=1)
-    gamma: float = _field(0.01, minimum=0.0, strict=True)
-    adapt_start: int = _field(200, minimum=0)
-    thin: int = _field(1, minimum=1)
-    seed: int = _field(0, minimum=0)
-
-
-@dataclass(frozen=True)
-class PredictionSettings:
-    """Predictions from the learned models: leapfrog at a fine dt to t_end (Figs 1–3)."""
-
-    integrator: str = _field("leapfrog")
-    dt: float = _field(0.01, minimum=0.0, strict=True)
-    t_end: float = _field(200.0)
-    num_paths: int = _field(100, minimum=0)
-
-
-@dataclass(frozen=True)
-class Settings:
-    """Everything a run needs; the defaults are the paper's Hénon–Heiles experiment."""
-
-    seed: int = _field(0, minimum=0)
-    model: ModelSettings = field(default_factory=ModelSettings)
-    initial_state: InitialStateSettings = field(default_factory=InitialStateSettings)
-    priors: PriorSettings = field(default_factory=PriorSettings)
-    map: MapSettings = field(default_factory=MapSettings)
-    sampler: SamplerSettings = field(default_factory=SamplerSettings)
-    prediction: PredictionSettings = field(default_factory=PredictionSettings)
-
-
 _SEEDED_SECTIONS = ("map", "sampler")
 
 
@@ -243,13 +137,12 @@ def settings_to_dict(settings: Settings) -> dict[str, Any]:
 
 
 def _to_dict(obj: Any) -> dict[str, Any]:
+    if isinstance(obj, Prior):
+        return obj.to_dict()
     out: dict[str, Any] = {}
-    keys = PRIOR_KEYS[obj.family] if isinstance(obj, PriorSpec) else None
     for f in dataclasses.fields(obj):
-        if keys is not None and f.name != "family" and f.name not in keys:
-            continue
         value = getattr(obj, f.name)
-        if dataclasses.is_dataclass(value):
+        if dataclasses.is_dataclass(value) or isinstance(value, Prior):
             out[f.name] = _to_dict(value)
         elif isinstance(value, tuple):
             out[f.name] = list(value)
@@ -274,18 +167,38 @@ _VALID_KEYS = _all_keys(Settings)
 
 
 def _suggest(key: str, section_keys: list[str]) -> str:
-    """' (did you mean X?)' using difflib, first within the section, then anywhere."""
+    """'; did you mean X?' using difflib, first within the section, then anywhere."""
     leaf = key.rsplit(".", 1)[-1]
     prefix = key.rsplit(".", 1)[0] + "." if "." in key else ""
-    close = difflib.get_close_matches(leaf, section_keys, n=1, cutoff=0.6)
+    close = suggest(leaf, section_keys, fallback="")
     if close:
-        return f"; did you mean '{prefix}{close[0]}'?"
-    close = difflib.get_close_matches(key, _VALID_KEYS, n=1, cutoff=0.6)
+        return close.replace("'", f"'{prefix}", 1)
+    close = suggest(key, _VALID_KEYS, fallback="")
     if not close:
-        close = [k for k in _VALID_KEYS if k.rsplit(".", 1)[-1] == leaf][:1]
-    if close:
-        return f"; did you mean '{close[0]}'?"
-    return f" (valid keys here: {', '.join(section_keys)})"
+        same = [k for k in _VALID_KEYS if k.rsplit(".", 1)[-1] == leaf][:1]
+        close = f"; did you mean '{same[0]}'?" if same else ""
+    return close or f" (valid keys here: {', '.join(section_keys)})"
+
+
+def _upgrade(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """Rename the keys of :data:`RENAMED` in nested ``data``, each with a FutureWarning."""
+    for old, new in RENAMED.items():
+        section, old_key = old.split(".")
+        table = data.get(section)
+        if not isinstance(table, Mapping) or old_key not in table:
+            continue
+        _warn_renamed(old, new, source)
+        new_key = new.split(".")[1]
+        if new_key in table:
+            raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
+        table = dict(table)
+        table[new_key] = table.pop(old_key)
+        data[section] = table
+    return data
+
+
+def _warn_renamed(old: str, new: str, source: str) -> None:
+    warnings.warn(f"{source}: {old} is deprecated; use {new}", FutureWarning, stacklevel=4)
 
 
 def settings_from_dict(data: Mapping[str, Any], source: str = "settings") -> Settings:
@@ -293,18 +206,20 @@ def settings_from_dict(data: Mapping[str, Any], source: str = "settings") -> Set
 
     Missing keys take the paper's defaults. ``map.seed`` and ``sampler.seed`` default to the
     top-level ``seed`` when it is given and they are not. ``source`` (a file name, or
-    "command line") starts every error message.
+    "command line") starts every error message. ``sampler.num_samples`` (the old name) is read
+    as ``sampler.num_iterations`` with a ``FutureWarning``.
 
     Raises
     ------
     SettingsError
         For an unknown (e.g. misspelt) key, with the closest valid key suggested; a value of the
-        wrong type; a value out of range (dt ≤ 0, order < 1, a negative scale, ...); an unknown
-        integrator; num_samples ≤ burn_in; a prior key its family does not use; ...
+        wrong type; a value out of range (dt ≤ 0, order < 1, a negative scale, ...); a name
+        that its registry does not hold (integrator, sampler, prior family); num_iterations ≤
+        burn_in; a prior key its family does not use; ...
     """
     if not isinstance(data, Mapping):
         raise SettingsError(source, None, f"settings must be a table, got {type(data).__name__}")
-    data = dict(data)
+    data = _upgrade(dict(data), source)
     if "seed" in data:
         for section in _SEEDED_SECTIONS:
             table = data.get(section, {})
@@ -324,127 +239,62 @@ def _build(cls: type, data: Mapping[str, Any], prefix: str, source: str) -> Any:
             raise SettingsError(
                 source, None, f"unknown key '{dotted}'" + _suggest(dotted, list(fields))
             )
-    if cls is PriorSpec:
-        return _build_prior(data, prefix, source)
     kwargs = {}
-    for name, f in fields.items():
-        if name not in data:
-            continue
-        kwargs[name] = _convert(data[name], hints[name], f, f"{prefix}{name}", source)
+    for name in fields:
+        if name in data:
+            kwargs[name] = _convert(data[name], hints[name], fields[name], prefix + name, source)
     return cls(**kwargs)
 
 
-def _build_prior(data: Mapping[str, Any], prefix: str, source: str) -> PriorSpec:
-    fields = {f.name: f for f in dataclasses.fields(PriorSpec)}
-    hints = typing.get_type_hints(PriorSpec)
-    family = _convert(
-        data.get("family", "normal"), str, fields["family"], f"{prefix}family", source
-    )
-    used = PRIOR_KEYS[family]
-    for key in data:
-        if key != "family" and key not in used:
+def _convert(value: Any, tp: Any, f: dataclasses.Field, key: str, source: str) -> Any:
+    """One value against its field: a section, a prior, or a value with a :class:`Spec`."""
+    if dataclasses.is_dataclass(tp) or tp is Prior:
+        if not isinstance(value, Mapping):
+            raise SettingsError(source, key, f"must be a table ([{key}]), got {value!r}")
+        if tp is Prior:
+            return _build_prior(value, key + ".", source)
+        return _build(tp, value, key + ".", source)
+    return check_value(value, tp, f.metadata["spec"], key, source)
+
+
+def _build_prior(data: Mapping[str, Any], prefix: str, source: str) -> Prior:
+    """A prior group: a family of :data:`PRIOR_FAMILIES` and the parameters its class takes."""
+    family_spec = Spec(str, "normal", choices=PRIOR_FAMILIES)
+    family = check_value(data.get("family", "normal"), str, family_spec, f"{prefix}family", source)
+    cls = PRIOR_FAMILIES[family]
+    used = [f.name for f in dataclasses.fields(cls)]
+    synonyms = PRIOR_SYNONYMS.get(family, {})
+    kwargs: dict[str, float] = {}
+    for key, value in data.items():
+        if key == "family":
+            continue
+        name = synonyms.get(key, key)
+        if name not in used:
             raise SettingsError(
                 source,
                 f"{prefix}{key}",
                 f"is not used by the {family!r} prior (it takes: {', '.join(used)})",
             )
-    kwargs = {"family": family}
-    for key in used:
-        if key in data:
-            kwargs[key] = _convert(data[key], hints[key], fields[key], f"{prefix}{key}", source)
-    spec = PriorSpec(**kwargs)
-    if family == "uniform" and not spec.low < spec.high:
-        raise SettingsError(
-            source, f"{prefix}low", f"({spec.low:g}) must be less than {prefix}high ({spec.high:g})"
-        )
-    return spec
-
-
-def _type_name(tp: Any) -> str:
-    return {int: "an integer", float: "a number", str: "a string"}.get(tp, "a list of numbers")
-
-
-def _convert(value: Any, tp: Any, f: dataclasses.Field, key: str, source: str) -> Any:
-    """Check one value's type and range against its field; return it normalised."""
-    if dataclasses.is_dataclass(tp):
-        if not isinstance(value, Mapping):
-            raise SettingsError(source, key, f"must be a table ([{key}]), got {value!r}")
-        return _build(tp, value, key + ".", source)
-    meta = f.metadata
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise SettingsError(source, key, f"must be an integer, got {value!r}")
-        out: Any = value
-    elif tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise SettingsError(source, key, f"must be a number, got {value!r}")
-        out = float(value)
-        if not math.isfinite(out):
-            raise SettingsError(source, key, f"must be finite, got {value!r}")
-    elif tp is str:
-        if not isinstance(value, str):
-            raise SettingsError(source, key, f"must be a string, got {value!r}")
-        out = value.strip().lower()
-        if key.endswith("family"):
-            out = out.replace("_", "-").replace("halfnormal", "half-normal")
-            out = out.replace("lognormal", "log-normal")
-        if key.endswith("integrator"):
-            return _integrator_name(out, key, source)
-    else:  # tuple[float, ...]
-        if not isinstance(value, list | tuple) or any(
-            isinstance(x, bool) or not isinstance(x, int | float) for x in value
-        ):
-            raise SettingsError(source, key, f"must be a list of numbers, got {value!r}")
-        out = tuple(float(x) for x in value)
-        if not all(math.isfinite(x) for x in out):
-            raise SettingsError(source, key, f"must hold finite numbers, got {value!r}")
-        return out
-    choices = meta.get("choices")
-    if choices and out not in choices:
-        close = difflib.get_close_matches(str(out), choices, n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise SettingsError(
-            source, key, f"must be one of {', '.join(map(repr, choices))}, got {value!r}{hint}"
-        )
-    minimum = meta.get("minimum")
-    if minimum is not None:
-        if meta.get("strict") and not out > minimum:
-            raise SettingsError(source, key, f"must be > {minimum:g}, got {value!r}")
-        if not meta.get("strict") and not out >= minimum:
-            raise SettingsError(source, key, f"must be ≥ {minimum:g}, got {value!r}")
-    return out
-
-
-def _integrator_name(name: str, key: str, source: str) -> str:
-    try:
-        return get_integrator(name).name
-    except ValueError:
-        close = difflib.get_close_matches(name.lower(), list(INTEGRATORS), n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
+        spec = PRIOR_SPECS.get(name, Spec(float))
+        kwargs[name] = check_value(value, float, spec, f"{prefix}{key}", source)
+    for name in used:
+        if name not in kwargs and name in PRIOR_DEFAULTS:
+            kwargs[name] = PRIOR_DEFAULTS[name]
+    if family == "uniform" and not kwargs["low"] < kwargs["high"]:
         raise SettingsError(
             source,
-            key,
-            f"is {name!r}, not a known integrator{hint} (choose one of {', '.join(INTEGRATORS)})",
-        ) from None
+            f"{prefix}low",
+            f"({kwargs['low']:g}) must be less than {prefix}high ({kwargs['high']:g})",
+        )
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as err:
+        raise SettingsError(source, f"{prefix}family", f"{family!r}: {err}") from None
 
 
 def _check_cross(s: Settings, source: str) -> None:
     """Checks that involve more than one key."""
-    sampler = s.sampler
-    if sampler.num_samples <= sampler.burn_in:
-        raise SettingsError(
-            source,
-            "sampler.num_samples",
-            f"({sampler.num_samples}) must be greater than sampler.burn_in ({sampler.burn_in}); "
-            "num_samples counts every iteration, burn-in included",
-        )
-    if sampler.thin > sampler.num_samples - sampler.burn_in:
-        raise SettingsError(
-            source,
-            "sampler.thin",
-            f"({sampler.thin}) is larger than the {sampler.num_samples - sampler.burn_in} "
-            "draws kept after burn-in",
-        )
+    _check_sampler(s.sampler, source)
     if any(m <= 0 for m in s.model.mass):
         raise SettingsError(
             source, "model.mass", f"must hold positive numbers, got {list(s.model.mass)}"
@@ -456,16 +306,15 @@ def _check_cross(s: Settings, source: str) -> None:
             f"({s.prediction.t_end:g}) must be after initial_state.t0 ({s.initial_state.t0:g})",
         )
     variances = s.priors.variances
-    if variances.family not in _POSITIVE_FAMILIES or (
-        variances.family == "uniform" and variances.low < 0
-    ):
+    low, high = variances.support
+    if low < 0 or high <= 0:
         raise SettingsError(
             source,
             "priors.variances.family",
             f"must have positive support (half-normal, log-normal, or uniform with low ≥ 0), "
             f"got {variances.family!r}",
         )
-    if s.priors.initial_state.family in _POSITIVE_FAMILIES:
+    if s.priors.initial_state.support != (-math.inf, math.inf):
         raise SettingsError(
             source,
             "priors.initial_state.family",
@@ -476,6 +325,23 @@ def _check_cross(s: Settings, source: str) -> None:
             source,
             "initial_state.x0",
             f"has {len(s.initial_state.x0)} numbers; it must be a full state (q1..qd, p1..pd)",
+        )
+
+
+def _check_sampler(sampler: SamplerSettings, source: str) -> None:
+    if sampler.num_iterations <= sampler.burn_in:
+        raise SettingsError(
+            source,
+            "sampler.num_iterations",
+            f"({sampler.num_iterations}) must be greater than sampler.burn_in "
+            f"({sampler.burn_in}); num_iterations counts every iteration, burn-in included",
+        )
+    if sampler.thin > sampler.num_iterations - sampler.burn_in:
+        raise SettingsError(
+            source,
+            "sampler.thin",
+            f"({sampler.thin}) is larger than the {sampler.num_iterations - sampler.burn_in} "
+            "draws kept after burn-in",
         )
 
 
@@ -535,11 +401,18 @@ def merge_overrides(
 ) -> Settings:
     """Return ``settings`` with dotted keys replaced, e.g. ``{"model.dt": 0.1}``, re-validated.
 
-    ``None`` values are skipped (an option the user did not give). Overriding the top-level
+    ``None`` values are skipped (an option the user did not give); ``sampler.num_samples`` is
+    read as ``sampler.num_iterations`` with a ``FutureWarning``. Overriding the top-level
     ``seed`` also reseeds ``map.seed`` and ``sampler.seed`` unless they are overridden too.
     """
     data = settings_to_dict(settings)
     overrides = {k: v for k, v in overrides.items() if v is not None}
+    for old, new in RENAMED.items():
+        if old in overrides:
+            _warn_renamed(old, new, source)
+            if new in overrides:
+                raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
+            overrides[new] = overrides.pop(old)
     if "seed" in overrides:
         for section in _SEEDED_SECTIONS:
             overrides.setdefault(f"{section}.seed", overrides["seed"])
@@ -568,13 +441,15 @@ def merge_overrides(
 
 
 def _is_prior_key(parts: list[str], depth: int) -> bool:
-    """Prior groups list only their family's keys; the others are still valid to set."""
-    return (
-        len(parts) == 3
-        and depth == 2
-        and parts[0] == "priors"
-        and parts[2] in {f.name for f in dataclasses.fields(PriorSpec)}
-    )
+    """Prior groups list only their family's keys; any family's key is still valid to set."""
+    return len(parts) == 3 and depth == 2 and parts[0] == "priors" and parts[2] in _prior_keys()
+
+
+def _prior_keys() -> set[str]:
+    keys = {key for synonyms in PRIOR_SYNONYMS.values() for key in synonyms}
+    for cls in PRIOR_FAMILIES.values():
+        keys |= {f.name for f in dataclasses.fields(cls)}
+    return keys
 
 
 # ----------------------------------------------------------------------------- data
@@ -586,8 +461,6 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
     columns, that a known initial state has ``x0`` with 2d numbers, and that ``t0`` is before
     the first observation. The result is what a run folder records.
     """
-    from symplid.io import observation_layout  # local: io does not need settings
-
     layout = observation_layout(obs)
     d = layout.dim
     model = settings.model
