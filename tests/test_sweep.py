@@ -28,11 +28,10 @@ from symplid.experiments.paper_study import (
     paper_claims_spec,
     run_paper_claims,
 )
+from symplid.experiments.paper import CELL_KEYS, cell_data
 from symplid.workflow.results import read_json
 from symplid.workflow.sweep import (
-    CELL_KEYS,
     SweepError,
-    cell_data,
     cell_settings,
     load_results,
     load_sweep_spec,
@@ -42,7 +41,7 @@ from symplid.workflow.sweep import (
 )
 
 TESTS_DIR = Path(__file__).resolve().parent
-SMALL = {"base": {"num_samples": 20, "burn_in": 10}}
+SMALL = {"base": {"num_iterations": 20, "burn_in": 10}}
 
 
 def _test_cache_env() -> dict[str, str]:
@@ -234,7 +233,7 @@ def test_grid_and_cells_combine_and_ids_are_stable(tmp_path):
     path.write_text(
         """
 [base]
-num_samples = 2000
+num_iterations = 2000
 burn_in = 1000
 
 [sweep]
@@ -296,7 +295,7 @@ BAD_SPECS = [
     ("[sweep]\ncell = [{}]\n", "unknown key 'cell' in [sweep]; did you mean 'cells'?"),
     ("[sweep]\ncell_fn = 'run_cell'\n", "sweep.cell_fn must be a 'module:function' string"),
     ("[bases]\ndt = 0.1\n", "unknown table [bases]; did you mean 'base'?"),
-    ("[base]\nnum_samples = 100\nburn_in = 100\n", "num_samples (100) must be greater than"),
+    ("[base]\nnum_iterations = 100\nburn_in = 100\n", "num_iterations (100) must be greater than"),
     ("[base]\n'model.dt' = 0.1\n", "is set by the short key 'dt' in a sweep"),
     ("[base]\n'sampler.gama' = 0.1\n", "did you mean 'sampler.gamma'?"),
     ("[base]\n'sampler.gamma' = -1.0\n", "sampler.gamma must be > 0"),
@@ -409,12 +408,12 @@ def test_paper_claims_spec_varies_one_setting_at_a_time():
     for cell in (c.settings for c in spec.cells):
         changed = {k for k, v in PAPER_SETTING.items() if cell[k] != v}
         assert changed in (set(), {"dt"}, {"noise_std"})
-        assert cell["num_samples"] == FULL_BUDGET["num_samples"]
+        assert cell["num_iterations"] == FULL_BUDGET["num_iterations"]
     assert sorted({c.settings["dt"] for c in spec.cells}) == [0.1, 0.25, 0.5]
     assert sorted({c.settings["noise_std"] for c in spec.cells}) == [0.01, 0.05, 0.1]
     quick = paper_claims_spec(seeds=2, quick=True, variants=False)
     assert len(quick.cells) == 4
-    assert all(c.settings["num_samples"] == QUICK_BUDGET["num_samples"] for c in quick.cells)
+    assert all(c.settings["num_iterations"] == QUICK_BUDGET["num_iterations"] for c in quick.cells)
     with pytest.raises(ValueError, match="seeds must be a positive integer"):
         paper_claims_spec(seeds=0)
 

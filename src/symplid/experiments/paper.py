@@ -22,10 +22,28 @@ from typing import Any
 
 import numpy as np
 
+from symplid import runtime
 from symplid.dynamics.potentials import hamiltonian
 from symplid.dynamics.systems import get_system
+from symplid.experiments.paper_cells import (
+    CELL_KEYS,
+    SWEEP_METRICS,
+    cell_data,
+    known_initial_state,
+    system_defaults,
+)
+from symplid.experiments.paper_figures import draw_figures
+from symplid.inference.predict import predict_trajectory, prediction_horizon
+from symplid.inference.samplers import draws_array
 from symplid.model.data import Observations
+from symplid.model.simulate import simulate, true_trajectory
+from symplid.plotting.figures import COLORS
+from symplid.plotting.sweep import plot_sweep
+from symplid.workflow.experiment import EXPERIMENTS, Experiment
+from symplid.workflow.fit import fit
+from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
+from symplid.workflow.sweep import cell_settings
 
 # What the paper reports (Section IV, Figs 2–4), for the table printed beside ours.
 PAPER = {
@@ -84,7 +102,6 @@ class PaperConfig:
 
 def paper_data(config: PaperConfig) -> tuple[Observations, Any]:
     """The experiment's truth and data: 20 full-state observations, σ = 0.05, seeded."""
-    from symplid.model.simulate import simulate
 
     system = get_system("henon-heiles")
     times = config.obs_interval * np.arange(1, config.num_obs + 1)
@@ -104,7 +121,7 @@ def paper_settings(config: PaperConfig, approach: str) -> Settings:
             "model.dt": config.dt,
             "initial_state.x0": [float(v) for v in system.initial_state],
             "map.num_starts": config.num_starts,
-            "sampler.num_samples": config.iterations,
+            "sampler.num_iterations": config.iterations,
             "sampler.burn_in": config.resolved_burn_in,
             "sampler.num_chains": config.chains,
             "prediction.dt": config.prediction_dt,
@@ -125,11 +142,8 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
     """Fit one approach into ``out/approach`` (runs in a worker process)."""
     config, approach, out, progress, position = args
     _limit_threads()
-    from symplid import runtime
-
     runtime.enable_compilation_cache()
     runtime.one_line_warnings()  # one line per warning, as in the parent process
-    from symplid.workflow.fit import fit
 
     obs, _ = paper_data(config)
     outcome = fit(
@@ -187,8 +201,6 @@ class ApproachResult:
 
 def load_approach(out: Path, approach: str, integrator: str) -> ApproachResult:
     """Read one approach's run folder back."""
-    from symplid.inference.samplers import draws_array
-    from symplid.workflow.results import RunFolder
 
     folder = RunFolder(out / approach, "r", allow_incomplete=True)
     map_info = folder.read_map()
@@ -219,7 +231,6 @@ def analyse_approach(
     energy along its own leapfrog path from there); the horizon is the first time the MAP
     path, integrated by leapfrog at ``prediction_dt``, leaves the truth by ``threshold`` in q1.
     """
-    from symplid.inference.predict import predict_trajectory, prediction_horizon
 
     x0 = system.initial_state
     h_true = float(hamiltonian(system.potential, system.coefficients, x0))
@@ -249,7 +260,6 @@ def analyse_approach(
 
 def truth_path(system, t_end: float, prediction_dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV)."""
-    from symplid.model.simulate import true_trajectory
 
     n = round(t_end / prediction_dt)
     times = prediction_dt * np.arange(1, n + 1)
@@ -266,8 +276,6 @@ def reproduce(
     echo: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Run the paper's experiment end to end into ``out``; returns ``summary.json``'s content."""
-    from symplid.experiments.paper_figures import draw_figures
-    from symplid.workflow.results import RunFolder
 
     config = config or PaperConfig()
     out = Path(out)
@@ -361,19 +369,25 @@ Per-approach runs (settings, data, MAP, Hessian, posterior) are in `leapfrog/` a
 """
 
 
+def sweep_figures(table: Any, folder: str | os.PathLike, settings: list[str]) -> dict[str, Path]:
+    """One figure per metric, the propagators in the paper's colours."""
+    metrics = [m for m in SWEEP_METRICS if m in table.columns] or None
+    colors = {"leapfrog": COLORS["leapfrog"], PaperConfig.rk2: COLORS["rk2"]}
+    return plot_sweep(
+        table, folder, metrics, settings=settings, hue="integrator", colors=colors
+    )
+
+
 def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
     """One cell of a sweep: simulate, fit (MAP + sampler), predict; returns flat metrics.
 
-    ``cell`` holds the keys of :data:`~.sweep.CELL_KEYS` (and dotted run settings); the
-    metrics are those of ``summary.json`` for one approach, plus the true H and the wall time.
+    ``cell`` holds the keys of :data:`CELL_KEYS` (and dotted run settings); the metrics are
+    those of ``summary.json`` for one approach, plus the true H and the wall time.
     """
-    from symplid.inference.samplers import draws_array
-    from symplid.workflow.fit import fit
-    from symplid.workflow.sweep import cell_data, cell_settings
 
     start = time.perf_counter()
     system, obs = cell_data(cell)
-    settings = cell_settings(cell)
+    settings = cell_settings(cell, experiment=EXPERIMENT)
     outcome = fit(obs, settings, out=None, progress=False)
     integrator = settings.model.integrator
     result = ApproachResult(
@@ -401,3 +415,20 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
     )
     metrics["wall_time_s"] = time.perf_counter() - start
     return metrics
+
+
+EXPERIMENT = EXPERIMENTS.register(
+    "paper",
+    Experiment(
+        "paper",
+        CELL_KEYS,
+        run_cell,
+        metrics=SWEEP_METRICS,
+        figures=sweep_figures,
+        description="The seed paper's Hénon–Heiles fit (Section IV), one data set and "
+        "propagator per cell",
+        defaults=system_defaults,
+        base_settings=known_initial_state,
+        renamed={"num_samples": "num_iterations"},
+    ),
+)

@@ -35,7 +35,6 @@ per claim into the sweep folder.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -44,8 +43,15 @@ from typing import Any
 
 import numpy as np
 
+from symplid.experiments.paper import CELL_KEYS, PaperConfig
+from symplid.experiments.paper_study_report import (
+    RATIO_THRESHOLD,
+    format_claims_report,
+    plot_claims,
+)
+from symplid.plotting.sweep import format_value, plain, rows_matching, same_value, setting_groups
 from symplid.workflow.results import write_json
-from symplid.workflow.sweep import CELL_KEYS, SweepSpec, run_sweep, sweep_spec_from_dict
+from symplid.workflow.sweep import SweepSpec, run_sweep, sweep_spec_from_dict
 
 __all__ = [
     "CLAIMS",
@@ -57,7 +63,6 @@ __all__ = [
     "format_claims_report",
     "paper_claims_spec",
     "plot_claims",
-    "plot_sweep",
     "run_paper_claims",
 ]
 
@@ -78,10 +83,10 @@ VARIANTS: tuple[dict[str, Any], ...] = (
     {"noise_std": 0.01},
     {"noise_std": 0.1},
 )
-PROPAGATORS = ("leapfrog", "rk2-midpoint")
+PROPAGATORS = ("leapfrog", PaperConfig.rk2)
 #: The paper's sampler budget per cell: DRAM, 4 chains of 200,000 iterations (100,000 burn-in).
 FULL_BUDGET: dict[str, Any] = {
-    "num_samples": 200_000,
+    "num_iterations": 200_000,
     "burn_in": 100_000,
     "num_chains": 4,
     "num_starts": 4,
@@ -89,7 +94,7 @@ FULL_BUDGET: dict[str, Any] = {
 #: A small budget to try the study out (that of ``symplid reproduce --quick``): minutes, not
 #: the paper's posterior quality.
 QUICK_BUDGET: dict[str, Any] = {
-    "num_samples": 3_000,
+    "num_iterations": 3_000,
     "burn_in": 1_500,
     "num_chains": 2,
     "num_starts": 2,
@@ -114,7 +119,6 @@ CLAIMS: dict[str, dict[str, str]] = {
         "paper": "about 150 s with leapfrog against about 20 s with RK2",
     },
 }
-RATIO_THRESHOLD = math.sqrt(10.0)
 _NOT_SETTINGS = ("seed", "integrator")
 
 
@@ -136,7 +140,7 @@ def paper_claims_spec(
     variants
         Include the one-at-a-time variants of dt and σ (else the paper's setting only).
     cell_fn
-        The cell function (default: :data:`symplid.workflow.sweep.DEFAULT_CELL_FN`).
+        The cell function (default: the paper experiment's ``run_cell``).
     """
     if isinstance(seeds, bool) or not isinstance(seeds, int | np.integer) or seeds < 1:
         raise ValueError(f"seeds must be a positive integer, got {seeds!r}")
@@ -227,7 +231,7 @@ def evaluate_claims(
     table: Any,
     *,
     symplectic: str = "leapfrog",
-    reference: str = "rk2-midpoint",
+    reference: str = PROPAGATORS[1],
     by: Sequence[str] | None = None,
     baseline: Mapping[str, Any] | None = None,
     baseline_label: str = "baseline",
@@ -285,7 +289,7 @@ def evaluate_claims(
             raise ValueError(f"the results table has no metric column {spec['metric']!r}")
 
     ok = table[(table["status"] == "ok") & table["integrator"].isin([symplectic, reference])]
-    groups = _groups(table, by)
+    groups = setting_groups(table, by)
     varying = [c for c in by if table[c].nunique(dropna=False) > 1]
     result: dict[str, Any] = {
         "symplectic": symplectic,
@@ -296,11 +300,8 @@ def evaluate_claims(
     }
     for values in groups:
         label = _label(values, varying, baseline, baseline_label)
-        mask = np.ones(len(ok), dtype=bool)
-        for col, v in values.items():
-            mask &= _equal(ok[col], v)
-        rows = ok[mask]
-        seeds_all = _equal_rows(table, values)["seed"].unique()
+        rows = rows_matching(ok, values)
+        seeds_all = rows_matching(table, values)["seed"].unique()
         dup = rows.duplicated(["seed", "integrator"])
         if dup.any():
             first = rows[dup].iloc[0]
@@ -314,7 +315,7 @@ def evaluate_claims(
         result["settings"].append(
             {
                 "label": label,
-                "values": {k: _plain(v) for k, v in values.items()},
+                "values": {k: plain(v) for k, v in values.items()},
                 "seeds": len(seeds_all),
                 "pairs": len(paired),
                 "unpaired": len(seeds_all) - len(paired),
@@ -375,44 +376,6 @@ def _distribution(x: np.ndarray) -> dict[str, float | None]:
     }
 
 
-def _groups(table: Any, by: list[str]) -> list[dict[str, Any]]:
-    """The distinct settings, in order of first appearance."""
-    seen: list[dict[str, Any]] = []
-    for _, row in table[by].iterrows() if by else [(0, {})]:
-        values = {c: row[c] for c in by}
-        if not any(all(_same(values[c], s[c]) for c in by) for s in seen):
-            seen.append(values)
-    return seen
-
-
-def _same(a: Any, b: Any) -> bool:
-    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
-        return True
-    return bool(a == b)
-
-
-def _equal(column: Any, value: Any) -> np.ndarray:
-    if isinstance(value, float) and math.isnan(value):
-        return column.isna().to_numpy()
-    return (column == value).to_numpy()
-
-
-def _equal_rows(table: Any, values: Mapping[str, Any]) -> Any:
-    mask = np.ones(len(table), dtype=bool)
-    for col, v in values.items():
-        mask &= _equal(table[col], v)
-    return table[mask]
-
-
-def _plain(v: Any) -> Any:
-    return v.item() if isinstance(v, np.generic) else v
-
-
-def _fmt(v: Any) -> str:
-    v = _plain(v)
-    return f"{v:g}" if isinstance(v, float) else str(v)
-
-
 def _label(
     values: Mapping[str, Any],
     varying: list[str],
@@ -420,278 +383,10 @@ def _label(
     baseline_label: str,
 ) -> str:
     if baseline is not None:
-        diff = [c for c in values if c in baseline and not _same(_plain(values[c]), baseline[c])]
+        diff = [
+            c for c in values if c in baseline and not same_value(plain(values[c]), baseline[c])
+        ]
         diff += [c for c in varying if c not in baseline and c not in diff]
-        return ", ".join(f"{c}={_fmt(values[c])}" for c in diff) or baseline_label
-    return ", ".join(f"{c}={_fmt(values[c])}" for c in varying) or "all cells"
+        return ", ".join(f"{c}={format_value(values[c])}" for c in diff) or baseline_label
+    return ", ".join(f"{c}={format_value(values[c])}" for c in varying) or "all cells"
 
-
-# ----------------------------------------------------------------------------- figures
-def plot_claims(
-    claims: Mapping[str, Any], table: Any, folder: str | os.PathLike
-) -> dict[str, Path]:
-    """One PNG per claim in ``folder``: the per-seed values for each setting, with the
-    fraction of seeds where the claim holds under each setting. Returns the paths by claim."""
-    from matplotlib.figure import Figure
-
-    from symplid.plotting.figures import COLORS, save_figure
-
-    folder = Path(folder)
-    sym, ref = claims["symplectic"], claims["reference"]
-    settings = claims["settings"]
-    labels = [s["label"] for s in settings]
-    ok = table[table["status"] == "ok"]
-    paths = {}
-    for name, claim in claims["claims"].items():
-        metric = claim["metric"]
-        fig = Figure(figsize=(max(6.0, 1.6 * len(settings) + 2), 4.2), layout="constrained")
-        ax = fig.add_subplot()
-        rng = np.random.default_rng(0)  # jitter of the points only
-        for i, s in enumerate(settings):
-            rows = _equal_rows(ok, s["values"])
-            if name == "process_noise":
-                a = rows[rows["integrator"] == sym].set_index("seed")[metric]
-                b = rows[rows["integrator"] == ref].set_index("seed")[metric]
-                common = sorted(set(a.index) & set(b.index))
-                ratio = (b.loc[common] / a.loc[common]).to_numpy(float)
-                ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
-                _strip(ax, i, ratio, "#555555", rng)
-            else:
-                for j, (integ, color) in enumerate(
-                    ((sym, COLORS["leapfrog"]), (ref, COLORS["rk2"]))
-                ):
-                    v = rows[rows["integrator"] == integ][metric].to_numpy(float)
-                    _strip(ax, i + (j - 0.5) * 0.36, v[np.isfinite(v)], color, rng, width=0.3)
-        entries = claim["per_setting"]
-        ax.set_xticks(
-            range(len(settings)),
-            [
-                f"{lab}\n{e['holds']}/{e['n']} hold" if e["n"] else f"{lab}\nno pairs"
-                for lab, e in zip(labels, entries, strict=True)
-            ],
-            fontsize=8,
-        )
-        if name == "process_noise":
-            ax.set_yscale("log")
-            ax.axhline(1.0, color="black", lw=0.8, ls=":", label="equal")
-            ax.axhline(RATIO_THRESHOLD, color="#888888", lw=0.8, ls="-.", label="√10 (threshold)")
-            ax.axhline(10.0, color="black", lw=0.8, ls="--", label="paper: about 10×")
-            ax.set_ylabel(f"process-noise ratio {ref} / {sym}")
-            ax.legend(fontsize=8, loc="best")
-        else:
-            from matplotlib.lines import Line2D
-
-            if name == "hamiltonian":
-                ax.set_yscale("log")
-                ax.set_ylabel("relative error of the MAP H(x0)")
-            else:
-                ax.set_ylabel("valid prediction horizon (s)")
-            handles = [
-                Line2D([], [], marker="o", ls="", color=COLORS["leapfrog"], label=sym),
-                Line2D([], [], marker="o", ls="", color=COLORS["rk2"], label=ref),
-            ]
-            ax.legend(handles=handles, fontsize=8, loc="best")
-        ax.set_title(claim["statement"], fontsize=9)
-        ax.grid(axis="y", alpha=0.3)
-        paths[name] = save_figure(fig, folder / f"claim_{name}.png")
-    return paths
-
-
-#: Metrics drawn by :func:`plot_sweep` when the table has them (the paper cell's metrics).
-SWEEP_METRICS = (
-    "hamiltonian_rel_error",
-    "process_noise_median",
-    "prediction_horizon_s",
-    "acceptance_rate",
-    "rhat_max",
-    "ess_min",
-)
-_NOT_METRICS = ("cell_id", "status", "elapsed_s", "error", "warnings", "started", "finished")
-
-
-def plot_sweep(
-    table: Any, folder: str | os.PathLike, metrics: Sequence[str] | None = None
-) -> dict[str, Path]:
-    """One PNG per metric of a sweep's results table: every cell's value, grouped by setting.
-
-    The x axis has one group per setting (the values of the setting columns that vary, seeds
-    aside); within a group each propagator has its own colour, with a box over the seeds.
-    ``metrics`` defaults to those of :data:`SWEEP_METRICS` in the table, else every numeric
-    metric column (at most 12). Positive metrics spanning more than a decade get a log axis.
-    Returns the paths by metric (``folder/<metric>.png``).
-    """
-    from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
-
-    from symplid.plotting.figures import COLORS, save_figure
-
-    ok = table[table["status"] == "ok"]
-    settings = [c for c in table.columns if (c in CELL_KEYS or "." in c) and c != "seed"]
-    if metrics is None:
-        metrics = [m for m in SWEEP_METRICS if m in table.columns]
-        if not metrics:
-            metrics = [
-                c
-                for c in table.columns
-                if c not in settings
-                and c not in _NOT_METRICS
-                and c != "seed"
-                and table[c].dtype.kind in "if"
-            ][:12]
-    by = [c for c in settings if c != "integrator" and table[c].nunique(dropna=False) > 1]
-    groups = _groups(table, by)
-    hues = list(dict.fromkeys(ok["integrator"])) if "integrator" in ok else [None]
-    palette = {"leapfrog": COLORS["leapfrog"], "rk2-midpoint": COLORS["rk2"]}
-    colors = {h: palette.get(h, _PALETTE[i % len(_PALETTE)]) for i, h in enumerate(hues)}
-    folder = Path(folder)
-    paths: dict[str, Path] = {}
-    for metric in metrics:
-        values = _numeric(ok[metric]) if metric in ok else None
-        if values is None or not np.isfinite(values).any():
-            continue
-        fig = Figure(figsize=(max(5.0, 1.5 * len(groups) + 2), 4.0), layout="constrained")
-        ax = fig.add_subplot()
-        rng = np.random.default_rng(0)  # jitter of the points only
-        width = 0.7 / max(len(hues), 1)
-        for i, g in enumerate(groups):
-            rows = _equal_rows(ok, g)
-            for j, h in enumerate(hues):
-                sub = rows if h is None else rows[rows["integrator"] == h]
-                v = _numeric(sub[metric])
-                x = i + (j - (len(hues) - 1) / 2) * width
-                _strip(ax, x, v[np.isfinite(v)], colors[h], rng, width=0.85 * width)
-        finite = values[np.isfinite(values)]
-        if finite.min() > 0 and finite.max() / finite.min() > 10:
-            ax.set_yscale("log")
-        labels = [", ".join(f"{c}={_fmt(g[c])}" for c in by) or "all cells" for g in groups]
-        ax.set_xticks(range(len(groups)), labels, fontsize=8)
-        ax.set_ylabel(metric)
-        if hues != [None]:
-            handles = [
-                Line2D([], [], marker="o", ls="", color=colors[h], label=str(h)) for h in hues
-            ]
-            ax.legend(handles=handles, fontsize=8, loc="best")
-        ax.grid(axis="y", alpha=0.3)
-        paths[metric] = save_figure(fig, folder / f"{metric}.png")
-    return paths
-
-
-_PALETTE = ("#7b3fa0", "#d98a00", "#16867f", "#6b6b6b", "#1f5fa8", "#c0392b")
-
-
-def _numeric(column: Any) -> np.ndarray:
-    """A column as floats (non-numbers become NaN)."""
-    import pandas as pd
-
-    return pd.to_numeric(column, errors="coerce").to_numpy(float)
-
-
-def _strip(ax: Any, x: float, values: np.ndarray, color: str, rng: Any, width: float = 0.5) -> None:
-    """A box (quartiles, median) with the individual seeds as jittered points."""
-    if values.size == 0:
-        return
-    ax.boxplot(
-        [values],
-        positions=[x],
-        widths=width,
-        showfliers=False,
-        medianprops={"color": color, "lw": 1.5},
-        boxprops={"color": color},
-        whiskerprops={"color": color},
-        capprops={"color": color},
-    )
-    jitter = rng.uniform(-width / 3, width / 3, size=values.size)
-    ax.scatter(x + jitter, values, s=10, color=color, alpha=0.6, zorder=3)
-
-
-# ----------------------------------------------------------------------------- report
-def format_claims_report(claims: Mapping[str, Any]) -> str:
-    """``report.md``: what was run, one table per claim, the figures, and the failures."""
-    study = claims.get("study", {})
-    sym, ref = claims["symplectic"], claims["reference"]
-    lines = ["# The paper's claims over many data seeds", ""]
-    if study:
-        budget = study["budget"]
-        lines += [
-            f"Hénon–Heiles, the paper's setting and one setting changed at a time; "
-            f"{study['seeds']} data seeds; {sym} against {ref}, paired by seed (same data).",
-            f"Sampler budget per cell: {budget['num_chains']} DRAM chains of "
-            f"{budget['num_samples']:,} iterations ({budget['burn_in']:,} burn-in), "
-            f"{budget['num_starts']} MAP starts" + (" (quick)." if study["quick"] else "."),
-            f"Cells: {study['cells']} ({study['cells_run']} run now, {study['cells_skipped']} "
-            f"already done, {study['cells_failed']} failed). Wall time of this call: "
-            f"{study['wall_time_s']:.0f} s.",
-            "",
-        ]
-    lines += [
-        "A claim holds for a seed when the leapfrog fit beats the RK2 fit of the same data. "
-        "Fractions are over the seeds where both fits finished with finite values.",
-        "",
-    ]
-    for name, claim in claims["claims"].items():
-        lines += [f"## {_TITLES[name]}", "", f"Claim: {claim['statement']}.  ", ""]
-        lines += [f"Paper (one data set): {claim['paper']}.", ""]
-        if name == "process_noise":
-            lines += [
-                "| setting | seeds | ratio ≥ √10 | fraction | ratio > 1 | median ratio "
-                "| 10–90 % of ratio | geometric mean |",
-                "|---|---|---|---|---|---|---|---|",
-            ]
-            for e in claim["per_setting"]:
-                r = e["ratio"]
-                lines.append(
-                    f"| {e['label']} | {e['n']} | {e['holds']} | {_pct(e['fraction'])} | "
-                    f"{_pct(e['fraction_smaller'])} | {_num(r['median'])} | "
-                    f"{_num(r['q10'])} – {_num(r['q90'])} | {_num(r['geometric_mean'])} |"
-                )
-        else:
-            unit = " (s)" if name == "prediction" else ""
-            extra = " ties |" if name == "prediction" else ""
-            lines += [
-                f"| setting | seeds | holds | fraction | median {sym}{unit} | "
-                f"median {ref}{unit} |{extra}",
-                "|---|---|---|---|---|---|" + ("---|" if extra else ""),
-            ]
-            for e in claim["per_setting"]:
-                tail = f" {e['ties']} |" if extra else ""
-                lines.append(
-                    f"| {e['label']} | {e['n']} | {e['holds']} | {_pct(e['fraction'])} | "
-                    f"{_num(e['median_symplectic'])} | {_num(e['median_reference'])} |{tail}"
-                )
-        undecided = sum(e["undecided"] + e["unpaired"] for e in claim["per_setting"])
-        if undecided:
-            lines += ["", f"{undecided} seed(s) left out (a failed cell or a non-finite value)."]
-        figure = study.get("figures", {}).get(name)
-        if figure:
-            lines += ["", f"![{_TITLES[name]}]({figure})"]
-        lines.append("")
-    failures = study.get("failures") or []
-    if failures:
-        lines += [
-            "## Failed cells",
-            "",
-            "| cell | seed | integrator | error |",
-            "|---|---|---|---|",
-        ]
-        for f in failures:
-            error = str(f["error"] or "").splitlines()[0][:120] if f["error"] else "pending"
-            lines.append(f"| {f['cell_id']} | {f['seed']} | {f['integrator']} | {error} |")
-        lines.append("")
-    return "\n".join(lines)
-
-
-_TITLES = {
-    "hamiltonian": "Claim 1: the learned Hamiltonian",
-    "process_noise": "Claim 2: the process noise",
-    "prediction": "Claim 3: valid predictions",
-}
-
-
-def _pct(x: float | None) -> str:
-    return "–" if x is None else f"{100 * x:.0f} %"
-
-
-def _num(x: float | None) -> str:
-    if x is None or not math.isfinite(x):
-        return "–"
-    return f"{x:.3g}"

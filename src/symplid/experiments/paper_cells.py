@@ -1,0 +1,100 @@
+"""The cells of the paper's sweeps: their keys, their data and their run settings.
+
+A cell is one data set (a named system, a noise seed, a schedule) fitted with one propagator;
+:data:`CELL_KEYS` are its keys, checked by the one validator
+(:mod:`symplid.workflow.validate`). The experiment is registered, with its cell function, in
+:mod:`symplid.experiments.paper`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from symplid.dynamics.integrators import INTEGRATORS
+from symplid.dynamics.systems import SYSTEMS, System, get_system
+from symplid.inference.samplers import SAMPLERS
+from symplid.model.data import Observations
+from symplid.model.simulate import simulate
+from symplid.workflow.settings import Settings, settings_to_dict
+from symplid.workflow.validate import Spec
+
+__all__ = ["CELL_KEYS", "SWEEP_METRICS", "cell_data", "known_initial_state", "system_defaults"]
+
+_DEFAULTS = settings_to_dict(Settings())
+
+
+def _mapped(tp: type, dotted: str, doc: str, **kw: Any) -> Spec:
+    section, key = dotted.split(".")
+    return Spec(tp, _DEFAULTS[section][key], doc, setting=dotted, **kw)
+
+
+#: The keys of a cell of the paper's sweeps, in table-column order (a ``None`` default is the
+#: system's). Keys with a ``setting`` stand for that run setting; the others are the data's
+#: (``system``, ``noise_std``, ``num_obs``, ``obs_interval``) and the metrics' (``horizon_tol``).
+CELL_KEYS: dict[str, Spec] = {
+    "system": Spec(str, "henon-heiles", "named reference system", choices=SYSTEMS),
+    "seed": Spec(
+        int, 0, "seed of the data noise, the MAP starts and the sampler", minimum=0, setting="seed"
+    ),
+    "noise_std": Spec(float, None, "observation-noise standard deviation", minimum=0.0),
+    "num_obs": Spec(int, None, "number of observations", minimum=1),
+    "obs_interval": Spec(float, None, "time between observations", minimum=0.0, strict=True),
+    "integrator": _mapped(str, "model.integrator", "learning propagator", choices=INTEGRATORS),
+    "dt": _mapped(float, "model.dt", "learning step (eq. 14)", minimum=0.0, strict=True),
+    "order": _mapped(int, "model.order", "order of the polynomial potential", minimum=1),
+    "sampler": _mapped(str, "sampler.method", "MCMC method", choices=SAMPLERS),
+    "num_iterations": _mapped(
+        int, "sampler.num_iterations", "iterations per chain, burn-in included", minimum=1
+    ),
+    "burn_in": _mapped(int, "sampler.burn_in", "iterations discarded", minimum=0),
+    "num_chains": _mapped(int, "sampler.num_chains", "number of chains", minimum=1),
+    "num_starts": _mapped(int, "map.num_starts", "number of MAP starts", minimum=1),
+    "prediction_dt": _mapped(
+        float, "prediction.dt", "step of the predictions", minimum=0.0, strict=True
+    ),
+    "prediction_t_end": _mapped(
+        float, "prediction.t_end", "end of the predictions", minimum=0.0, strict=True
+    ),
+    "horizon_tol": Spec(
+        float, 0.1, "a prediction is valid while |q1 − q1_true| ≤ this", minimum=0.0, strict=True
+    ),
+}
+#: The metrics of :func:`run_cell` drawn by the sweep, one figure each.
+SWEEP_METRICS = (
+    "hamiltonian_rel_error",
+    "process_noise_median",
+    "prediction_horizon_s",
+    "acceptance_rate",
+    "rhat_max",
+    "ess_min",
+)
+_SYSTEM_DEFAULTS = ("noise_std", "num_obs", "obs_interval")
+
+
+def system_defaults(given: Mapping[str, Any]) -> dict[str, Any]:
+    """The data keys a cell leaves out take the system's values."""
+    system = get_system(given.get("system", CELL_KEYS["system"].default))
+    return {key: getattr(system, key) for key in _SYSTEM_DEFAULTS}
+
+
+def known_initial_state(cell: Mapping[str, Any]) -> dict[str, Any]:
+    """The paper's experiment: the initial state is the system's, known."""
+    system = get_system(cell.get("system", CELL_KEYS["system"].default))
+    return {"initial_state": {"mode": "known", "x0": list(system.initial_state)}}
+
+
+def cell_data(cell: Mapping[str, Any]) -> tuple[System, Observations]:
+    """The system and the simulated data of a cell.
+
+    Full-state observations at ``obs_interval``, 2·``obs_interval``, …, ``num_obs``·
+    ``obs_interval`` with noise ``noise_std``, drawn with ``seed`` (see :func:`~.simulate`).
+    """
+    system = get_system(cell.get("system", CELL_KEYS["system"].default))
+    interval = float(cell.get("obs_interval", system.obs_interval))
+    num_obs = int(cell.get("num_obs", system.num_obs))
+    times = interval * np.arange(1, num_obs + 1)
+    noise = float(cell.get("noise_std", system.noise_std))
+    return system, simulate(system, times=times, noise_std=noise, seed=int(cell.get("seed", 0)))
