@@ -23,7 +23,7 @@ SUMMARY_KEYS = {
     "rhat_max",
     "ess_min",
 }
-TINY_FIT = ["--samples", "800", "--burn-in", "400", "--chains", "2", "--no-progress"]
+TINY_FIT = ["--iterations", "800", "--burn-in", "400", "--chains", "2", "--no-progress"]
 
 
 def run(*args: str):
@@ -126,7 +126,7 @@ def test_same_seed_same_fit(tmp_path, harmonic_csv):
             "2",
             "--x0",
             "1,0",
-            "--samples",
+            "--iterations",
             "300",
             "--burn-in",
             "150",
@@ -199,7 +199,7 @@ def test_bad_data_files(tmp_path, content, words):
         (["--integrator", "leapfrogg"], ["leapfrogg"]),
         (["--dt", "0"], ["dt"]),
         (["--dt", "-1"], ["dt"]),
-        (["--samples", "100", "--burn-in", "100"], ["burn_in"]),
+        (["--iterations", "100", "--burn-in", "100"], ["burn_in"]),
         (["--set", "model.orderr=3"], ["orderr"]),
     ],
     ids=["unknown-integrator", "dt-zero", "dt-negative", "burn-in", "misspelt-key"],
@@ -233,3 +233,59 @@ def test_reproduce_rejects_burn_in_not_below_iterations(tmp_path):
 def test_unknown_system_and_predict_on_missing_run(tmp_path):
     _expect_user_error(run("simulate", "pendulum", "--out", tmp_path / "d.csv"), "pendulum")
     _expect_user_error(run("predict", tmp_path / "nothing", "--t-end", "10"), "nothing")
+
+
+def test_old_samples_option_still_works_with_a_warning(tmp_path):
+    data = _write(tmp_path, "data.csv", GOOD_CSV)
+    args = ["--x0", "1,0", "--samples", "100", "--burn-in", "100"]
+    result = run("fit", data, "--out", tmp_path / "run", *args)
+    # the warning is one line on stderr (as the command line prints warnings), then the error
+    warning, error = result.stderr.strip().split("\n")
+    assert warning == "symplid: warning: --samples is deprecated; use --iterations"
+    assert result.exit_code == 2
+    assert error.startswith("symplid: error: command line: sampler.num_iterations (100)")
+
+
+def test_help_lists_the_registries():
+    import symplid
+
+    text = run("fit", "--help").output
+    for name in (*symplid.INTEGRATORS.names(), *symplid.samplers.SAMPLERS.names()):
+        assert name in text
+    assert "--iterations" in text and "--samples" not in text
+    assert "midpoint" in run("reproduce", "--help").output
+
+
+@pytest.mark.slow
+def test_toy_integrator_and_prior_family_registered_here_are_usable(tmp_path, harmonic_csv):
+    """Entries registered from this file alone appear in the help and drive a fit."""
+    import dataclasses
+
+    import symplid
+    from symplid.model.priors import PRIOR_FAMILIES, Normal
+    from symplid.workflow.results import RunFolder
+
+    @dataclasses.dataclass(frozen=True)
+    class ToyNormal(Normal):
+        family = "toy-normal"
+
+    toy = dataclasses.replace(symplid.INTEGRATORS["leapfrog"], name="toy-leapfrog")
+    symplid.INTEGRATORS.register("toy-leapfrog", toy)
+    PRIOR_FAMILIES.register("toy-normal", ToyNormal)
+    try:
+        assert "toy-leapfrog" in run("fit", "--help").output
+        out = tmp_path / "run"
+        result = run(
+            "fit", harmonic_csv, "--out", out, "--order", "2", "--x0", "1,0",
+            "--integrator", "toy-leapfrog",
+            "--set", "priors.coefficients.family=toy-normal",
+            "--set", "priors.coefficients.scale=5",
+            *TINY_FIT,
+        )
+        assert result.exit_code == 0, result.output
+        settings = RunFolder(out, "r").read_settings()
+        assert settings.model.integrator == "toy-leapfrog"
+        assert settings.priors.coefficients == ToyNormal(0.0, 5.0)
+    finally:
+        symplid.INTEGRATORS.unregister("toy-leapfrog")
+        PRIOR_FAMILIES.unregister("toy-normal")

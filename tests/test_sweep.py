@@ -20,6 +20,7 @@ import pytest
 
 import sweep_cells
 import symplid
+from symplid.experiments.paper import CELL_KEYS, cell_data
 from symplid.experiments.paper_study import (
     FULL_BUDGET,
     PAPER_SETTING,
@@ -28,7 +29,6 @@ from symplid.experiments.paper_study import (
     paper_claims_spec,
     run_paper_claims,
 )
-from symplid.experiments.paper import CELL_KEYS, cell_data
 from symplid.workflow.results import read_json
 from symplid.workflow.sweep import (
     SweepError,

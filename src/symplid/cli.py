@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,55 @@ def _user_errors(fn: Callable) -> Callable:
             sys.exit(EXIT_INTERRUPTED)
 
     return wrapper
+
+
+# Registries are read when a help text or a value needs them: importing symplid (and JAX) at
+# import time would make `symplid --help` slow.
+def _integrators() -> Any:
+    from symplid.dynamics.integrators import INTEGRATORS
+
+    return INTEGRATORS
+
+
+def _samplers() -> Any:
+    from symplid.inference.samplers import SAMPLERS
+
+    return SAMPLERS
+
+
+class _RegistryOption(click.Option):
+    """An option whose help lists a registry's names (``{choices}``), read when shown."""
+
+    def __init__(self, *args: Any, registry: Callable[[], Any], **kwargs: Any) -> None:
+        self.registry = registry
+        super().__init__(*args, **kwargs)
+
+    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
+        record = super().get_help_record(ctx)
+        if record is None:
+            return None
+        return record[0], record[1].replace("{choices}", ", ".join(self.registry().names()))
+
+
+class _LazyChoice(click.Choice):
+    """A ``click.Choice`` whose choices are computed when first needed."""
+
+    def __init__(self, load: Callable[[], tuple[str, ...]]) -> None:
+        self._load = load
+        super().__init__((), case_sensitive=True)
+
+    @property
+    def choices(self) -> tuple[str, ...]:
+        return tuple(self._load())
+
+    @choices.setter
+    def choices(self, value: Any) -> None:  # set by click.Choice.__init__; computed instead
+        pass
+
+
+def _rk2_variants() -> tuple[str, ...]:
+    """The registered RK2 integrators, by variant (``rk2-midpoint`` → ``midpoint``)."""
+    return tuple(n[4:] for n in _integrators().names() if n.startswith("rk2-"))
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -100,7 +150,7 @@ def main() -> None:
 )
 @click.option(
     "--rk2",
-    type=click.Choice(["midpoint", "heun"]),
+    type=_LazyChoice(_rk2_variants),
     default="midpoint",
     show_default=True,
     help="The non-symplectic RK2 variant.",
@@ -157,7 +207,7 @@ def _floats(text: str | None, name: str) -> list[float] | None:
         raise UserError(f"{name} must be numbers separated by commas, got {text!r}") from None
 
 
-@main.command()
+@main.command(epilog="SYSTEM is one of the registered systems (symplid.SYSTEMS).")
 @click.argument("system", type=str)
 @click.option(
     "--out",
@@ -200,7 +250,7 @@ def _floats(text: str | None, name: str) -> list[float] | None:
 )
 @_user_errors
 def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x0, missing) -> None:
-    """Noisy observations of a named SYSTEM (henon-heiles, harmonic, double-well, fpu-chain)."""
+    """Noisy observations of a named SYSTEM (see --help for the names)."""
     import numpy as np
 
     from symplid.dynamics.systems import get_system
@@ -255,18 +305,22 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option(
     "--integrator",
-    type=str,
+    cls=_RegistryOption,
+    registry=_integrators,
     default=None,
-    help="leapfrog, yoshida4, rk2-midpoint, rk2-heun, rk4, euler.",
+    help="Learning propagator: {choices}.",
 )
 @click.option("--dt", type=float, default=None, help="Learning step.")
-@click.option("--method", type=click.Choice(["dram", "nuts"]), default=None, help="Sampler.")
 @click.option(
-    "--samples",
+    "--method", cls=_RegistryOption, registry=_samplers, default=None, help="Sampler: {choices}."
+)
+@click.option(
+    "--iterations",
     type=click.IntRange(min=1),
     default=None,
     help="Iterations per chain, burn-in included.",
 )
+@click.option("--samples", type=click.IntRange(min=1), default=None, hidden=True)
 @click.option("--burn-in", type=click.IntRange(min=0), default=None)
 @click.option("--chains", type=click.IntRange(min=1), default=None)
 @click.option("--seed", type=click.IntRange(min=0), default=None)
@@ -290,6 +344,7 @@ def fit(
     integrator,
     dt,
     method,
+    iterations,
     samples,
     burn_in,
     chains,
@@ -304,13 +359,18 @@ def fit(
     from symplid.io import read_observations
     from symplid.workflow.fit import fit as run
 
+    if samples is not None:
+        warnings.warn("--samples is deprecated; use --iterations", FutureWarning, stacklevel=1)
+        if iterations is not None:
+            raise UserError("--samples and --iterations are the same option; give --iterations")
+        iterations = samples
     obs = read_observations(data)
     overrides = {
         "model.order": order,
         "model.integrator": integrator,
         "model.dt": dt,
         "sampler.method": method,
-        "sampler.num_samples": samples,
+        "sampler.num_iterations": iterations,
         "sampler.burn_in": burn_in,
         "sampler.num_chains": chains,
         "seed": seed,
@@ -462,6 +522,7 @@ def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, .
 @_user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
+    import symplid.experiments  # noqa: F401  (registers the experiments a spec may name)
     from symplid.workflow.sweep import run_sweep
 
     table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress)
