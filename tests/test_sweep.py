@@ -494,3 +494,44 @@ def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     assert ((table["prediction_horizon_s"] > 0) & (table["prediction_horizon_s"] <= 200)).all()
     claims = evaluate_claims(table, baseline=PAPER_SETTING)
     assert all(c["per_setting"][0]["n"] == 1 for c in claims["claims"].values())
+
+
+# ----------------------------------------------------------------------------- experiments
+def test_old_num_samples_key_is_read_with_a_future_warning():
+    with pytest.warns(FutureWarning, match=r"num_samples in \[base\] is deprecated; use num_iter"):
+        spec = sweep_spec_from_dict({"base": {"num_samples": 20, "burn_in": 10}})
+    assert spec.cells[0].settings["num_iterations"] == 20
+    assert cell_settings(spec.cells[0].settings).sampler.num_iterations == 20
+
+
+def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tmp_path):
+    from symplid.experiments import EXPERIMENTS, Experiment
+    from symplid.workflow.validate import Spec
+
+    keys = {
+        "seed": Spec(int, 0, "data seed", minimum=0, setting="seed"),
+        "integrator": Spec(str, "leapfrog", "propagator", choices=symplid.INTEGRATORS,
+                           setting="model.integrator"),
+        "dt": Spec(float, 0.25, "step", minimum=0.0, strict=True, setting="model.dt"),
+        "order": Spec(int, 3, "order", minimum=1, setting="model.order"),
+        "noise_std": Spec(float, 0.05, "noise", minimum=0.0),
+    }
+    EXPERIMENTS.register(
+        "toy", Experiment("toy", keys, "sweep_cells:loglik_cell", metrics=("loglik",))
+    )
+    try:
+        spec = sweep_spec_from_dict(
+            {"sweep": {"experiment": "toy", "grid": {"integrator": ["leapfrog", "RK2"]}}}
+        )
+        assert list(spec.cells[0].settings) == list(keys)
+        table = run_sweep(spec, tmp_path, scheduler=shared_cluster.address, progress=False)
+        assert list(table["status"]) == ["ok", "ok"], list(table["error"])
+        assert list(table["integrator"]) == ["leapfrog", "rk2-midpoint"]
+        assert read_json(tmp_path / "sweep.json")["experiment"] == "toy"
+        assert [p.name for p in (tmp_path / "figures").glob("*.png")] == ["loglik.png"]
+        with pytest.raises(SweepError, match=r"unknown key 'system' in \[base\]"):
+            sweep_spec_from_dict({"base": {"system": "harmonic"}, "sweep": {"experiment": "toy"}})
+    finally:
+        EXPERIMENTS.unregister("toy")
+    with pytest.raises(SweepError, match="unknown experiment 'toy'"):
+        sweep_spec_from_dict({"sweep": {"experiment": "toy"}})
