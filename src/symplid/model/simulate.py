@@ -16,7 +16,7 @@ import numpy as np
 from symplid.dynamics.integrators import get_integrator, make_dynamics
 from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.systems import System, get_system
-from symplid.dynamics.trajectory import substeps
+from symplid.dynamics.trajectory import solve_gaps, substeps
 from symplid.model.data import Observations
 
 
@@ -28,22 +28,9 @@ def state_names(dim: int, observation: str = "full") -> tuple[str, ...]:
 
 @partial(jax.jit, static_argnames=("potential", "integrator"))
 def _trajectory(potential, integrator, coefficients, x0, step_sizes, num_steps, inv_mass):
-    integ = get_integrator(integrator)
+    """States at the end of every gap: :func:`~symplid.dynamics.trajectory.solve_gaps`."""
     dynamics = make_dynamics(potential, coefficients, inv_mass)
-    d = x0.shape[0] // 2
-
-    def gap(x, inp):
-        h, n = inp
-
-        def body(_, carry):
-            return integ.step(dynamics, carry[0], carry[1], h)
-
-        q, p = jax.lax.fori_loop(0, n, body, (x[:d], x[d:]))
-        x_next = jnp.concatenate([q, p])
-        return x_next, x_next
-
-    _, xs = jax.lax.scan(gap, x0, (step_sizes, num_steps))
-    return xs
+    return solve_gaps(integrator, dynamics, x0, step_sizes, num_steps)
 
 
 def true_trajectory(
