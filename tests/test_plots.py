@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 
 import symplid
 from symplid.inference.predict import PosteriorPredictive
-from symplid.plotting.figures import (
+from symplid.plotting import (
     COLORS,
     Curves,
     plot_hamiltonians,

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from symplid.inference.predict import hamiltonian_along, posterior_predictive, predict_trajectory
-from symplid.plotting.figures import (
+from symplid.plotting import (
     Curves,
     plot_hamiltonians,
     plot_phase_portraits,

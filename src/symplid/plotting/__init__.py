@@ -1,1 +1,34 @@
-"""Plotting (layer 5): figures from arrays and results; never fits, samples or reads run folders."""
+"""Plotting (layer 5): figures from arrays and results; never fits, samples or reads run folders.
+
+Every function takes plain arrays or small dataclasses, returns a
+:class:`matplotlib.figure.Figure`, and writes a PNG when ``path`` is given.
+
+* :mod:`~symplid.plotting.paper`: the paper's four figures (Section IV);
+* :mod:`~symplid.plotting.diagnostics`: :func:`plot_traces` (chains), :func:`plot_pair` (corner);
+* :mod:`~symplid.plotting.predictive`: :func:`plot_predictive` (data and predictive band for every
+  observed component);
+* :mod:`~symplid.plotting.style`: :data:`COLORS`, :class:`Curves`, :func:`save_figure`.
+"""
+
+from symplid.plotting.diagnostics import plot_pair, plot_traces
+from symplid.plotting.paper import (
+    plot_hamiltonians,
+    plot_phase_portraits,
+    plot_process_noise,
+    plot_trajectory_bands,
+)
+from symplid.plotting.predictive import plot_predictive
+from symplid.plotting.style import COLORS, Curves, save_figure
+
+__all__ = [
+    "COLORS",
+    "Curves",
+    "plot_hamiltonians",
+    "plot_pair",
+    "plot_phase_portraits",
+    "plot_predictive",
+    "plot_process_noise",
+    "plot_traces",
+    "plot_trajectory_bands",
+    "save_figure",
+]

@@ -9,7 +9,7 @@ import numpy as np
 
 from symplid.inference.predict import posterior_predictive, predict_trajectory
 from symplid.inference.samplers import draws_array
-from symplid.plotting.figures import plot_pair, plot_predictive, plot_traces
+from symplid.plotting import plot_pair, plot_predictive, plot_traces
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder, format_summary
 

@@ -1,0 +1,124 @@
+"""The posterior predictive band against the data, for runs on user data."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from symplid.plotting.style import (
+    COLORS,
+    as_xy,
+    finish,
+    legend_above,
+    mark_end_of_data,
+    new_figure,
+    robust_limits,
+    sample_lines,
+)
+
+__all__ = ["plot_predictive"]
+
+
+def plot_predictive(
+    predictive: Any,
+    data: Any = None,
+    *,
+    state_names: Sequence[str] | None = None,
+    components: Sequence[int] | None = None,
+    map_path: tuple[np.ndarray, np.ndarray] | None = None,
+    truth: tuple[np.ndarray, np.ndarray] | None = None,
+    t_data_end: float | None = None,
+    max_samples: int = 50,
+    color: str = COLORS["leapfrog"],
+    path: str | Path | None = None,
+) -> Figure:
+    """Data and posterior predictive band for every observed component, one row each.
+
+    Parameters
+    ----------
+    predictive
+        A :class:`~.predict.PosteriorPredictive` (``times``, ``quantiles``, ``median``,
+        ``paths``, ``quantile_levels``).
+    data
+        An :class:`~symplid.Observations` (its ``names`` pick the state components) or a
+        ``(times, values)`` pair; None for no data.
+    state_names
+        Names of the state's components (default ``q1..qd, p1..pd``).
+    components
+        State components to draw (default: those observed in ``data``, else all).
+    map_path, truth
+        Optional ``(times, states)`` drawn as a dark line and a green line.
+    t_data_end
+        End of the data (default: the last data time when data are given).
+    max_samples
+        Sample paths drawn at most.
+
+    Returns
+    -------
+    Figure with one axis per drawn component.
+    """
+    times = np.asarray(predictive.times, dtype=float)
+    dim2 = np.asarray(predictive.median).shape[-1]
+    if state_names is None:
+        d = dim2 // 2
+        state_names = [f"q{i + 1}" for i in range(d)] + [f"p{i + 1}" for i in range(d)]
+    state_names = list(state_names)
+    if len(state_names) != dim2:
+        raise ValueError(f"{len(state_names)} state names for {dim2} state components")
+    data_cols: dict[int, int] = {}
+    if data is not None:
+        d_times, d_values = as_xy(data)
+        data_names = getattr(data, "names", None)
+        if data_names:
+            for col, name in enumerate(data_names):
+                if name in state_names:
+                    data_cols[state_names.index(name)] = col
+        else:  # full state or positions, in order
+            data_cols = {c: c for c in range(min(d_values.shape[1], dim2))}
+        if t_data_end is None:
+            t_data_end = float(d_times[-1])
+    if components is None:
+        components = sorted(data_cols) if data_cols else list(range(dim2))
+    components = list(components)
+    if not components:
+        raise ValueError("no component to draw")
+    levels = tuple(predictive.quantile_levels)
+    band = f"{100 * levels[0]:g}–{100 * levels[-1]:g} % band"
+    fig = new_figure(9.0, 2.2 * len(components) + 0.5)
+    axes = fig.subplots(len(components), 1, sharex=True, squeeze=False)[:, 0]
+    paths = np.asarray(predictive.paths)[:max_samples]
+    for ax, c in zip(axes, components, strict=True):
+        ax.fill_between(times, predictive.quantiles[0][:, c], predictive.quantiles[-1][:, c],
+                        color=color, alpha=0.22, lw=0, label=band)
+        if paths.shape[0]:
+            sample_lines(ax, times, paths[:, :, c], color, lw=0.4, alpha=0.15)
+        ax.plot(times, predictive.median[:, c], color=color, lw=1.0, ls=":", label="median")
+        if map_path is not None:
+            ax.plot(map_path[0], np.asarray(map_path[1])[:, c], color=color, lw=1.5, label="MAP")
+        if truth is not None:
+            ax.plot(truth[0], np.asarray(truth[1])[:, c], color=COLORS["truth"], lw=1.2,
+                    label="truth")
+        if c in data_cols:
+            ax.plot(d_times, d_values[:, data_cols[c]], "o", ms=4, color=COLORS["data"],
+                    label="data")
+        mark_end_of_data(ax, t_data_end)
+        ax.set_ylabel(state_names[c])
+        ax.grid(alpha=0.25)
+        lim = robust_limits(
+            predictive.median[:, c], predictive.quantiles[0][:, c],
+            predictive.quantiles[-1][:, c],
+            None if c not in data_cols else d_values[:, data_cols[c]],
+            clip=3.0,
+        )
+        if lim is not None:
+            ax.set_ylim(lim)
+    handles, _ = axes[0].get_legend_handles_labels()
+    legend_above(axes[0], handles, ncol=len(handles), fontsize=7.5)
+    axes[-1].set_xlabel("t [s]")
+    starts = [times[0]] + ([d_times[0]] if data_cols else [])
+    axes[-1].set_xlim(min(starts), times[-1])
+    return finish(fig, path)
