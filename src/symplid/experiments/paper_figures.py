@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
-from symplid.inference.predict import hamiltonian_along, posterior_predictive, predict_trajectory
+from symplid.inference.predict import (
+    PosteriorPredictive,
+    hamiltonian_along,
+    posterior_predictive,
+    predict_trajectory,
+)
 from symplid.plotting import (
     Curves,
     plot_hamiltonians,
@@ -20,15 +23,57 @@ EVERY = 10  # keep every 10th fine step (0.1 s) in the stored paths
 
 
 def draw_figures(folder, results, system, obs, truth_times, truth, config, progress=True) -> None:
-    """Figures 1–4 into ``folder/figures``."""
-    x0 = system.initial_state
-    pot = system.potential
+    """Figures 1–4 into ``folder/figures``.
+
+    Every path is integrated from the true initial state by leapfrog at the fine step
+    (``config.prediction_dt``) for ``config.t_end``, and stored every ``EVERY`` fine steps of
+    0.01 s; Fig. 2(b) also integrates the RK2 model by RK2 at the learning step.
+    """
     t_data_end = float(obs.times[-1])
     stride = max(1, round(EVERY * 0.01 / config.prediction_dt))
     truth_t, truth_x = truth_times[::stride], truth[::stride]
+    maps, bands = _predictions(results, system, config, stride)
 
+    # Fig 1: phase portraits (leapfrog at the fine step for 200 s; data over 100 s).
+    plot_phase_portraits(
+        {f"learned with {LABELS[n]}": maps[n][1] for n in results},
+        truth_x,
+        obs.values[:, :2],
+        path=folder.figure_path("fig1_phase_portraits"),
+    )
+    # Fig 2: H along trajectories; (a) leapfrog at the fine step, (b) RK2 at the learning dt.
+    fine, coarse = _energy_curves(results, system, config, maps, bands)
+    plot_hamiltonians(
+        fine,
+        (truth_t, hamiltonian_along(system.potential, system.coefficients, truth_x)),
+        coarse,
+        t_data_end=t_data_end,
+        path=folder.figure_path("fig2_hamiltonians"),
+    )
+    # Fig 3: q1 against time with the posterior band, one row per approach.
+    plot_trajectory_bands(
+        [_q1_curves(LABELS[name], maps[name], bands[name]) for name in results],
+        truth=(truth_t, truth_x[:, 0]),
+        data=(obs.times, obs.values[:, 0]),
+        t_data_end=t_data_end,
+        path=folder.figure_path("fig3_trajectories"),
+    )
+    # Fig 4: process-noise posteriors.
+    plot_process_noise(
+        {LABELS[n]: r.process_noise_draws for n, r in results.items()},
+        {
+            LABELS[n]: float(r.map_theta[r.param_names.index("process_var")])
+            for n, r in results.items()
+        },
+        path=folder.figure_path("fig4_process_noise"),
+    )
+
+
+def _predictions(results, system, config, stride: int):
+    """Per approach: the MAP path ``(times, states)`` and the posterior predictive band."""
     maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    bands: dict[str, Any] = {}
+    bands: dict[str, PosteriorPredictive] = {}
+    x0, pot = system.initial_state, system.potential
     for name, res in results.items():
         maps[name] = predict_trajectory(
             pot, res.coefficients_map, x0, config.t_end, dt=config.prediction_dt, every=stride
@@ -43,17 +88,13 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
             seed=config.seed,
             every=stride,
         )
+    return maps, bands
 
-    # Fig 1: phase portraits (leapfrog at the fine step for 200 s; data over 100 s).
-    plot_phase_portraits(
-        {f"learned with {LABELS[n]}": maps[n][1] for n in results},
-        truth_x,
-        obs.values[:, :2],
-        path=folder.figure_path("fig1_phase_portraits"),
-    )
 
-    # Fig 2: H along trajectories; (a) leapfrog at the fine step, (b) RK2 at the learning dt.
-    h_truth = hamiltonian_along(pot, system.coefficients, truth_x)
+def _energy_curves(results, system, config, maps, bands) -> tuple[list[Curves], list[Curves]]:
+    """Fig. 2's curves: H along the fine paths (MAP and samples), and along the RK2 model
+    integrated by its learning integrator at the learning step."""
+    pot = system.potential
     fine, coarse = [], []
     for name, res in results.items():
         t_map, x_map = maps[name]
@@ -76,7 +117,12 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
         )
         if name == "rk2":
             t_c, x_c = predict_trajectory(
-                pot, res.coefficients_map, x0, config.t_end, dt=config.dt, integrator=res.integrator
+                pot,
+                res.coefficients_map,
+                system.initial_state,
+                config.t_end,
+                dt=config.dt,
+                integrator=res.integrator,
             )
             coarse.append(
                 Curves(
@@ -85,44 +131,18 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
                     hamiltonian_along(pot, res.coefficients_map, x_c),
                 )
             )
-    plot_hamiltonians(
-        fine,
-        (truth_t, h_truth),
-        coarse,
-        t_data_end=t_data_end,
-        path=folder.figure_path("fig2_hamiltonians"),
-    )
+    return fine, coarse
 
-    # Fig 3: q1 against time with the posterior band, one row per approach.
-    approaches = []
-    for name in results:
-        t_map, x_map = maps[name]
-        band = bands[name]
-        approaches.append(
-            Curves(
-                LABELS[name],
-                t_map,
-                x_map[:, 0],
-                samples=band.paths[:, :, 0],
-                sample_times=band.times,
-                lower=band.lower[:, 0],
-                upper=band.upper[:, 0],
-            )
-        )
-    plot_trajectory_bands(
-        approaches,
-        truth=(truth_t, truth_x[:, 0]),
-        data=(obs.times, obs.values[:, 0]),
-        t_data_end=t_data_end,
-        path=folder.figure_path("fig3_trajectories"),
-    )
 
-    # Fig 4: process-noise posteriors.
-    plot_process_noise(
-        {LABELS[n]: r.process_noise_draws for n, r in results.items()},
-        {
-            LABELS[n]: float(r.map_theta[r.param_names.index("process_var")])
-            for n, r in results.items()
-        },
-        path=folder.figure_path("fig4_process_noise"),
+def _q1_curves(label: str, map_path, band: PosteriorPredictive) -> Curves:
+    """Fig. 3's curves of one approach: the MAP's q1, the band and the sample paths."""
+    t_map, x_map = map_path
+    return Curves(
+        label,
+        t_map,
+        x_map[:, 0],
+        samples=band.paths[:, :, 0],
+        sample_times=band.times,
+        lower=band.lower[:, 0],
+        upper=band.upper[:, 0],
     )

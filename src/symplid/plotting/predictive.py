@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -69,20 +70,11 @@ def plot_predictive(
     state_names = list(state_names)
     if len(state_names) != dim2:
         raise ValueError(f"{len(state_names)} state names for {dim2} state components")
-    data_cols: dict[int, int] = {}
-    if data is not None:
-        d_times, d_values = as_xy(data)
-        data_names = getattr(data, "names", None)
-        if data_names:
-            for col, name in enumerate(data_names):
-                if name in state_names:
-                    data_cols[state_names.index(name)] = col
-        else:  # full state or positions, in order
-            data_cols = {c: c for c in range(min(d_values.shape[1], dim2))}
-        if t_data_end is None:
-            t_data_end = float(d_times[-1])
+    observed = _Observed.of(data, state_names) if data is not None else None
+    if observed is not None and t_data_end is None:
+        t_data_end = float(observed.times[-1])
     if components is None:
-        components = sorted(data_cols) if data_cols else list(range(dim2))
+        components = sorted(observed.columns) if observed and observed.columns else range(dim2)
     components = list(components)
     if not components:
         raise ValueError("no component to draw")
@@ -92,33 +84,64 @@ def plot_predictive(
     axes = fig.subplots(len(components), 1, sharex=True, squeeze=False)[:, 0]
     paths = np.asarray(predictive.paths)[:max_samples]
     for ax, c in zip(axes, components, strict=True):
-        ax.fill_between(times, predictive.quantiles[0][:, c], predictive.quantiles[-1][:, c],
-                        color=color, alpha=0.22, lw=0, label=band)
-        if paths.shape[0]:
-            sample_lines(ax, times, paths[:, :, c], color, lw=0.4, alpha=0.15)
-        ax.plot(times, predictive.median[:, c], color=color, lw=1.0, ls=":", label="median")
+        _band_panel(ax, predictive, times, paths, c, band, color)
         if map_path is not None:
             ax.plot(map_path[0], np.asarray(map_path[1])[:, c], color=color, lw=1.5, label="MAP")
         if truth is not None:
             ax.plot(truth[0], np.asarray(truth[1])[:, c], color=COLORS["truth"], lw=1.2,
                     label="truth")
-        if c in data_cols:
-            ax.plot(d_times, d_values[:, data_cols[c]], "o", ms=4, color=COLORS["data"],
-                    label="data")
+        values = observed.component(c) if observed is not None else None
+        if values is not None:
+            ax.plot(observed.times, values, "o", ms=4, color=COLORS["data"], label="data")
         mark_end_of_data(ax, t_data_end)
         ax.set_ylabel(state_names[c])
         ax.grid(alpha=0.25)
         lim = robust_limits(
             predictive.median[:, c], predictive.quantiles[0][:, c],
-            predictive.quantiles[-1][:, c],
-            None if c not in data_cols else d_values[:, data_cols[c]],
-            clip=3.0,
+            predictive.quantiles[-1][:, c], values, clip=3.0,
         )
         if lim is not None:
             ax.set_ylim(lim)
     handles, _ = axes[0].get_legend_handles_labels()
     legend_above(axes[0], handles, ncol=len(handles), fontsize=7.5)
     axes[-1].set_xlabel("t [s]")
-    starts = [times[0]] + ([d_times[0]] if data_cols else [])
+    starts = [times[0]] + ([observed.times[0]] if observed and observed.columns else [])
     axes[-1].set_xlim(min(starts), times[-1])
     return finish(fig, path)
+
+
+def _band_panel(ax, predictive: Any, times: np.ndarray, paths: np.ndarray, c: int, band: str,
+                color: str) -> None:
+    """Component ``c``'s band, sample paths and median on ``ax``."""
+    ax.fill_between(times, predictive.quantiles[0][:, c], predictive.quantiles[-1][:, c],
+                    color=color, alpha=0.22, lw=0, label=band)
+    if paths.shape[0]:
+        sample_lines(ax, times, paths[:, :, c], color, lw=0.4, alpha=0.15)
+    ax.plot(times, predictive.median[:, c], color=color, lw=1.0, ls=":", label="median")
+
+
+@dataclass(frozen=True)
+class _Observed:
+    """The data's times and values, and which data column holds each state component."""
+
+    times: np.ndarray
+    values: np.ndarray
+    columns: dict[int, int]  # state component → data column
+
+    @classmethod
+    def of(cls, data: Any, state_names: Sequence[str]) -> _Observed:
+        times, values = as_xy(data)
+        names = getattr(data, "names", None)
+        if names:
+            columns = {
+                state_names.index(name): col
+                for col, name in enumerate(names)
+                if name in state_names
+            }
+        else:  # full state or positions, in order
+            columns = {c: c for c in range(min(values.shape[1], len(state_names)))}
+        return cls(times, values, columns)
+
+    def component(self, c: int) -> np.ndarray | None:
+        """The observed values of state component ``c``, or None when it is not observed."""
+        return self.values[:, self.columns[c]] if c in self.columns else None
