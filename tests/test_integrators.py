@@ -12,7 +12,8 @@ from scipy.integrate import solve_ivp
 
 import symplid
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator, make_dynamics
-from symplid.dynamics.trajectory import integrate, propagate, substeps
+from symplid.dynamics.trajectory import integrate, propagate, solve, solve_gaps, substeps
+from symplid.inference.predict import predict_trajectory
 
 OMEGA = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.eye(2), np.zeros((2, 2))]])
 NON_SYMPLECTIC = [name for name, integ in INTEGRATORS.items() if not integ.symplectic]
@@ -206,3 +207,65 @@ def test_leapfrog_with_mass_conserves_its_hamiltonian(hh):
     assert np.max(np.abs(h - h[0])) < 1e-3
     # The identity-mass energy is not conserved along this trajectory: M matters.
     assert np.max(np.abs(h_identity - h_identity[0])) > 1e-2
+
+
+# ---------------------------------------------------------------------------- the one solver
+@pytest.mark.parametrize("name", ["leapfrog", "yoshida4", "rk4"])
+def test_simulate_predict_and_integrate_agree(name, hh, hh_dynamics):
+    """The three ways to integrate a path (simulated truth at observation times, a prediction
+    stored every 50 steps, every state) share one solver: same integrator, same dt, same path."""
+    times = 0.5 * np.arange(1, 11)
+    simulated = symplid.simulate(
+        hh, times=times, noise_std=0.0, dt=0.01, integrator=name
+    ).values
+    t_pred, predicted = predict_trajectory(
+        hh.potential, hh.coefficients, hh.initial_state, 5.0, dt=0.01, integrator=name, every=50
+    )
+    every_state = np.asarray(integrate(name, hh_dynamics, hh.initial_state, 0.01, 500))
+    np.testing.assert_allclose(t_pred[1:], times, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(predicted[1:], simulated, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(every_state[50::50], simulated, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(every_state[0], hh.initial_state)
+
+
+@pytest.mark.parametrize("name", ["leapfrog", "rk2-midpoint"])
+@pytest.mark.parametrize("every", [3, 7, 40])
+def test_solve_every_k_keeps_every_kth_state(name, every, hh_dynamics):
+    full = np.asarray(solve(name, hh_dynamics, POINT, 0.05, 40))
+    sub = np.asarray(solve(name, hh_dynamics, POINT, 0.05, 40, every=every))
+    kept = list(range(0, 41, every)) + ([40] if 40 % every else [])
+    assert sub.shape == (len(kept), 4)
+    np.testing.assert_allclose(sub, full[kept], rtol=0, atol=1e-13)
+
+
+def test_solve_batches_over_leading_axes(hh_dynamics):
+    x0 = POINT + 0.02 * np.arange(12.0).reshape(3, 1, 4) / 12.0  # shape (3, 1, 4)
+    out = np.asarray(solve("yoshida4", hh_dynamics, x0, 0.1, 25, every=4))
+    assert out.shape == (3, 1, 8, 4)
+    for i in range(3):
+        one = np.asarray(solve("yoshida4", hh_dynamics, x0[i, 0], 0.1, 25, every=4))
+        np.testing.assert_allclose(out[i, 0], one, rtol=0, atol=1e-14)
+
+
+def test_solve_gaps_matches_solve_and_its_loop_bounds(hh_dynamics):
+    """Gaps of 4, 4, 4 steps give the stored states of ``solve(every=4)``; a static, masked
+    bound (the likelihood's form) gives the same states as the exact one."""
+    ref = np.asarray(solve("leapfrog", hh_dynamics, POINT, 0.1, 12, every=4))[1:]
+    sizes, steps = np.full(3, 0.1), np.array([4, 4, 4])
+    for kwargs in ({}, {"max_steps": 4, "masked": False}, {"max_steps": 6}):
+        got = np.asarray(solve_gaps("leapfrog", hh_dynamics, POINT, sizes, steps, **kwargs))
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14)
+    # Irregular gaps: each gap's own step, as in the simulated truth.
+    got = np.asarray(solve_gaps("rk4", hh_dynamics, POINT, [0.1, 0.05, 0.2], [2, 3, 1]))
+    x = POINT
+    for h, n in ((0.1, 2), (0.05, 3), (0.2, 1)):
+        x = np.asarray(solve("rk4", hh_dynamics, x, h, n))[-1]
+    np.testing.assert_allclose(got[-1], x, rtol=0, atol=1e-14)
+
+
+def test_solve_rejects_bad_counts(hh_dynamics):
+    with pytest.raises(ValueError, match="every must be an integer ≥ 1"):
+        solve("leapfrog", hh_dynamics, POINT, 0.1, 10, every=0)
+    with pytest.raises(ValueError, match="num_steps must be an integer ≥ 0"):
+        solve("leapfrog", hh_dynamics, POINT, 0.1, 2.5)
+    np.testing.assert_array_equal(solve("leapfrog", hh_dynamics, POINT, 0.1, 0), POINT[None])
