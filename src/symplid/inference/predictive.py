@@ -122,6 +122,7 @@ def resolve_coefficients(model_or_potential: Any, coefficients: Any, mass: Any =
 
 
 def check_state(x0: Any, dim: int, name: str = "x0") -> np.ndarray:
+    """``x0`` as floats, checked to end with the 2d components ``(q, p)`` and to be finite."""
     x0 = np.asarray(x0, dtype=float)
     if x0.shape[-1:] != (2 * dim,):
         raise ValueError(f"{name} must have shape ({2 * dim},) = (q, p), got {x0.shape}")
@@ -201,12 +202,14 @@ def integrate_paths(
 
 
 def key_and_seed(seed: int | Array) -> tuple[Array, int | None]:
+    """A ``jax.random`` key from an int seed (returned too, to record it) or the key given."""
     if isinstance(seed, int | np.integer):
         return jax.random.key(int(seed)), int(seed)
     return seed, None
 
 
 def flatten_draws(draws: np.ndarray) -> np.ndarray:
+    """Draws ``(S, P)`` or ``(chains, draws, P)`` as ``(S, P)``, chain-major; at least one."""
     if draws.ndim < 2:
         raise ValueError(f"draws must have shape (S, P) or (chains, draws, P), got {draws.shape}")
     draws = draws.reshape(-1, draws.shape[-1])
@@ -216,6 +219,7 @@ def flatten_draws(draws: np.ndarray) -> np.ndarray:
 
 
 def positive_int(value: Any, name: str) -> int:
+    """``value`` as an int ≥ 1, or a ValueError naming ``name``."""
     if int(value) != value or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value}")
     return int(value)
