@@ -37,7 +37,7 @@ from symplid.inference.predict import predict_trajectory, prediction_horizon
 from symplid.inference.samplers import draws_array
 from symplid.model.data import Observations
 from symplid.model.simulate import simulate, true_trajectory
-from symplid.plotting.figures import COLORS
+from symplid.plotting import COLORS
 from symplid.plotting.sweep import plot_sweep
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 from symplid.workflow.fit import fit

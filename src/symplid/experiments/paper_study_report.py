@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from symplid.plotting.figures import COLORS, save_figure
+from symplid.plotting import COLORS, save_figure
 from symplid.plotting.sweep import rows_matching, strip_plot
 
 __all__ = ["format_claims_report", "plot_claims"]

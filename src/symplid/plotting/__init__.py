@@ -7,7 +7,8 @@ Every function takes plain arrays or small dataclasses, returns a
 * :mod:`~symplid.plotting.diagnostics`: :func:`plot_traces` (chains), :func:`plot_pair` (corner);
 * :mod:`~symplid.plotting.predictive`: :func:`plot_predictive` (data and predictive band for every
   observed component);
-* :mod:`~symplid.plotting.style`: :data:`COLORS`, :class:`Curves`, :func:`save_figure`.
+* :mod:`~symplid.plotting.style`: :data:`COLORS`, :class:`Curves`, :func:`save_figure`;
+* :mod:`~symplid.plotting.sweep`: a sweep's results table.
 """
 
 from symplid.plotting.diagnostics import plot_pair, plot_traces

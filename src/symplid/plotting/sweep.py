@@ -68,7 +68,7 @@ def plot_sweep(
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    from symplid.plotting.figures import save_figure
+    from symplid.plotting.style import save_figure
 
     ok = table[table["status"] == "ok"]
     settings = list(settings) if settings is not None else _setting_columns(table)
