@@ -36,7 +36,7 @@ from symplid import runtime
 from symplid.inference.predict import posterior_predictive
 from symplid.inference.samplers import draws_array
 from symplid.io import read_observations
-from symplid.plotting.figures import plot_predictive, save_figure
+from symplid.plotting import plot_predictive, save_figure
 from symplid.workflow.compare import compare_models, format_table
 from symplid.workflow.fit import fit
 from symplid.workflow.settings import load_settings

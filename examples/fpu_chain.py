@@ -35,7 +35,7 @@ from matplotlib.figure import Figure
 import symplid
 from symplid import runtime
 from symplid.inference.predict import hamiltonian_along, predict_trajectory, prediction_horizon
-from symplid.plotting.figures import save_figure
+from symplid.plotting import save_figure
 
 T_PREDICT = 80.0
 NOISE = 0.02

@@ -40,7 +40,7 @@ import symplid
 from symplid import runtime
 from symplid.inference.predict import predict_trajectory, prediction_horizon, time_grid
 from symplid.io import positions_only
-from symplid.plotting.figures import (
+from symplid.plotting import (
     Curves,
     plot_phase_portraits,
     plot_trajectory_bands,
