@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from symplid.compiled import cached
+from symplid.inference.cache import cached_or_built
 from symplid.inference.laplace import (
     hessian_function,
     laplace_covariance,
@@ -105,17 +105,11 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
 
     key = ("map-search", space.log.tobytes(), space.lower.tobytes())
     return {
-        "value_and_grad": _cached(posterior, key, build_value_and_grad),
-        "hessian": _cached(posterior, "map-hessian", lambda: hessian_function(with_data, data)),
+        "value_and_grad": cached_or_built(posterior, key, build_value_and_grad),
+        "hessian": cached_or_built(
+            posterior, "map-hessian", lambda: hessian_function(with_data, data)
+        ),
     }
-
-
-def _cached(owner: Any, key: Any, build: Callable[[], Callable]) -> Callable:
-    """:func:`symplid.compiled.cached`, or a fresh build for an owner that cannot keep it."""
-    try:
-        return cached(owner, key, build)
-    except TypeError:
-        return build()
 
 
 class _Objective:
