@@ -19,7 +19,7 @@ TARGETS = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}
 @pytest.fixture(scope="module", params=list(TARGETS))
 def nuts_run(request):
     target = TARGETS[request.param]()
-    idata = sample(target, "nuts", num_samples=1500, num_chains=4, seed=2,
+    idata = sample(target, "nuts", num_draws=1500, num_chains=4, seed=2,
                    init=target.map_result(), burn_in=400, progress=False)
     return target, idata
 
@@ -123,14 +123,14 @@ def test_settings_are_validated(kwargs, message):
 
 def test_pushed_forward_covariance_is_capped_near_a_bound():
     """A MAP variance at 1e-8 with Laplace sd 0.7 would get a log-scale variance of 5e15."""
-    from symplid.inference.samplers.api import MAX_UNCONSTRAINED_VARIANCE, _unconstrained_covariance
+    from symplid.model.params import MAX_UNCONSTRAINED_VARIANCE, pushforward_covariance
 
     target = GammaVariance()
     cov = np.array([[1.0, 0.3], [0.3, 0.5]])
-    capped = _unconstrained_covariance(target, np.array([0.0, 1e-8]), cov)
+    capped = pushforward_covariance(target.to_unconstrained, np.array([0.0, 1e-8]), cov)
     assert capped[0, 0] == 1.0 and capped[1, 1] == pytest.approx(MAX_UNCONSTRAINED_VARIANCE)
     correlation = capped[0, 1] / np.sqrt(capped[0, 0] * capped[1, 1])
     assert correlation == pytest.approx(0.3 / np.sqrt(0.5))
     # Exactly on the bound: the push-forward is infinite; the cap, uncorrelated.
-    on_bound = _unconstrained_covariance(target, np.array([0.0, 0.0]), cov)
+    on_bound = pushforward_covariance(target.to_unconstrained, np.array([0.0, 0.0]), cov)
     np.testing.assert_array_equal(on_bound, np.diag([1.0, MAX_UNCONSTRAINED_VARIANCE]))

@@ -25,7 +25,7 @@ from symplid.inference.samplers import (
 
 az = import_arviz()
 
-RUN = dict(num_samples=600, num_chains=3, seed=7, burn_in=300, progress=False)
+RUN = dict(num_draws=600, num_chains=3, seed=7, burn_in=300, progress=False)
 CHUNK = 300  # one chunk length for every chunked run below, so they share one compilation
 
 
@@ -92,7 +92,7 @@ def test_interrupt_during_burn_in_raises(gaussian):
 
 def test_thinning_keeps_every_kth_iteration(gaussian, reference_run):
     thinned = sample(gaussian, "dram", init=gaussian.map_result(), chunk_size=CHUNK,
-                     **{**RUN, "num_samples": 200, "thin": 3})
+                     **{**RUN, "num_draws": 200, "thin": 3})
     np.testing.assert_array_equal(draws_array(thinned), draws_array(reference_run)[:, 2::3])
     assert thinned.attrs["iterations"] == 300 + 600
 
@@ -200,7 +200,7 @@ class _NoDensity:
     ("kwargs", "error", "message"),
     [
         ({"method": "hmc"}, ValueError, "unknown sampler"),
-        ({"num_samples": 0}, ValueError, "num_samples"),
+        ({"num_draws": 0}, ValueError, "num_draws"),
         ({"num_chains": 1.5}, ValueError, "num_chains"),
         ({"burn_in": -1}, ValueError, "burn_in"),
         ({"init_spread": -1.0}, ValueError, "init_spread"),
@@ -216,7 +216,7 @@ class _NoDensity:
     ],
 )
 def test_bad_arguments_are_named(gaussian, kwargs, error, message):
-    arguments = dict(method="dram", num_samples=10, num_chains=2, seed=0,
+    arguments = dict(method="dram", num_draws=10, num_chains=2, seed=0,
                      init=gaussian.map_result(), progress=False)
     arguments.update(kwargs)
     with pytest.raises(error, match=message):
@@ -238,7 +238,7 @@ def test_init_outside_support_is_refused():
     target = GammaVariance()
     bad = MapResult(np.array([0.0, -1.0]), np.eye(2), np.eye(2), 0.0)
     with pytest.raises(ValueError, match=r"log density at init\.theta is not finite"):
-        sample(target, "dram", num_samples=10, init=bad, progress=False)
+        sample(target, "dram", num_draws=10, init=bad, progress=False)
 
 
 # ---------------------------------------------------------------------------- summary

@@ -47,52 +47,39 @@ gap after t = 0).
 
 from __future__ import annotations
 
-import dataclasses
-import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.model.data import DataError, Observations
-from symplid.model.priors import (
-    Laplace,
-    Normal,
-    Prior,
-    PriorSpec,
-    as_prior,
-    log_density_sum,
+from symplid.compiled import cached, clear
+from symplid.model.data import Observations
+from symplid.model.initial_state import (
+    KNOWN_P0,
+    UNOBSERVED_SCALE_FACTOR,
+    FirstObservation,
+    as_datasets,
+    as_P0,
+    as_x0,
+    first_observation_update,
+    initial_state_prior,
+    per_trajectory,
+    split_first,
+    state_names,
 )
+from symplid.model.params import ParameterSpace
+from symplid.model.priors import Prior, PriorSpec
 
 Array = jax.Array
-
-KNOWN_P0 = 1e-16
-"""Diagonal of P0 for a known (or learned) initial state, as in the model."""
-
-UNOBSERVED_SCALE_FACTOR = 3.0
-"""How much wider the default initial-state prior is for components y_1 does not measure."""
-
-_LOG_2PI = math.log(2.0 * math.pi)
-
-
-class _FirstObservation(NamedTuple):
-    """y_1 of a trajectory whose initial state sits at the first observation time."""
-
-    y: np.ndarray  # observed components of y_1
-    index: np.ndarray  # their positions in y
 
 
 class _Trajectory(NamedTuple):
     leaves: tuple  # array leaves of the model's prepared data
-    first: _FirstObservation | None
+    first: FirstObservation | None
     x0: np.ndarray | None  # known initial state (None when learned)
     P0: np.ndarray  # (n, n)
-
-
-def _state_names(dim: int) -> tuple[str, ...]:
-    return tuple(f"q{i + 1}" for i in range(dim)) + tuple(f"p{i + 1}" for i in range(dim))
 
 
 def _is_array_leaf(leaf: Any) -> bool:
@@ -133,6 +120,9 @@ class Posterior:
 
     Attributes
     ----------
+    space
+        The :class:`~symplid.model.params.ParameterSpace` of θ: names, groups, priors, bounds
+        and the bijectors to the unconstrained space.
     num_params, param_names, param_groups
         Size, names and groups (``coefficients``, ``process_var``, ``obs_var``,
         ``initial_state``) of θ.
@@ -157,58 +147,50 @@ class Posterior:
         initial_state_prior: Any = None,
     ) -> None:
         self.model = model
-        self.data = data
-        self.datasets = _as_datasets(data)
-        self.num_trajectories = len(self.datasets)
+        self.datasets = as_datasets(data)
+        self.num_trajectories = K = len(self.datasets)
         self.learn_initial_state = bool(learn_initial_state)
         self.prior = PriorSpec() if prior is None else PriorSpec.from_dict(prior)
-        n = int(model.state_dim)
-        self.state_dim = n
-        self.state_names = _state_names(n // 2)
-        K = self.num_trajectories
+        self.state_dim = n = int(model.state_dim)
+        self.state_names = state_names(n // 2)
+        self.t0 = per_trajectory(t0, K, "t0")
+        self.P0 = [as_P0(p, n, k) for k, p in enumerate(per_trajectory(P0, K, "P0"))]
+        x0s = as_x0(x0, n, K, required=not self.learn_initial_state)
 
-        self.t0 = _per_trajectory(t0, K, "t0")
-        self.P0 = [_as_P0(p, n, k) for k, p in enumerate(_per_trajectory(P0, K, "P0"))]
-        x0s = _as_x0(x0, n, K, required=not self.learn_initial_state)
+        names, groups = self._layout()
+        self.prior.check_names(names)
+        self._prepare_trajectories(x0s)
+        self.space = ParameterSpace.from_priors(
+            names, groups, self._resolve_priors(names, groups, x0s, initial_state_prior)
+        )
+        self._reference = jnp.asarray(self.space.interior_point())
+        # The observations enter the compiled programs as arguments (``self.data``), not as
+        # constants: the same model structure then compiles to the same program for any data
+        # set of the same shape, which JAX's persistent compilation cache can serve.
+        self.data: tuple[tuple[Array, ...], ...] = tuple(t.leaves for t in self._trajectories)
+        self._groups = self._group_trajectories()
 
-        # ---- layout of θ
-        m = int(model.num_params)
-        self.num_model_params = m
+    # ------------------------------------------------------------------ construction steps
+    def _layout(self) -> tuple[list[str], list[str]]:
+        """Names and groups of θ: the model's parameters, then each learned initial state."""
+        model = self.model
+        self.num_model_params = m = int(model.num_params)
         nc, nq = int(model.num_coefficients), int(model.num_process_noise)
         groups = ["coefficients"] * nc + ["process_var"] * nq + ["obs_var"] * (m - nc - nq)
         names = list(model.param_names)
         if self.learn_initial_state:
-            for k in range(K):
+            for k in range(self.num_trajectories):
                 names += [f"x0[{k}].{s}" for s in self.state_names]
-                groups += ["initial_state"] * n
-        self.param_names: tuple[str, ...] = tuple(names)
-        self.param_groups: tuple[str, ...] = tuple(groups)
-        self.num_params = len(names)
-        self.prior.check_names(self.param_names)
+                groups += ["initial_state"] * self.state_dim
+        return names, groups
 
-        # ---- trajectories: prepared data, the first observation when t0 is None
+    def _prepare_trajectories(self, x0s: list[np.ndarray] | None) -> None:
+        """Each trajectory's prepared data (array leaves and a static key), y_1 when t0=None."""
         self._trajectories: list[_Trajectory] = []
         self._static: list[tuple] = []
         for k, obs in enumerate(self.datasets):
-            first = None
-            if self.t0[k] is None:
-                if obs.num_times < 2:
-                    raise DataError(
-                        f"trajectory {k} has one observation: with t0=None the initial state "
-                        "sits at it and at least one more observation is needed"
-                    )
-                mask = obs.mask[0]
-                first = _FirstObservation(obs.values[0][mask], np.flatnonzero(mask))
-                rest, start = obs.subset(slice(1, None)), float(obs.times[0])
-            else:
-                rest, start = obs, float(self.t0[k])
-                if not start < obs.times[0]:
-                    raise DataError(
-                        f"trajectory {k}: t0 = {start:g} must be before its first observation "
-                        f"time {obs.times[0]:g} (or pass t0=None to put the initial state there)"
-                    )
-            prepared = model.prepare(rest, start)
-            leaves, treedef = jax.tree_util.tree_flatten(prepared)
+            rest, start, first = split_first(obs, self.t0[k], k)
+            leaves, treedef = jax.tree_util.tree_flatten(self.model.prepare(rest, start))
             arrays = tuple(jnp.asarray(v) for v in leaves if _is_array_leaf(v))
             static = tuple((i, v) for i, v in enumerate(leaves) if not _is_array_leaf(v))
             key = (treedef, static, tuple((a.shape, a.dtype) for a in arrays), first is None)
@@ -217,94 +199,27 @@ class Posterior:
                 _Trajectory(arrays, first, None if x0s is None else x0s[k], self.P0[k])
             )
 
-        # ---- priors and bounds
+    def _resolve_priors(
+        self, names: list[str], groups: list[str], x0s: list[np.ndarray] | None, spec: Any
+    ) -> list[Prior]:
+        """The absolute prior of every entry of θ (group priors, per-name overrides)."""
+        m = self.num_model_params
+        priors = [
+            self.prior.overrides.get(name) or self.prior.group_prior(group)
+            for name, group in zip(names[:m], groups[:m], strict=True)
+        ]
         self._x0_centres: list[np.ndarray] = []
-        priors: list[Prior] = []
-        for name, group in zip(self.param_names[:m], groups[:m], strict=True):
-            priors.append(self.prior.overrides.get(name) or self.prior.group_prior(group))
-        if self.learn_initial_state:
-            for k in range(K):
-                centre, comp = self._initial_state_priors(k, x0s, initial_state_prior)
-                self._x0_centres.append(centre)
-                for i, p in enumerate(comp):
-                    name = f"x0[{k}].{self.state_names[i]}"
-                    priors.append(self.prior.overrides.get(name) or p)
-        self.priors: tuple[Prior, ...] = tuple(priors)
-        lower, upper = [], []
-        for name, group, p in zip(self.param_names, groups, priors, strict=True):
-            lo, hi = p.support
-            if group in ("process_var", "obs_var"):
-                lo = max(lo, 0.0)
-            if not lo < hi:
-                raise ValueError(f"the prior of {name!r} ({p}) gives it no positive values")
-            lower.append(lo)
-            upper.append(hi)
-        self.lower = np.array(lower, dtype=float)
-        self.upper = np.array(upper, dtype=float)
-        self._reference = jnp.asarray(self._interior_point())
-
-        # ---- compiled functions
-        # The observations enter the compiled programs as arguments (``self.data``), not as
-        # constants: the same model structure then compiles to the same program for any data
-        # set of the same shape, which JAX's persistent compilation cache can serve.
-        self.data: tuple[tuple[Array, ...], ...] = tuple(t.leaves for t in self._trajectories)
-        self._groups = self._group_trajectories()
-        self.log_prior: Callable[[Array], Array] = jax.jit(self._log_prior)
-        self._with_data = {
-            "log_likelihood": jax.jit(lambda data, t: self._log_likelihood(t, data)),
-            "log_density": jax.jit(lambda data, t: self._log_density(t, data)),
-            "log_density_unconstrained": jax.jit(
-                lambda data, z: self._log_density_unconstrained(z, data)
-            ),
-        }
-        self._vg_cache: dict[str, Callable] = {}
-
-    # ------------------------------------------------------------------ construction helpers
-    def _initial_state_priors(
-        self, k: int, x0s: list[np.ndarray] | None, spec: Any
-    ) -> tuple[np.ndarray, list[Prior]]:
-        """Centre and absolute per-component priors of trajectory k's initial state."""
-        n = self.state_dim
-        obs = self.datasets[k]
-        if x0s is not None:
-            centre, measured = np.asarray(x0s[k], dtype=float), np.ones(n, dtype=bool)
-        else:
-            centre, measured = _centre_from_first(self.model, obs, n)
-        offsets: list[Prior]
+        if not self.learn_initial_state:
+            return priors
         if spec is None and self.prior.initial_state is not None:
             spec = self.prior.initial_state
-        if spec is None or isinstance(spec, int | float | np.number):
-            s = _data_scale(obs) if spec is None else float(spec)
-            if not (math.isfinite(s) and s > 0):
-                raise ValueError(f"initial_state_prior: a scale must be > 0, got {spec!r}")
-            offsets = [Normal(0.0, s if m else UNOBSERVED_SCALE_FACTOR * s) for m in measured]
-        elif isinstance(spec, Sequence) and not isinstance(spec, str | Mapping):
-            if len(spec) != n:
-                raise ValueError(
-                    f"initial_state_prior: {len(spec)} priors given for a {n}-component state "
-                    f"({', '.join(self.state_names)})"
-                )
-            offsets = [_offset_prior(as_prior(p, "initial_state_prior")) for p in spec]
-        else:
-            base = _offset_prior(as_prior(spec, "initial_state_prior"))
-            wide = dataclasses.replace(base, scale=UNOBSERVED_SCALE_FACTOR * base.scale)
-            offsets = [base if m else wide for m in measured]
-        return centre, [_shift(p, c) for p, c in zip(offsets, centre, strict=True)]
-
-    def _interior_point(self) -> np.ndarray:
-        """A point strictly inside the bounds (prior medians, pulled inside when needed)."""
-        out = np.empty(self.num_params)
-        for i, p in enumerate(self.priors):
-            lo, hi = self.lower[i], self.upper[i]
-            v = p.median
-            if np.isfinite(lo) and np.isfinite(hi):
-                v = min(max(v, lo + 0.25 * (hi - lo)), hi - 0.25 * (hi - lo))
-            elif np.isfinite(lo):
-                v = max(v, lo + max(p.std, 1e-3))
-            elif np.isfinite(hi):
-                v = min(v, hi - max(p.std, 1e-3))
-            out[i] = v
-        return out
+        for k, obs in enumerate(self.datasets):
+            x0 = None if x0s is None else x0s[k]
+            centre, comp = initial_state_prior(self.model, obs, x0, spec, self.state_names)
+            self._x0_centres.append(centre)
+            for i, p in enumerate(comp):
+                priors.append(self.prior.overrides.get(f"x0[{k}].{self.state_names[i]}") or p)
+        return priors
 
     def _group_trajectories(self) -> list[tuple[list[int], Any, int]]:
         """Trajectories with identical shapes are stacked and vmapped through one filter."""
@@ -313,7 +228,44 @@ class Posterior:
             groups.setdefault(key, []).append(k)
         return [(ks, key, self._static[ks[0]][1]) for key, ks in groups.items()]
 
-    # ------------------------------------------------------------------ pieces of θ
+    # ------------------------------------------------------------------ the layout of θ
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return self.space.names
+
+    @property
+    def param_groups(self) -> tuple[str, ...]:
+        return self.space.groups
+
+    @property
+    def num_params(self) -> int:
+        return self.space.size
+
+    @property
+    def priors(self) -> tuple[Prior, ...]:
+        return self.space.priors  # type: ignore[return-value]
+
+    @property
+    def lower(self) -> np.ndarray:
+        return self.space.lower
+
+    @lower.setter
+    def lower(self, value: Any) -> None:
+        self._set_bounds(value, self.upper)
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self.space.upper
+
+    @upper.setter
+    def upper(self, value: Any) -> None:
+        self._set_bounds(self.lower, value)
+
+    def _set_bounds(self, lower: Any, upper: Any) -> None:
+        """New bounds for θ (the priors stay); what was compiled for the old ones is dropped."""
+        self.space = self.space.with_bounds(lower, upper)
+        clear(self)
+
     def model_theta(self, theta: Array) -> Array:
         """The model's parameters (coefficients, variances): the first ``num_model_params``."""
         return jnp.asarray(theta)[..., : self.num_model_params]
@@ -333,43 +285,36 @@ class Posterior:
             return jnp.asarray(theta)[..., self.initial_state_slice(k)]
         return jnp.asarray(self._trajectories[k].x0)
 
+    # ------------------------------------------------------------------ public densities
+    def log_likelihood(self, theta: Array) -> Array:
+        """Σ_k log p(y^(k) | θ) over the trajectories (Theorem 1); jit/vmap/grad-able."""
+        return self._jitted("log_likelihood", self._log_likelihood)(theta, self.data)
+
+    def log_density(self, theta: Array) -> Array:
+        """log prior + log likelihood; −∞ outside the bounds or when the filter fails."""
+        return self._jitted("log_density", self._log_density)(theta, self.data)
+
+    def log_density_unconstrained(self, z: Array) -> Array:
+        """The log density of z = to_unconstrained(θ), log-Jacobian included."""
+        fn = self._jitted("log_density_unconstrained", self._log_density_unconstrained)
+        return fn(z, self.data)
+
+    def log_prior(self, theta: Array) -> Array:
+        """Σ log π_i(θ_i) over the parameters; −∞ outside the bounds."""
+        return cached(self, "log_prior", lambda: jax.jit(self._log_prior))(theta)
+
+    def log_density_with(self, data: Any, theta: Array) -> Array:
+        """:meth:`log_density` with the observations passed in (``data`` like ``self.data``).
+
+        Jitting a function of ``(θ, data)`` rather than of θ alone keeps the data out of the
+        compiled program as constants (see the constructor).
+        """
+        return self._log_density(theta, data)
+
+    def _jitted(self, name: str, fn: Any) -> Any:
+        return cached(self, name, lambda: jax.jit(fn))
+
     # ------------------------------------------------------------------ densities
-    def _first_update(
-        self, model_theta: Array, first: _FirstObservation, x0: Array, P0: Array
-    ) -> tuple[Array, Array, Array]:
-        """Condition N(x0, P0) on y_1 (Kalman update): (mean, covariance, log p(y_1))."""
-        idx = first.index
-        if idx.size == 0:
-            return x0, P0, jnp.zeros(())
-        matrix = self.model.observation_matrix
-        if matrix is not None:
-            H = jnp.asarray(np.asarray(matrix)[idx])
-            y_hat = H @ x0
-        else:
-            observe = self.model.observation
-
-            def h(x: Array) -> Array:
-                return jnp.ravel(observe(x))[idx]
-
-            y_hat = h(x0)
-            H = jax.jacfwd(h)(x0)
-        _, _, obs_cov = self.model.split(model_theta)
-        R = obs_cov[np.ix_(idx, idx)]
-        cross = P0 @ H.T
-        S = H @ cross + R
-        S = 0.5 * (S + S.T)
-        chol = jnp.linalg.cholesky(S)
-        v = jnp.asarray(first.y) - y_hat
-        w = jax.scipy.linalg.solve_triangular(chol, v, lower=True)
-        log_lik = (
-            -0.5 * jnp.sum(w * w) - jnp.sum(jnp.log(jnp.diagonal(chol))) - 0.5 * idx.size * _LOG_2PI
-        )
-        gain = jax.scipy.linalg.cho_solve((chol, True), cross.T).T
-        mean = x0 + gain @ v
-        A = jnp.eye(self.state_dim) - gain @ H
-        cov = A @ P0 @ A.T + gain @ R @ gain.T  # Joseph form: stays positive semi-definite
-        return mean, 0.5 * (cov + cov.T), log_lik
-
     def _trajectory_loglik(self, model_theta: Array, arrays, x0, P0, key, num_leaves, first):
         treedef, static = key[0], key[1]
         leaves: list[Any] = [None] * num_leaves
@@ -380,29 +325,8 @@ class Posterior:
         prepared = jax.tree_util.tree_unflatten(treedef, leaves)
         extra = jnp.zeros(())
         if first is not None:
-            x0, P0, extra = self._first_update(model_theta, first, x0, P0)
+            x0, P0, extra = first_observation_update(self.model, model_theta, first, x0, P0)
         return self.model.log_likelihood(model_theta, prepared, x0, P0) + extra
-
-    # ------------------------------------------------------------------ public densities
-    def log_likelihood(self, theta: Array) -> Array:
-        """Σ_k log p(y^(k) | θ) over the trajectories (Theorem 1); jit/vmap/grad-able."""
-        return self._with_data["log_likelihood"](self.data, theta)
-
-    def log_density(self, theta: Array) -> Array:
-        """log prior + log likelihood; −∞ outside the bounds or when the filter fails."""
-        return self._with_data["log_density"](self.data, theta)
-
-    def log_density_unconstrained(self, z: Array) -> Array:
-        """The log density of z = to_unconstrained(θ), log-Jacobian included."""
-        return self._with_data["log_density_unconstrained"](self.data, z)
-
-    def log_density_with(self, data: Any, theta: Array) -> Array:
-        """:meth:`log_density` with the observations passed in (``data`` like ``self.data``).
-
-        Jitting a function of ``(θ, data)`` rather than of θ alone keeps the data out of the
-        compiled program as constants (see the constructor).
-        """
-        return self._log_density(theta, data)
 
     def _leaves(self, k: int, data: Any) -> Any:
         return self._trajectories[k].leaves if data is None else data[k]
@@ -418,15 +342,9 @@ class Posterior:
             firsts = [self._trajectories[k].first for k in ks]
             if len(ks) == 1 or any(f is not None for f in firsts):
                 for j, k in enumerate(ks):
-                    traj = self._trajectories[k]
                     total = total + self._trajectory_loglik(
-                        model_theta,
-                        self._leaves(k, data),
-                        x0s[j],
-                        P0s[j],
-                        key,
-                        num_leaves,
-                        traj.first,
+                        model_theta, self._leaves(k, data), x0s[j], P0s[j], key, num_leaves,
+                        firsts[j],
                     )
                 continue
             stacked = tuple(
@@ -440,14 +358,12 @@ class Posterior:
         return jnp.where(jnp.isnan(total), -jnp.inf, total)
 
     def _in_bounds(self, theta: Array) -> Array:
-        return jnp.all((theta >= self.lower) & (theta <= self.upper), axis=-1)
+        return self.space.in_bounds(theta)
 
     def _log_prior(self, theta: Array) -> Array:
         theta = jnp.asarray(theta, dtype=float)
         self._check_theta(theta)
-        lp = log_density_sum(self.priors, theta)
-        lp = jnp.where(self._in_bounds(theta), lp, -jnp.inf)
-        return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
+        return self.space.log_prior(theta)
 
     def _log_density(self, theta: Array, data: Any = None) -> Array:
         theta = jnp.asarray(theta, dtype=float)
@@ -468,57 +384,32 @@ class Posterior:
             )
 
     # ------------------------------------------------------------------ unconstrained space
-    def _kinds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        lo_f, hi_f = np.isfinite(self.lower), np.isfinite(self.upper)
-        return lo_f & ~hi_f, ~lo_f & hi_f, lo_f & hi_f, ~lo_f & ~hi_f
-
     def from_unconstrained(self, z: Array) -> Array:
-        """z ∈ ℝᵈ ↦ θ: a + eᶻ, b − eᶻ, a + (b − a)·σ(z) or z, by each parameter's bounds."""
-        z = jnp.asarray(z, dtype=float)
-        lower_only, upper_only, both, _ = self._kinds()
-        lo = np.where(np.isfinite(self.lower), self.lower, 0.0)
-        hi = np.where(np.isfinite(self.upper), self.upper, 0.0)
-        ez = jnp.exp(jnp.where(lower_only | upper_only, z, 0.0))
-        theta = jnp.where(lower_only, lo + ez, z)
-        theta = jnp.where(upper_only, hi - ez, theta)
-        return jnp.where(both, lo + (hi - lo) * jax.nn.sigmoid(z), theta)
+        """z ∈ ℝᵈ ↦ θ by each parameter's bijector (:class:`~.params.ParameterSpace`)."""
+        return self.space.from_unconstrained(z)
 
     def to_unconstrained(self, theta: Array) -> Array:
         """θ ↦ z, the inverse of :meth:`from_unconstrained` (±∞ on a bound)."""
-        theta = jnp.asarray(theta, dtype=float)
-        lower_only, upper_only, both, _ = self._kinds()
-        lo = np.where(np.isfinite(self.lower), self.lower, 0.0)
-        hi = np.where(np.isfinite(self.upper), self.upper, 0.0)
-        width = np.where(both, hi - lo, 1.0)
-        z = jnp.where(lower_only, jnp.log(jnp.where(lower_only, theta - lo, 1.0)), theta)
-        z = jnp.where(upper_only, jnp.log(jnp.where(upper_only, hi - theta, 1.0)), z)
-        u = jnp.where(both, (theta - lo) / width, 0.5)
-        return jnp.where(both, jnp.log(u) - jnp.log1p(-u), z)
+        return self.space.to_unconstrained(theta)
 
     def log_abs_det_jacobian(self, z: Array) -> Array:
         """log |det ∂θ/∂z| of :meth:`from_unconstrained` (a sum over the parameters)."""
-        z = jnp.asarray(z, dtype=float)
-        lower_only, upper_only, both, _ = self._kinds()
-        width = np.where(both, self.upper - self.lower, 1.0)
-        terms = jnp.where(lower_only | upper_only, z, 0.0)
-        logistic = np.log(width) - jax.nn.softplus(z) - jax.nn.softplus(-z)
-        terms = jnp.where(both, logistic, terms)
-        return jnp.sum(terms, axis=-1)
+        return self.space.log_abs_det_jacobian(z)
 
     def _log_density_unconstrained(self, z: Array, data: Any = None) -> Array:
         z = jnp.asarray(z, dtype=float)
-        total = self._log_density(self.from_unconstrained(z), data) + self.log_abs_det_jacobian(z)
+        space = self.space
+        total = self._log_density(space.from_unconstrained(z), data)
+        total = total + space.log_abs_det_jacobian(z)
         return jnp.where(jnp.isnan(total), -jnp.inf, total)
 
     # ------------------------------------------------------------------ conveniences
-    def value_and_grad(self, unconstrained: bool = False) -> Callable[[Array], tuple[Array, Array]]:
+    def value_and_grad(self, unconstrained: bool = False) -> Any:
         """A jitted ``θ ↦ (log density, gradient)`` (or of z), compiled once and cached."""
-        key = "z" if unconstrained else "theta"
-        if key not in self._vg_cache:
-            fn = self._log_density_unconstrained if unconstrained else self._log_density
-            jitted = jax.jit(jax.value_and_grad(fn))
-            self._vg_cache[key] = lambda x: jitted(x, self.data)
-        return self._vg_cache[key]
+        fn = self._log_density_unconstrained if unconstrained else self._log_density
+        jitted = cached(self, ("value_and_grad", bool(unconstrained)),
+                        lambda: jax.jit(jax.value_and_grad(fn)))
+        return lambda x: jitted(x, self.data)
 
     def sample_prior(self, key: Array, num: int) -> np.ndarray:
         """``num`` draws from the independent priors, clipped into the bounds, ``(num, d)``."""
@@ -551,129 +442,6 @@ class Posterior:
             f"Posterior({self.num_params} parameters, {self.num_trajectories} "
             f"trajectory(ies){learned})"
         )
-
-
-# ---------------------------------------------------------------------------- helpers
-def _as_datasets(data: Any) -> tuple[Observations, ...]:
-    if isinstance(data, Observations):
-        return (data,)
-    if isinstance(data, Sequence) and not isinstance(data, str):
-        out = tuple(data)
-        if not out:
-            raise DataError("data is an empty list: give at least one Observations")
-        for k, obs in enumerate(out):
-            if not isinstance(obs, Observations):
-                raise TypeError(
-                    f"data[{k}] must be a symplid.Observations, got {type(obs).__name__}"
-                )
-        return out
-    raise TypeError(f"data must be an Observations or a list of them, got {type(data).__name__}")
-
-
-def _per_trajectory(value: Any, K: int, name: str) -> list[Any]:
-    """A shared value, or a list/tuple with one entry per trajectory (when K > 1)."""
-    if K > 1 and isinstance(value, list | tuple):
-        if len(value) != K:
-            raise ValueError(f"{name}: {len(value)} entries given for {K} trajectories")
-        return list(value)
-    if K == 1 and isinstance(value, list | tuple) and name == "t0" and len(value) == 1:
-        return list(value)
-    return [value] * K
-
-
-def _as_P0(value: Any, n: int, k: int) -> np.ndarray:
-    if value is None:
-        return KNOWN_P0 * np.eye(n)
-    P0 = np.asarray(value, dtype=float)
-    if P0.ndim == 0:
-        P0 = float(P0) * np.eye(n)
-    elif P0.ndim == 1:
-        if P0.shape != (n,):
-            raise ValueError(
-                f"P0 of trajectory {k}: a diagonal must have {n} entries, got {P0.shape}"
-            )
-        P0 = np.diag(P0)
-    if P0.shape != (n, n):
-        raise ValueError(f"P0 of trajectory {k} must be ({n}, {n}), got {P0.shape}")
-    if not np.all(np.isfinite(P0)) or not np.allclose(P0, P0.T):
-        raise ValueError(f"P0 of trajectory {k} must be finite and symmetric")
-    if np.min(np.linalg.eigvalsh(P0)) < 0:
-        raise ValueError(f"P0 of trajectory {k} must be positive semi-definite")
-    return P0
-
-
-def _as_x0(value: Any, n: int, K: int, required: bool) -> list[np.ndarray] | None:
-    if value is None:
-        if required:
-            raise ValueError(
-                "x0 is required when the initial state is known: pass x0=... "
-                "(or learn_initial_state=True to learn it)"
-            )
-        return None
-    if K > 1 and isinstance(value, list | tuple) and len(value) == K:
-        arrays = [np.asarray(v, dtype=float) for v in value]
-    else:
-        arr = np.asarray(value, dtype=float)
-        if arr.ndim == 1 and K == 1:
-            arrays = [arr]
-        elif arr.ndim == 2 and arr.shape[0] == K:
-            arrays = list(arr)
-        else:
-            raise ValueError(
-                f"x0 must have shape ({n},) for one trajectory or ({K}, {n}) for {K}, "
-                f"got {arr.shape}"
-            )
-    for k, a in enumerate(arrays):
-        if a.shape != (n,):
-            raise ValueError(f"x0 of trajectory {k} must have shape ({n},), got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"x0 of trajectory {k} must be finite, got {a}")
-    return arrays
-
-
-def _centre_from_first(model: Any, obs: Observations, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Prior centre of x0 from y_1, and which components y_1 measures directly."""
-    matrix = model.observation_matrix
-    measured = np.zeros(n, dtype=bool)
-    centre = np.zeros(n)
-    if matrix is None:
-        return centre, measured
-    H = np.asarray(matrix, dtype=float)
-    mask = obs.mask[0]
-    H, y = H[mask], obs.values[0][mask]
-    if H.shape[0] == 0:
-        return centre, measured
-    centre = np.linalg.pinv(H) @ y
-    for j in range(H.shape[0]):
-        nz = np.flatnonzero(H[j])
-        if nz.size == 1:
-            i = nz[0]
-            centre[i] = y[j] / H[j, i]
-            measured[i] = True
-    return centre, measured
-
-
-def _data_scale(obs: Observations) -> float:
-    """The largest standard deviation over time of an observed component (1 if undefined)."""
-    with np.errstate(all="ignore"):
-        counts = np.sum(obs.mask, axis=0)
-        values = np.where(obs.mask, obs.values, np.nan)
-        stds = [np.nanstd(values[:, j]) for j in range(obs.dim) if counts[j] >= 2]
-    s = max(stds) if stds else float("nan")
-    return float(s) if np.isfinite(s) and s > 0 else 1.0
-
-
-def _offset_prior(prior: Prior) -> Normal | Laplace:
-    if not isinstance(prior, Normal | Laplace):
-        raise ValueError(
-            "initial_state_prior: the prior of the offset from the first observation must be "
-            f"normal or laplace (any real value), got {prior}"
-        )
-    return prior
-
-
-def _shift(prior: Prior, centre: float) -> Prior:
-    return dataclasses.replace(prior, loc=prior.loc + float(centre))  # type: ignore[attr-defined]
 
 
 __all__ = ["KNOWN_P0", "UNOBSERVED_SCALE_FACTOR", "Posterior"]

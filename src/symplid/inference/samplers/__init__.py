@@ -1,20 +1,22 @@
-"""Posterior samplers: DRAM (the paper's), NUTS (BlackJAX) and the chunked multi-chain runner.
+"""Posterior samplers: DRAM (the paper's), NUTS (BlackJAX), the registry and the chunked runner.
 
 Each sampler is a pair of pure functions in the BlackJAX style, ``init`` and a ``step``
 built by ``build_kernel(logdensity_fn, settings)``; :func:`run_chains` drives any such
 kernel in compiled chunks over several chains, and :func:`sample` puts it all together and
 returns ArviZ ``InferenceData``.
 
-Adding a sampler: write ``samplers/<name>.py`` with ``init``/``build_kernel`` (a
-``step(rng_key, state) -> (state, info)``), then a ``_run_<name>`` in ``samplers/api.py``
-that builds the chain states and says which state/info fields to record.
+Adding a sampler is one registration in :data:`SAMPLERS`: a :class:`SamplerSpec` with the
+settings class and a ``build(posterior, settings, num_warmup, batch_logdensity)`` that returns
+a :class:`SamplerKernel` (``init_states``, ``step``, ``record``, ``final_attrs``); see
+:mod:`symplid.inference.samplers.registry`. ``sample``, the settings file, the command line
+and the sweeps then offer it by name.
 """
 
 from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.api import draws_array, overdispersed_starts, sample
 from symplid.inference.samplers.dram import DRAMInfo, DRAMSettings, DRAMState
 from symplid.inference.samplers.nuts import NUTSSettings, NUTSState
-from symplid.inference.samplers.registry import SAMPLERS
+from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
 from symplid.inference.samplers.run import ChainRun, ChunkReport, SamplingInterrupted, run_chains
 
 __all__ = [
@@ -26,6 +28,8 @@ __all__ = [
     "DRAMState",
     "NUTSSettings",
     "NUTSState",
+    "SamplerKernel",
+    "SamplerSpec",
     "SamplingInterrupted",
     "dram",
     "draws_array",

@@ -1,12 +1,184 @@
-"""The sampler registry: every MCMC method ``sample`` can run, by name."""
+"""The sampler registry: every MCMC method :func:`~symplid.inference.samplers.sample` can run.
+
+A sampler is registered once, as a :class:`SamplerSpec`: its settings class, how its chains
+are laid out by default, whether it moves in the unconstrained space of the posterior, how
+long its default burn-in is, and a ``build`` function that returns the pieces the runner
+needs (:class:`SamplerKernel`: ``init_states``, ``step``, ``record`` and ``final_attrs``).
+``sample``, the settings file, the command line and the sweeps read the names from
+:data:`SAMPLERS`, so a sampler registered from anywhere (a test, a notebook) is usable at once::
+
+    SAMPLERS.register("my-mh", SamplerSpec(MySettings, build_my_mh))
+
+``build(posterior, settings, num_warmup, batch_logdensity)`` receives the posterior, an
+instance of the settings class, the number of warm-up iterations (the burn-in when the
+sampler ``adapts_during_burn_in``, else 0) and the posterior's log density vectorised over
+chains (compiled already for the starting points). The kernel it returns must follow the
+BlackJAX convention ``step(rng_key, state) -> (state, info)`` for **one** chain;
+``init_states(thetas, cov)`` gets the starting points ``(num_chains, d)`` in θ and the MAP
+covariance (pushed to the unconstrained space when ``unconstrained``) and returns the states
+stacked over chains; ``record(state, info)`` returns the arrays kept per draw, among them
+``"theta"`` (θ, constrained) and ``"lp"`` (log density of θ); ``final_attrs(states)`` the
+JSON-ready attributes stored with the draws.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
 from symplid.registry import Registry
 
-SAMPLERS: Registry = Registry("sampler")
-"""Sampler name → its settings class (DRAM, the paper's; NUTS through BlackJAX)."""
-SAMPLERS.register("dram", DRAMSettings)
-SAMPLERS.register("nuts", NUTSSettings)
+Array = jax.Array
+
+
+class SamplerKernel(NamedTuple):
+    """The pieces of one sampler built for one posterior and one set of settings."""
+
+    init_states: Callable[[Array, Array], Any]
+    step: Callable[[Array, Any], tuple[Any, Any]]
+    record: Callable[[Any, Any], dict[str, Array]]
+    final_attrs: Callable[[Any], dict[str, Any]]
+
+
+def half_the_run(num_draws: int, thin: int) -> int:
+    """Default burn-in of as many iterations as are kept (the paper's 100,000 of 200,000)."""
+    return int(num_draws) * int(thin)
+
+
+def fixed_warmup(num_draws: int, thin: int) -> int:
+    """Default burn-in of 1000 warm-up (adaptation) iterations."""
+    return 1000
+
+
+@dataclass(frozen=True)
+class SamplerSpec:
+    """Everything :func:`~symplid.inference.samplers.sample` needs to know about a sampler.
+
+    Parameters
+    ----------
+    settings_class
+        A (frozen, hashable) dataclass of the kernel's static settings; ``sample(settings=)``
+        takes an instance or a dict of its fields.
+    build
+        ``build(posterior, settings, num_warmup, batch_logdensity) -> SamplerKernel``.
+    default_chain_method
+        ``"vectorized"`` or ``"sequential"`` (see :func:`~.run.run_chains`).
+    unconstrained
+        Whether the chains move in the unconstrained space (the posterior must then have
+        ``to_unconstrained``, ``from_unconstrained`` and ``log_density_unconstrained``).
+    adapts_during_burn_in
+        Whether the kernel adapts during the burn-in (then ``build`` gets it as
+        ``num_warmup``; otherwise 0, and one compiled kernel serves every burn-in).
+    default_burn_in
+        ``(num_draws, thin) -> burn_in`` when ``sample(burn_in=None)``.
+    description
+        One line for help texts.
+    """
+
+    settings_class: type
+    build: Callable[[Any, Any, int, Callable], SamplerKernel]
+    default_chain_method: str = "vectorized"
+    unconstrained: bool = False
+    adapts_during_burn_in: bool = False
+    default_burn_in: Callable[[int, int], int] = half_the_run
+    description: str = ""
+
+
+def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
+               batch_logdensity: Callable) -> SamplerKernel:
+    """DRAM in θ, from the MAP covariance (the paper's sampler)."""
+    logdensity_fn = posterior.log_density
+
+    @jax.jit
+    def init_from_values(thetas, cov, values):
+        return jax.vmap(
+            lambda p, value: dram.init(p, logdensity_fn, cov, settings, logdensity=value)
+        )(thetas, values)
+
+    def init_states(thetas, cov):
+        # The log densities come from the batch function, already compiled for the starts.
+        return init_from_values(thetas, cov, batch_logdensity(thetas))
+
+    def record(state: dram.DRAMState, info: dram.DRAMInfo) -> dict[str, Array]:
+        return {
+            "theta": state.position,
+            "lp": state.logdensity,
+            "accepted": info.is_accepted,
+            "stage1_accepted": info.stage1_accepted,
+            "stage2_attempted": info.stage2_attempted,
+            "stage2_accepted": info.stage2_accepted,
+        }
+
+    def final_attrs(states: dram.DRAMState) -> dict[str, Any]:
+        return {"dram_adapted_covariance": np.asarray(states.cov).tolist()}
+
+    return SamplerKernel(init_states, dram.build_kernel(logdensity_fn, settings), record,
+                         final_attrs)
+
+
+def build_nuts(posterior: Any, settings: NUTSSettings, num_warmup: int,
+               batch_logdensity: Callable) -> SamplerKernel:
+    """NUTS (BlackJAX) in z = to_unconstrained(θ), adapting during the warm-up."""
+    logdensity_z = posterior.log_density_unconstrained
+    from_z = posterior.from_unconstrained
+    to_z = posterior.to_unconstrained
+
+    @jax.jit
+    def init_states(thetas, cov_z):
+        return jax.vmap(lambda t: nuts.init(to_z(t), logdensity_z, cov_z, settings))(thetas)
+
+    def record(state: nuts.NUTSState, info) -> dict[str, Array]:
+        z = state.hmc.position
+        log_det = jnp.linalg.slogdet(jax.jacfwd(from_z)(z))[1]
+        return {
+            "theta": from_z(z),
+            "lp": state.hmc.logdensity - log_det,
+            "acceptance_rate": info.acceptance_rate,
+            "diverging": info.is_divergent,
+            "n_steps": info.num_integration_steps,
+            "tree_depth": info.num_trajectory_expansions,
+            "energy": info.energy,
+            "step_size": state.step_size,
+        }
+
+    def final_attrs(states: nuts.NUTSState) -> dict[str, Any]:
+        return {
+            "nuts_step_size": np.asarray(states.step_size).tolist(),
+            "nuts_inverse_mass_matrix": np.asarray(states.inverse_mass_matrix).tolist(),
+        }
+
+    return SamplerKernel(init_states, nuts.build_kernel(logdensity_z, settings, num_warmup),
+                         record, final_attrs)
+
+
+SAMPLERS: Registry[SamplerSpec] = Registry("sampler")
+"""Sampler name → its :class:`SamplerSpec` (DRAM, the paper's; NUTS through BlackJAX)."""
+SAMPLERS.register(
+    "dram",
+    SamplerSpec(DRAMSettings, build_dram, description="delayed-rejection adaptive Metropolis "
+                "(the paper's), in θ"),
+)
+SAMPLERS.register(
+    "nuts",
+    SamplerSpec(NUTSSettings, build_nuts, default_chain_method="sequential", unconstrained=True,
+                adapts_during_burn_in=True, default_burn_in=fixed_warmup,
+                description="the No-U-Turn sampler (BlackJAX), in the unconstrained space"),
+)
+
+__all__ = [
+    "SAMPLERS",
+    "SamplerKernel",
+    "SamplerSpec",
+    "build_dram",
+    "build_nuts",
+    "fixed_warmup",
+    "half_the_run",
+]

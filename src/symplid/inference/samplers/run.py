@@ -1,6 +1,6 @@
 """Chunked, multi-chain driver for any ``step(rng_key, state) -> (state, info)`` kernel.
 
-A run of ``burn_in + num_samples·thin`` iterations is cut into chunks of ``chunk_size``
+A run of ``burn_in + num_draws·thin`` iterations is cut into chunks of ``chunk_size``
 iterations. Each chunk is **one** compiled ``lax.scan`` over iterations whose body advances
 all chains at once (``vmap``), or, for ``chain_method="sequential"``, one chain (the same
 compiled one-chain chunk is then called for each chain in turn, which compiles faster than
@@ -13,14 +13,14 @@ Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c],
 the kernel, not on the chunk size, and an interrupted run is a prefix of the full run.
 Every chunk has the same length (``total`` is split into equal chunks of at most
 ``chunk_size``; the few iterations the last chunk has too many are computed and discarded),
-so a run compiles exactly once; the compiled chunk is cached on the
-``(step, record)`` function objects, so a second run of the same kernel does not compile.
+so a run compiles exactly once; the compiled chunk is kept on the ``step`` function object
+(:func:`symplid.compiled.cached`, keyed by ``record`` and the chunk's shape), so a second run
+of the same kernel does not compile, and nothing outlives the kernel.
 A single chain runs unbatched.
 """
 
 from __future__ import annotations
 
-import functools
 import time
 import warnings
 from collections.abc import Callable
@@ -30,6 +30,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+
+from symplid.inference.cache import cached_or_built
 
 __all__ = ["ChainRun", "ChunkReport", "SamplingInterrupted", "run_chains"]
 
@@ -106,13 +108,18 @@ def _over_chains(fn: Callable, batched: bool) -> Callable:
     return single
 
 
-@functools.lru_cache(maxsize=8)
 def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
+    """One compiled chunk (:func:`_compile_chunk`), kept on ``step`` so that running the
+    same kernel again (another seed, more draws) reuses it."""
+    return cached_or_built(step, ("chunk", record, chunk_len, batched),
+                           lambda: _compile_chunk(step, record, chunk_len, batched))
+
+
+def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
     """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` count.
 
     ``batched`` vmaps over the chains; otherwise the chunk advances one chain (leading axis
-    of length 1). Cached on the (step, record) function objects, so that running the same
-    kernel again (another seed, more draws) reuses the compiled chunk.
+    of length 1).
     """
 
     def one_chain(key, state, t):
@@ -165,7 +172,7 @@ def run_chains(
     step: StepFn,
     states: Any,
     rng_key: jax.Array,
-    num_samples: int,
+    num_draws: int | None = None,
     *,
     record: RecordFn,
     burn_in: int = 0,
@@ -176,6 +183,7 @@ def run_chains(
     desc: str = "sampling",
     position: int | None = None,
     callback: Callable[[ChunkReport], None] | None = None,
+    num_samples: int | None = None,
 ) -> ChainRun:
     """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
 
@@ -187,14 +195,15 @@ def run_chains(
         Initial states stacked over chains (leading axis = chain).
     rng_key
         Root key; split once into one key per chain.
-    num_samples
-        Draws to keep per chain after burn-in and thinning.
+    num_draws
+        Draws to keep per chain after burn-in and thinning (``num_samples``: its deprecated
+        old name).
     record
         ``record(state, info) -> dict`` of arrays kept at each kept iteration.
     burn_in
         Iterations run first and discarded.
     thin
-        Keep one iteration in ``thin`` after burn-in; ``num_samples·thin`` iterations run.
+        Keep one iteration in ``thin`` after burn-in; ``num_draws·thin`` iterations run.
     chunk_size
         Iterations per compiled chunk (the progress bar moves once per chunk).
     chain_method
@@ -203,10 +212,8 @@ def run_chains(
         ``"sequential"`` (the compiled one-chain chunk called for each chain in turn;
         branches really skipped, one compilation for all chains). Irrelevant for one chain,
         which always runs unbatched.
-    progress
-        Show a tqdm progress bar.
-    desc
-        Label of the progress bar.
+    progress, desc, position
+        Show a tqdm progress bar; its label and line.
     callback
         Called with a :class:`ChunkReport` after each chunk; it may raise
         ``KeyboardInterrupt`` to stop the run (used in tests to simulate Ctrl-C).
@@ -217,7 +224,48 @@ def run_chains(
         Draws ``(num_chains, kept, ...)``, final states and run information. An interrupted
         run returns the draws of the chunks that finished and warns.
     """
-    for name, value, low in (("num_samples", num_samples, 1), ("burn_in", burn_in, 0),
+    if num_samples is not None:
+        if num_draws is not None:
+            raise TypeError("pass num_draws only (num_samples is its deprecated old name)")
+        warnings.warn("run_chains(num_samples=...) is deprecated: use num_draws=...",
+                      FutureWarning, stacklevel=2)
+        num_draws = num_samples
+    num_chains = _check_run(num_draws, burn_in, thin, chunk_size, chain_method, states)
+    total = int(burn_in) + int(num_draws) * int(thin)
+    # Equal chunks of at most `chunk_size` iterations; the last one runs fewer than
+    # `chunk_len` iterations only when `total` does not divide evenly (then by < num_chunks).
+    num_chunks = -(-total // int(chunk_size))
+    chunk_len = -(-total // num_chunks)
+    chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
+    chain_keys = jax.random.split(rng_key, num_chains)
+    bar = _progress_bar(total, desc, progress, position)
+    started = time.perf_counter()
+    try:
+        loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), callback)
+        states = loop.run(states, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    elapsed = time.perf_counter() - started
+    if loop.interrupted:
+        warnings.warn(
+            f"{desc} interrupted after {loop.done} of {total} iterations; keeping the "
+            f"{loop.draws_kept} draws per chain made so far",
+            SamplingInterrupted,
+            stacklevel=2,
+        )
+    draws = {
+        name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1) for name, parts in loop.kept.items()
+    }
+    return ChainRun(draws, states, loop.done, loop.interrupted, elapsed)
+
+
+def _check_run(num_draws: Any, burn_in: Any, thin: Any, chunk_size: Any, chain_method: str,
+               states: Any) -> int:
+    """Validate :func:`run_chains`' arguments; returns the number of chains."""
+    if num_draws is None:
+        raise TypeError("run_chains() needs num_draws, the draws to keep per chain")
+    for name, value, low in (("num_draws", num_draws, 1), ("burn_in", burn_in, 0),
                              ("thin", thin, 1), ("chunk_size", chunk_size, 1)):
         if int(value) != value or value < low:
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
@@ -226,68 +274,57 @@ def run_chains(
     leaves = jax.tree.leaves(states)
     if not leaves:
         raise ValueError("states must be a non-empty pytree stacked over chains")
-    num_chains = int(leaves[0].shape[0])
+    return int(leaves[0].shape[0])
 
-    total = int(burn_in) + int(num_samples) * int(thin)
-    # Equal chunks of at most `chunk_size` iterations; the last one runs fewer than
-    # `chunk_len` iterations only when `total` does not divide evenly (then by < num_chunks).
-    num_chunks = -(-total // int(chunk_size))
-    chunk_len = -(-total // num_chunks)
-    chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
-    chain_keys = jax.random.split(rng_key, num_chains)
 
-    kept: dict[str, list[np.ndarray]] = {}
-    draws_kept = 0
-    done = 0
-    interrupted = False
-    bar = _progress_bar(total, desc, progress, position)
-    started = time.perf_counter()
-    try:
+class _Loop:
+    """The chunk loop of :func:`run_chains`: runs chunks, keeps the draws past burn-in on the
+    thin grid, reports to the callback, and stops cleanly on ``KeyboardInterrupt``."""
+
+    def __init__(self, chunk_fn: Callable, chain_keys: jax.Array, total: int, chunk_len: int,
+                 burn_in: int, thin: int, callback: Callable[[ChunkReport], None] | None):
+        self.chunk_fn, self.chain_keys = chunk_fn, chain_keys
+        self.total, self.chunk_len, self.burn_in, self.thin = total, chunk_len, burn_in, thin
+        self.callback = callback
+        self.kept: dict[str, list[np.ndarray]] = {}
+        self.draws_kept = self.done = 0
+        self.interrupted = False
+
+    def run(self, states: Any, bar: Any) -> Any:
         chunk_index = 0
-        while done < total:
-            num_active = min(chunk_len, total - done)
+        while self.done < self.total:
+            num_active = min(self.chunk_len, self.total - self.done)
             try:
-                new_states, records = chunk_fn(states, chain_keys, jnp.int64(done),
-                                               jnp.int64(num_active))
+                new_states, records = self.chunk_fn(states, self.chain_keys,
+                                                    jnp.int64(self.done), jnp.int64(num_active))
                 records = jax.device_get(records)
                 jax.block_until_ready(new_states)
             except KeyboardInterrupt:
-                interrupted = True
+                self.interrupted = True
                 break
             states = new_states
-            # Iterations done + 1 .. done + num_active; keep those past burn-in on the thin grid.
-            iterations = np.arange(done + 1, done + num_active + 1)
-            keep = (iterations > burn_in) & ((iterations - burn_in) % thin == 0)
-            if keep.any():
-                for name, value in records.items():
-                    kept.setdefault(name, []).append(np.asarray(value)[:num_active][keep])
-                draws_kept += int(keep.sum())
-            done += num_active
+            self._keep(records, num_active)
+            self.done += num_active
             if bar is not None:
                 bar.update(num_active)
-            if callback is not None:
+            if self.callback is not None:
                 try:
-                    callback(ChunkReport(chunk_index, done, total, draws_kept, states))
+                    self.callback(ChunkReport(chunk_index, self.done, self.total,
+                                              self.draws_kept, states))
                 except KeyboardInterrupt:
-                    interrupted = done < total
+                    self.interrupted = self.done < self.total
                     break
             chunk_index += 1
-    finally:
-        if bar is not None:
-            bar.close()
-    elapsed = time.perf_counter() - started
+        return states
 
-    if interrupted:
-        warnings.warn(
-            f"{desc} interrupted after {done} of {total} iterations; keeping the "
-            f"{draws_kept} draws per chain made so far",
-            SamplingInterrupted,
-            stacklevel=2,
-        )
-    draws = {
-        name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1) for name, parts in kept.items()
-    }
-    return ChainRun(draws, states, done, interrupted, elapsed)
+    def _keep(self, records: dict[str, Any], num_active: int) -> None:
+        # Iterations done + 1 .. done + num_active; keep those past burn-in on the thin grid.
+        iterations = np.arange(self.done + 1, self.done + num_active + 1)
+        keep = (iterations > self.burn_in) & ((iterations - self.burn_in) % self.thin == 0)
+        if keep.any():
+            for name, value in records.items():
+                self.kept.setdefault(name, []).append(np.asarray(value)[:num_active][keep])
+            self.draws_kept += int(keep.sum())
 
 
 def _progress_bar(total: int, desc: str, enabled: bool, position: int | None = None):
