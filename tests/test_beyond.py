@@ -132,7 +132,7 @@ t0 = 0.0
 num_starts = 1
 
 [sampler]
-num_samples = 300         # a smoke-sized DRAM run: the MAP is what is checked
+num_iterations = 300         # a smoke-sized DRAM run: the MAP is what is checked
 burn_in = 150
 num_chains = 1
 """

@@ -11,6 +11,7 @@ a function of plain inputs, so a notebook can run them one at a time:
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ import numpy as np
 from symplid.dynamics.potentials import Polynomial
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import find_map
-from symplid.inference.samplers import draws_array, sample
+from symplid.inference.samplers import SAMPLERS, draws_array, sample
 from symplid.io import observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
@@ -100,9 +101,11 @@ def sample_for(
     """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``."""
 
     s = settings.sampler
-    options: dict[str, Any] = {}
-    if s.method == "dram":
-        options = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
+    # The [sampler] section's method-specific keys go to the samplers whose settings class
+    # declares them (DRAM's γ and adaptation start); no branch on the method's name.
+    accepted = {f.name for f in dataclasses.fields(SAMPLERS[s.method].settings_class)}
+    offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
+    options = {key: value for key, value in offered.items() if key in accepted}
     # The settings count every iteration (burn-in included, as the paper's 200,000 with
     # 100,000 discarded); the sampler counts the draws it keeps.
     return sample(
