@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import json
-import math
 import os
 import shutil
 from collections.abc import Mapping
@@ -43,6 +42,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from symplid.inference.jsonfloat import decode, encode_float
 from symplid.io import read_observations, write_observations
 from symplid.model.data import DataError, Observations
 from symplid.workflow.settings import Settings, dump_settings, load_settings
@@ -55,9 +55,6 @@ __all__ = [
     "to_jsonable",
     "write_json",
 ]
-
-_NONFINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
-
 
 class RunFolderError(DataError):
     """A run folder that cannot be used (missing, unfinished, not a run folder, ...)."""
@@ -73,7 +70,7 @@ def to_jsonable(obj: Any, where: str = "") -> Any:
     if isinstance(obj, int | np.integer):
         return int(obj)
     if isinstance(obj, float | np.floating):
-        return _float(float(obj))
+        return encode_float(float(obj))
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
     if isinstance(obj, Mapping):
@@ -100,26 +97,10 @@ def to_jsonable(obj: Any, where: str = "") -> Any:
     raise TypeError(f"cannot write {type(obj).__name__} at {where or 'top level'} as JSON")
 
 
-def _float(x: float) -> float | str:
-    if math.isfinite(x):
-        return x
-    return "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf")
-
-
 def _nested(value: Any) -> Any:
     if isinstance(value, list):
         return [_nested(v) for v in value]
-    return _float(value) if isinstance(value, float) else value
-
-
-def _decode(value: Any) -> Any:
-    if isinstance(value, str):
-        return _NONFINITE.get(value, value)
-    if isinstance(value, list):
-        return [_decode(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _decode(v) for k, v in value.items()}
-    return value
+    return encode_float(value) if isinstance(value, float) else value
 
 
 def write_json(obj: Any, path: str | os.PathLike) -> Path:
@@ -134,7 +115,7 @@ def read_json(path: str | os.PathLike) -> Any:
     """Read JSON written by :func:`write_json`; ``"nan"``/``"inf"``/``"-inf"`` become floats."""
     path = Path(path)
     try:
-        return _decode(json.loads(path.read_text(encoding="utf-8")))
+        return decode(json.loads(path.read_text(encoding="utf-8")))
     except FileNotFoundError:
         raise RunFolderError(f"{path}: no such file") from None
     except json.JSONDecodeError as err:
@@ -215,7 +196,7 @@ def _cell(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.6g}"
     if isinstance(value, list):
-        flat = np.ravel(np.asarray(_decode(value), dtype=object))
+        flat = np.ravel(np.asarray(decode(value), dtype=object))
         shown = ", ".join(_cell(v) for v in flat[:6])
         return f"[{shown}{', …' if flat.size > 6 else ''}]"
     return str(value)
@@ -553,5 +534,5 @@ def _restore_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
         return attrs
     for key in json.loads(encoded):
         if key in attrs:
-            attrs[key] = _arrays(_decode(json.loads(attrs[key])))
+            attrs[key] = _arrays(decode(json.loads(attrs[key])))
     return attrs
