@@ -254,38 +254,3 @@ def test_help_lists_the_registries():
         assert name in text
     assert "--iterations" in text and "--samples" not in text
     assert "midpoint" in run("reproduce", "--help").output
-
-
-@pytest.mark.slow
-def test_toy_integrator_and_prior_family_registered_here_are_usable(tmp_path, harmonic_csv):
-    """Entries registered from this file alone appear in the help and drive a fit."""
-    import dataclasses
-
-    import symplid
-    from symplid.model.priors import PRIOR_FAMILIES, Normal
-    from symplid.workflow.results import RunFolder
-
-    @dataclasses.dataclass(frozen=True)
-    class ToyNormal(Normal):
-        family = "toy-normal"
-
-    toy = dataclasses.replace(symplid.INTEGRATORS["leapfrog"], name="toy-leapfrog")
-    symplid.INTEGRATORS.register("toy-leapfrog", toy)
-    PRIOR_FAMILIES.register("toy-normal", ToyNormal)
-    try:
-        assert "toy-leapfrog" in run("fit", "--help").output
-        out = tmp_path / "run"
-        result = run(
-            "fit", harmonic_csv, "--out", out, "--order", "2", "--x0", "1,0",
-            "--integrator", "toy-leapfrog",
-            "--set", "priors.coefficients.family=toy-normal",
-            "--set", "priors.coefficients.scale=5",
-            *TINY_FIT,
-        )
-        assert result.exit_code == 0, result.output
-        settings = RunFolder(out, "r").read_settings()
-        assert settings.model.integrator == "toy-leapfrog"
-        assert settings.priors.coefficients == ToyNormal(0.0, 5.0)
-    finally:
-        symplid.INTEGRATORS.unregister("toy-leapfrog")
-        PRIOR_FAMILIES.unregister("toy-normal")
