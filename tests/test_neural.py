@@ -130,3 +130,17 @@ def test_gauss_newton_laplace_agrees_with_the_exact_hessian():
     ratio = np.sqrt(np.diag(np.linalg.inv(precision[:nc, :nc])) / np.diag(np.linalg.inv(hessian)))
     assert np.all((ratio > 0.8) & (ratio < 2.0)), ratio
     assert np.sum(np.abs(ratio - 1) < 0.05) >= nc // 2, ratio
+
+
+def test_fit_settings_are_checked(mlp):
+    hh = symplid.get_system("henon-heiles")
+    model = symplid.HamiltonianModel(mlp, "leapfrog", dt=0.25)
+    post = neural_posterior(model, symplid.simulate(hh, seed=0), x0=hh.initial_state)
+    with pytest.raises(ValueError, match="polish"):
+        find_map_neural(post, polish="bfgs")
+    with pytest.raises(ValueError, match="laplace"):
+        find_map_neural(post, laplace="kfac")
+    with pytest.raises(ValueError, match="init"):
+        find_map_neural(post, init=np.zeros(3))
+    with pytest.raises(ValueError, match="weight_scale"):
+        neural_posterior(model, symplid.simulate(hh, seed=0), x0=hh.initial_state, weight_scale=0)

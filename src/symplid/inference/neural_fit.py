@@ -83,8 +83,12 @@ class NeuralMapResult:
 
     @property
     def std(self) -> np.ndarray | None:
-        """Laplace standard deviations, √diag(covariance)."""
-        return None if self.covariance is None else np.sqrt(np.diag(self.covariance))
+        """Laplace standard deviations, √diag(covariance); NaN where a diagonal entry is ≤ 0
+        (possible with ``laplace="hessian"`` away from a strict maximum, never with GGN)."""
+        if self.covariance is None:
+            return None
+        diag = np.diag(self.covariance)
+        return np.sqrt(np.where(diag > 0, diag, np.nan))
 
 
 def neural_posterior(
