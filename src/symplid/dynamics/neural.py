@@ -1,0 +1,165 @@
+"""Neural potentials: U(q; w) a multilayer perceptron whose weights are θ's coefficients.
+
+The paper embeds a polynomial U (eq. 13) but argues that "any approach" to the potential can be
+embedded in its symplectic propagator (eqs 5–6, 14). :class:`MLPPotential` is such a U: a
+separable Hamiltonian H = ½pᵀM⁻¹p + U(q; w) with U an Equinox MLP ℝᵈ → ℝ. It has the
+:class:`~symplid.dynamics.potentials.Potential` interface, so it plugs into
+:class:`~symplid.model.statespace.HamiltonianModel`, :class:`~symplid.model.posterior.Posterior`
+and the baseline objectives unchanged; its weights are the model's coefficients and get the
+coefficients' prior (a Gaussian prior is the usual choice, ``Normal(0, s)``).
+
+**Layout of the weights** (fixed): layer by layer from the input, each layer's weight matrix
+row by row (``w{l}[i,j]`` connects input j of layer l to its output i), then its bias
+(``b{l}[i]``). The last layer has no bias: a constant in U changes no force and cannot be
+identified (the same reason :class:`~.potentials.Polynomial` has no constant term). For
+``dim=2, width=32, depth=2`` that is ``w0`` (32×2), ``b0`` (32), ``w1`` (32×32), ``b1`` (32),
+``w2`` (1×32): 1,184 weights.
+
+Equinox is imported only when an :class:`MLPPotential` is built, so that ``import symplid``
+stays fast.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from symplid.registry import Registry
+
+Array = jax.Array
+
+ACTIVATIONS: Registry[Callable[[Array], Array]] = Registry("activation")
+"""Smooth activations by name (the force is their derivative, so it must be smooth too)."""
+
+ACTIVATIONS.register("tanh", jnp.tanh)
+ACTIVATIONS.register("softplus", jax.nn.softplus)
+ACTIVATIONS.register("silu", jax.nn.silu, aliases=("swish",))
+ACTIVATIONS.register("gelu", jax.nn.gelu)
+
+
+class MLPPotential:
+    """A separable neural potential U(q; w): an MLP from ℝᵈ to ℝ built with Equinox.
+
+    Parameters
+    ----------
+    dim
+        Number of generalised coordinates ``d``.
+    width
+        Units per hidden layer.
+    depth
+        Number of hidden layers.
+    seed
+        Seed of the initial weights (``jax.random.key(seed)``), returned by
+        :meth:`initial_coefficients`.
+    activation
+        A name in :data:`ACTIVATIONS` (``"tanh"``, ``"softplus"``, ``"silu"``, ``"gelu"``).
+
+    Attributes
+    ----------
+    dim, num_params, param_names
+        The :class:`~symplid.dynamics.potentials.Potential` interface; the weights' layout is
+        in the module docstring.
+
+    Examples
+    --------
+    >>> U = MLPPotential(dim=2, width=8, depth=1)
+    >>> U.num_params, U.param_names[:2]
+    (32, ('w0[0,0]', 'w0[0,1]'))
+    """
+
+    def __init__(
+        self, dim: int, width: int = 32, depth: int = 2, seed: int = 0, activation: str = "tanh"
+    ) -> None:
+        for name, value, least in (("dim", dim, 1), ("width", width, 1), ("depth", depth, 0)):
+            if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < least:
+                raise ValueError(f"{name} must be an integer ≥ {least}, got {value!r}")
+        import equinox as eqx  # lazily: only neural potentials need it
+        from jax.flatten_util import ravel_pytree
+
+        self.dim = int(dim)
+        self.width = int(width)
+        self.depth = int(depth)
+        self.seed = int(seed)
+        self.activation = ACTIVATIONS.canonical(activation)
+        mlp = eqx.nn.MLP(
+            in_size=self.dim,
+            out_size="scalar",
+            width_size=self.width,
+            depth=self.depth,
+            activation=ACTIVATIONS.get_entry(activation),
+            use_final_bias=False,
+            dtype=jnp.float64,
+            key=jax.random.key(self.seed),
+        )
+        params, self._static = eqx.partition(mlp, eqx.is_inexact_array)
+        flat, self._unravel = ravel_pytree(params)
+        self._combine = eqx.combine
+        self._names = _weight_names(mlp)
+        if len(self._names) != flat.shape[0]:  # the layout promised in the module docstring
+            raise RuntimeError("unexpected Equinox MLP layout")
+        self.num_params = int(flat.shape[0])
+        self._initial = np.asarray(flat, dtype=float)
+        self._initial.setflags(write=False)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """``w{l}[i,j]`` and ``b{l}[i]``, layer by layer (module docstring)."""
+        return self._names
+
+    def initial_coefficients(self) -> np.ndarray:
+        """The seed's initial weights (Equinox's default initialisation), a fresh copy."""
+        return self._initial.copy()
+
+    def network(self, coefficients: Array) -> Any:
+        """The Equinox MLP with the given weights (a callable ``q -> U(q)`` for one point)."""
+        coefficients = jnp.asarray(coefficients, dtype=float)
+        if coefficients.shape != (self.num_params,):
+            raise ValueError(
+                f"expected {self.num_params} weights for this MLP potential, got "
+                f"{coefficients.shape}"
+            )
+        return self._combine(self._unravel(coefficients), self._static)
+
+    def _batched(self, f: Callable[[Array], Array], q: Array) -> Array:
+        """Apply ``f`` to each point of ``q`` of shape ``(dim,)`` or ``(dim, ...)``."""
+        q = jnp.asarray(q, dtype=float)
+        if q.shape[0] != self.dim:
+            raise ValueError(f"q has {q.shape[0]} coordinates, the potential has dim={self.dim}")
+        if q.ndim == 1:
+            return f(q)
+        flat = q.reshape(q.shape[0], -1)
+        out = jax.vmap(f, in_axes=1, out_axes=-1)(flat)
+        return out.reshape(out.shape[:-1] + q.shape[1:])
+
+    def value(self, q: Array, coefficients: Array) -> Array:
+        """U(q; w); ``q`` has shape ``(dim,)`` or ``(dim, ...)`` with trailing batch axes."""
+        net = self.network(coefficients)
+        return self._batched(net, q)
+
+    def gradient(self, q: Array, coefficients: Array) -> Array:
+        """∂U/∂q by ``jax.grad`` of the network; same shape as ``q``."""
+        net = self.network(coefficients)
+        return self._batched(jax.grad(net), q)
+
+    def __repr__(self) -> str:
+        return (
+            f"MLPPotential(dim={self.dim}, width={self.width}, depth={self.depth}, "
+            f"seed={self.seed}, activation={self.activation!r})"
+        )
+
+
+def _weight_names(mlp: Any) -> tuple[str, ...]:
+    names: list[str] = []
+    for layer_index, layer in enumerate(mlp.layers):
+        out_size, in_size = layer.weight.shape
+        names += [f"w{layer_index}[{i},{j}]" for i in range(out_size) for j in range(in_size)]
+        if layer.bias is not None:
+            names += [f"b{layer_index}[{i}]" for i in range(layer.bias.shape[0])]
+    return tuple(names)
+
+
+__all__ = ["ACTIVATIONS", "MLPPotential"]
