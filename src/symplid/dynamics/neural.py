@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.dynamics.potentials import over_points
 from symplid.registry import Registry
 
 Array = jax.Array
@@ -129,11 +130,7 @@ class MLPPotential:
         q = jnp.asarray(q, dtype=float)
         if q.shape[0] != self.dim:
             raise ValueError(f"q has {q.shape[0]} coordinates, the potential has dim={self.dim}")
-        if q.ndim == 1:
-            return f(q)
-        flat = q.reshape(q.shape[0], -1)
-        out = jax.vmap(f, in_axes=1, out_axes=-1)(flat)
-        return out.reshape(out.shape[:-1] + q.shape[1:])
+        return over_points(f, q)
 
     def value(self, q: Array, coefficients: Array) -> Array:
         """U(q; w); ``q`` has shape ``(dim,)`` or ``(dim, ...)`` with trailing batch axes."""

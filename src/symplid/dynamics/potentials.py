@@ -194,6 +194,19 @@ class Polynomial:
         return out
 
 
+def over_points(f: Callable[[Array], Array], q: Array) -> Array:
+    """Apply ``f`` (of one point ``(dim,)``) to every point of ``q`` of shape ``(dim, ...)``.
+
+    Trailing axes of ``q`` are batch axes (sigma points travel as columns); the result keeps
+    them as its own trailing axes.
+    """
+    if q.ndim == 1:
+        return f(q)
+    flat = q.reshape(q.shape[0], -1)
+    out = jax.vmap(f, in_axes=1, out_axes=-1)(flat)
+    return out.reshape(out.shape[:-1] + q.shape[1:])
+
+
 @dataclass(frozen=True)
 class FunctionPotential:
     """A potential from any JAX function ``fn(q, coefficients) -> scalar``.
@@ -225,24 +238,16 @@ class FunctionPotential:
             return tuple(self.names)
         return tuple(f"c{m + 1}" for m in range(self.num_params))
 
-    def _batched(self, f: Callable[[Array], Array], q: Array) -> Array:
-        """Apply ``f`` to each point of ``q`` with shape ``(dim, ...)`` (trailing batch axes)."""
-        if q.ndim == 1:
-            return f(q)
-        flat = q.reshape(q.shape[0], -1)
-        out = jax.vmap(f, in_axes=1, out_axes=-1)(flat)
-        return out.reshape(out.shape[:-1] + q.shape[1:])
-
     def value(self, q: Array, coefficients: Array) -> Array:
         """U(q); ``q`` has shape ``(dim,)`` or ``(dim, ...)`` with trailing batch axes."""
         coefficients = jnp.asarray(coefficients)
-        return self._batched(lambda x: self.fn(x, coefficients), jnp.asarray(q, dtype=float))
+        return over_points(lambda x: self.fn(x, coefficients), jnp.asarray(q, dtype=float))
 
     def gradient(self, q: Array, coefficients: Array) -> Array:
         """∂U/∂q by ``jax.grad``; same shape as ``q``."""
         coefficients = jnp.asarray(coefficients)
         grad = jax.grad(lambda x: self.fn(x, coefficients))
-        return self._batched(grad, jnp.asarray(q, dtype=float))
+        return over_points(grad, jnp.asarray(q, dtype=float))
 
 
 def mass_matrix(mass: Any, dim: int) -> np.ndarray | None:
