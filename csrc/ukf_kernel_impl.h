@@ -30,6 +30,166 @@ struct RuntimeChunks {
   int count() const { return n; }
 };
 
+// ---------------------------------------------------------------- force for small d and ℓ
+// For d ≤ 3 and ℓ ≤ 5 the force's term program is built at compile time, so the gradient is
+// straight-line code with the lanes in registers. The table is the library's basis order
+// (by degree, then the first coordinate's power highest), and it is only used after checking
+// that it equals the runtime program (see Propagator's constructor).
+
+template <int D, int ORDER>
+struct FixedBasis {
+  static constexpr int binomial(int n, int k) {
+    int r = 1;
+    for (int i = 1; i <= k; ++i) r = r * (n - k + i) / i;
+    return r;
+  }
+  static constexpr int kCoef = binomial(D + ORDER, D) - 1;
+  static constexpr int kMaxTerms = D * kCoef;
+
+  struct Table {
+    int exps[kCoef][D] = {};
+    int start[D + 1] = {};
+    int coef_index[kMaxTerms] = {};
+    int mult[kMaxTerms] = {};
+    int num_factors[kMaxTerms] = {};
+    int factor_coord[kMaxTerms][ORDER] = {};
+    int factor_power[kMaxTerms][ORDER] = {};
+  };
+
+  static constexpr Table table() {
+    Table t{};
+    int m = 0;
+    int e[3] = {0, 0, 0};
+    for (int degree = 1; degree <= ORDER; ++degree) {
+      for (e[0] = degree; e[0] >= 0; --e[0]) {
+        if (D == 1) {
+          if (e[0] != degree) continue;
+          t.exps[m][0] = e[0];
+          ++m;
+          continue;
+        }
+        for (e[1] = degree - e[0]; e[1] >= 0; --e[1]) {
+          if (D == 2) {
+            if (e[0] + e[1] != degree) continue;
+          } else {
+            e[2] = degree - e[0] - e[1];
+          }
+          for (int i = 0; i < D; ++i) t.exps[m][i] = e[i];
+          ++m;
+        }
+      }
+    }
+    int term = 0;
+    for (int j = 0; j < D; ++j) {
+      t.start[j] = term;
+      for (int c = 0; c < kCoef; ++c) {
+        if (t.exps[c][j] == 0) continue;
+        t.coef_index[term] = c;
+        t.mult[term] = t.exps[c][j];
+        int nf = 0;
+        for (int i = 0; i < D; ++i) {
+          const int power = t.exps[c][i] - (i == j ? 1 : 0);
+          if (power > 0) {
+            t.factor_coord[term][nf] = i;
+            t.factor_power[term][nf] = power;
+            ++nf;
+          }
+        }
+        t.num_factors[term] = nf;
+        ++term;
+      }
+    }
+    t.start[D] = term;
+    return t;
+  }
+
+  static constexpr Table kTable = table();
+
+  // True when the runtime program (from the model's exponents) is this table.
+  static bool matches(const Settings& s) {
+    if (s.d != D || s.order != ORDER || s.ncoef != kCoef || s.num_terms != kTable.start[D]) {
+      return false;
+    }
+    for (int c = 0; c < kCoef; ++c) {
+      for (int i = 0; i < D; ++i) {
+        if (s.exponents[c * D + i] != kTable.exps[c][i]) return false;
+      }
+    }
+    return true;
+  }
+
+  // ∂U/∂q at x into out (d x C vectors each); tc holds c_m e_mj per term.
+  template <int C>
+  static void gradient(const Vec* __restrict__ x, Vec* __restrict__ out,
+                       const Vec* __restrict__ tc) {
+    Vec pw[D][ORDER + 1][C];
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) {
+#pragma GCC unroll 16
+      for (int c = 0; c < C; ++c) {
+        pw[i][1][c] = x[i * C + c];
+#pragma GCC unroll 16
+        for (int k = 2; k <= ORDER; ++k) pw[i][k][c] = pw[i][k - 1][c] * x[i * C + c];
+      }
+    }
+#pragma GCC unroll 16
+    for (int j = 0; j < D; ++j) {
+      Vec acc[C];
+#pragma GCC unroll 16
+      for (int c = 0; c < C; ++c) acc[c] = Vec{};
+#pragma GCC unroll 128
+      for (int t = kTable.start[j]; t < kTable.start[j + 1]; ++t) {
+#pragma GCC unroll 16
+        for (int c = 0; c < C; ++c) {
+          Vec v = tc[t];
+#pragma GCC unroll 8
+          for (int f = 0; f < kTable.num_factors[t]; ++f) {
+            v = v * pw[kTable.factor_coord[t][f]][kTable.factor_power[t][f]][c];
+          }
+          acc[c] = acc[c] + v;
+        }
+      }
+#pragma GCC unroll 16
+      for (int c = 0; c < C; ++c) out[j * C + c] = acc[c];
+    }
+  }
+};
+
+using GradientFn = void (*)(const Vec*, Vec*, const Vec*);
+
+// The compile-time force for C vectors per coordinate, or nullptr (then the generic one).
+template <int C>
+GradientFn fixed_gradient(const Settings& s) {
+#define SYMPLID_TRY_BASIS(D, ORDER) \
+  if (FixedBasis<D, ORDER>::matches(s)) return &FixedBasis<D, ORDER>::template gradient<C>;
+  if (s.d == 1 && (C == 1 || C == 5)) {
+    SYMPLID_TRY_BASIS(1, 2) SYMPLID_TRY_BASIS(1, 3) SYMPLID_TRY_BASIS(1, 4) SYMPLID_TRY_BASIS(1, 5)
+  }
+  if (s.d == 2 && (C == 2 || C == 9)) {
+    SYMPLID_TRY_BASIS(2, 2) SYMPLID_TRY_BASIS(2, 3) SYMPLID_TRY_BASIS(2, 4) SYMPLID_TRY_BASIS(2, 5)
+  }
+  if (s.d == 3 && (C == 2 || C == 13)) {
+    SYMPLID_TRY_BASIS(3, 2) SYMPLID_TRY_BASIS(3, 3) SYMPLID_TRY_BASIS(3, 4) SYMPLID_TRY_BASIS(3, 5)
+  }
+#undef SYMPLID_TRY_BASIS
+  return nullptr;
+}
+
+template <class Chunks>
+GradientFn select_gradient(const Settings&) {
+  return nullptr;
+}
+template <>
+GradientFn select_gradient<FixedChunks<1>>(const Settings& s) { return fixed_gradient<1>(s); }
+template <>
+GradientFn select_gradient<FixedChunks<2>>(const Settings& s) { return fixed_gradient<2>(s); }
+template <>
+GradientFn select_gradient<FixedChunks<5>>(const Settings& s) { return fixed_gradient<5>(s); }
+template <>
+GradientFn select_gradient<FixedChunks<9>>(const Settings& s) { return fixed_gradient<9>(s); }
+template <>
+GradientFn select_gradient<FixedChunks<13>>(const Settings& s) { return fixed_gradient<13>(s); }
+
 // The lane-parallel part: the polynomial force and the integrators (eqs 5-6 and eq 14).
 // State arrays hold d rows of `chunks` vectors each: x[i * C + c].
 template <class Chunks>
@@ -50,6 +210,7 @@ class Propagator {
     stage_p_ = take(work, d * C);
     kq_ = take(work, s.stages * d * C);
     kp_ = take(work, s.stages * d * C);
+    fixed_gradient_ = select_gradient<Chunks>(s);
   }
 
   // Vectors of workspace the constructor takes.
@@ -87,6 +248,7 @@ class Propagator {
   // repeated multiplication, then per component j the terms (c_m e_mj) Π_i x_i^(e_mi − δ_ij),
   // read from the term program (Settings::term_*), summed in basis order.
   void gradient(const Vec* __restrict__ x, Vec* __restrict__ out) {
+    if (fixed_gradient_ != nullptr) return fixed_gradient_(x, out, term_coef);
     const int C = chunks_.count();
     const int d = s_.d;
     const int width = s_.order + 1;
@@ -212,6 +374,7 @@ class Propagator {
   Vec* stage_p_;
   Vec* kq_;
   Vec* kp_;
+  GradientFn fixed_gradient_ = nullptr;
 };
 
 // The first `columns` columns of the lower Cholesky factor of the symmetric N x N matrix a
