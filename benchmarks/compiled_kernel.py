@@ -9,8 +9,11 @@ sees), the minimum over repeats:
 
 * ``log L``: one θ per iteration;
 * ``log L, vmap 64``: a batch of 64 θ per iteration, time per θ;
-* ``gradient``: ``jax.value_and_grad`` of log L (the compiled tier takes its tangent from the
-  JAX reference, so it cannot be faster there).
+* ``value and gradient``: ``jax.value_and_grad`` of log L (under differentiation the compiled
+  tier evaluates the JAX reference's value and tangent, so it cannot be faster there).
+
+Times are the process's CPU time (``time.process_time``), the minimum over repeats: on a
+shared machine wall time would count other people's work. XLA runs on one thread.
 
 Run on one idle core: ``taskset -c 0 python benchmarks/compiled_kernel.py``.
 """
@@ -34,7 +37,7 @@ from symplid import compiled_kernel
 
 
 def loop_time(step: Callable[[jax.Array], jax.Array], thetas: jax.Array, repeats: int) -> float:
-    """Seconds per iteration of ``step`` in a compiled ``fori_loop`` over ``thetas`` (minimum)."""
+    """CPU seconds per iteration of ``step`` in a compiled ``fori_loop`` (minimum of repeats)."""
     count = thetas.shape[0]
 
     @jax.jit

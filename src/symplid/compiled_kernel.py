@@ -12,8 +12,8 @@ rounding and is
 * ``jit``-able: it is an XLA custom call, ~0.2 µs of overhead inside a compiled loop;
 * ``vmap``-able over θ (and over x0, P0 or the data): a batch reaches the kernel as one call,
   which propagates eight parameter vectors at once when they share the data;
-* differentiable: a ``jax.custom_jvp`` whose tangent is the JAX reference's, so gradients
-  are exactly the JAX tier's.
+* differentiable: a ``jax.custom_jvp`` whose value and tangent under differentiation are the
+  JAX reference's, so gradients are exactly the JAX tier's (and cost what they cost there).
 
 The kernel is built by ``pip install`` from the project's own files (an optional extension:
 a failed build does not fail the install). When the shared library is missing or cannot be
@@ -34,6 +34,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from symplid.filters import unscented_weights
 from symplid.integrators import INTEGRATORS
@@ -205,6 +206,8 @@ def _attributes(model: HamiltonianModel, prepared: PreparedData) -> dict[str, An
 
 
 KernelFn = Callable[[Array, Array, Array, Array, Array, Array, Array], Array]
+# Positions of θ, x0, P0, step sizes and ys among the kernel's arguments (the float ones).
+_DIFFERENTIABLE = (0, 1, 2, 3, 5)
 _KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -221,17 +224,26 @@ def _build_kernel(model: HamiltonianModel, prepared: PreparedData) -> KernelFn:
     def kernel(theta, x0, p0, step_size, num_steps, ys, masks):
         return call(theta, x0, p0, step_size, num_steps, ys, masks, **attrs)
 
-    @kernel.defjvp
-    def _kernel_jvp(primals, tangents):
-        theta, x0, p0, step_size, num_steps, ys, masks = primals
+    def kernel_jvp(primals, tangents):
+        # Differentiate the reference in the arguments whose tangent is not a symbolic zero
+        # (usually θ alone). It computes its value on the way to the tangent: using it (equal
+        # to the kernel's to rounding) keeps value_and_grad at the JAX tier's cost.
+        live = [i for i in _DIFFERENTIABLE if not isinstance(tangents[i], SymbolicZero)]
+        if not live:
+            value = kernel(*primals)
+            return value, jnp.zeros_like(value)
 
-        def ref(th, m0, c0, h, y):
-            return reference(th, GapInputs(h, num_steps), y, masks, m0, c0).log_likelihood
+        def ref(*args):
+            full = list(primals)
+            for i, arg in zip(live, args, strict=True):
+                full[i] = arg
+            theta, x0, p0, step_size, num_steps, ys, masks = full
+            inputs = GapInputs(step_size, num_steps)
+            return reference(theta, inputs, ys, masks, x0, p0).log_likelihood
 
-        differentiable = (theta, x0, p0, step_size, ys)
-        _, tangent = jax.jvp(ref, differentiable, (*tangents[:4], tangents[5]))
-        return kernel(*primals), tangent
+        return jax.jvp(ref, [primals[i] for i in live], [tangents[i] for i in live])
 
+    kernel.defjvp(kernel_jvp, symbolic_zeros=True)
     return kernel
 
 
