@@ -1,0 +1,398 @@
+// symplid's compiled likelihood kernel: the UKF log marginal likelihood (Theorem 1,
+// eqs 10-12) of the state-space model of eq (7) with a polynomial potential (eq 13), a
+// symplectic composition of leapfrog steps (eqs 5-6) or an explicit Runge-Kutta propagator
+// over each observation gap (eq 14), and a linear observation operator.
+//
+// It is an XLA FFI handler ("symplid_ukf_loglik"), called from JAX through jax.ffi.ffi_call.
+// Static settings arrive as attributes, data as buffers. Under vmap (vmap_method
+// "expand_dims") every buffer gains the same leading batch axes, of size 1 where that input
+// is not batched; the kernel loops over the batch itself and, when the data are shared,
+// propagates eight parameter vectors at once so that every vector lane is busy.
+//
+// The numerical kernel (ukf_kernel_impl.h) is compiled three times, for AVX-512, for AVX2 with
+// FMA and for the baseline x86-64 (or whatever the target is elsewhere), and the best one the
+// processor supports is chosen once at run time. Floating-point contraction is off
+// (-ffp-contract=off), so every variant gives the same numbers.
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace symplid {
+
+// Largest number of parameter vectors propagated together.
+constexpr int kMaxGroup = 8;
+
+// The model's static settings (views into the call's attributes).
+struct Settings {
+  int d = 0;       // coordinates q (the state has n = 2d components)
+  int n = 0;       // state dimension
+  int dy = 0;      // observed components
+  int npts = 0;    // sigma points, 2n + 1
+  int order = 0;   // highest total degree of U
+  int ncoef = 0;   // coefficients of U
+  int nparams = 0; // entries of θ
+  const int64_t* exponents = nullptr;  // ncoef x d, the monomial basis
+  bool composition = true;             // leapfrog composition (else Runge-Kutta)
+  const double* comp_w = nullptr;      // leapfrog sub-step weights
+  int ncomp = 0;
+  const double* rk_a = nullptr;  // stages x stages Butcher matrix
+  const double* rk_b = nullptr;  // stages weights
+  int stages = 0;
+  bool has_mass = false;
+  const double* inv_mass = nullptr;    // d x d, M⁻¹
+  const double* obs_matrix = nullptr;  // dy x n, H
+  const double* wm = nullptr;          // npts mean weights
+  const double* wc = nullptr;          // npts covariance weights
+  double scale = 0.0;                  // sqrt(n + λ)
+  double jitter = 0.0;
+  bool per_step = false;  // Σ after every substep (else once per gap)
+  bool diagonal = false;  // one variance per component (else one each)
+  int max_steps = 0;
+  bool uniform = false;  // every gap has max_steps substeps
+  // The force as a program of terms (c_m e_mj) Π x_i^power, for j = 0..d-1 in turn.
+  int num_terms = 0;
+  const int* term_start = nullptr;      // d + 1: terms of component j are [start[j], start[j+1])
+  const int* term_coef_index = nullptr; // per term: m
+  const double* term_mult = nullptr;    // per term: e_mj
+  const int* factor_start = nullptr;    // num_terms + 1
+  const int* factor_rows = nullptr;     // per factor: i * (order + 1) + power
+};
+
+// Eight lanes of doubles: one AVX-512 register, two AVX2 or four SSE2 registers.
+typedef double Vec __attribute__((vector_size(8 * sizeof(double))));
+
+// Reused buffers (one per thread): lane arrays and the members' small matrices.
+struct Workspace {
+  // At least `count` vectors, aligned to a whole vector.
+  Vec* lanes(std::size_t count) {
+    lane_storage.resize((count + 1) * kVecDoubles);
+    const auto address = reinterpret_cast<std::uintptr_t>(lane_storage.data());
+    const std::size_t skip = (sizeof(Vec) - address % sizeof(Vec)) % sizeof(Vec);
+    return reinterpret_cast<Vec*>(lane_storage.data() + skip / sizeof(double));
+  }
+  static constexpr std::size_t kVecDoubles = sizeof(Vec) / sizeof(double);
+  std::vector<double> lane_storage;
+  std::vector<double> members;
+  std::vector<int> term_start, term_coef_index, factor_start, factor_rows;
+  std::vector<double> term_mult;
+};
+
+// One trajectory's observations and gap structure.
+struct TrajectoryData {
+  int num_gaps = 0;
+  const double* step_size = nullptr;  // per gap
+  const int64_t* num_steps = nullptr; // per gap
+  const double* ys = nullptr;         // num_gaps x dy
+  const bool* masks = nullptr;        // num_gaps x dy
+};
+
+// One evaluation: θ, the initial state's mean and covariance, where the result goes.
+struct Member {
+  const double* theta = nullptr;
+  const double* x0 = nullptr;
+  const double* P0 = nullptr;
+  double* out = nullptr;
+};
+
+}  // namespace symplid
+
+// ---------------------------------------------------------------- one kernel per instruction set
+#if defined(__GNUC__) && (defined(__x86_64__) || defined(__i386__))
+#define SYMPLID_X86 1
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx512vl,avx512dq,avx2,fma")
+#define SYMPLID_ISA_NS avx512
+#include "ukf_kernel_impl.h"
+#undef SYMPLID_ISA_NS
+#pragma GCC pop_options
+
+#pragma GCC push_options
+#pragma GCC target("avx2,fma")
+#define SYMPLID_ISA_NS avx2
+#include "ukf_kernel_impl.h"
+#undef SYMPLID_ISA_NS
+#pragma GCC pop_options
+#endif
+
+#define SYMPLID_ISA_NS baseline
+#include "ukf_kernel_impl.h"
+#undef SYMPLID_ISA_NS
+
+namespace symplid {
+
+using EvaluateFn = void (*)(const Settings&, const TrajectoryData&, const Member*, int,
+                            Workspace&);
+
+// The widest instruction set this processor supports, chosen once.
+EvaluateFn select_kernel() {
+#ifdef SYMPLID_X86
+  __builtin_cpu_init();
+  if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
+      __builtin_cpu_supports("avx512dq")) {
+    return avx512::evaluate;
+  }
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return avx2::evaluate;
+#endif
+  return baseline::evaluate;
+}
+
+const char* kernel_isa() {
+  const EvaluateFn fn = select_kernel();
+#ifdef SYMPLID_X86
+  if (fn == avx512::evaluate) return "avx512";
+  if (fn == avx2::evaluate) return "avx2";
+#endif
+  (void)fn;
+  return "baseline";
+}
+
+namespace {
+
+// A buffer seen through the batch axes that vmap added in front of its own `rank` axes.
+struct Batched {
+  const char* data;
+  std::size_t item_bytes;       // bytes of one unbatched item
+  std::vector<int64_t> stride;  // per batch axis, in items (0 where the axis has size 1)
+
+  std::size_t offset(const std::vector<int64_t>& index) const {
+    std::size_t items = 0;
+    for (std::size_t a = 0; a < index.size(); ++a) items += index[a] * stride[a];
+    return items * item_bytes;
+  }
+  bool shared() const {
+    return std::all_of(stride.begin(), stride.end(), [](int64_t s) { return s == 0; });
+  }
+};
+
+ffi::Error batched(const ffi::AnyBuffer& buffer, std::size_t rank,
+                   const std::vector<int64_t>& batch, const char* name, Batched* out) {
+  const auto dims = buffer.dimensions();
+  if (dims.size() != batch.size() + rank) {
+    return ffi::Error(ffi::ErrorCode::kInvalidArgument,
+                      std::string("symplid kernel: wrong rank for ") + name);
+  }
+  std::size_t items = 1;
+  for (std::size_t a = batch.size(); a < dims.size(); ++a) items *= dims[a];
+  out->data = static_cast<const char*>(buffer.untyped_data());
+  out->item_bytes = items * ffi::ByteWidth(buffer.element_type());
+  out->stride.assign(batch.size(), 0);
+  int64_t stride = 1;
+  for (std::size_t a = batch.size(); a-- > 0;) {
+    if (dims[a] != 1 && dims[a] != batch[a]) {
+      return ffi::Error(ffi::ErrorCode::kInvalidArgument,
+                        std::string("symplid kernel: batch axes do not match for ") + name);
+    }
+    out->stride[a] = dims[a] == 1 ? 0 : stride;
+    stride *= dims[a];
+  }
+  return ffi::Error::Success();
+}
+
+// Reads the settings from the attributes and checks their sizes against each other.
+ffi::Error read_settings(Settings& s, int64_t dim, int64_t order, ffi::Span<const int64_t> exps,
+                         int64_t composition, ffi::Span<const double> comp_w,
+                         ffi::Span<const double> rk_a, ffi::Span<const double> rk_b,
+                         int64_t has_mass, ffi::Span<const double> inv_mass,
+                         ffi::Span<const double> obs_matrix, ffi::Span<const double> wm,
+                         ffi::Span<const double> wc, double scale, double jitter,
+                         int64_t per_step, int64_t diagonal, int64_t max_steps, int64_t uniform) {
+  s.d = static_cast<int>(dim);
+  s.n = 2 * s.d;
+  s.npts = 2 * s.n + 1;
+  s.order = static_cast<int>(order);
+  s.ncoef = static_cast<int>(exps.size() / std::max<int64_t>(dim, 1));
+  s.dy = static_cast<int>(obs_matrix.size() / std::max(s.n, 1));
+  s.exponents = exps.begin();
+  s.composition = composition != 0;
+  s.comp_w = comp_w.begin();
+  s.ncomp = static_cast<int>(comp_w.size());
+  s.rk_a = rk_a.begin();
+  s.rk_b = rk_b.begin();
+  s.stages = s.composition ? 0 : static_cast<int>(rk_b.size());
+  s.has_mass = has_mass != 0;
+  s.inv_mass = inv_mass.begin();
+  s.obs_matrix = obs_matrix.begin();
+  s.wm = wm.begin();
+  s.wc = wc.begin();
+  s.scale = scale;
+  s.jitter = jitter;
+  s.per_step = per_step != 0;
+  s.diagonal = diagonal != 0;
+  s.max_steps = static_cast<int>(max_steps);
+  s.uniform = uniform != 0;
+  s.nparams = s.ncoef + (s.diagonal ? s.n + s.dy : 2);
+  const bool ok = s.d >= 1 && s.order >= 1 && exps.size() == std::size_t(s.ncoef) * s.d &&
+                  obs_matrix.size() == std::size_t(s.dy) * s.n && s.dy >= 1 &&
+                  wm.size() == std::size_t(s.npts) && wc.size() == std::size_t(s.npts) &&
+                  (!s.has_mass || inv_mass.size() == std::size_t(s.d) * s.d) &&
+                  (s.composition ? s.ncomp >= 1
+                                 : rk_a.size() == std::size_t(s.stages) * s.stages);
+  if (!ok) {
+    return ffi::Error(ffi::ErrorCode::kInvalidArgument, "symplid kernel: inconsistent settings");
+  }
+  return ffi::Error::Success();
+}
+
+// Compiles the basis into the force's term program (Settings::term_*), in basis order.
+void build_terms(Settings& s, Workspace& w) {
+  const int d = s.d, width = s.order + 1;
+  w.term_start.assign(1, 0);
+  w.term_coef_index.clear();
+  w.term_mult.clear();
+  w.factor_start.assign(1, 0);
+  w.factor_rows.clear();
+  for (int j = 0; j < d; ++j) {
+    for (int m = 0; m < s.ncoef; ++m) {
+      const int64_t* e = s.exponents + m * d;
+      if (e[j] == 0) continue;
+      w.term_coef_index.push_back(m);
+      w.term_mult.push_back(static_cast<double>(e[j]));
+      for (int i = 0; i < d; ++i) {
+        const int64_t power = e[i] - (i == j ? 1 : 0);
+        if (power > 0) w.factor_rows.push_back(i * width + static_cast<int>(power));
+      }
+      w.factor_start.push_back(static_cast<int>(w.factor_rows.size()));
+    }
+    w.term_start.push_back(static_cast<int>(w.term_coef_index.size()));
+  }
+  s.num_terms = static_cast<int>(w.term_coef_index.size());
+  s.term_start = w.term_start.data();
+  s.term_coef_index = w.term_coef_index.data();
+  s.term_mult = w.term_mult.data();
+  s.factor_start = w.factor_start.data();
+  s.factor_rows = w.factor_rows.data();
+}
+
+}  // namespace
+
+// The FFI handler: reads the settings and the (batched) buffers, then evaluates every batch
+// element, in groups of kMaxGroup where the data are shared.
+ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffer P0,
+                          ffi::AnyBuffer step_size, ffi::AnyBuffer num_steps, ffi::AnyBuffer ys,
+                          ffi::AnyBuffer masks, ffi::Result<ffi::AnyBuffer> out, int64_t dim,
+                          int64_t order, ffi::Span<const int64_t> exponents,
+                          int64_t composition, ffi::Span<const double> comp_w,
+                          ffi::Span<const double> rk_a, ffi::Span<const double> rk_b,
+                          int64_t has_mass, ffi::Span<const double> inv_mass,
+                          ffi::Span<const double> obs_matrix, ffi::Span<const double> wm,
+                          ffi::Span<const double> wc, double scale, double jitter,
+                          int64_t per_step, int64_t diagonal, int64_t max_steps,
+                          int64_t uniform) {
+  static const EvaluateFn evaluate = select_kernel();
+  thread_local Workspace work;
+
+  Settings s;
+  if (auto err = read_settings(s, dim, order, exponents, composition, comp_w, rk_a, rk_b,
+                               has_mass, inv_mass, obs_matrix, wm, wc, scale, jitter, per_step,
+                               diagonal, max_steps, uniform);
+      !err.success()) {
+    return err;
+  }
+  for (int64_t e : exponents) {
+    if (e < 0 || e > order) {
+      return ffi::Error(ffi::ErrorCode::kInvalidArgument, "symplid kernel: bad exponents");
+    }
+  }
+  build_terms(s, work);
+  if (theta.element_type() != ffi::F64 || x0.element_type() != ffi::F64 ||
+      P0.element_type() != ffi::F64 || step_size.element_type() != ffi::F64 ||
+      num_steps.element_type() != ffi::S64 || ys.element_type() != ffi::F64 ||
+      masks.element_type() != ffi::PRED || out->element_type() != ffi::F64) {
+    return ffi::Error(ffi::ErrorCode::kInvalidArgument, "symplid kernel: wrong dtypes");
+  }
+  const auto out_dims = out->dimensions();
+  const std::vector<int64_t> batch(out_dims.begin(), out_dims.end());
+  Batched th, m0, c0, dt, ns, y, mk;
+  for (auto [buf, rank, name, view] :
+       {std::tuple{&theta, 1, "theta", &th}, std::tuple{&x0, 1, "x0", &m0},
+        std::tuple{&P0, 2, "P0", &c0}, std::tuple{&step_size, 1, "step_size", &dt},
+        std::tuple{&num_steps, 1, "num_steps", &ns}, std::tuple{&ys, 2, "ys", &y},
+        std::tuple{&masks, 2, "masks", &mk}}) {
+    if (auto err = batched(*buf, rank, batch, name, view); !err.success()) return err;
+  }
+  const auto gaps = step_size.dimensions().back();
+  if (theta.dimensions().back() != s.nparams || x0.dimensions().back() != s.n ||
+      ys.dimensions().back() != s.dy || num_steps.dimensions().back() != gaps ||
+      ys.dimensions()[ys.dimensions().size() - 2] != gaps) {
+    return ffi::Error(ffi::ErrorCode::kInvalidArgument, "symplid kernel: wrong shapes");
+  }
+
+  int64_t total = 1;
+  for (int64_t b : batch) total *= b;
+  const bool shared_data = dt.shared() && ns.shared() && y.shared() && mk.shared();
+  double* result = static_cast<double*>(out->untyped_data());
+  std::vector<int64_t> index(batch.size(), 0);
+  auto next_index = [&] {  // row-major increment of the batch multi-index
+    for (std::size_t a = batch.size(); a-- > 0;) {
+      if (++index[a] < batch[a]) return;
+      index[a] = 0;
+    }
+  };
+  for (int64_t start = 0; start < total;) {
+    const int G = (shared_data && total - start >= kMaxGroup) ? kMaxGroup : 1;
+    Member members[kMaxGroup];
+    TrajectoryData data;
+    for (int g = 0; g < G; ++g) {
+      members[g].theta = reinterpret_cast<const double*>(th.data + th.offset(index));
+      members[g].x0 = reinterpret_cast<const double*>(m0.data + m0.offset(index));
+      members[g].P0 = reinterpret_cast<const double*>(c0.data + c0.offset(index));
+      members[g].out = result + start + g;
+      if (g == 0) {
+        data.num_gaps = static_cast<int>(gaps);
+        data.step_size = reinterpret_cast<const double*>(dt.data + dt.offset(index));
+        data.num_steps = reinterpret_cast<const int64_t*>(ns.data + ns.offset(index));
+        data.ys = reinterpret_cast<const double*>(y.data + y.offset(index));
+        data.masks = reinterpret_cast<const bool*>(mk.data + mk.offset(index));
+      }
+      next_index();
+    }
+    evaluate(s, data, members, G, work);
+    start += G;
+  }
+  return ffi::Error::Success();
+}
+
+}  // namespace symplid
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(SymplidUkfLogLikelihood, symplid::log_likelihood,
+                              ffi::Ffi::Bind()
+                                  .Arg<ffi::AnyBuffer>()  // theta
+                                  .Arg<ffi::AnyBuffer>()  // x0
+                                  .Arg<ffi::AnyBuffer>()  // P0
+                                  .Arg<ffi::AnyBuffer>()  // step_size
+                                  .Arg<ffi::AnyBuffer>()  // num_steps
+                                  .Arg<ffi::AnyBuffer>()  // ys
+                                  .Arg<ffi::AnyBuffer>()  // masks
+                                  .Ret<ffi::AnyBuffer>()  // log-likelihood
+                                  .Attr<int64_t>("dim")
+                                  .Attr<int64_t>("order")
+                                  .Attr<ffi::Span<const int64_t>>("exponents")
+                                  .Attr<int64_t>("composition")
+                                  .Attr<ffi::Span<const double>>("comp_weights")
+                                  .Attr<ffi::Span<const double>>("rk_a")
+                                  .Attr<ffi::Span<const double>>("rk_b")
+                                  .Attr<int64_t>("has_mass")
+                                  .Attr<ffi::Span<const double>>("inv_mass")
+                                  .Attr<ffi::Span<const double>>("obs_matrix")
+                                  .Attr<ffi::Span<const double>>("weights_mean")
+                                  .Attr<ffi::Span<const double>>("weights_cov")
+                                  .Attr<double>("scale")
+                                  .Attr<double>("jitter")
+                                  .Attr<int64_t>("per_step")
+                                  .Attr<int64_t>("diagonal")
+                                  .Attr<int64_t>("max_steps")
+                                  .Attr<int64_t>("uniform"));
+
+// The instruction set the kernel runs with ("avx512", "avx2" or "baseline"), for reports.
+extern "C" const char* symplid_kernel_isa() { return symplid::kernel_isa(); }
