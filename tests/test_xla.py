@@ -122,6 +122,15 @@ def test_filter_loop_compiles_to_one_kernel(hh_model, small_data, small_x0, smal
 
 
 @needs_flag
+def test_filter_gradient_compiles_to_one_kernel(hh_model, small_data, small_x0, small_P0,
+                                                small_theta):
+    loglik = hh_model.log_likelihood_fn(small_data, small_x0, small_P0)
+    text = jax.jit(jax.grad(loglik)).lower(jnp.asarray(small_theta)).compile().as_text()
+    assert " scatter(" not in text, "a scatter (e.g. the transpose of jnp.diagonal) in the loop"
+    assert _one_kernel(text)
+
+
+@needs_flag
 def test_dram_chunk_compiles_to_one_kernel():
     dim = 11
     scales = jnp.linspace(0.5, 2.0, dim)
