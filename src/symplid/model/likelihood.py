@@ -23,7 +23,7 @@ This module also registers the JAX reference as the likelihood backend ``"jax"``
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Any, Literal, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -45,17 +45,66 @@ from symplid.filters import (
 )
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
 
-if TYPE_CHECKING:
-    from symplid.model.statespace import HamiltonianModel, PreparedData
-
 Array = jax.Array
 FilterFn = Callable[..., FilterResult]
 
-__all__ = ["JAX_BACKEND", "build_filter", "filter_result", "log_likelihood"]
+__all__ = [
+    "JAX_BACKEND",
+    "GapInputs",
+    "PreparedData",
+    "StateSpaceModel",
+    "build_filter",
+    "filter_result",
+    "log_likelihood",
+]
+
+
+class GapInputs(NamedTuple):
+    """What the propagator needs for each gap: substep size and number of substeps."""
+
+    step_size: Array  # (n,)
+    num_steps: Array  # (n,) int
+
+
+class PreparedData(NamedTuple):
+    """Observations turned into arrays for the compiled filter (built once per data set)."""
+
+    inputs: GapInputs
+    ys: Array
+    masks: Array
+    max_steps: int
+    uniform_steps: bool  # every gap has max_steps substeps (no masking needed)
+
+
+class StateSpaceModel(Protocol):
+    """What the likelihood reads from a model (:class:`symplid.HamiltonianModel` has it all)."""
+
+    potential: Any
+    integrator: Any
+    mass: Any
+    observation: Any
+    process_noise_per: Literal["gap", "step"]
+    alpha: float
+    beta: float
+    kappa: float
+    jitter: float
+    unroll: int
+
+    @property
+    def state_dim(self) -> int: ...
+
+    @property
+    def num_coefficients(self) -> int: ...
+
+    @property
+    def observation_matrix(self) -> np.ndarray | None: ...
+
+    def split(self, theta: Array) -> tuple[Array, Array, Array]: ...
+
 
 
 def filter_result(
-    model: HamiltonianModel, theta: Array, prepared: PreparedData, x0: Array, P0: Array
+    model: StateSpaceModel, theta: Array, prepared: PreparedData, x0: Array, P0: Array
 ) -> FilterResult:
     """Run the UKF for ``model`` at θ on prepared data: log-likelihood and moments.
 
@@ -82,7 +131,7 @@ def filter_result(
 
 
 def log_likelihood(
-    model: HamiltonianModel, theta: Array, prepared: PreparedData, x0: Array, P0: Array
+    model: StateSpaceModel, theta: Array, prepared: PreparedData, x0: Array, P0: Array
 ) -> Array:
     """log p(y_1..n | θ) by the UKF (Theorem 1, eqs 10–12); −∞ for invalid θ or a failure.
 
@@ -91,7 +140,7 @@ def log_likelihood(
     return filter_result(model, theta, prepared, x0, P0).log_likelihood
 
 
-def build_filter(model: HamiltonianModel, max_steps: int, uniform_steps: bool) -> FilterFn:
+def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) -> FilterFn:
     """The filter as ``fn(theta, inputs, ys, masks, x0, P0) -> FilterResult`` (not jitted).
 
     ``max_steps`` and ``uniform_steps`` come from the prepared data: the most substeps in
@@ -120,7 +169,7 @@ def build_filter(model: HamiltonianModel, max_steps: int, uniform_steps: bool) -
 
 
 def _observation_moments(
-    model: HamiltonianModel, weights: UnscentedWeights
+    model: StateSpaceModel, weights: UnscentedWeights
 ) -> Callable[[Array, Array], ObservationMoments]:
     """``(m⁻, P⁻) -> (ŷ, S, C)``: exact for a linear h, unscented for a function."""
     matrix = model.observation_matrix
@@ -140,7 +189,7 @@ def _observation_moments(
 
 
 def _prediction(
-    model: HamiltonianModel,
+    model: StateSpaceModel,
     dynamics,
     proc: Array,
     weights: UnscentedWeights,
@@ -210,11 +259,11 @@ def _prediction(
     return predict_per_gap
 
 
-def _jax_supports(model: HamiltonianModel, prepared: PreparedData | None) -> str | None:
+def _jax_supports(model: StateSpaceModel, prepared: PreparedData | None) -> str | None:
     return None  # the reference handles every model
 
 
-def _jax_build(model: HamiltonianModel, prepared: PreparedData) -> FilterFn:
+def _jax_build(model: StateSpaceModel, prepared: PreparedData) -> FilterFn:
     return build_filter(model, prepared.max_steps, prepared.uniform_steps)
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
@@ -33,27 +33,10 @@ from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult, unscented_weights
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
 from symplid.model.data import DataError, Observations
-from symplid.model.likelihood import JAX_BACKEND
+from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 
 Array = jax.Array
 ObservationSpec = str | np.ndarray | Callable[[Array], Array]
-
-
-class GapInputs(NamedTuple):
-    """What the propagator needs for each gap: substep size and number of substeps."""
-
-    step_size: Array  # (n,)
-    num_steps: Array  # (n,) int
-
-
-class PreparedData(NamedTuple):
-    """Observations turned into arrays for the compiled filter (built once per data set)."""
-
-    inputs: GapInputs
-    ys: Array
-    masks: Array
-    max_steps: int
-    uniform_steps: bool  # every gap has max_steps substeps (no masking needed)
 
 
 @dataclass(frozen=True, eq=False)
