@@ -9,7 +9,8 @@ Rows:
 * ``jax vmap 8`` / ``jax vmap 64``: one call over a batch of θ, time per θ (amortised).
 * ``numpy``: a plain vectorised NumPy UKF (tests/reference_filters.py), the baseline.
 
-Everything runs on one CPU thread. Run: ``python benchmarks/likelihood.py``.
+Everything runs on one CPU thread, pinned to CPU 0, with the XLA flags of ``import symplid``.
+Run: ``python benchmarks/likelihood.py``.
 """
 
 from __future__ import annotations
@@ -116,9 +117,11 @@ def main() -> None:
         ("numpy (baseline)", t_numpy),
     ]
     print(f"log-likelihood = {got:.10f} (NumPy {ref:.10f})")
-    print(f"{'implementation':<28} {'µs / eval':>10} {'× numpy':>9}")
+    print("| implementation | µs / eval | × numpy |")
+    print("|---|---:|---:|")
     for name, seconds in rows:
-        print(f"{name:<28} {seconds * 1e6:>10.1f} {t_numpy / seconds:>9.0f}")
+        print(f"| {name} | {seconds * 1e6:.1f} | {t_numpy / seconds:.0f} |")
+    print("(tiers as same-run ratios: benchmarks/speed_tiers.py)")
 
 
 if __name__ == "__main__":
