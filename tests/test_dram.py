@@ -166,7 +166,7 @@ def test_far_start_reaches_the_mode():
 @pytest.fixture(scope="module", params=["gaussian", "banana", "gamma"])
 def dram_run(request):
     target = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}[request.param]()
-    idata = sample(target, "dram", num_samples=8000, num_chains=4, seed=5,
+    idata = sample(target, "dram", num_draws=8000, num_chains=4, seed=5,
                    init=target.map_result(), burn_in=2000, progress=False)
     return target, idata
 
@@ -222,7 +222,7 @@ def test_nan_log_density_is_a_rejection():
 
 def test_without_delayed_rejection_stage2_never_runs():
     target = Gaussian2D()
-    idata = sample(target, "dram", num_samples=500, num_chains=2, seed=0,
+    idata = sample(target, "dram", num_draws=500, num_chains=2, seed=0,
                    init=target.map_result(), progress=False,
                    settings={"delayed_rejection": False})
     assert not idata.sample_stats["stage2_attempted"].any()
@@ -260,7 +260,7 @@ def test_short_dram_run_on_the_papers_posterior(hh, hh_model, hh_data, hh_theta)
     # process variance ~4e-6, observation variance ~4e-4).
     scales = np.r_[np.full(9, 0.02), 4e-6, 4e-4]
     rough = MapResult(np.asarray(hh_theta), np.diag(scales**2), np.diag(scales**-2), 0.0)
-    idata = sample(posterior, "dram", num_samples=1000, num_chains=2, seed=0, init=rough,
+    idata = sample(posterior, "dram", num_draws=1000, num_chains=2, seed=0, init=rough,
                    burn_in=500, init_spread=0.5, progress=False)
     adapted = np.asarray(idata.attrs["dram_adapted_covariance"])
     assert np.all(np.isfinite(adapted))
