@@ -31,11 +31,14 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault(
-    "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-)
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(var, "1")
+if hasattr(os, "sched_setaffinity"):
+    os.sched_setaffinity(0, {0})  # pinned to one core: the machine may be shared
+
+from symplid import runtime  # noqa: E402  (sets the small-loop flag before JAX starts)
+
+runtime.limit_threads()  # one XLA thread, merged so that no flag is lost behind a bare token
 
 import argparse  # noqa: E402
 import json  # noqa: E402

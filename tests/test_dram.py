@@ -166,7 +166,7 @@ def test_far_start_reaches_the_mode():
 @pytest.fixture(scope="module", params=["gaussian", "banana", "gamma"])
 def dram_run(request):
     target = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}[request.param]()
-    idata = sample(target, "dram", num_samples=8000, num_chains=4, seed=5,
+    idata = sample(target, "dram", num_draws=8000, num_chains=4, seed=5,
                    init=target.map_result(), burn_in=2000, progress=False)
     return target, idata
 
@@ -222,7 +222,7 @@ def test_nan_log_density_is_a_rejection():
 
 def test_without_delayed_rejection_stage2_never_runs():
     target = Gaussian2D()
-    idata = sample(target, "dram", num_samples=500, num_chains=2, seed=0,
+    idata = sample(target, "dram", num_draws=500, num_chains=2, seed=0,
                    init=target.map_result(), progress=False,
                    settings={"delayed_rejection": False})
     assert not idata.sample_stats["stage2_attempted"].any()
@@ -260,7 +260,7 @@ def test_short_dram_run_on_the_papers_posterior(hh, hh_model, hh_data, hh_theta)
     # process variance ~4e-6, observation variance ~4e-4).
     scales = np.r_[np.full(9, 0.02), 4e-6, 4e-4]
     rough = MapResult(np.asarray(hh_theta), np.diag(scales**2), np.diag(scales**-2), 0.0)
-    idata = sample(posterior, "dram", num_samples=1000, num_chains=2, seed=0, init=rough,
+    idata = sample(posterior, "dram", num_draws=1000, num_chains=2, seed=0, init=rough,
                    burn_in=500, init_spread=0.5, progress=False)
     adapted = np.asarray(idata.attrs["dram_adapted_covariance"])
     assert np.all(np.isfinite(adapted))
@@ -274,3 +274,42 @@ def test_short_dram_run_on_the_papers_posterior(hh, hh_model, hh_data, hh_theta)
     draws = draws_array(idata)
     assert np.all(np.isfinite(draws)) and np.all(draws[..., 9:] > 0)
     assert np.all(np.isfinite(stats_["lp"]))
+
+
+# ----------------------------------------------------------------------------------------
+# The kernel's small-matrix linear algebra (unrolled, so that a chunk compiles to one
+# kernel) equals LAPACK's.
+
+
+@pytest.mark.parametrize("dim", [1, 2, 5, 11, 16])
+def test_unrolled_linear_algebra_equals_lapack(dim):
+    from jax.scipy.linalg import solve_triangular
+
+    rng = np.random.default_rng(dim)
+    a = rng.normal(size=(dim, dim))
+    sd = np.sqrt(np.logspace(-8, 0, dim))  # scales as different as the paper's parameters'
+    cov = jnp.asarray(sd[:, None] * (a @ a.T / dim + 0.1 * np.eye(dim)) * sd[None, :])
+    nugget = 1e-10 * jnp.diag(cov)
+    factor = 2.4**2 / dim
+
+    chol = dram._proposal_chol(cov, nugget, factor)
+    lapack = jnp.linalg.cholesky(factor * (0.5 * (cov + cov.T) + jnp.diag(nugget)))
+    scale = np.max(np.abs(np.asarray(lapack)))
+    np.testing.assert_allclose(chol, lapack, rtol=0, atol=1e-12 * scale)
+    assert np.all(np.triu(np.asarray(chol), 1) == 0.0)
+
+    start, end = jnp.asarray(rng.normal(size=dim)), jnp.asarray(rng.normal(size=dim))
+    white = solve_triangular(lapack, end - start, lower=True)
+    np.testing.assert_allclose(
+        dram._log_q1(lapack, start, end), -0.5 * jnp.sum(white**2), rtol=1e-12
+    )
+    z = jnp.asarray(rng.normal(size=dim))
+    from symplid.filters.linalg import matmul
+
+    np.testing.assert_allclose(matmul(lapack, z), lapack @ z, rtol=1e-12, atol=1e-15 * scale)
+
+
+def test_unrolled_cholesky_of_a_non_positive_definite_matrix_is_not_finite():
+    cov = jnp.asarray(np.diag([1.0, -1.0, 1.0]))
+    chol = dram._proposal_chol(cov, jnp.zeros(3), 1.0)
+    assert not np.all(np.isfinite(np.asarray(chol)))

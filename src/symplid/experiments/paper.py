@@ -133,9 +133,7 @@ def paper_settings(config: PaperConfig, approach: str) -> Settings:
 
 def _limit_threads() -> None:
     """One XLA thread per process: the parallelism is across processes."""
-    os.environ.setdefault(
-        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-    )
+    runtime.limit_threads()
 
 
 def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:

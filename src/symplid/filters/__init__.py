@@ -2,9 +2,11 @@
 
 Layer 2 of the package (above :mod:`symplid.dynamics`): small-matrix linear algebra
 (:mod:`~symplid.filters.linalg`), the unscented transform (:mod:`~symplid.filters.unscented`),
-the Gaussian update and the recursion (:mod:`~symplid.filters.update`).
+the Gaussian update and the recursion (:mod:`~symplid.filters.update`), and the registry of
+likelihood backends (:mod:`~symplid.filters.backends`).
 """
 
+from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
 from symplid.filters.linalg import (
     SMALL_DIM,
     cholesky,
@@ -26,8 +28,10 @@ from symplid.filters.unscented import (
 from symplid.filters.update import FilterResult, gaussian_update, run_filter
 
 __all__ = [
+    "LIKELIHOOD_BACKENDS",
     "SMALL_DIM",
     "FilterResult",
+    "LikelihoodBackend",
     "ObservationMoments",
     "UnscentedWeights",
     "cholesky",

@@ -16,6 +16,9 @@ import jax.numpy as jnp
 Array = jax.Array
 
 SMALL_DIM = 8
+#: Largest dimension for which a caller may ask for the unrolled versions explicitly (the
+#: sampler's proposal covariance: 11 parameters for the paper's posterior).
+MAX_UNROLLED_DIM = 16
 
 
 def symmetrize(a: Array) -> Array:
@@ -29,15 +32,16 @@ def matmul(a: Array, b: Array) -> Array:
     return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
 
 
-def cholesky(a: Array) -> Array:
+def cholesky(a: Array, max_unrolled: int = SMALL_DIM + 1) -> Array:
     """Lower Cholesky factor; NaN or inf (never an error) when ``a`` is not positive definite.
 
-    For n ≤ SMALL_DIM this is the right-looking algorithm unrolled at trace time: one column
-    and one rank-1 update of the trailing matrix per step, a few fused kernels per column
-    instead of a LAPACK call or one kernel per scalar.
+    For n ≤ ``max_unrolled`` this is the right-looking algorithm unrolled at trace time: one
+    column and one rank-1 update of the trailing matrix per step, a few fused kernels per
+    column instead of a LAPACK call (a custom call, which keeps XLA from compiling the
+    surrounding loop as one kernel) or one kernel per scalar.
     """
     n = a.shape[-1]
-    if n > SMALL_DIM + 1:
+    if n > max_unrolled:
         return jnp.linalg.cholesky(a)
     return cholesky_columns(a, n)
 
@@ -59,10 +63,13 @@ def cholesky_columns(a: Array, num_columns: int) -> Array:
     return jnp.stack(cols, axis=1)
 
 
-def solve_lower(chol: Array, b: Array) -> Array:
-    """Solve L x = b by forward substitution; ``b`` has shape ``(n,)`` or ``(n, k)``."""
+def solve_lower(chol: Array, b: Array, max_unrolled: int = SMALL_DIM) -> Array:
+    """Solve L x = b by forward substitution; ``b`` has shape ``(n,)`` or ``(n, k)``.
+
+    Unrolled at trace time for n ≤ ``max_unrolled``, ``solve_triangular`` beyond.
+    """
     n = chol.shape[-1]
-    if n > SMALL_DIM:
+    if n > max_unrolled:
         return jax.scipy.linalg.solve_triangular(chol, b, lower=True)
     xs: list[Array] = []
     for i in range(n):

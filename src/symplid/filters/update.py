@@ -93,10 +93,20 @@ def gaussian_update(
     new_mean = mean + matmul(gain, z)
     log_lik = (
         -0.5 * jnp.sum(z * z)
-        - jnp.sum(jnp.log(jnp.diagonal(chol_s)))
+        - jnp.sum(jnp.log(_diagonal(chol_s)))
         - 0.5 * jnp.sum(mask) * _LOG_2PI
     )
     return new_mean, chol_post, log_lik
+
+
+def _diagonal(a: Array) -> Array:
+    """``jnp.diagonal(a)`` by a mask: exact, and its gradient is a select, not a scatter-add.
+
+    A scatter in the filter's loop body would keep XLA:CPU from compiling the gradient's
+    loop as one kernel (see :func:`symplid.runtime.configure_xla`).
+    """
+    eye = jnp.eye(a.shape[-1], dtype=bool)
+    return jnp.sum(jnp.where(eye, a, 0.0), axis=-1)
 
 
 class FilterResult(NamedTuple):

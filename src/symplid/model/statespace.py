@@ -1,5 +1,8 @@
 """The noisy Hamiltonian state-space model, eq. (7), and its UKF log marginal likelihood.
 
+The likelihood itself is the free function :func:`symplid.model.likelihood.log_likelihood`;
+the model holds the settings, the layout of θ and the data preparation, and delegates.
+
     X_k = Ψ(X_{k−1}; θ_Ψ) + ξ_k,   ξ_k ~ N(0, Σ(θ_Σ))
     Y_k = h(X_k) + η_k,            η_k ~ N(0, Γ(θ_Γ))
 
@@ -15,48 +18,25 @@ one per component (``noise="diagonal"``). Variances, not standard deviations.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.dynamics.integrators import Integrator, get_integrator, make_dynamics
+from symplid.compiled import cached
+from symplid.dynamics.integrators import Integrator, get_integrator
 from symplid.dynamics.potentials import Potential, hamiltonian, inverse_mass, mass_matrix
-from symplid.dynamics.trajectory import propagate, substeps
-from symplid.filters import (
-    FilterResult,
-    ObservationMoments,
-    cholesky,
-    observation_moments_linear,
-    observation_moments_unscented,
-    run_filter,
-    unscented_predict,
-    unscented_weights,
-)
+from symplid.dynamics.trajectory import substeps
+from symplid.filters import FilterResult, unscented_weights
+from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
 from symplid.model.data import DataError, Observations
+from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 
 Array = jax.Array
 ObservationSpec = str | np.ndarray | Callable[[Array], Array]
-
-
-class GapInputs(NamedTuple):
-    """What the propagator needs for each gap: substep size and number of substeps."""
-
-    step_size: Array  # (n,)
-    num_steps: Array  # (n,) int
-
-
-class PreparedData(NamedTuple):
-    """Observations turned into arrays for the compiled filter (built once per data set)."""
-
-    inputs: GapInputs
-    ys: Array
-    masks: Array
-    max_steps: int
-    uniform_steps: bool  # every gap has max_steps substeps (no masking needed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,6 +71,10 @@ class HamiltonianModel:
         filtered covariance is kept as a Cholesky factor and needs none).
     unroll
         Unroll factor of the substep loop (``lax.fori_loop(unroll=...)``).
+    backend
+        Likelihood backend from :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS`
+        (``"jax"``: the reference) or ``"auto"`` (the best one that supports the model; see
+        :attr:`likelihood_backend`). :meth:`filter` always runs the JAX reference.
     """
 
     potential: Potential
@@ -105,7 +89,7 @@ class HamiltonianModel:
     kappa: float = 0.0
     jitter: float = 1e-12
     unroll: int = 1
-    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    backend: str = "auto"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "integrator", get_integrator(self.integrator))
@@ -134,6 +118,9 @@ class HamiltonianModel:
                     f"observation matrix must have {self.state_dim} columns, got {matrix.shape}"
                 )
             object.__setattr__(self, "observation", matrix)
+        object.__setattr__(self, "backend", check_backend_name(self.backend))
+        if self.backend != "auto":
+            select_backend(self.backend, self)  # a forced backend must support the model
 
     # ------------------------------------------------------------------ layout of θ
     @property
@@ -238,110 +225,27 @@ class HamiltonianModel:
             bool(np.all(num_steps == num_steps.max())),
         )
 
-    # ------------------------------------------------------------------ the filter
-    def _dynamics(self, coefficients: Array):
-        return make_dynamics(
-            self.potential, coefficients, inverse_mass(self.mass, self.potential.dim)
-        )
+    # ------------------------------------------------------------------ the likelihood
+    @property
+    def likelihood_backend(self) -> str:
+        """The backend that computes this model's log-likelihood (``backend="auto"`` resolved).
 
-    def _build_filter(self, max_steps: int, uniform_steps: bool) -> Callable[..., FilterResult]:
-        weights = unscented_weights(self.state_dim, self.alpha, self.beta, self.kappa)
-        d = self.potential.dim
-        integrator = self.integrator
-        jitter = self.jitter
-        unroll = self.unroll
-        matrix = self.observation_matrix
-        nc = self.num_coefficients
-        per_step = self.process_noise_per == "step"
+        Chosen among :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS` for the model
+        alone; a backend that declines a particular data set hands it to the next one.
+        """
+        return select_backend(self.backend, self).name
 
-        # Sigma points travel as one (2d, 2n+1) array of columns: every substep is then
-        # elementwise over the points, which XLA fuses into a couple of kernels per substep.
-        def propagate_points(dynamics, points, step_size, num_steps):
-            q, p = propagate(
-                integrator,
-                dynamics,
-                points[:d],
-                points[d:],
-                step_size,
-                num_steps,
-                max_steps,
-                unroll,
-                masked=not uniform_steps,
-            )
-            return jnp.concatenate([q, p])
+    def _compiled(self, prepared: PreparedData, backend: str = "jax") -> Callable[..., Any]:
+        """The jitted ``fn(theta, inputs, ys, masks, x0, P0)`` of ``backend``, cached on self."""
+        key = ("likelihood", backend, prepared.max_steps, prepared.uniform_steps)
+        entry = LIKELIHOOD_BACKENDS.get_entry(backend)
+        return cached(self, key, lambda: jax.jit(entry.build(self, prepared)))
 
-        def step_points(dynamics, points, step_size):
-            q, p = integrator.step(dynamics, points[:d], points[d:], step_size)
-            return jnp.concatenate([q, p])
-
-        if matrix is not None:
-            h = np.asarray(matrix)  # a constant: built outside any trace
-
-            def moments(m, p) -> ObservationMoments:
-                return observation_moments_linear(m, p, h)
-        else:
-            observe = self.observation
-
-            def moments(m, p) -> ObservationMoments:
-                return observation_moments_unscented(m, p, lambda x: jnp.ravel(observe(x)), weights)
-
-        def log_likelihood(theta, inputs, ys, masks, x0, p0):
-            # Invalid variances give −∞; meanwhile the filter runs on their absolute values (a
-            # nearby valid point) so that no NaN reaches the gradient through the discarded branch.
-            variances = theta[nc:]
-            variances_ok = jnp.all(variances > 0)
-            theta = theta.at[nc:].set(
-                jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12)
-            )
-            coeffs, proc, obs = self.split(theta)
-            dynamics = self._dynamics(coeffs)
-
-            if per_step:
-
-                def predict(m, chol, inp):
-                    def body(i, carry):
-                        mi, li, pi = carry
-                        mn, pn, _ = unscented_predict(
-                            mi,
-                            li,
-                            lambda pts: step_points(dynamics, pts, inp.step_size),
-                            proc,
-                            weights,
-                            jitter,
-                        )
-                        active = i < inp.num_steps
-                        return (
-                            jnp.where(active, mn, mi),
-                            jnp.where(active, cholesky(pn), li),
-                            jnp.where(active, pn, pi),
-                        )
-
-                    m, _, p = jax.lax.fori_loop(0, max_steps, body, (m, chol, chol @ chol.T))
-                    return m, p
-            else:
-
-                def predict(m, chol, inp):
-                    mn, pn, _ = unscented_predict(
-                        m,
-                        chol,
-                        lambda pts: propagate_points(dynamics, pts, inp.step_size, inp.num_steps),
-                        proc,
-                        weights,
-                        jitter,
-                    )
-                    return mn, pn
-
-            result = run_filter(predict, moments, x0, p0, inputs, ys, masks, obs)
-            ll = jnp.where(variances_ok, result.log_likelihood, -jnp.inf)
-            return result._replace(log_likelihood=ll)
-
-        return log_likelihood
-
-    def _compiled(self, prepared: PreparedData):
-        key = (prepared.max_steps, prepared.uniform_steps)
-        if key not in self._cache:
-            self._cache[key] = jax.jit(self._build_filter(*key))
-        return self._cache[key]
+    def _loglik_program(self, prepared: PreparedData) -> Callable[..., Array]:
+        """The selected backend's compiled ``fn(theta, inputs, ys, masks, x0, P0) -> ll``."""
+        backend = select_backend(self.backend, self, prepared)
+        fn = self._compiled(prepared, backend.name)
+        return partial(_only_loglik, fn) if backend.filtered_moments else fn
 
     def _check_initial(self, x0, P0) -> tuple[Array, Array]:
         n = self.state_dim
@@ -359,6 +263,15 @@ class HamiltonianModel:
             raise ValueError(f"P0 must have shape ({n}, {n}), got {P0.shape}")
         return x0, P0
 
+    def _check_theta(self, theta: Array) -> Array:
+        theta = jnp.asarray(theta, dtype=float)
+        if theta.shape[-1] != self.num_params:
+            raise ValueError(
+                f"θ must have {self.num_params} entries ({', '.join(self.param_names)}), "
+                f"got {theta.shape[-1]}"
+            )
+        return theta
+
     def filter(
         self,
         theta: Array,
@@ -374,13 +287,8 @@ class HamiltonianModel:
         """
         prepared = data if isinstance(data, PreparedData) else self.prepare(data, t0)
         x0, P0 = self._check_initial(x0, P0)
-        theta = jnp.asarray(theta, dtype=float)
-        if theta.shape[-1] != self.num_params:
-            raise ValueError(
-                f"θ must have {self.num_params} entries ({', '.join(self.param_names)}), "
-                f"got {theta.shape[-1]}"
-            )
-        fn = self._compiled(prepared)
+        theta = self._check_theta(theta)
+        fn = self._compiled(prepared, JAX_BACKEND.name)  # the moments: always the reference
         return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
 
     def log_likelihood(
@@ -395,9 +303,14 @@ class HamiltonianModel:
 
         ``theta``, ``x0`` and ``P0`` may be traced: the function can be ``jit``-ed,
         ``vmap``-ed over θ and differentiated. ``data`` must be concrete (it fixes the
-        number of substeps per gap).
+        number of substeps per gap). Computed by :attr:`likelihood_backend`; the free function
+        :func:`symplid.model.likelihood.log_likelihood` is the JAX reference.
         """
-        return self.filter(theta, data, x0, P0, t0).log_likelihood
+        prepared = data if isinstance(data, PreparedData) else self.prepare(data, t0)
+        x0, P0 = self._check_initial(x0, P0)
+        theta = self._check_theta(theta)
+        fn = self._loglik_program(prepared)
+        return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
 
     def log_likelihood_fn(
         self, data: Observations, x0: Array, P0: Array | None = None, t0: float = 0.0
@@ -405,8 +318,8 @@ class HamiltonianModel:
         """A pure function θ ↦ log-likelihood with the data bound (prepared once)."""
         prepared = self.prepare(data, t0)
         x0, P0 = self._check_initial(x0, P0)
-        fn = self._compiled(prepared)
-        return partial(_loglik_only, fn, prepared, x0, P0)
+        fn = self._loglik_program(prepared)
+        return partial(_bound_loglik, fn, prepared, x0, P0)
 
     def hamiltonian(self, theta_or_coefficients: Array, state: Array) -> Array:
         """H(q, p) under the model's potential and mass, for θ or bare coefficients."""
@@ -414,5 +327,9 @@ class HamiltonianModel:
         return hamiltonian(self.potential, c, state, inverse_mass(self.mass, self.potential.dim))
 
 
-def _loglik_only(fn, prepared: PreparedData, x0, P0, theta):
-    return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0).log_likelihood
+def _only_loglik(fn: Callable[..., FilterResult], *args: Array) -> Array:
+    return fn(*args).log_likelihood
+
+
+def _bound_loglik(fn: Callable[..., Array], prepared: PreparedData, x0, P0, theta) -> Array:
+    return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)

@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 #: XLA flags that keep a JAX process on one CPU thread.
-XLA_SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+XLA_SINGLE_THREAD = runtime.single_thread_xla_flags()  # bare token last (see runtime)
 MAX_WARNINGS = 20  # distinct warning messages kept per cell
 
 
@@ -100,7 +100,7 @@ def _run_cell_task(settings: dict[str, Any], cell_fn: str | Callable) -> dict[st
     a program compiled for one cell is loaded from disk by the next cells, the other workers
     and later runs.
     """
-    os.environ.setdefault("XLA_FLAGS", XLA_SINGLE_THREAD)  # if this worker has not used JAX yet
+    runtime.limit_threads()  # if this worker has not used JAX yet
     import jax  # symplid is imported with this module, so float64 is on
 
     runtime.enable_compilation_cache()
