@@ -408,7 +408,10 @@ def _judge_with_hessian(
 
     The decrement is the log-posterior gain a Newton step would promise: scale-free, unlike
     the gradient, and robust to the small-scale roughness a filter with almost no process
-    noise can show. A start converged when L-BFGS-B said so and the decrement is < 1e-3.
+    noise can show. A start converged when the decrement is < 1e-3 and L-BFGS-B stopped by
+    its own test or because its line search could gain nothing more ("ABNORMAL" termination:
+    at the optimum the objective's rounding-level roughness is all a line search sees);
+    a start stopped by the iteration limit has not converged.
     """
     space = objective.space
     u = space.to_u(result.theta)
@@ -419,7 +422,9 @@ def _judge_with_hessian(
     if np.all(np.isfinite(grad_u)) and np.all(np.isfinite(hessian)):
         g = -(grad_u / scale)[free]  # gradient of log π in θ
         decrement = newton_decrement(g, hessian[np.ix_(free, free)])
-    lbfgs_ok = "CONVERGENCE" in result.message.upper() and np.isfinite(result.log_posterior)
+    message = result.message.upper()
+    stopped_itself = "CONVERGENCE" in message or "ABNORMAL" in message
+    lbfgs_ok = stopped_itself and np.isfinite(result.log_posterior)
     return dataclasses.replace(
         result, success=bool(lbfgs_ok and decrement < 1e-3), newton_decrement=decrement
     )
