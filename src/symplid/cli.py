@@ -1,8 +1,8 @@
 """The ``symplid`` command line: reproduce, simulate, fit, predict, report.
 
-Every user mistake (a bad file, a misspelt setting, an impossible value) ends with one line on
-stderr and exit code 2, never a traceback; Ctrl-C ends with exit code 130 and keeps whatever
-the sampler had drawn.
+Every user mistake (a bad file, a misspelt setting, an impossible value, a bad option) ends
+with one line on stderr and exit code 2, never a traceback; Ctrl-C (exit code 130) and SIGTERM
+(143) keep whatever the sampler had drawn and say "interrupted".
 """
 
 from __future__ import annotations
@@ -29,24 +29,50 @@ class UserError(click.ClickException):
 
 
 def _user_errors(fn: Callable) -> Callable:
-    """Turn the library's validation errors into one line and exit code 2."""
+    """Turn the library's validation errors into one line and exit code 2; Ctrl-C and SIGTERM
+    into "interrupted" and exit code 128 + the signal's number."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         from symplid.model.data import DataError
+        from symplid.workflow.interrupts import terminate_as_interrupt
         from symplid.workflow.settings import SettingsError
 
-        try:
-            return fn(*args, **kwargs)
-        except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
-            raise UserError(str(err)) from None
-        except ValueError as err:  # the library's argument checks
-            raise UserError(str(err)) from None
-        except KeyboardInterrupt:
-            click.echo("symplid: interrupted", err=True)
-            sys.exit(EXIT_INTERRUPTED)
+        with terminate_as_interrupt() as signals:
+            try:
+                return fn(*args, **kwargs)
+            except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
+                raise UserError(str(err)) from None
+            except (ValueError, NotADirectoryError) as err:  # the library's argument checks
+                raise UserError(str(err)) from None
+            except KeyboardInterrupt:
+                click.echo("symplid: interrupted", err=True)
+                sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
 
     return wrapper
+
+
+class _OneLineErrors(click.Group):
+    """A group whose usage errors (a bad option value, a missing argument) are one line, like
+    every other error, instead of click's usage block."""
+
+    def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:
+            result = super().main(*args, standalone_mode=False, **kwargs)
+        except click.UsageError as err:
+            where = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
+            message = " ".join(err.format_message().split())
+            click.echo(f"symplid: error: {message}{where}", err=True)
+            sys.exit(EXIT_USER_ERROR)
+        except click.ClickException as err:
+            err.show()
+            sys.exit(err.exit_code)
+        except click.exceptions.Abort:
+            click.echo("symplid: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+        sys.exit(result if isinstance(result, int) else 0)
 
 
 # Registries are read when a help text or a value needs them: importing symplid (and JAX) at
@@ -98,7 +124,10 @@ def _rk2_variants() -> tuple[str, ...]:
     return tuple(n[4:] for n in _integrators().names() if n.startswith("rk2-"))
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.group(
+    cls=_OneLineErrors,
+    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
+)
 @click.version_option(package_name="symplid")
 def main() -> None:
     """Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
@@ -236,9 +265,19 @@ def _floats(text: str | None, name: str) -> list[float] | None:
     default=None,
     help="Observation noise standard deviation [default: the system's, 0.05].",
 )
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option(
-    "--observation", type=click.Choice(["full", "positions"]), default="full", show_default=True
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Seed of the observation noise (and of --missing).",
+)
+@click.option(
+    "--observation",
+    type=click.Choice(["full", "positions"]),
+    default="full",
+    show_default=True,
+    help="Observe the full state, or the positions only.",
 )
 @click.option("--x0", type=str, default=None, help="Initial state q1..qd,p1..pd (comma-separated).")
 @click.option(
@@ -321,11 +360,25 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     help="Iterations per chain, burn-in included.",
 )
 @click.option("--samples", type=click.IntRange(min=1), default=None, hidden=True)
-@click.option("--burn-in", type=click.IntRange(min=0), default=None)
-@click.option("--chains", type=click.IntRange(min=1), default=None)
-@click.option("--seed", type=click.IntRange(min=0), default=None)
+@click.option(
+    "--burn-in", type=click.IntRange(min=0), default=None, help="Iterations discarded per chain."
+)
+@click.option("--chains", type=click.IntRange(min=1), default=None, help="Independent chains.")
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Seed of the MAP starts and of the sampler [default: 0].",
+)
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
+@click.option(
+    "--t0",
+    type=str,
+    default=None,
+    help='Time of the initial state: a number, or "first" (the first observation time) '
+    "[default: 0].",
+)
 @click.option(
     "--set",
     "sets",
@@ -334,7 +387,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
-@click.option("--no-progress", is_flag=True)
+@click.option("--no-progress", is_flag=True, help="No progress bar or status lines.")
 @_user_errors
 def fit(
     data,
@@ -351,11 +404,16 @@ def fit(
     seed,
     x0,
     learn_initial_state,
+    t0,
     sets,
     overwrite,
     no_progress,
 ) -> None:
-    """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder."""
+    """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
+
+    Ctrl-C (or SIGTERM) during sampling keeps the draws made so far, marks the run
+    "interrupted" and exits with code 130 (143).
+    """
     from symplid.io import read_observations
     from symplid.workflow.fit import fit as run
 
@@ -376,28 +434,75 @@ def fit(
         "seed": seed,
         "initial_state.x0": _floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
+        "initial_state.t0": _time_or_word(t0, "--t0"),
     }
     settings, source = _settings(config, overrides, sets)
     start = time.perf_counter()
+    if not no_progress:
+        click.echo(
+            f"symplid: MAP search from {settings.map.num_starts} starts (the first call "
+            "compiles the filter; this can take a minute)...",
+            err=True,
+        )
     outcome = run(
-        obs, settings, out=out, progress=not no_progress, source=source, overwrite=overwrite
+        obs,
+        settings,
+        out=out,
+        progress=not no_progress,
+        source=source,
+        overwrite=overwrite,
+        warn=True,
     )
     s = outcome.summary
     extra = ""
     if "rhat_max" in s:
         extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
+        if not outcome.interrupted and not _converged(s):
+            extra += " (not converged: see the warnings; run longer)"
+    head = f"{out}: "
+    if outcome.interrupted:
+        total = outcome.settings.sampler.num_iterations
+        head += f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws kept; "
     click.echo(
-        f"{out}: MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
+        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
         f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
     )
+    if outcome.interrupted:
+        sys.exit(EXIT_INTERRUPTED)
+
+
+def _converged(summary: dict[str, Any]) -> bool:
+    from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD
+
+    return summary["rhat_max"] <= RHAT_THRESHOLD and summary["ess_min"] >= ESS_THRESHOLD
+
+
+def _time_or_word(text: str | None, name: str) -> float | str | None:
+    """A time option: a number, or a word such as "first" (checked by the settings)."""
+    if text is None:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return text.strip()
 
 
 # ----------------------------------------------------------------------------- predict
 @main.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--t-end", type=float, required=True, help="Predict up to this time.")
+@click.option(
+    "--t-end",
+    type=float,
+    default=None,
+    help="Predict up to this time [default: the run's prediction.t_end].",
+)
 @click.option("--dt", type=float, default=None, help="Prediction step [default: the run's].")
-@click.option("--num-paths", type=click.IntRange(min=0), default=None)
+@click.option(
+    "--num-paths",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Posterior sample paths for the band (0: MAP path only) [default: the run's].",
+)
 @_user_errors
 def predict(run, t_end, dt, num_paths) -> None:
     """Predict from a finished run: MAP path and posterior band, saved with a figure."""
