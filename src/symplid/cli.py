@@ -28,6 +28,10 @@ class UserError(click.ClickException):
         click.echo(f"symplid: error: {self.format_message()}", err=True)
 
 
+class _Interrupted(Exception):
+    """A command that was interrupted but kept (and reported) what it had done."""
+
+
 def _user_errors(fn: Callable) -> Callable:
     """Turn the library's validation errors into one line and exit code 2; Ctrl-C and SIGTERM
     into "interrupted" and exit code 128 + the signal's number."""
@@ -47,6 +51,8 @@ def _user_errors(fn: Callable) -> Callable:
                 raise UserError(str(err)) from None
             except KeyboardInterrupt:
                 click.echo("symplid: interrupted", err=True)
+                sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
+            except _Interrupted:  # the command said so in its result line
                 sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
 
     return wrapper
@@ -468,7 +474,7 @@ def fit(
         f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
     )
     if outcome.interrupted:
-        sys.exit(EXIT_INTERRUPTED)
+        raise _Interrupted
 
 
 def _converged(summary: dict[str, Any]) -> bool:
