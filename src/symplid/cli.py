@@ -392,6 +392,19 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     metavar="KEY=VALUE",
     help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
 )
+@click.option(
+    "--holdout",
+    type=click.FloatRange(0, 1, min_open=True, max_open=True),
+    default=None,
+    help="Hold out the last FRACTION of the observation times: fit on the rest, then score "
+    "the forecast on them (summary.json: holdout).",
+)
+@click.option(
+    "--holdout-after",
+    type=float,
+    default=None,
+    help="Hold out the observations after time T (instead of --holdout).",
+)
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
 @click.option("--no-progress", is_flag=True, help="No progress bar or status lines.")
 @_user_errors
@@ -411,6 +424,8 @@ def fit(
     x0,
     learn_initial_state,
     t0,
+    holdout,
+    holdout_after,
     sets,
     overwrite,
     no_progress,
@@ -429,6 +444,11 @@ def fit(
             raise UserError("--samples and --iterations are the same option; give --iterations")
         iterations = samples
     obs = read_observations(data)
+    heldout = None
+    if holdout is not None or holdout_after is not None:
+        from symplid.workflow.forecasting import split_holdout
+
+        obs, heldout = split_holdout(obs, holdout, holdout_after)
     overrides = {
         "model.order": order,
         "model.integrator": integrator,
@@ -444,12 +464,6 @@ def fit(
     }
     settings, source = _settings(config, overrides, sets)
     start = time.perf_counter()
-    if not no_progress:
-        click.echo(
-            f"symplid: MAP search from {settings.map.num_starts} starts (the first call "
-            "compiles the filter; this can take a minute)...",
-            err=True,
-        )
     outcome = run(
         obs,
         settings,
@@ -458,6 +472,7 @@ def fit(
         source=source,
         overwrite=overwrite,
         warn=True,
+        status=None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True),
     )
     s = outcome.summary
     extra = ""
@@ -475,6 +490,15 @@ def fit(
     )
     if outcome.interrupted:
         raise _Interrupted
+    if heldout is not None:
+        from symplid.workflow.forecasting import score_holdout
+
+        h = score_holdout(out, heldout)
+        click.echo(
+            f"{out}: held out {h['num_times']} times from t = {h['t_start']:g}: RMSE "
+            f"{h['rmse']:.4g}, 95 % band coverage {h['coverage_95']:.0%}, log predictive "
+            f"density {h['log_predictive_density']:.2f}"
+        )
 
 
 def _converged(summary: dict[str, Any]) -> bool:
@@ -509,9 +533,26 @@ def _time_or_word(text: str | None, name: str) -> float | str | None:
     default=None,
     help="Posterior sample paths for the band (0: MAP path only) [default: the run's].",
 )
+@click.option(
+    "--from",
+    "start",
+    type=click.Choice(["start", "end"]),
+    default="start",
+    show_default=True,
+    help="start: paths from the initial state; end: a forecast from each draw's filtered "
+    "state at the last observation, with process noise (forecast.npz).",
+)
 @_user_errors
-def predict(run, t_end, dt, num_paths) -> None:
-    """Predict from a finished run: MAP path and posterior band, saved with a figure."""
+def predict(run, t_end, dt, num_paths, start) -> None:
+    """Predict from a finished run: MAP path and posterior band, or a forecast from the end of
+    the data (--from end), saved with a figure."""
+    if start == "end":
+        from symplid.workflow.forecasting import forecast_run
+
+        if dt is not None or num_paths is not None:
+            raise UserError("--from end forecasts one point per data gap; drop --dt/--num-paths")
+        click.echo(forecast_run(run, t_end=t_end))
+        return
     from symplid.workflow.run_tools import predict_run
 
     result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -135,6 +136,7 @@ def fit(
     overwrite: bool = False,
     progress_position: int = 0,
     warn: bool = False,
+    status: Callable[[str], None] | None = None,
 ) -> FitOutcome:
     """The whole fit: MAP, Hessian, sampler and the run folder (when ``out`` is given).
 
@@ -143,13 +145,15 @@ def fit(
     they are saved, with SIGINT and SIGTERM held while the files are written, and the folder
     is marked ``interrupted`` (readers refuse it with a message that says what to do). A
     failure or an interruption before sampling records its reason in the marker. ``warn``
-    issues :class:`~symplid.inference.diagnostics.ConvergenceWarning` for R-hat and ESS.
+    issues :class:`~symplid.inference.diagnostics.ConvergenceWarning` for R-hat and ESS;
+    ``status`` receives a one-line message before the (silent) MAP search and compilation.
     """
 
     settings = resolve_for_data(settings, obs, source)
     folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
     try:
-        return _fit(obs, settings, folder, progress, progress_label, progress_position, warn)
+        return _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+                    status)
     except BaseException as err:
         if folder is not None and not folder.is_complete and not _marked(folder):
             what = "interrupted before any draw was kept" if isinstance(
@@ -163,11 +167,15 @@ def _marked(folder: RunFolder) -> bool:
     return reason.startswith((RunFolder.INTERRUPTED, "failed"))
 
 
-def _fit(obs, settings, folder, progress, progress_label, progress_position, warn) -> FitOutcome:
+def _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+         status) -> FitOutcome:
     timings: dict[str, float] = {}
     if folder is not None:
         folder.write_settings(settings)
         folder.write_data(obs)
+    if status is not None:
+        status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
+               "filter: this can take a minute)...")
     start = time.perf_counter()
     model = build_model(settings, obs)
     posterior = build_posterior(settings, obs, model)

@@ -41,7 +41,7 @@ def _draws(folder: RunFolder, wanted: bool, what: str) -> np.ndarray | None:
     return draws_array(folder.read_posterior())
 
 
-def _save_atomically(figure: Any, path: Path) -> Path:
+def save_atomically(figure: Any, path: Path) -> Path:
     """Write a figure under a hidden name and rename it (never a half-written PNG)."""
     tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
     save_figure(figure, tmp)
@@ -135,7 +135,7 @@ def predict_run(
     with RunFolder(run, "a") as update:
         update.write_npz("predictions.npz", **arrays)
         if figure is not None:
-            _save_atomically(figure, update.figure_path("predictive"))
+            save_atomically(figure, update.figure_path("predictive"))
     what = "MAP path and posterior band" if band is not None else "MAP path"
     return f"{folder.file('predictions.npz')}: {what} to t = {t_end:g} (dt = {dt:g})"
 
@@ -175,7 +175,7 @@ def report_run(run: str | Path) -> str:
         lines += ["## Convergence", "", table, ""]
     with RunFolder(run, "a") as update:
         for _title, name, figure in figures:
-            _save_atomically(figure, update.figure_path(name))
+            save_atomically(figure, update.figure_path(name))
         shown = [(title, f"figures/{name}.png") for title, name, _ in figures]
         if update.figure_path("predictive").exists():
             shown.append(("Predictions", "figures/predictive.png"))
