@@ -267,8 +267,9 @@ def forecast_with_noise(
     noise_scale = np.sqrt(np.maximum(proc, 0.0))
     per_step = model.process_noise_per == "step"
     scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
-    run = _noisy_paths(model.integrator, model.potential, int(num_steps.max()))
-    states = np.asarray(
+    inv_mass = inverse_mass(model.mass, model.potential.dim)
+    run = _noisy_paths(model.integrator, model.potential, inv_mass, int(num_steps.max()))
+    states = np.array(
         run(
             jnp.asarray(theta[:, :nc]),
             jnp.asarray(np.nan_to_num(starts)),
@@ -276,7 +277,6 @@ def forecast_with_noise(
             z * jnp.asarray(scale_by_gap)[None, :, None],
             jnp.asarray(step_sizes),
             jnp.asarray(num_steps),
-            jnp.asarray(inverse_mass(model.mass, model.potential.dim)),
         )
     )
     states[~np.all(np.isfinite(starts), axis=1)] = np.nan
@@ -290,11 +290,11 @@ def forecast_with_noise(
     )
 
 
-def _noisy_paths(integrator: Integrator, potential: Any, max_steps: int):
+def _noisy_paths(integrator: Integrator, potential: Any, inv_mass: Any, max_steps: int):
     """A compiled function: every draw's path over the gaps, process noise added per gap."""
     d = potential.dim
 
-    def one(coefficients, start, scale, z, step_sizes, num_steps, inv_mass):
+    def one(coefficients, start, scale, z, step_sizes, num_steps):
         dynamics = make_dynamics(potential, coefficients, inv_mass)
 
         def gap(x, inputs):
@@ -306,7 +306,7 @@ def _noisy_paths(integrator: Integrator, potential: Any, max_steps: int):
         _, xs = jax.lax.scan(gap, start, (step_sizes, num_steps, z))
         return xs
 
-    batched = jax.vmap(one, in_axes=(0, 0, 0, 0, None, None, None))
+    batched = jax.vmap(one, in_axes=(0, 0, 0, 0, None, None))
     return jax.jit(batched)
 
 
