@@ -7,131 +7,31 @@ with one line on stderr and exit code 2, never a traceback; Ctrl-C (exit code 13
 
 from __future__ import annotations
 
-import functools
-import sys
 import time
 import warnings
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import click
 
-EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
-
-
-class UserError(click.ClickException):
-    exit_code = EXIT_USER_ERROR
-
-    def show(self, file=None) -> None:
-        click.echo(f"symplid: error: {self.format_message()}", err=True)
-
-
-class _Interrupted(Exception):
-    """A command that was interrupted but kept (and reported) what it had done."""
-
-
-def _user_errors(fn: Callable) -> Callable:
-    """Turn the library's validation errors into one line and exit code 2; Ctrl-C and SIGTERM
-    into "interrupted" and exit code 128 + the signal's number."""
-
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from symplid.model.data import DataError
-        from symplid.workflow.interrupts import terminate_as_interrupt
-        from symplid.workflow.settings import SettingsError
-
-        with terminate_as_interrupt() as signals:
-            try:
-                return fn(*args, **kwargs)
-            except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
-                raise UserError(str(err)) from None
-            except (ValueError, NotADirectoryError) as err:  # the library's argument checks
-                raise UserError(str(err)) from None
-            except KeyboardInterrupt:
-                click.echo("symplid: interrupted", err=True)
-                sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
-            except _Interrupted:  # the command said so in its result line
-                sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
-
-    return wrapper
-
-
-class _OneLineErrors(click.Group):
-    """A group whose usage errors (a bad option value, a missing argument) are one line, like
-    every other error, instead of click's usage block."""
-
-    def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
-        if not standalone_mode:
-            return super().main(*args, standalone_mode=False, **kwargs)
-        try:
-            result = super().main(*args, standalone_mode=False, **kwargs)
-        except click.UsageError as err:
-            where = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
-            message = " ".join(err.format_message().split())
-            click.echo(f"symplid: error: {message}{where}", err=True)
-            sys.exit(EXIT_USER_ERROR)
-        except click.ClickException as err:
-            err.show()
-            sys.exit(err.exit_code)
-        except click.exceptions.Abort:
-            click.echo("symplid: interrupted", err=True)
-            sys.exit(EXIT_INTERRUPTED)
-        sys.exit(result if isinstance(result, int) else 0)
-
-
-# Registries are read when a help text or a value needs them: importing symplid (and JAX) at
-# import time would make `symplid --help` slow.
-def _integrators() -> Any:
-    from symplid.dynamics.integrators import INTEGRATORS
-
-    return INTEGRATORS
-
-
-def _samplers() -> Any:
-    from symplid.inference.samplers import SAMPLERS
-
-    return SAMPLERS
-
-
-class _RegistryOption(click.Option):
-    """An option whose help lists a registry's names (``{choices}``), read when shown."""
-
-    def __init__(self, *args: Any, registry: Callable[[], Any], **kwargs: Any) -> None:
-        self.registry = registry
-        super().__init__(*args, **kwargs)
-
-    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
-        record = super().get_help_record(ctx)
-        if record is None:
-            return None
-        return record[0], record[1].replace("{choices}", ", ".join(self.registry().names()))
-
-
-class _LazyChoice(click.Choice):
-    """A ``click.Choice`` whose choices are computed when first needed."""
-
-    def __init__(self, load: Callable[[], tuple[str, ...]]) -> None:
-        self._load = load
-        super().__init__((), case_sensitive=True)
-
-    @property
-    def choices(self) -> tuple[str, ...]:
-        return tuple(self._load())
-
-    @choices.setter
-    def choices(self, value: Any) -> None:  # set by click.Choice.__init__; computed instead
-        pass
-
-
-def _rk2_variants() -> tuple[str, ...]:
-    """The registered RK2 integrators, by variant (``rk2-midpoint`` → ``midpoint``)."""
-    return tuple(n[4:] for n in _integrators().names() if n.startswith("rk2-"))
+from symplid.workflow.commandline import (
+    Interrupted,
+    LazyChoice,
+    OneLineErrors,
+    RegistryOption,
+    UserError,
+    converged,
+    floats,
+    integrator_registry,
+    rk2_variants,
+    sampler_registry,
+    settings_from_options,
+    time_or_word,
+    user_errors,
+)
 
 
 @click.group(
-    cls=_OneLineErrors,
+    cls=OneLineErrors,
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
 @click.version_option(package_name="symplid")
@@ -185,7 +85,7 @@ def main() -> None:
 )
 @click.option(
     "--rk2",
-    type=_LazyChoice(_rk2_variants),
+    type=LazyChoice(rk2_variants),
     default="midpoint",
     show_default=True,
     help="The non-symplectic RK2 variant.",
@@ -199,7 +99,7 @@ def main() -> None:
 )
 @click.option("--quick", is_flag=True, help="A small budget for a smoke test (under a minute).")
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
-@_user_errors
+@user_errors
 def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_progress) -> None:
     """The paper's Hénon–Heiles experiment: leapfrog against RK2, all figures and a table."""
     from symplid.experiments.paper import PaperConfig
@@ -233,15 +133,6 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
 
 
 # ----------------------------------------------------------------------------- simulate
-def _floats(text: str | None, name: str) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        return [float(v) for v in text.replace(",", " ").split()]
-    except ValueError:
-        raise UserError(f"{name} must be numbers separated by commas, got {text!r}") from None
-
-
 @main.command(epilog="SYSTEM is one of the registered systems (symplid.SYSTEMS).")
 @click.argument("system", type=str)
 @click.option(
@@ -293,7 +184,7 @@ def _floats(text: str | None, name: str) -> list[float] | None:
     show_default=True,
     help="Fraction of values to blank out at random (NaN).",
 )
-@_user_errors
+@user_errors
 def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x0, missing) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
     import numpy as np
@@ -304,7 +195,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     from symplid.model.simulate import simulate as run
 
     sys_ = get_system(system)
-    grid = _floats(times, "--times")
+    grid = floats(times, "--times")
     if grid is None and (t_end is not None or num_obs is not None):
         n = num_obs or sys_.num_obs
         end = t_end if t_end is not None else sys_.obs_interval * n
@@ -316,7 +207,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
         times=grid,
         noise_std=noise_std,
         seed=seed,
-        x0=_floats(x0, "--x0"),
+        x0=floats(x0, "--x0"),
         observation=observation,
     )
     if missing > 0:
@@ -327,7 +218,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     path = write_observations(obs, out)
     click.echo(
         f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} "
-        f"(x0 = {', '.join(f'{v:g}' for v in (x0 and _floats(x0, '--x0')) or sys_.initial_state)})"
+        f"(x0 = {', '.join(f'{v:g}' for v in (x0 and floats(x0, '--x0')) or sys_.initial_state)})"
     )
 
 
@@ -350,14 +241,18 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option(
     "--integrator",
-    cls=_RegistryOption,
-    registry=_integrators,
+    cls=RegistryOption,
+    registry=integrator_registry,
     default=None,
     help="Learning propagator: {choices}.",
 )
 @click.option("--dt", type=float, default=None, help="Learning step.")
 @click.option(
-    "--method", cls=_RegistryOption, registry=_samplers, default=None, help="Sampler: {choices}."
+    "--method",
+    cls=RegistryOption,
+    registry=sampler_registry,
+    default=None,
+    help="Sampler: {choices}.",
 )
 @click.option(
     "--iterations",
@@ -407,7 +302,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
 @click.option("--no-progress", is_flag=True, help="No progress bar or status lines.")
-@_user_errors
+@user_errors
 def fit(
     data,
     out,
@@ -458,11 +353,11 @@ def fit(
         "sampler.burn_in": burn_in,
         "sampler.num_chains": chains,
         "seed": seed,
-        "initial_state.x0": _floats(x0, "--x0"),
+        "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
-        "initial_state.t0": _time_or_word(t0, "--t0"),
+        "initial_state.t0": time_or_word(t0, "--t0"),
     }
-    settings, source = _settings(config, overrides, sets)
+    settings, source = settings_from_options(config, overrides, sets)
     start = time.perf_counter()
     outcome = run(
         obs,
@@ -478,7 +373,7 @@ def fit(
     extra = ""
     if "rhat_max" in s:
         extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
-        if not outcome.interrupted and not _converged(s):
+        if not outcome.interrupted and not converged(s):
             extra += " (not converged: see the warnings; run longer)"
     head = f"{out}: "
     if outcome.interrupted:
@@ -489,7 +384,7 @@ def fit(
         f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
     )
     if outcome.interrupted:
-        raise _Interrupted
+        raise Interrupted
     if heldout is not None:
         from symplid.workflow.forecasting import score_holdout
 
@@ -499,22 +394,6 @@ def fit(
             f"{h['rmse']:.4g}, 95 % band coverage {h['coverage_95']:.0%}, log predictive "
             f"density {h['log_predictive_density']:.2f}"
         )
-
-
-def _converged(summary: dict[str, Any]) -> bool:
-    from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD
-
-    return summary["rhat_max"] <= RHAT_THRESHOLD and summary["ess_min"] >= ESS_THRESHOLD
-
-
-def _time_or_word(text: str | None, name: str) -> float | str | None:
-    """A time option: a number, or a word such as "first" (checked by the settings)."""
-    if text is None:
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        return text.strip()
 
 
 # ----------------------------------------------------------------------------- predict
@@ -542,7 +421,7 @@ def _time_or_word(text: str | None, name: str) -> float | str | None:
     help="start: paths from the initial state; end: a forecast from each draw's filtered "
     "state at the last observation, with process noise (forecast.npz).",
 )
-@_user_errors
+@user_errors
 def predict(run, t_end, dt, num_paths, start) -> None:
     """Predict from a finished run: MAP path and posterior band, or a forecast from the end of
     the data (--from end), saved with a figure."""
@@ -562,7 +441,7 @@ def predict(run, t_end, dt, num_paths, start) -> None:
 # ----------------------------------------------------------------------------- report
 @main.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
-@_user_errors
+@user_errors
 def report(run) -> None:
     """Write report.md (tables and figures) for a finished run."""
     from symplid.workflow.run_tools import report_run
@@ -603,7 +482,7 @@ def report(run) -> None:
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Any setting.")
 @click.option("--no-progress", is_flag=True)
-@_user_errors
+@user_errors
 def compare(
     data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
 ) -> None:
@@ -613,10 +492,10 @@ def compare(
 
     obs = read_observations(data)
     overrides = {
-        "initial_state.x0": _floats(x0, "--x0"),
+        "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
     }
-    settings, source = _settings(config, overrides, sets)
+    settings, source = settings_from_options(config, overrides, sets)
     names = [n.strip() for n in integrators.split(",")] if integrators else None
     table = compare_models(
         obs,
@@ -635,18 +514,6 @@ def compare(
         f"best: order {best['order']} with {best['integrator']}"
         + (f"; table in {out}" if out is not None else "")
     )
-
-
-def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...]):
-    """Settings from the defaults, then ``config``, then the options and ``--set`` pairs."""
-    from symplid.workflow.settings import Settings, load_settings, merge_overrides, parse_override
-
-    settings = load_settings(config) if config is not None else Settings()
-    source = str(config) if config is not None else "command line"
-    for text in sets:
-        key, value = parse_override(text)
-        overrides[key] = value
-    return merge_overrides(settings, overrides, source="command line"), source
 
 
 # ----------------------------------------------------------------------------- sweep, study
@@ -671,7 +538,7 @@ def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, .
     help="Local worker processes [default: one per core].",
 )
 @click.option("--no-progress", is_flag=True)
-@_user_errors
+@user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
     import symplid.experiments  # noqa: F401  (registers the experiments a spec may name)
@@ -696,7 +563,7 @@ def study() -> None:
 @click.option("--scheduler", type=str, default=None)
 @click.option("--workers", type=click.IntRange(min=1), default=None)
 @click.option("--no-progress", is_flag=True)
-@_user_errors
+@user_errors
 def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
     """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""
     from symplid.experiments.paper_study import run_paper_claims
