@@ -1,104 +1,39 @@
 """The ``symplid`` command line: reproduce, simulate, fit, predict, report.
 
-Every user mistake (a bad file, a misspelt setting, an impossible value) ends with one line on
-stderr and exit code 2, never a traceback; Ctrl-C ends with exit code 130 and keeps whatever
-the sampler had drawn.
+Every user mistake (a bad file, a misspelt setting, an impossible value, a bad option) ends
+with one line on stderr and exit code 2, never a traceback; Ctrl-C (exit code 130) and SIGTERM
+(143) keep whatever the sampler had drawn and say "interrupted".
 """
 
 from __future__ import annotations
 
-import functools
-import sys
 import time
 import warnings
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import click
 
-EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
+from symplid.workflow.commandline import (
+    Interrupted,
+    LazyChoice,
+    OneLineErrors,
+    RegistryOption,
+    UserError,
+    converged,
+    floats,
+    integrator_registry,
+    rk2_variants,
+    sampler_registry,
+    settings_from_options,
+    time_or_word,
+    user_errors,
+)
 
 
-class UserError(click.ClickException):
-    exit_code = EXIT_USER_ERROR
-
-    def show(self, file=None) -> None:
-        click.echo(f"symplid: error: {self.format_message()}", err=True)
-
-
-def _user_errors(fn: Callable) -> Callable:
-    """Turn the library's validation errors into one line and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from symplid.model.data import DataError
-        from symplid.workflow.settings import SettingsError
-
-        try:
-            return fn(*args, **kwargs)
-        except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
-            raise UserError(str(err)) from None
-        except ValueError as err:  # the library's argument checks
-            raise UserError(str(err)) from None
-        except KeyboardInterrupt:
-            click.echo("symplid: interrupted", err=True)
-            sys.exit(EXIT_INTERRUPTED)
-
-    return wrapper
-
-
-# Registries are read when a help text or a value needs them: importing symplid (and JAX) at
-# import time would make `symplid --help` slow.
-def _integrators() -> Any:
-    from symplid.dynamics.integrators import INTEGRATORS
-
-    return INTEGRATORS
-
-
-def _samplers() -> Any:
-    from symplid.inference.samplers import SAMPLERS
-
-    return SAMPLERS
-
-
-class _RegistryOption(click.Option):
-    """An option whose help lists a registry's names (``{choices}``), read when shown."""
-
-    def __init__(self, *args: Any, registry: Callable[[], Any], **kwargs: Any) -> None:
-        self.registry = registry
-        super().__init__(*args, **kwargs)
-
-    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
-        record = super().get_help_record(ctx)
-        if record is None:
-            return None
-        return record[0], record[1].replace("{choices}", ", ".join(self.registry().names()))
-
-
-class _LazyChoice(click.Choice):
-    """A ``click.Choice`` whose choices are computed when first needed."""
-
-    def __init__(self, load: Callable[[], tuple[str, ...]]) -> None:
-        self._load = load
-        super().__init__((), case_sensitive=True)
-
-    @property
-    def choices(self) -> tuple[str, ...]:
-        return tuple(self._load())
-
-    @choices.setter
-    def choices(self, value: Any) -> None:  # set by click.Choice.__init__; computed instead
-        pass
-
-
-def _rk2_variants() -> tuple[str, ...]:
-    """The registered RK2 integrators, by variant (``rk2-midpoint`` → ``midpoint``)."""
-    return tuple(n[4:] for n in _integrators().names() if n.startswith("rk2-"))
-
-
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.group(
+    cls=OneLineErrors,
+    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
+)
 @click.version_option(package_name="symplid")
 def main() -> None:
     """Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
@@ -150,7 +85,7 @@ def main() -> None:
 )
 @click.option(
     "--rk2",
-    type=_LazyChoice(_rk2_variants),
+    type=LazyChoice(rk2_variants),
     default="midpoint",
     show_default=True,
     help="The non-symplectic RK2 variant.",
@@ -164,7 +99,7 @@ def main() -> None:
 )
 @click.option("--quick", is_flag=True, help="A small budget for a smoke test (under a minute).")
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
-@_user_errors
+@user_errors
 def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_progress) -> None:
     """The paper's Hénon–Heiles experiment: leapfrog against RK2, all figures and a table."""
     from symplid.experiments.paper import PaperConfig
@@ -198,15 +133,6 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
 
 
 # ----------------------------------------------------------------------------- simulate
-def _floats(text: str | None, name: str) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        return [float(v) for v in text.replace(",", " ").split()]
-    except ValueError:
-        raise UserError(f"{name} must be numbers separated by commas, got {text!r}") from None
-
-
 @main.command(epilog="SYSTEM is one of the registered systems (symplid.SYSTEMS).")
 @click.argument("system", type=str)
 @click.option(
@@ -236,9 +162,19 @@ def _floats(text: str | None, name: str) -> list[float] | None:
     default=None,
     help="Observation noise standard deviation [default: the system's, 0.05].",
 )
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option(
-    "--observation", type=click.Choice(["full", "positions"]), default="full", show_default=True
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Seed of the observation noise (and of --missing).",
+)
+@click.option(
+    "--observation",
+    type=click.Choice(["full", "positions"]),
+    default="full",
+    show_default=True,
+    help="Observe the full state, or the positions only.",
 )
 @click.option("--x0", type=str, default=None, help="Initial state q1..qd,p1..pd (comma-separated).")
 @click.option(
@@ -248,7 +184,7 @@ def _floats(text: str | None, name: str) -> list[float] | None:
     show_default=True,
     help="Fraction of values to blank out at random (NaN).",
 )
-@_user_errors
+@user_errors
 def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x0, missing) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
     import numpy as np
@@ -259,7 +195,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     from symplid.model.simulate import simulate as run
 
     sys_ = get_system(system)
-    grid = _floats(times, "--times")
+    grid = floats(times, "--times")
     if grid is None and (t_end is not None or num_obs is not None):
         n = num_obs or sys_.num_obs
         end = t_end if t_end is not None else sys_.obs_interval * n
@@ -271,7 +207,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
         times=grid,
         noise_std=noise_std,
         seed=seed,
-        x0=_floats(x0, "--x0"),
+        x0=floats(x0, "--x0"),
         observation=observation,
     )
     if missing > 0:
@@ -282,7 +218,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     path = write_observations(obs, out)
     click.echo(
         f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} "
-        f"(x0 = {', '.join(f'{v:g}' for v in (x0 and _floats(x0, '--x0')) or sys_.initial_state)})"
+        f"(x0 = {', '.join(f'{v:g}' for v in (x0 and floats(x0, '--x0')) or sys_.initial_state)})"
     )
 
 
@@ -305,14 +241,18 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option(
     "--integrator",
-    cls=_RegistryOption,
-    registry=_integrators,
+    cls=RegistryOption,
+    registry=integrator_registry,
     default=None,
     help="Learning propagator: {choices}.",
 )
 @click.option("--dt", type=float, default=None, help="Learning step.")
 @click.option(
-    "--method", cls=_RegistryOption, registry=_samplers, default=None, help="Sampler: {choices}."
+    "--method",
+    cls=RegistryOption,
+    registry=sampler_registry,
+    default=None,
+    help="Sampler: {choices}.",
 )
 @click.option(
     "--iterations",
@@ -321,11 +261,25 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     help="Iterations per chain, burn-in included.",
 )
 @click.option("--samples", type=click.IntRange(min=1), default=None, hidden=True)
-@click.option("--burn-in", type=click.IntRange(min=0), default=None)
-@click.option("--chains", type=click.IntRange(min=1), default=None)
-@click.option("--seed", type=click.IntRange(min=0), default=None)
+@click.option(
+    "--burn-in", type=click.IntRange(min=0), default=None, help="Iterations discarded per chain."
+)
+@click.option("--chains", type=click.IntRange(min=1), default=None, help="Independent chains.")
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Seed of the MAP starts and of the sampler [default: 0].",
+)
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
+@click.option(
+    "--t0",
+    type=str,
+    default=None,
+    help='Time of the initial state: a number, or "first" (the first observation time) '
+    "[default: 0].",
+)
 @click.option(
     "--set",
     "sets",
@@ -333,9 +287,22 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     metavar="KEY=VALUE",
     help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
 )
+@click.option(
+    "--holdout",
+    type=click.FloatRange(0, 1, min_open=True, max_open=True),
+    default=None,
+    help="Hold out the last FRACTION of the observation times: fit on the rest, then score "
+    "the forecast on them (summary.json: holdout).",
+)
+@click.option(
+    "--holdout-after",
+    type=float,
+    default=None,
+    help="Hold out the observations after time T (instead of --holdout).",
+)
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
-@click.option("--no-progress", is_flag=True)
-@_user_errors
+@click.option("--no-progress", is_flag=True, help="No progress bar or status lines.")
+@user_errors
 def fit(
     data,
     out,
@@ -351,11 +318,18 @@ def fit(
     seed,
     x0,
     learn_initial_state,
+    t0,
+    holdout,
+    holdout_after,
     sets,
     overwrite,
     no_progress,
 ) -> None:
-    """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder."""
+    """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
+
+    Ctrl-C (or SIGTERM) during sampling keeps the draws made so far, marks the run
+    "interrupted" and exits with code 130 (143).
+    """
     from symplid.io import read_observations
     from symplid.workflow.fit import fit as run
 
@@ -365,6 +339,11 @@ def fit(
             raise UserError("--samples and --iterations are the same option; give --iterations")
         iterations = samples
     obs = read_observations(data)
+    heldout = None
+    if holdout is not None or holdout_after is not None:
+        from symplid.workflow.forecasting import split_holdout
+
+        obs, heldout = split_holdout(obs, holdout, holdout_after)
     overrides = {
         "model.order": order,
         "model.integrator": integrator,
@@ -374,33 +353,85 @@ def fit(
         "sampler.burn_in": burn_in,
         "sampler.num_chains": chains,
         "seed": seed,
-        "initial_state.x0": _floats(x0, "--x0"),
+        "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
+        "initial_state.t0": time_or_word(t0, "--t0"),
     }
-    settings, source = _settings(config, overrides, sets)
+    settings, source = settings_from_options(config, overrides, sets)
     start = time.perf_counter()
     outcome = run(
-        obs, settings, out=out, progress=not no_progress, source=source, overwrite=overwrite
+        obs,
+        settings,
+        out=out,
+        progress=not no_progress,
+        source=source,
+        overwrite=overwrite,
+        warn=True,
+        status=None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True),
     )
     s = outcome.summary
     extra = ""
     if "rhat_max" in s:
         extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
+        if not outcome.interrupted and not converged(s):
+            extra += " (not converged: see the warnings; run longer)"
+    head = f"{out}: "
+    if outcome.interrupted:
+        total = outcome.settings.sampler.num_iterations
+        head += f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws kept; "
     click.echo(
-        f"{out}: MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
+        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
         f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
     )
+    if outcome.interrupted:
+        raise Interrupted
+    if heldout is not None:
+        from symplid.workflow.forecasting import score_holdout
+
+        h = score_holdout(out, heldout)
+        click.echo(
+            f"{out}: held out {h['num_times']} times from t = {h['t_start']:g}: RMSE "
+            f"{h['rmse']:.4g}, 95 % band coverage {h['coverage_95']:.0%}, log predictive "
+            f"density {h['log_predictive_density']:.2f}"
+        )
 
 
 # ----------------------------------------------------------------------------- predict
 @main.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--t-end", type=float, required=True, help="Predict up to this time.")
+@click.option(
+    "--t-end",
+    type=float,
+    default=None,
+    help="Predict up to this time [default: the run's prediction.t_end].",
+)
 @click.option("--dt", type=float, default=None, help="Prediction step [default: the run's].")
-@click.option("--num-paths", type=click.IntRange(min=0), default=None)
-@_user_errors
-def predict(run, t_end, dt, num_paths) -> None:
-    """Predict from a finished run: MAP path and posterior band, saved with a figure."""
+@click.option(
+    "--num-paths",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Posterior sample paths for the band (0: MAP path only) [default: the run's].",
+)
+@click.option(
+    "--from",
+    "start",
+    type=click.Choice(["start", "end"]),
+    default="start",
+    show_default=True,
+    help="start: paths from the initial state; end: a forecast from each draw's filtered "
+    "state at the last observation, with process noise (forecast.npz).",
+)
+@user_errors
+def predict(run, t_end, dt, num_paths, start) -> None:
+    """Predict from a finished run: MAP path and posterior band, or a forecast from the end of
+    the data (--from end), saved with a figure."""
+    if start == "end":
+        from symplid.workflow.forecasting import forecast_run
+
+        if dt is not None or num_paths is not None:
+            raise UserError("--from end forecasts one point per data gap; drop --dt/--num-paths")
+        click.echo(forecast_run(run, t_end=t_end))
+        return
     from symplid.workflow.run_tools import predict_run
 
     result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths)
@@ -410,7 +441,7 @@ def predict(run, t_end, dt, num_paths) -> None:
 # ----------------------------------------------------------------------------- report
 @main.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
-@_user_errors
+@user_errors
 def report(run) -> None:
     """Write report.md (tables and figures) for a finished run."""
     from symplid.workflow.run_tools import report_run
@@ -451,7 +482,7 @@ def report(run) -> None:
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Any setting.")
 @click.option("--no-progress", is_flag=True)
-@_user_errors
+@user_errors
 def compare(
     data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
 ) -> None:
@@ -461,10 +492,10 @@ def compare(
 
     obs = read_observations(data)
     overrides = {
-        "initial_state.x0": _floats(x0, "--x0"),
+        "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
     }
-    settings, source = _settings(config, overrides, sets)
+    settings, source = settings_from_options(config, overrides, sets)
     names = [n.strip() for n in integrators.split(",")] if integrators else None
     table = compare_models(
         obs,
@@ -483,18 +514,6 @@ def compare(
         f"best: order {best['order']} with {best['integrator']}"
         + (f"; table in {out}" if out is not None else "")
     )
-
-
-def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...]):
-    """Settings from the defaults, then ``config``, then the options and ``--set`` pairs."""
-    from symplid.workflow.settings import Settings, load_settings, merge_overrides, parse_override
-
-    settings = load_settings(config) if config is not None else Settings()
-    source = str(config) if config is not None else "command line"
-    for text in sets:
-        key, value = parse_override(text)
-        overrides[key] = value
-    return merge_overrides(settings, overrides, source="command line"), source
 
 
 # ----------------------------------------------------------------------------- sweep, study
@@ -519,7 +538,7 @@ def _settings(config: Path | None, overrides: dict[str, Any], sets: tuple[str, .
     help="Local worker processes [default: one per core].",
 )
 @click.option("--no-progress", is_flag=True)
-@_user_errors
+@user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
     import symplid.experiments  # noqa: F401  (registers the experiments a spec may name)
@@ -544,7 +563,7 @@ def study() -> None:
 @click.option("--scheduler", type=str, default=None)
 @click.option("--workers", type=click.IntRange(min=1), default=None)
 @click.option("--no-progress", is_flag=True)
-@_user_errors
+@user_errors
 def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
     """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""
     from symplid.experiments.paper_study import run_paper_claims

@@ -6,14 +6,18 @@ Kalman filter (Theorem 1) knows at the last observation, for every posterior dra
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from symplid.dynamics.integrators import Integrator
+from symplid.dynamics.integrators import Integrator, make_dynamics
 from symplid.dynamics.potentials import inverse_mass
+from symplid.dynamics.trajectory import propagate
 from symplid.inference.predictive import (
     PosteriorPredictive,
     check_state,
@@ -27,7 +31,12 @@ from symplid.model.statespace import HamiltonianModel
 
 Array = jax.Array
 
-__all__ = ["forecast_from_filter"]
+__all__ = [
+    "NoisyForecast",
+    "filtered_end_states",
+    "forecast_from_filter",
+    "forecast_with_noise",
+]
 
 
 def forecast_from_filter(
@@ -100,19 +109,26 @@ def forecast_from_filter(
     # One filter call per draw reuses the model's compiled filter (the one the fit used),
     # which costs less than compiling a vmapped filter for a one-off forecast.
     z = np.asarray(jax.random.normal(key_state, (used.shape[0], model.state_dim)))
-    starts = np.empty((used.shape[0], model.state_dim))
-    for i, row in enumerate(used):
-        res = model.filter(theta[row], prepared, x0, P0)
-        m = np.asarray(res.filtered_means[-1])
-        cov = np.asarray(res.filtered_covs[-1])
-        starts[i] = m + _cholesky_or_nan(cov) @ z[i]
-    starts[~np.all(np.isfinite(starts), axis=1)] = np.nan
+    starts = _sample_filtered(model, theta[used], prepared, [x0] * used.shape[0], P0, z)
     inv_mass = inverse_mass(model.mass, model.potential.dim)
     coefficients = theta[used, : model.num_coefficients]
     return predictive_band(
         model.potential, inv_mass, coefficients, starts, used, t_last, t_end, dt, integrator,
         quantiles, num_paths, seed_int, every, batch_size,
     )
+
+
+def _sample_filtered(model, thetas, prepared, x0s, P0, z) -> np.ndarray:
+    """One state per row of ``thetas`` from the filter's last N(m_n, P_n); NaN rows for draws
+    whose filter fails."""
+    starts = np.empty((len(thetas), model.state_dim))
+    for i, theta in enumerate(thetas):
+        res = model.filter(theta, prepared, x0s[i], P0)
+        m = np.asarray(res.filtered_means[-1])
+        cov = np.asarray(res.filtered_covs[-1])
+        starts[i] = m + _cholesky_or_nan(cov) @ z[i]
+    starts[~np.all(np.isfinite(starts), axis=1)] = np.nan
+    return starts
 
 
 def _cholesky_or_nan(cov: np.ndarray) -> np.ndarray:
@@ -123,3 +139,196 @@ def _cholesky_or_nan(cov: np.ndarray) -> np.ndarray:
         return np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
         return np.full_like(cov, np.nan)
+
+
+# ----------------------------------------------------------------------------- with noise
+@dataclass(frozen=True)
+class NoisyForecast:
+    """Forecast of the state-space model (eq. 7) itself: process noise added per gap.
+
+    Attributes
+    ----------
+    times
+        Forecast times after the start time ``t_start`` (the last observation), shape ``(T,)``.
+    t_start
+        The time the forecast starts from.
+    quantile_levels
+        E.g. ``(0.025, 0.5, 0.975)``.
+    state_quantiles, obs_quantiles
+        Pointwise quantiles over the draws, shapes ``(L, T, 2d)`` and ``(L, T, d_y)``: the
+        state X_k, and a new observation Y_k = h(X_k) + η (observation noise added).
+    states, observations
+        Every draw's sampled path and new observations, ``(S, T, 2d)`` and ``(S, T, d_y)``
+        (NaN for a draw whose filter or path failed).
+    obs_var
+        Every draw's observation-noise variances ``(S, d_y)`` (for predictive densities).
+    obs_means
+        h(X) of every draw's path (no observation noise), ``(S, T, d_y)``.
+    """
+
+    times: np.ndarray
+    t_start: float
+    quantile_levels: tuple[float, ...]
+    state_quantiles: np.ndarray
+    obs_quantiles: np.ndarray
+    states: np.ndarray
+    observations: np.ndarray
+    obs_var: np.ndarray
+    obs_means: np.ndarray = field(repr=False)
+
+    def band(self, level: float = 0.95, observations: bool = True) -> tuple[np.ndarray, ...]:
+        """(lower, upper) of the central ``level`` band, from the draws (not the stored
+        quantiles), for new observations or the state."""
+        values = self.observations if observations else self.states
+        tail = 0.5 * (1.0 - level)
+        return tuple(_nanquantile(values, [tail, 1.0 - tail]))
+
+    def log_predictive_density(self, values: np.ndarray) -> float:
+        """Σ_k log p(y_k | data) for new values ``(T, d_y)`` at :attr:`times` (NaN = missing).
+
+        The predictive density of each time is the Monte-Carlo mixture over the draws,
+        (1/S) Σ_s N(y_k; h(x_k^s), Γ^s), with the measured components of y_k only.
+        """
+        y = np.asarray(values, dtype=float)
+        mean = self.obs_means
+        ok = np.all(np.isfinite(mean), axis=(1, 2))
+        mean, var = mean[ok], self.obs_var[ok][:, None, :]
+        measured = np.isfinite(y)
+        resid = np.where(measured, y - mean, 0.0)
+        terms = np.where(measured, -0.5 * (np.log(2 * np.pi * var) + resid**2 / var), 0.0)
+        per_draw = terms.sum(axis=-1)  # (S, T)
+        top = per_draw.max(axis=0)
+        lpd = top + np.log(np.mean(np.exp(per_draw - top), axis=0))
+        return float(np.sum(lpd[np.any(measured, axis=1)]))
+
+
+
+def _nanquantile(values: np.ndarray, levels: Sequence[float]) -> np.ndarray:
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns stay NaN
+        return np.nanquantile(values, levels, axis=0)
+
+
+def forecast_with_noise(
+    model: HamiltonianModel,
+    theta_draws: Any,
+    starts: Any,
+    t_start: float,
+    times: Any,
+    seed: int | Array = 0,
+    quantiles: Sequence[float] = (0.025, 0.5, 0.975),
+) -> NoisyForecast:
+    """Integrate the learned state-space model (eq. 7) forward from sampled states, with noise.
+
+    Each draw θ^s starts from its own state ``starts[s]`` at ``t_start`` (e.g. a sample of
+    its filtered distribution at the last observation, :func:`filtered_end_states`) and is
+    carried to every time of ``times`` by the model's own propagator Ψ (its integrator at
+    ⌈gap/dt⌉ equal substeps, eq. 14), with process noise ξ ~ N(0, Σ(θ^s)) added once per gap
+    (for ``process_noise_per="step"``: N(0, n·Σ) over a gap of n substeps). New observations
+    add η ~ N(0, Γ(θ^s)) to h(X). This is the model the likelihood of Theorem 1 assumes, so a
+    band from it can be checked against held-out data.
+
+    Parameters
+    ----------
+    model
+        The fitted model (a linear observation operator).
+    theta_draws
+        The model's θ, shape ``(S, num_params)``.
+    starts
+        Starting states ``(S, 2d)``; a NaN row gives a NaN path.
+    t_start, times
+        Start time and the increasing forecast times after it.
+    seed
+        Integer seed or key of the noise.
+    quantiles
+        Levels of the stored pointwise quantiles.
+    """
+    H = model.observation_matrix
+    if H is None:
+        raise ValueError("forecast_with_noise needs a linear observation operator")
+    theta = np.atleast_2d(np.asarray(theta_draws, dtype=float))
+    starts = np.atleast_2d(np.asarray(starts, dtype=float))
+    times = np.atleast_1d(np.asarray(times, dtype=float))
+    if starts.shape != (theta.shape[0], model.state_dim):
+        raise ValueError(f"starts must have shape ({theta.shape[0]}, {model.state_dim})")
+    gaps = np.diff(np.concatenate([[float(t_start)], times]))
+    if times.size == 0 or np.any(gaps <= 0) or not np.all(np.isfinite(gaps)):
+        raise ValueError("times must be finite, increasing and after t_start")
+    num_steps = np.ceil(gaps / model.dt - 1e-9).astype(np.int64)
+    step_sizes = gaps / num_steps
+    key, _ = key_and_seed(seed)
+    key_x, key_y = jax.random.split(key)
+    S, T = theta.shape[0], times.size
+    z = jax.random.normal(key_x, (S, T, model.state_dim))
+    e = np.asarray(jax.random.normal(key_y, (S, T, H.shape[0])))
+    nc = model.num_coefficients
+    proc = np.stack([np.diag(np.asarray(model.split(row)[1])) for row in theta])
+    obs_var = np.stack([np.diag(np.asarray(model.split(row)[2])) for row in theta])
+    noise_scale = np.sqrt(np.maximum(proc, 0.0))
+    per_step = model.process_noise_per == "step"
+    scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
+    inv_mass = inverse_mass(model.mass, model.potential.dim)
+    run = _noisy_paths(model.integrator, model.potential, inv_mass, int(num_steps.max()))
+    states = np.array(
+        run(
+            jnp.asarray(theta[:, :nc]),
+            jnp.asarray(np.nan_to_num(starts)),
+            jnp.asarray(noise_scale),
+            z * jnp.asarray(scale_by_gap)[None, :, None],
+            jnp.asarray(step_sizes),
+            jnp.asarray(num_steps),
+        )
+    )
+    states[~np.all(np.isfinite(starts), axis=1)] = np.nan
+    states[~np.isfinite(states)] = np.nan
+    obs_mean = states @ H.T
+    observations = obs_mean + np.sqrt(np.maximum(obs_var, 0.0))[:, None, :] * e
+    levels = tuple(float(q) for q in quantiles)
+    return NoisyForecast(
+        times, float(t_start), levels, _nanquantile(states, levels),
+        _nanquantile(observations, levels), states, observations, obs_var, obs_mean,
+    )
+
+
+def _noisy_paths(integrator: Integrator, potential: Any, inv_mass: Any, max_steps: int):
+    """A compiled function: every draw's path over the gaps, process noise added per gap."""
+    d = potential.dim
+
+    def one(coefficients, start, scale, z, step_sizes, num_steps):
+        dynamics = make_dynamics(potential, coefficients, inv_mass)
+
+        def gap(x, inputs):
+            h, n, zk = inputs
+            q, p = propagate(integrator, dynamics, x[:d], x[d:], h, n, max_steps)
+            x = jnp.concatenate([q, p]) + scale * zk
+            return x, x
+
+        _, xs = jax.lax.scan(gap, start, (step_sizes, num_steps, z))
+        return xs
+
+    batched = jax.vmap(one, in_axes=(0, 0, 0, 0, None, None))
+    return jax.jit(batched)
+
+
+def filtered_end_states(
+    model: HamiltonianModel,
+    theta_draws: Any,
+    data: Observations,
+    x0s: Any,
+    P0: Any = None,
+    t0: float = 0.0,
+    seed: int | Array = 0,
+) -> np.ndarray:
+    """One state per draw from the filter's distribution N(m_n, P_n) at the last observation.
+
+    ``x0s`` is one initial state ``(2d,)`` for all draws or one per draw ``(S, 2d)`` (a
+    learned initial state); ``data``, ``P0`` and ``t0`` as in :meth:`HamiltonianModel.filter`.
+    Rows are NaN where the filter fails.
+    """
+    theta = np.atleast_2d(np.asarray(theta_draws, dtype=float))
+    x0s = np.asarray(x0s, dtype=float)
+    if x0s.ndim == 1:
+        x0s = np.broadcast_to(x0s, (theta.shape[0], x0s.shape[0]))
+    key, _ = key_and_seed(seed)
+    z = np.asarray(jax.random.normal(key, (theta.shape[0], model.state_dim)))
+    return _sample_filtered(model, theta, model.prepare(data, t0), x0s, P0, z)

@@ -18,12 +18,13 @@ from symplid.plotting.paper import (
     plot_process_noise,
     plot_trajectory_bands,
 )
-from symplid.plotting.predictive import plot_predictive
+from symplid.plotting.predictive import plot_forecast, plot_predictive
 from symplid.plotting.style import COLORS, Curves, save_figure
 
 __all__ = [
     "COLORS",
     "Curves",
+    "plot_forecast",
     "plot_hamiltonians",
     "plot_pair",
     "plot_phase_portraits",

@@ -21,7 +21,7 @@ from symplid.plotting.style import (
     sample_lines,
 )
 
-__all__ = ["plot_predictive"]
+__all__ = ["plot_forecast", "plot_predictive"]
 
 
 def plot_predictive(
@@ -145,3 +145,55 @@ class _Observed:
     def component(self, c: int) -> np.ndarray | None:
         """The observed values of state component ``c``, or None when it is not observed."""
         return self.values[:, self.columns[c]] if c in self.columns else None
+
+
+def plot_forecast(
+    forecast: Any,
+    data: Any,
+    state_dim: int,
+    *,
+    heldout: Any = None,
+    color: str = COLORS["leapfrog"],
+    path: str | Path | None = None,
+) -> Figure:
+    """A forecast from the end of the data: one panel per observed component.
+
+    Each panel shows the data, the 95 % band of the state (dark) and of a new observation
+    (light, the state's band plus observation noise), the median, and held-out data when
+    given (open circles). ``forecast`` is a
+    :class:`~symplid.inference.forecast.NoisyForecast`; ``data`` (and ``heldout``) an
+    :class:`~symplid.Observations` whose column names pick the state components.
+    """
+    d = state_dim // 2
+    state_names = [f"q{i + 1}" for i in range(d)] + [f"p{i + 1}" for i in range(d)]
+    names = list(getattr(data, "names", None) or state_names[: np.asarray(data.values).shape[1]])
+    times = np.asarray(forecast.times, dtype=float)
+    t0 = float(forecast.t_start)
+    levels = list(forecast.quantile_levels)
+    low, high = levels.index(min(levels)), levels.index(max(levels))
+    mid = levels.index(0.5) if 0.5 in levels else None
+    fig = new_figure(9.0, 2.2 * len(names) + 0.5)
+    axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
+    for j, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        c = state_names.index(name) if name in state_names else j
+        obs_q = forecast.obs_quantiles
+        ax.fill_between(times, obs_q[low][:, j], obs_q[high][:, j],
+                        color=color, alpha=0.15, lw=0, label="new observation, 95 %")
+        ax.fill_between(times, forecast.state_quantiles[low][:, c],
+                        forecast.state_quantiles[high][:, c], color=color, alpha=0.35, lw=0,
+                        label="state, 95 %")
+        if mid is not None:
+            ax.plot(times, forecast.state_quantiles[mid][:, c], color=color, lw=1.0,
+                    label="median")
+        ax.plot(data.times, np.asarray(data.values)[:, j], "o", ms=3, color=COLORS["data"],
+                label="data")
+        if heldout is not None:
+            ax.plot(heldout.times, np.asarray(heldout.values)[:, j], "o", ms=4, mfc="none",
+                    color=COLORS["truth"], label="held out")
+        mark_end_of_data(ax, t0, label=j == 0)
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.25)
+    handles, _ = axes[0].get_legend_handles_labels()
+    legend_above(axes[0], handles, ncol=min(len(handles), 6), fontsize=7.5)
+    axes[-1].set_xlabel("t")
+    return finish(fig, path)

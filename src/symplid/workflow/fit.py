@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from symplid.io import observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
+from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, resolve_for_data
 
@@ -64,7 +66,7 @@ def build_posterior(settings: Settings, obs: Observations, model: HamiltonianMod
         prior=settings.priors.prior_spec(learned),
         x0=x0,
         P0=init.p0_var,
-        t0=init.t0,
+        t0=None if init.at_first_observation else init.t0,  # None: at the first observation
         learn_initial_state=learned,  # its prior is the "initial_state" group above
     )
 
@@ -133,19 +135,47 @@ def fit(
     progress_label: str | None = None,
     overwrite: bool = False,
     progress_position: int = 0,
+    warn: bool = False,
+    status: Callable[[str], None] | None = None,
 ) -> FitOutcome:
     """The whole fit: MAP, Hessian, sampler and the run folder (when ``out`` is given).
 
-    The run folder is marked incomplete until every file is written; a sampler interrupted
-    with Ctrl-C keeps the draws it made (they are saved and the folder says so).
+    The run folder is marked incomplete until every file is written. A sampler interrupted
+    with Ctrl-C (or SIGTERM, see :mod:`symplid.workflow.interrupts`) keeps the draws it made:
+    they are saved, with SIGINT and SIGTERM held while the files are written, and the folder
+    is marked ``interrupted`` (readers refuse it with a message that says what to do). A
+    failure or an interruption before sampling records its reason in the marker. ``warn``
+    issues :class:`~symplid.inference.diagnostics.ConvergenceWarning` for R-hat and ESS;
+    ``status`` receives a one-line message before the (silent) MAP search and compilation.
     """
 
     settings = resolve_for_data(settings, obs, source)
-    timings: dict[str, float] = {}
     folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
+    try:
+        return _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+                    status)
+    except BaseException as err:
+        if folder is not None and not folder.is_complete and not _marked(folder):
+            what = "interrupted before any draw was kept" if isinstance(
+                err, KeyboardInterrupt) else f"{type(err).__name__}: {err}"
+            folder.fail(what)
+        raise
+
+
+def _marked(folder: RunFolder) -> bool:
+    reason = folder.incomplete_reason or ""
+    return reason.startswith((RunFolder.INTERRUPTED, "failed"))
+
+
+def _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+         status) -> FitOutcome:
+    timings: dict[str, float] = {}
     if folder is not None:
         folder.write_settings(settings)
         folder.write_data(obs)
+    if status is not None:
+        status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
+               "filter: this can take a minute)...")
     start = time.perf_counter()
     model = build_model(settings, obs)
     posterior = build_posterior(settings, obs, model)
@@ -156,18 +186,28 @@ def fit(
     start = time.perf_counter()
     idata = sample_for(settings, posterior, map_result, progress, progress_label, progress_position)
     timings["sampler_s"] = time.perf_counter() - start
-    interrupted = bool(idata.attrs.get("interrupted", False)) if idata is not None else False
-    table = diagnostics_summary(idata, show=False, warn=False) if idata is not None else None
-    summary = fit_summary(posterior, map_result, idata, table)
-    summary["timings"] = timings
-    summary["interrupted"] = interrupted
-    outcome = FitOutcome(
-        settings, obs, model, posterior, map_result, idata, summary, timings, interrupted
-    )
-    if folder is not None:
-        folder.write_posterior(idata)
-        folder.write_summary(summary)
-        folder.finish(required=("settings.toml", "data.csv", "map.json", "posterior.nc"))
+    with deferred_interrupts():  # a second Ctrl-C must not lose the draws the first kept
+        interrupted = bool(idata.attrs.get("interrupted", False)) if idata is not None else False
+        table = diagnostics_summary(idata, show=False, warn=warn and not interrupted)
+        summary = fit_summary(posterior, map_result, idata, table)
+        summary["timings"] = timings
+        summary["interrupted"] = interrupted
+        if interrupted:
+            summary["iterations_done"] = int(idata.attrs.get("iterations", 0))
+        outcome = FitOutcome(
+            settings, obs, model, posterior, map_result, idata, summary, timings, interrupted
+        )
+        if folder is not None:
+            folder.write_posterior(idata)
+            folder.write_summary(summary)
+            if interrupted:
+                folder.mark_interrupted(
+                    f"after {summary['iterations_done']:,} of "
+                    f"{settings.sampler.num_iterations:,} iterations per chain (the draws "
+                    "made so far are in posterior.nc)"
+                )
+            else:
+                folder.finish(required=("settings.toml", "data.csv", "map.json", "posterior.nc"))
     return outcome
 
 

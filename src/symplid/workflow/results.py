@@ -21,6 +21,12 @@ data, MAP, a partial chain) stay where the user looks for them, and so that ``pr
 context manager, a failure writes its one-line reason into the marker. Each file is itself
 written to a hidden temporary name and renamed, so no file is ever half written.
 
+An update of a finished run (``mode="a"``) never makes it unfinished: its marker says
+``update started`` (readers ignore it, since every file is replaced atomically), and a failed
+or interrupted update removes it again. A sampler stopped by Ctrl-C or SIGTERM leaves the
+marker ``interrupted: ...`` (:meth:`RunFolder.mark_interrupted`): the draws made so far are in
+``posterior.nc``, and readers refuse the run with a one-line message that says what to do.
+
 JSON conventions
 ----------------
 NumPy and JAX arrays become (nested) lists, NumPy scalars become numbers, tuples lists, dataclasses
@@ -55,6 +61,7 @@ __all__ = [
     "to_jsonable",
     "write_json",
 ]
+
 
 class RunFolderError(DataError):
     """A run folder that cannot be used (missing, unfinished, not a run folder, ...)."""
@@ -251,6 +258,8 @@ class RunFolder:
     REPORT = "report.md"
     FIGURES = "figures"
     RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES)
+    UPDATE = "update"
+    INTERRUPTED = "interrupted:"
 
     def __init__(
         self,
@@ -266,11 +275,12 @@ class RunFolder:
         self.mode: Mode = mode
         self._finished = False
         if mode == "w":
+            _check_parents(self.path)
             self._create(overwrite)
         else:
             self._check_existing(allow_incomplete)
             if mode == "a":
-                self._write_marker("update started")
+                self._write_marker(f"{self.UPDATE} started")
 
     # ------------------------------------------------------------------ state
     def _create(self, overwrite: bool) -> None:
@@ -309,11 +319,19 @@ class RunFolder:
             raise RunFolderError(f"{path}: not a folder")
         if not self._looks_like_run():
             raise RunFolderError(f"{path}: not a run folder (no {self.SETTINGS})")
-        if not allow_incomplete and not self.is_complete:
-            reason = self.incomplete_reason or "unknown reason"
+        if allow_incomplete or self.is_complete:
+            return
+        reason = self.incomplete_reason or "unknown reason"
+        if reason.startswith(self.UPDATE):
+            return  # an update (predict, report) in progress or killed: the run is finished
+        if reason.startswith(self.INTERRUPTED):
             raise RunFolderError(
-                f"{path}: the run that wrote this folder did not finish ({reason}); run it again"
+                f"{path}: sampling was {reason}; resuming is not supported yet: fit again "
+                "with --overwrite (or a new --out) and a budget that can finish"
             )
+        raise RunFolderError(
+            f"{path}: the run that wrote this folder did not finish ({reason}); run it again"
+        )
 
     def _write_marker(self, reason: str) -> None:
         stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
@@ -342,9 +360,23 @@ class RunFolder:
         (self.path / self.MARKER).unlink(missing_ok=True)
         self._finished = True
 
+    def mark_interrupted(self, detail: str) -> None:
+        """Mark a run whose sampler was stopped (Ctrl-C, SIGTERM): its files are written but
+        the chains are short. Readers refuse it with a message that says what to do."""
+        self._check_writable()
+        self._write_marker(f"{self.INTERRUPTED} {detail}")
+        self._finished = True
+
     def fail(self, reason: str) -> None:
-        """Record why the run stopped (first line of the marker); the folder stays unfinished."""
+        """Record why the run stopped (first line of the marker); the folder stays unfinished.
+
+        For an update of a finished run (``mode="a"``) the marker is removed instead: the
+        files it replaced were replaced atomically, so the run is still the finished run.
+        """
         if self.mode == "r":
+            return
+        if self.mode == "a":
+            (self.path / self.MARKER).unlink(missing_ok=True)
             return
         first_line = (str(reason).strip().splitlines() or ["failed"])[0]
         self._write_marker(f"failed: {first_line}")
@@ -359,6 +391,7 @@ class RunFolder:
             self.finish()
         else:
             self.fail(f"{exc_type.__name__}: {exc}" if str(exc) else exc_type.__name__)
+        # KeyboardInterrupt included: an update never leaves a finished run unfinished
 
     def _check_writable(self) -> None:
         if self.mode == "r":
@@ -443,6 +476,15 @@ class RunFolder:
         _atomic_write_text(self.file(self.SUMMARY_TEXT), text)
         return path
 
+    def write_npz(self, name: str, **arrays: Any) -> Path:
+        """A compressed NumPy archive in the folder, written atomically."""
+        self._check_writable()
+        path = self.file(name)
+        tmp = path.with_name(f".{path.stem}.tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
+        return path
+
     def save_figure(self, figure: Any, name: str, dpi: int = 150) -> Path:
         """Save a matplotlib figure as ``figures/<name>`` (PNG unless ``name`` has a suffix)."""
         self._check_writable()
@@ -498,6 +540,13 @@ class RunFolder:
         if hasattr(idata, "attrs"):
             idata.attrs = _restore_attrs(dict(idata.attrs))
         return idata
+
+
+def _check_parents(path: Path) -> None:
+    """A one-line error when a parent of ``path`` is a file (``--out afile/run``)."""
+    for parent in reversed(path.parents):
+        if parent.exists() and not parent.is_dir():
+            raise RunFolderError(f"{path}: {parent} is a file, not a folder")
 
 
 _JSON_ATTRS = "symplid_json_attrs"

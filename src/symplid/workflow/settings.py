@@ -24,7 +24,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     mode = "known"                # "known": X_0 ~ N(x0, p0_var I); "learned": x0 joins θ
     x0 = [0.2, -0.25, 0.3, -0.25] # (q1..qd, p1..pd); empty = centre the learned prior on y_1
     p0_var = 1e-16
-    t0 = 0.0
+    t0 = 0.0                      # or "first": the state at the first observation time
 
     [priors.coefficients]         # one prior per group of θ
     family = "laplace"
@@ -89,9 +89,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import tomli_w
 
 from symplid.io import observation_layout
+from symplid.model.data import DataError
 from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.workflow.settings_schema import (
     PRIOR_DEFAULTS,
@@ -109,6 +111,7 @@ from symplid.workflow.settings_schema import (
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
 __all__ = [
+    "MAX_SUBSTEPS_PER_GAP",
     "InitialStateSettings",
     "MapSettings",
     "ModelSettings",
@@ -299,7 +302,7 @@ def _check_cross(s: Settings, source: str) -> None:
         raise SettingsError(
             source, "model.mass", f"must hold positive numbers, got {list(s.model.mass)}"
         )
-    if s.prediction.t_end <= s.initial_state.t0:
+    if not s.initial_state.at_first_observation and s.prediction.t_end <= s.initial_state.t0:
         raise SettingsError(
             source,
             "prediction.t_end",
@@ -453,13 +456,24 @@ def _prior_keys() -> set[str]:
 
 
 # ----------------------------------------------------------------------------- data
+#: The most integrator steps one gap between observations may take (⌈gap/dt⌉, eq. 14). The
+#: filter unrolls every gap into the same number of steps, so one huge gap (a time of 1e9 in a
+#: file) would otherwise ask for billions of steps and terabytes of memory.
+MAX_SUBSTEPS_PER_GAP = 1_000_000
+
+
 def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> Settings:
     """Check the settings against a data set and fill what the data decide.
 
     ``model.observation = "auto"`` becomes ``"full"`` or ``"positions"`` from the data's columns
     (see :func:`symplid.io.observation_kind`). Checks that the observation kind matches the
-    columns, that a known initial state has ``x0`` with 2d numbers, and that ``t0`` is before
-    the first observation. The result is what a run folder records.
+    columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is before
+    the first observation (or is ``"first"``), that the data have two times or more and no
+    column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
+    integrator steps. Warns (one line) when θ has more entries than there are data values,
+    and when a learned initial state whose prior is centred on the first observation sits
+    more than one data gap before it (``t0 = "first"`` puts it there). The result is what a
+    run folder records.
     """
     layout = observation_layout(obs)
     d = layout.dim
@@ -489,11 +503,70 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         )
     if model.mass and len(model.mass) != d:
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
-    first = float(obs.times[0])
-    if not init.t0 < first:
-        raise SettingsError(
-            source,
-            "initial_state.t0",
-            f"({init.t0:g}) must be before the first observation time ({first:g})",
-        )
+    _check_data(obs, settings, source)
     return dataclasses.replace(settings, model=dataclasses.replace(model, observation=observation))
+
+
+def _check_data(obs: Any, settings: Settings, source: str) -> None:
+    """What a data set must offer the model of ``settings`` (see :func:`resolve_for_data`)."""
+    init, model = settings.initial_state, settings.model
+    times = np.asarray(obs.times, dtype=float)
+    if times.size < 2:
+        raise DataError(
+            f"the data have {times.size} observation time; at least 2 are needed to learn "
+            "the dynamics"
+        )
+    names = obs.names or tuple(f"column {j + 1}" for j in range(obs.dim))
+    empty = [names[j] for j in range(obs.dim) if not np.any(obs.mask[:, j])]
+    if empty:
+        raise DataError(
+            f"{', '.join(empty)} {'has' if len(empty) == 1 else 'have'} no values (every "
+            "entry is missing); remove the column or give its values"
+        )
+    first = float(times[0])
+    if init.at_first_observation:
+        starts = times[:-1]
+    else:
+        if not init.t0 < first:
+            raise SettingsError(
+                source,
+                "initial_state.t0",
+                f"({init.t0:g}) must be before the first observation time ({first:g}); "
+                't0 = "first" puts the initial state at the first observation',
+            )
+        starts = np.concatenate([[float(init.t0)], times[:-1]])
+    steps = np.ceil((times[-starts.size :] - starts) / model.dt)
+    if np.max(steps) > MAX_SUBSTEPS_PER_GAP:
+        k = int(np.argmax(steps))
+        raise DataError(
+            f"the gap from t = {starts[k]:g} to the next observation needs {steps[k]:.3g} "
+            f"integrator steps of model.dt = {model.dt:g}; at most {MAX_SUBSTEPS_PER_GAP:,} "
+            "are allowed per gap (check the time column, or raise model.dt)"
+        )
+    values = int(np.sum(obs.mask))
+    d = _dim(obs)
+    num_params = math.comb(d + model.order, model.order) - 1 + 2
+    num_params += 2 * d if init.mode == "learned" else 0
+    if num_params > values:
+        warnings.warn(
+            f"{source}: the model has {num_params} parameters (order {model.order}) for "
+            f"{values} data values; the priors decide most of the posterior "
+            "(lower model.order, or give more data)",
+            UserWarning,
+            stacklevel=3,
+        )
+    if init.mode == "learned" and not init.x0 and not init.at_first_observation:
+        lead = first - float(init.t0)
+        if times.size > 1 and lead > float(np.max(np.diff(times))):
+            warnings.warn(
+                f"{source}: the learned initial state sits at t0 = {init.t0:g} but its prior "
+                f"is centred on the first observation at t = {first:g}; set "
+                'initial_state.t0 = "first" (--t0 first) to put the state there',
+                UserWarning,
+                stacklevel=3,
+            )
+
+
+def _dim(obs: Any) -> int:
+    """The configuration dimension d of the system the data observe."""
+    return observation_layout(obs).dim

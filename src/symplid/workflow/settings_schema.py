@@ -47,12 +47,25 @@ class ModelSettings:
 
 @dataclass(frozen=True)
 class InitialStateSettings:
-    """The initial state X_0 ~ N(x0, p0_var·I) at time t0, known or learned with θ."""
+    """The initial state X_0 ~ N(x0, p0_var·I) at time t0, known or learned with θ.
+
+    ``t0 = "first"`` puts the state at the first observation time (the filter starts with
+    that observation's update; see :class:`~symplid.model.posterior.Posterior`, ``t0=None``).
+    """
 
     mode: str = setting("known", choices=("known", "learned"))
     x0: tuple[float, ...] = setting(())
     p0_var: float = setting(1e-16, minimum=0.0)
-    t0: float = setting(0.0)
+    t0: float | str = setting(0.0, words=("first",))
+
+    @property
+    def at_first_observation(self) -> bool:
+        """True for ``t0 = "first"``."""
+        return self.t0 == "first"
+
+    def start_time(self, first_observation: float) -> float:
+        """t0 as a number: the first observation time for ``t0 = "first"``."""
+        return float(first_observation) if self.at_first_observation else float(self.t0)
 
 
 @dataclass(frozen=True)

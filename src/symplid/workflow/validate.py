@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import difflib
 import math
+import types
+import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -57,6 +59,8 @@ class Spec:
         and normalised to the canonical name.
     setting
         For a sweep cell key: the dotted run setting it stands for (``"model.dt"``).
+    words
+        For a number: words accepted in its place (``initial_state.t0 = "first"``).
     """
 
     type: Any
@@ -66,6 +70,7 @@ class Spec:
     strict: bool = False
     choices: tuple[str, ...] | Registry | None = None
     setting: str | None = None
+    words: tuple[str, ...] = ()
 
     def names(self) -> tuple[str, ...]:
         """The allowed strings (a registry's names at the time of the call)."""
@@ -106,6 +111,14 @@ def check_value(
     SettingsError
         (or ``error``, a subclass) with a one-line message naming ``source`` and ``key``.
     """
+    if spec.words and isinstance(value, str):
+        word = value.strip().lower()
+        if word not in spec.words:
+            allowed = " or ".join(repr(w) for w in spec.words)
+            raise error(source, key, f"must be a number or {allowed}, got {value!r}")
+        return word
+    if isinstance(tp, types.UnionType) and float in typing.get_args(tp):  # a number or a word
+        tp = float
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise error(source, key, f"must be an integer, got {value!r}")
