@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 
 import symplid
-from symplid import compiled_kernel
+from symplid.model import kernel as compiled_kernel
 
 
 def loop_time(step: Callable[[jax.Array], jax.Array], thetas: jax.Array, repeats: int) -> float:

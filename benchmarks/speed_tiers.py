@@ -11,7 +11,10 @@ Tiers (each measured in its own child process, pinned to CPU 0, one XLA thread):
 * ``tier 0``: XLA's default loop compilation (``SYMPLID_XLA_FLAGS=off``): every operation of
   a ``while`` body is dispatched on its own.
 * ``tier 1``: what ``import symplid`` sets up: small loops compiled whole
-  (``xla_cpu_small_while_loop_byte_threshold``), DRAM's linear algebra unrolled.
+  (``xla_cpu_small_while_loop_byte_threshold``), DRAM's linear algebra unrolled; the JAX
+  likelihood (``backend="jax"``).
+* ``tier 2``: tier 1 with the compiled C++ likelihood kernel (``backend="compiled"``, what
+  ``backend="auto"`` picks where it is built); its gradient is the JAX tier's by design.
 
 Rows: the value in a compiled loop, the value batched over 64 θ (per θ), the gradient in a
 compiled loop, DRAM iterations per CPU second (one chain; four chains one after another and
@@ -75,7 +78,9 @@ def measure(repeats: int, dram_iterations: int) -> dict[str, float]:
 
     system = symplid.get_system("henon-heiles")
     data = symplid.simulate(system, seed=0)
-    model = symplid.HamiltonianModel(system.potential, integrator="leapfrog", dt=0.25)
+    backend = os.environ.get("SYMPLID_BENCH_BACKEND", "jax")
+    model = symplid.HamiltonianModel(system.potential, integrator="leapfrog", dt=0.25,
+                                     backend=backend)
     theta = jnp.asarray(model.pack(system.coefficients, 1e-6, 0.05**2))
     loglik = model.log_likelihood_fn(data, system.initial_state)
     num_loop = 200
@@ -169,6 +174,7 @@ def _child(tier: str, repeats: int, dram_iterations: int) -> dict[str, float]:
         env["SYMPLID_XLA_FLAGS"] = "off"
     else:
         env.pop("SYMPLID_XLA_FLAGS", None)
+    env["SYMPLID_BENCH_BACKEND"] = "compiled" if tier == "tier 2" else "jax"
     code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); import speed_tiers as b; "
             f"b._pin(); from symplid import runtime; runtime.limit_threads(); import json; "
             f"print(json.dumps(b.measure({repeats}, {dram_iterations})))")
@@ -184,23 +190,26 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
     args = parser.parse_args(argv)
     repeats, iterations = (3, 2000) if args.quick else (7, 6000)
     _pin()
-    tiers = {tier: _child(tier, repeats, iterations) for tier in ("tier 0", "tier 1")}
+    names = ("tier 0", "tier 1", "tier 2")
+    tiers = {tier: _child(tier, repeats, iterations) for tier in names}
     baseline = numpy_baseline(repeats)
-    t0, t1 = tiers["tier 0"], tiers["tier 1"]
+    t0, t1, t2 = (tiers[name] for name in names)
     value = "value, compiled loop (µs)"
-    print("| measurement | tier 0 | tier 1 | tier 1 / tier 0 | target |")
-    print("|---|---:|---:|---:|---|")
+    print("| measurement | tier 0 | tier 1 | tier 2 | tier 1 / tier 0 | tier 2 / tier 0 | target |")
+    print("|---|---:|---:|---:|---:|---:|---|")
     for name in t0:
         if name == "stage-2 share":
             continue
-        faster = t0[name] / t1[name] if "µs" in name else t1[name] / t0[name]
-        print(f"| {name} | {t0[name]:,.1f} | {t1[name]:,.1f} | {faster:.2f}× faster "
-              f"| {TARGETS.get(name, '')} |")
-    print(f"| NumPy baseline (µs) | {baseline:,.0f} | | value ×{baseline / t0[value]:.0f}"
-          f" → ×{baseline / t1[value]:.0f} faster than NumPy | |")
-    grad_ratio = t1["gradient, compiled loop (µs)"] / t1["value, compiled loop (µs)"]
-    print(f"\ntier 1: gradient / value = {grad_ratio:.1f}; stage-2 share "
-          f"{t1['stage-2 share']:.2f}; CPU seconds, pinned to CPU 0.")
+        ratios = [t0[name] / t[name] if "µs" in name else t[name] / t0[name] for t in (t1, t2)]
+        print(f"| {name} | {t0[name]:,.1f} | {t1[name]:,.1f} | {t2[name]:,.1f} "
+              f"| {ratios[0]:.2f}× | {ratios[1]:.2f}× | {TARGETS.get(name, '')} |")
+    print(f"| NumPy baseline (µs) | {baseline:,.0f} | | | value ×{baseline / t1[value]:.0f} "
+          f"faster than NumPy (tier 1), ×{baseline / t2[value]:.0f} (tier 2) | | |")
+    for label, t in (("tier 1", t1), ("tier 2", t2)):
+        ratio = t["gradient, compiled loop (µs)"] / t[value]
+        print(f"\n{label}: gradient / value = {ratio:.1f}; stage-2 share "
+              f"{t['stage-2 share']:.2f}", end="")
+    print("\n(ratios: how many times faster than tier 0; CPU seconds, pinned to CPU 0)")
     if args.json:
         Path(args.json).write_text(json.dumps({**tiers, "numpy_us": baseline}, indent=2))
     return tiers

@@ -15,10 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from symplid.potentials import FunctionPotential, Polynomial
 
 import symplid
-from symplid import compiled_kernel
+from symplid.dynamics.potentials import FunctionPotential, Polynomial
+from symplid.model import kernel as compiled_kernel
 
 pytestmark = pytest.mark.skipif(
     not compiled_kernel.available(),

@@ -7,8 +7,8 @@ Theorem 1 and eq. 14).
 Float64 is switched on when the package is imported: the filter's covariances and the
 sampler's acceptance ratios are not trustworthy in float32. This is the only global JAX
 setting the package touches. Before JAX is imported, :func:`symplid.runtime.configure_xla`
-asks XLA to compile small loops whole (merged with the user's ``XLA_FLAGS``; the numbers do
-not change, the filter runs several times faster; ``SYMPLID_XLA_FLAGS=off`` opts out).
+asks XLA to compile small loops whole (merged with the user's ``XLA_FLAGS``; the numbers agree
+to rounding, the filter runs several times faster; ``SYMPLID_XLA_FLAGS=off`` opts out).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ import jax  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 from symplid.dynamics.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
+from symplid.dynamics.neural import MLPPotential  # noqa: E402
 from symplid.dynamics.potentials import (  # noqa: E402
     FunctionPotential,
     Polynomial,
@@ -29,7 +30,7 @@ from symplid.dynamics.potentials import (  # noqa: E402
     hamiltonian,
 )
 from symplid.dynamics.systems import SYSTEMS, System, get_system  # noqa: E402
-from symplid.inference import predict, samplers  # noqa: E402
+from symplid.inference import baselines, predict, samplers  # noqa: E402
 from symplid.inference.diagnostics import summary  # noqa: E402
 from symplid.inference.map import BoundWarning, MapResult, find_map  # noqa: E402
 from symplid.inference.samplers import sample  # noqa: E402
@@ -52,6 +53,7 @@ __all__ = [
     "Integrator",
     "Laplace",
     "LogNormal",
+    "MLPPotential",
     "MapResult",
     "Normal",
     "Observations",
@@ -61,6 +63,7 @@ __all__ = [
     "System",
     "Uniform",
     "__version__",
+    "baselines",
     "find_map",
     "get_integrator",
     "get_system",

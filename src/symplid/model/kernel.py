@@ -1,12 +1,12 @@
 """The compiled likelihood kernel: the UKF of Theorem 1 (eqs 10–12) in C++, through XLA's FFI.
 
-For the common case — a :class:`~symplid.potentials.Polynomial` potential of any dimension and
+For the common case — a :class:`~.potentials.Polynomial` potential of any dimension and
 order, one of the library's integrators (the symplectic compositions of the leapfrog of
 eqs 5–6, or an explicit Runge–Kutta method) as the propagator Ψ of eq. (14), a linear
 observation operator in the state-space model of eq. (7), missing values, isotropic or
 diagonal noise, Σ once per gap or once per substep, a constant mass matrix — the log marginal
 likelihood is computed by a C++ kernel (``csrc/ukf_kernel.cc``) that propagates the sigma
-points as vector lanes. It equals the JAX reference (:meth:`HamiltonianModel.filter`) to
+points as vector lanes. It equals the JAX reference (:func:`~.likelihood.filter_result`) to
 rounding and is
 
 * ``jit``-able: it is an XLA custom call, ~0.2 µs of overhead inside a compiled loop;
@@ -26,7 +26,6 @@ from __future__ import annotations
 import ctypes
 import importlib.util
 import warnings
-import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -36,10 +35,16 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
+from symplid.dynamics.integrators import INTEGRATORS
+from symplid.dynamics.potentials import Polynomial, inverse_mass
 from symplid.filters import unscented_weights
-from symplid.integrators import INTEGRATORS
-from symplid.models import GapInputs, HamiltonianModel, PreparedData
-from symplid.potentials import Polynomial, inverse_mass
+from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
+from symplid.model.likelihood import (
+    GapInputs,
+    PreparedData,
+    StateSpaceModel,
+    build_filter,
+)
 
 Array = jax.Array
 
@@ -50,7 +55,7 @@ _CBRT2 = 2.0 ** (1.0 / 3.0)
 _RK4_A = ((0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0), (0.0, 0.5, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
 
 # The propagators the kernel knows, by registry name: a leapfrog composition (sub-step weights)
-# or an explicit Runge–Kutta method (Butcher a, b), the same numbers as symplid.integrators.
+# or an explicit Runge–Kutta method (Butcher a, b), the same numbers as dynamics.integrators.
 SCHEMES: dict[str, tuple[str, tuple[Any, ...]]] = {
     "leapfrog": ("composition", ((1.0,),)),
     "yoshida4": (
@@ -137,10 +142,10 @@ def _warn_fallback() -> None:
         )
 
 
-def unsupported_reason(model: HamiltonianModel, prepared: PreparedData | None = None) -> str | None:
+def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = None) -> str | None:
     """Why the compiled kernel cannot evaluate this model (None when it can).
 
-    The kernel covers a :class:`~symplid.potentials.Polynomial` potential, the registry's
+    The kernel covers a :class:`~symplid.dynamics.potentials.Polynomial` potential, the registry's
     integrators, a linear observation operator and float64 on the CPU. It does not say
     whether the extension is loaded: see :func:`available`.
     """
@@ -160,7 +165,7 @@ def unsupported_reason(model: HamiltonianModel, prepared: PreparedData | None = 
     return None
 
 
-def describe(model: HamiltonianModel, prepared: PreparedData | None = None) -> dict[str, Any]:
+def describe(model: StateSpaceModel, prepared: PreparedData | None = None) -> dict[str, Any]:
     """Which likelihood tier a run uses and why, for the run's recorded settings."""
     reason = unsupported_reason(model, prepared)
     if reason is None and not available():
@@ -170,7 +175,7 @@ def describe(model: HamiltonianModel, prepared: PreparedData | None = None) -> d
     return {"likelihood_backend": "jax", "reason": reason}
 
 
-def _attributes(model: HamiltonianModel, prepared: PreparedData) -> dict[str, Any]:
+def _attributes(model: StateSpaceModel, prepared: PreparedData) -> dict[str, Any]:
     """The model's static settings as FFI attributes (numbers and 1-D arrays)."""
     potential = model.potential
     d = potential.dim
@@ -208,17 +213,16 @@ def _attributes(model: HamiltonianModel, prepared: PreparedData) -> dict[str, An
 KernelFn = Callable[[Array, Array, Array, Array, Array, Array, Array], Array]
 # Positions of θ, x0, P0, step sizes and ys among the kernel's arguments (the float ones).
 _DIFFERENTIABLE = (0, 1, 2, 3, 5)
-_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _build_kernel(model: HamiltonianModel, prepared: PreparedData) -> KernelFn:
+def _build_kernel(model: StateSpaceModel, prepared: PreparedData) -> KernelFn:
     """``(θ, x0, P0, step_size, num_steps, ys, masks) -> log L``: the FFI call, with JVPs
     taken from the JAX reference filter so that derivatives are the JAX tier's."""
     attrs = _attributes(model, prepared)
     call = jax.ffi.ffi_call(
         TARGET_NAME, jax.ShapeDtypeStruct((), jnp.float64), vmap_method="expand_dims"
     )
-    reference = model._build_filter(prepared.max_steps, prepared.uniform_steps)
+    reference = build_filter(model, prepared.max_steps, prepared.uniform_steps)
 
     @jax.custom_jvp
     def kernel(theta, x0, p0, step_size, num_steps, ys, masks):
@@ -247,21 +251,35 @@ def _build_kernel(model: HamiltonianModel, prepared: PreparedData) -> KernelFn:
     return kernel
 
 
-def _kernel_for(model: HamiltonianModel, prepared: PreparedData) -> KernelFn:
-    per_model = _KERNELS.setdefault(model, {})
-    key = (prepared.max_steps, prepared.uniform_steps)
-    if key not in per_model:
-        per_model[key] = _build_kernel(model, prepared)
-    return per_model[key]
+def _build_backend(model: StateSpaceModel, prepared: PreparedData) -> Callable[..., Array]:
+    """The backend's ``fn(θ, inputs, ys, masks, x0, P0) -> log L`` (jitted and cached by the
+    model like every backend's program)."""
+    kernel = _build_kernel(model, prepared)
+
+    def fn(theta, inputs, ys, masks, x0, p0):
+        return kernel(
+            jnp.asarray(theta, jnp.float64),
+            x0,
+            p0,
+            jnp.asarray(inputs.step_size, jnp.float64),
+            jnp.asarray(inputs.num_steps, jnp.int64),
+            jnp.asarray(ys, jnp.float64),
+            jnp.asarray(masks, jnp.bool_),
+        )
+
+    return fn
 
 
-def _reference(model, prepared, theta, x0, P0) -> Array:
-    fn = model._compiled(prepared)
-    return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0).log_likelihood
+def _supports(model: StateSpaceModel, prepared: PreparedData | None) -> str | None:
+    reason = unsupported_reason(model, prepared)
+    if reason is None and not available():
+        _warn_fallback()
+        reason = f"the compiled kernel is unavailable ({_Library.error})"
+    return reason
 
 
 def log_likelihood(
-    model: HamiltonianModel,
+    model: StateSpaceModel,
     prepared: PreparedData,
     theta: Array,
     x0: Array,
@@ -270,7 +288,7 @@ def log_likelihood(
     """log p(y_1..n | θ) of Theorem 1 by the compiled kernel where it applies.
 
     Same value (to rounding), same conventions and same derivatives as
-    :meth:`HamiltonianModel.log_likelihood` (−∞ for non-positive variances or a failed
+    :meth:`StateSpaceModel.log_likelihood` (−∞ for non-positive variances or a failed
     filter). ``theta``, ``x0`` and ``P0`` may be traced; the function can be ``jit``-ed,
     ``vmap``-ed (a batch is one kernel call) and differentiated. Where the kernel does not
     apply (:func:`unsupported_reason`) or is not built (:func:`available`, with one warning
@@ -280,25 +298,14 @@ def log_likelihood(
     theta = jnp.asarray(theta, dtype=jnp.float64)
     if theta.shape[-1] != model.num_params:
         raise ValueError(f"θ must have {model.num_params} entries, got {theta.shape[-1]}")
-    if unsupported_reason(model, prepared) is not None:
-        return _reference(model, prepared, theta, x0, P0)
-    if not available():
-        _warn_fallback()
-        return _reference(model, prepared, theta, x0, P0)
-    inputs = prepared.inputs
-    return _kernel_for(model, prepared)(
-        theta,
-        x0,
-        P0,
-        jnp.asarray(inputs.step_size, jnp.float64),
-        jnp.asarray(inputs.num_steps, jnp.int64),
-        jnp.asarray(prepared.ys, jnp.float64),
-        jnp.asarray(prepared.masks, jnp.bool_),
-    )
+    backend = "compiled" if _supports(model, prepared) is None else "jax"
+    fn = model._compiled(prepared, backend)
+    value = fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
+    return value if backend == "compiled" else value.log_likelihood
 
 
 def log_likelihood_fn(
-    model: HamiltonianModel, data, x0: Array, P0: Array | None = None, t0: float = 0.0
+    model: StateSpaceModel, data, x0: Array, P0: Array | None = None, t0: float = 0.0
 ) -> Callable[[Array], Array]:
     """A pure function θ ↦ log-likelihood with the data bound, on the fastest tier that applies."""
     prepared = data if isinstance(data, PreparedData) else model.prepare(data, t0)
@@ -310,6 +317,7 @@ def log_likelihood_fn(
 
 
 __all__ = [
+    "COMPILED_BACKEND",
     "SCHEMES",
     "TARGET_NAME",
     "KernelUnavailableWarning",
@@ -320,3 +328,18 @@ __all__ = [
     "log_likelihood_fn",
     "unsupported_reason",
 ]
+
+#: The compiled kernel as a likelihood backend: preferred by ``backend="auto"`` wherever it
+#: applies (see :func:`unsupported_reason`) and is built.
+COMPILED_BACKEND = LIKELIHOOD_BACKENDS.register(
+    "compiled",
+    LikelihoodBackend(
+        name="compiled",
+        supports=_supports,
+        build=_build_backend,
+        filtered_moments=False,
+        priority=10,
+        description="the C++ UKF kernel through XLA's FFI (polynomial U, linear observation)",
+    ),
+    replace=True,
+)
