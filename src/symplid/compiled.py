@@ -6,6 +6,11 @@ choices that shaped the program::
 
     fn = cached(self, ("filter", max_steps, uniform), lambda: jax.jit(build()))
 
+or, for a function whose first argument is the owner and whose next ones are static,
+:func:`jit_for`::
+
+    energy = jit_for(potential, _energy)(coefficients, states, inv_mass)
+
 so the compiled program lives exactly as long as its owner: there is no module-level
 table that keeps user objects (and their data) alive, and nothing to clear by hand.
 Works for frozen dataclasses too (the store is put in the instance ``__dict__``).
@@ -15,6 +20,7 @@ This module imports nothing from symplid: every layer may use it.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Hashable
 from typing import Any, TypeVar
 
@@ -29,6 +35,16 @@ def cached(owner: Any, key: Hashable, build: Callable[[], F]) -> F:
     if key not in store:
         store[key] = build()
     return store[key]
+
+
+def jit_for(owner: Any, fn: Callable[..., Any], *static: Hashable) -> Callable[..., Any]:
+    """``jax.jit(partial(fn, owner, *static))``, compiled once per ``(fn, static)`` and kept on
+    ``owner`` (a potential, a model) instead of in a module-level ``jax.jit`` whose cache
+    would hold every owner it was ever called with."""
+    import jax  # only when something is compiled: this module stays import-light
+
+    key = (fn.__module__, fn.__qualname__, *static)
+    return cached(owner, key, lambda: jax.jit(functools.partial(fn, owner, *static)))
 
 
 def clear(owner: Any) -> None:

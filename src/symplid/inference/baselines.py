@@ -58,6 +58,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
+from symplid.compiled import jit_for
 from symplid.dynamics.integrators import Dynamics, get_integrator, make_dynamics
 from symplid.dynamics.potentials import Polynomial, Potential, inverse_mass
 from symplid.dynamics.trajectory import propagate, substeps
@@ -204,7 +205,6 @@ class Pairs:
         self.num_dropped = int(np.sum(~keep))
 
 
-_STATIC = ("potential", "objective", "max_steps", "uniform")
 
 
 def _mean_square(coefficients, pairs_arrays, inv_mass, *, potential, objective, max_steps, uniform):
@@ -226,9 +226,22 @@ def _residuals(coefficients, pairs_arrays, inv_mass, potential, objective, max_s
     )
 
 
-# Compiled once per (potential, objective, data shape): the static arguments key JAX's cache.
-_loss = jax.jit(_mean_square, static_argnames=_STATIC)
-_value_and_grad = jax.jit(jax.value_and_grad(_mean_square), static_argnames=_STATIC)
+def _loss(potential, objective, max_steps, uniform, coefficients, pairs_arrays, inv_mass):
+    return _mean_square(coefficients, pairs_arrays, inv_mass, potential=potential,
+                        objective=objective, max_steps=max_steps, uniform=uniform)
+
+
+def _loss_and_grad(potential, objective, max_steps, uniform, coefficients, pairs_arrays,
+                   inv_mass):
+    return jax.value_and_grad(_loss, argnums=4)(
+        potential, objective, max_steps, uniform, coefficients, pairs_arrays, inv_mass
+    )
+
+
+def _compiled(fn, static: dict[str, Any]):
+    """``fn`` compiled once per (potential, objective, loop length), kept on the potential."""
+    return jit_for(static["potential"], fn, static["objective"], static["max_steps"],
+                   static["uniform"])
 
 
 def loss_function(
@@ -246,7 +259,8 @@ def loss_function(
     entry = OBJECTIVES.get_entry(objective)
     pairs = Pairs(potential, data, dt if entry.uses_substeps else None)
     static, arrays, inv_mass = _bind(potential, entry, pairs, mass)
-    return lambda c: _loss(jnp.asarray(c, dtype=float), arrays, inv_mass, **static)
+    loss = _compiled(_loss, static)
+    return lambda c: loss(jnp.asarray(c, dtype=float), arrays, inv_mass)
 
 
 def _bind(potential, entry, pairs, mass):
@@ -360,7 +374,7 @@ def _solve_lbfgs(potential, arrays, inv_mass, static, init, maxiter, gtol, ftol)
         raise ValueError(f"init must have shape ({potential.num_params},), got {x0.shape}")
 
     def fun(c: np.ndarray) -> tuple[float, np.ndarray]:
-        value, grad = _value_and_grad(jnp.asarray(c), arrays, inv_mass, **static)
+        value, grad = _compiled(_loss_and_grad, static)(jnp.asarray(c), arrays, inv_mass)
         return float(value), np.asarray(grad, dtype=float)
 
     result = scipy.optimize.minimize(

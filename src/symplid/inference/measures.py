@@ -7,13 +7,13 @@ long its prediction stays near the truth (Fig. 3).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from functools import partial
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.compiled import jit_for
 from symplid.dynamics.potentials import Potential, hamiltonian
 from symplid.inference.predictive import resolve_coefficients
 from symplid.model.statespace import HamiltonianModel
@@ -53,21 +53,19 @@ def hamiltonian_along(
         )
     c, x = jnp.asarray(coefficients), jnp.asarray(states)
     if coefficients.ndim == 1:
-        return np.asarray(_energy(potential, c, x, inv_mass))
+        return np.asarray(jit_for(potential, _energy)(c, x, inv_mass))
     if coefficients.ndim != 2 or states.ndim != 3 or states.shape[0] != coefficients.shape[0]:
         raise ValueError(
             "with one coefficient vector per path, coefficients must be (S, P) and states "
             f"(S, T, 2d); got {coefficients.shape} and {states.shape}"
         )
-    return np.asarray(_energy_per_path(potential, c, x, inv_mass))
+    return np.asarray(jit_for(potential, _energy_per_path)(c, x, inv_mass))
 
 
-@partial(jax.jit, static_argnums=0)
 def _energy(potential, coefficients, states, inv_mass):
     return hamiltonian(potential, coefficients, states, inv_mass)
 
 
-@partial(jax.jit, static_argnums=0)
 def _energy_per_path(potential, coefficients, states, inv_mass):
     return jax.vmap(hamiltonian, in_axes=(None, 0, 0, None))(
         potential, coefficients, states, inv_mass

@@ -11,13 +11,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import partial
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.compiled import jit_for
 from symplid.dynamics.integrators import Integrator, get_integrator, make_dynamics
 from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.trajectory import solve
@@ -160,7 +160,6 @@ def time_grid(t0: float, t_end: float, dt: float, every: int = 1) -> tuple[np.nd
     return t0 + h * k, n, h
 
 
-@partial(jax.jit, static_argnames=("potential", "integrator", "num_steps", "every"))
 def _batch_paths(potential, integrator, num_steps, every, coefficients, x0, step_size, inv_mass):
     """States at the stored steps for a batch of (coefficients, x0): ``(B, T, 2d)``.
 
@@ -188,11 +187,7 @@ def integrate_paths(
 
     ``num_steps`` steps of ``step_size``, stored as in :func:`time_grid`: shape ``(B, T, 2d)``.
     """
-    out = _batch_paths(
-        potential,
-        integrator,
-        int(num_steps),
-        int(every),
+    out = jit_for(potential, _batch_paths, integrator, int(num_steps), int(every))(
         jnp.asarray(coefficients, dtype=float),
         jnp.asarray(x0, dtype=float),
         jnp.asarray(step_size, dtype=float),

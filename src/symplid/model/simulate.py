@@ -7,12 +7,11 @@ The paper's truth is leapfrog with Δt = 1e-3 and 20 full-state observations at 
 
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.compiled import jit_for
 from symplid.dynamics.integrators import get_integrator, make_dynamics
 from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.systems import System, get_system
@@ -26,7 +25,6 @@ def state_names(dim: int, observation: str = "full") -> tuple[str, ...]:
     return q + p if observation == "full" else q
 
 
-@partial(jax.jit, static_argnames=("potential", "integrator"))
 def _trajectory(potential, integrator, coefficients, x0, step_sizes, num_steps, inv_mass):
     """States at the end of every gap: :func:`~symplid.dynamics.trajectory.solve_gaps`."""
     dynamics = make_dynamics(potential, coefficients, inv_mass)
@@ -50,9 +48,7 @@ def true_trajectory(
         raise ValueError(f"x0 must have shape ({2 * potential.dim},), got {x0.shape}")
     num_steps, step_sizes = substeps(np.diff(np.concatenate([[t0], times])), dt)
     inv_mass = inverse_mass(mass, potential.dim)
-    xs = _trajectory(
-        potential,
-        get_integrator(integrator).name,
+    xs = jit_for(potential, _trajectory, get_integrator(integrator).name)(
         jnp.asarray(coefficients, dtype=float),
         jnp.asarray(x0),
         jnp.asarray(step_sizes),
