@@ -37,6 +37,20 @@ def cached(owner: Any, key: Hashable, build: Callable[[], F]) -> F:
     return store[key]
 
 
+def cached_or_built(owner: Any, key: Hashable, build: Callable[[], F]) -> F:
+    """:func:`cached` where ``owner`` can keep a store and ``key`` is hashable, else ``build()``.
+
+    For functions that accept any object with a posterior's interface (some have no
+    ``__dict__``) or settings that may not be hashable: the program is then built afresh.
+    """
+    try:
+        hash(key)
+        vars(owner)
+    except TypeError:
+        return build()
+    return cached(owner, key, build)
+
+
 def jit_for(owner: Any, fn: Callable[..., Any], *static: Hashable) -> Callable[..., Any]:
     """``jax.jit(partial(fn, owner, *static))``, compiled once per ``(fn, static)`` and kept on
     ``owner`` (a potential, a model) instead of in a module-level ``jax.jit`` whose cache

@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from symplid.inference.cache import cached_or_built
+from symplid.compiled import cached_or_built
 from symplid.inference.laplace import (
     hessian_function,
     laplace_covariance,

@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.inference.cache import cached_or_built
+from symplid.compiled import cached_or_built
 from symplid.inference.diagnostics import import_arviz
 from symplid.inference.map import find_map
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec

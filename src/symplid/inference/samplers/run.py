@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from symplid.inference.cache import cached_or_built
+from symplid.compiled import cached_or_built
 
 __all__ = ["ChainRun", "ChunkReport", "SamplingInterrupted", "run_chains"]
 
