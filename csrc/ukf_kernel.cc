@@ -33,10 +33,6 @@ namespace ffi = xla::ffi;
 // that a block of sigma points stays in registers for a whole gap.
 #define SYMPLID_INLINE inline __attribute__((always_inline))
 
-// Vec values cross only inlined or file-local calls, so the ABI note GCC gives for passing
-// 64-byte vectors in the AVX2 and baseline variants does not concern any interface.
-#pragma GCC diagnostic ignored "-Wpsabi"
-
 namespace symplid {
 
 // Largest number of parameter vectors propagated together.
@@ -121,20 +117,26 @@ struct Member {
 #pragma GCC push_options
 #pragma GCC target("avx512f,avx512vl,avx512dq,avx2,fma")
 #define SYMPLID_ISA_NS avx512
+#define SYMPLID_MANY_REGISTERS 1
 #include "ukf_kernel_impl.h"
+#undef SYMPLID_MANY_REGISTERS
 #undef SYMPLID_ISA_NS
 #pragma GCC pop_options
 
 #pragma GCC push_options
 #pragma GCC target("avx2,fma")
 #define SYMPLID_ISA_NS avx2
+#define SYMPLID_MANY_REGISTERS 0
 #include "ukf_kernel_impl.h"
+#undef SYMPLID_MANY_REGISTERS
 #undef SYMPLID_ISA_NS
 #pragma GCC pop_options
 #endif
 
 #define SYMPLID_ISA_NS baseline
+#define SYMPLID_MANY_REGISTERS 0
 #include "ukf_kernel_impl.h"
+#undef SYMPLID_MANY_REGISTERS
 #undef SYMPLID_ISA_NS
 
 namespace symplid {

@@ -19,6 +19,9 @@ namespace symplid {
 namespace SYMPLID_ISA_NS {
 
 constexpr int kWidth = 8;  // lanes per Vec
+// Whether a Vec is one of 32 registers (AVX-512), so that several blocks of sigma points fit
+// in registers at once; SYMPLID_MANY_REGISTERS is set by ukf_kernel.cc per instruction set.
+constexpr bool kManyRegisters = SYMPLID_MANY_REGISTERS;
 
 template <int N>
 struct FixedChunks {
@@ -456,10 +459,12 @@ struct Block {
   // the vector's index in a row for a Vec block, the lane's index for a double block.
   void load(const Vec* qs, const Vec* ps, const Vec* tcs, int C, int at) {
     for (int i = 0; i < D; ++i) {
-      q[i] = get(qs + i * C, at);
-      p[i] = get(ps + i * C, at);
+      get(qs + i * C, at, q[i]);
+      get(ps + i * C, at, p[i]);
     }
-    for (int t = 0; t < kTable.start[D]; ++t) tc[t] = get(tcs + t, std::is_same<T, Vec>::value ? 0 : at % kWidth);
+    for (int t = 0; t < kTable.start[D]; ++t) {
+      get(tcs + t, std::is_same<T, Vec>::value ? 0 : at % kWidth, tc[t]);
+    }
     force(f);
   }
   void store(Vec* qs, Vec* ps, int C, int at) const {
@@ -468,11 +473,11 @@ struct Block {
       put(ps + i * C, at, p[i]);
     }
   }
-  SYMPLID_INLINE static T get(const Vec* row, int at) {
+  SYMPLID_INLINE static void get(const Vec* row, int at, T& out) {
     if constexpr (std::is_same<T, Vec>::value) {
-      return row[at];
+      out = row[at];
     } else {
-      return reinterpret_cast<const double*>(row)[at];
+      out = reinterpret_cast<const double*>(row)[at];
     }
   }
   SYMPLID_INLINE static void put(Vec* row, int at, const T& v) {
@@ -520,6 +525,23 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
   }
   const int lane = full * kWidth;  // the lone scalar lane
   int c = 0;
+  if (!kManyRegisters) {
+    // A Vec is already two (AVX2) or four (SSE2) independent registers: one block at a time
+    // fills the sixteen registers without spilling.
+    for (; c < full; ++c) {
+      V a;
+      a.load(q, p, tc, C, c);
+      leapfrog_blocks(s, dt, steps, a);
+      a.store(q, p, C, c);
+    }
+    if (lone) {
+      S x;
+      x.load(q, p, tc, C, lane);
+      leapfrog_blocks(s, dt, steps, x);
+      x.store(q, p, C, lane);
+    }
+    return;
+  }
   // Three vectors at a time hide the latency of one step's chain; the leftovers go in a pair
   // or alone, with the lone lane beside them.
   for (; c + 3 <= full; c += 3) {
@@ -583,18 +605,15 @@ inline FastAdvanceFn select_fast_advance(const Settings& s) {
 // and DY (observation) are compile-time for the common models, so the small loops unroll
 // completely; 0 means "read it from the settings".
 
-SYMPLID_INLINE double lane_sqrt(double x) { return std::sqrt(x); }
-SYMPLID_INLINE Vec lane_sqrt(Vec x) {
-  Vec r;
+// Per-lane square root and logarithm (out-parameters: no Vec crosses a call by value).
+SYMPLID_INLINE void lane_sqrt(const double& x, double& r) { r = std::sqrt(x); }
+SYMPLID_INLINE void lane_sqrt(const Vec& x, Vec& r) {
 #pragma GCC unroll 8
   for (int w = 0; w < kWidth; ++w) r[w] = std::sqrt(x[w]);
-  return r;
 }
-SYMPLID_INLINE double lane_log(double x) { return std::log(x); }
-SYMPLID_INLINE Vec lane_log(Vec x) {
-  Vec r;
+SYMPLID_INLINE void lane_log(const double& x, double& r) { r = std::log(x); }
+SYMPLID_INLINE void lane_log(const Vec& x, Vec& r) {
   for (int w = 0; w < kWidth; ++w) r[w] = std::log(x[w]);
-  return r;
 }
 
 // The first `columns` columns of the lower Cholesky factor of the symmetric N x N matrix a
@@ -609,7 +628,8 @@ SYMPLID_INLINE void cholesky_columns(T* __restrict__ a, int runtime_n, int colum
 #pragma GCC unroll 16
   for (int j = 0; j < N; ++j) {
     if (j == columns) break;
-    const T root = lane_sqrt(a[j * N + j]);
+    T root;
+    lane_sqrt(a[j * N + j], root);
 #pragma GCC unroll 16
     for (int i = j; i < N; ++i) a[i * N + j] = a[i * N + j] / root;
     if (j == columns - 1) break;
@@ -701,7 +721,8 @@ class Filter {
     const int n = this->n(), d = n / 2, np = NN > 0 ? 2 * NN + 1 : s_.npts;
     const double* wm = s_.wm;
     const double* wc = s_.wc;
-    T* __restrict__ c = centred_;
+    T local_centred[NN > 0 ? NN * (2 * NN + 1) : 1];
+    T* __restrict__ c = NN > 0 ? local_centred : centred_;
 #pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
       const T* row = reinterpret_cast<const T*>(i < d ? q + i * C : p + (i - d) * C);
@@ -764,12 +785,26 @@ class Filter {
   // Returns log p(y_k | y_1..k−1) per lane; leaves the filtered mean and factor in mean, chol.
   T update(const double* y, const bool* mask) {
     const int n = this->n(), dy = this->dy(), N = dy + n + 1;
-    T* __restrict__ a = joint_;
-    observation_moments();
+    // With compile-time sizes the joint matrix and the moments are local arrays with constant
+    // indices, which the compiler keeps in registers or at fixed stack slots.
+    T local_joint[kJoint > 0 ? kJoint * kJoint : 1];
+    T local_moments[kJoint > 0 ? NN * DY + DY + DY * DY : 1];
+    T* __restrict__ a = kJoint > 0 ? local_joint : joint_;
+    T* __restrict__ cross = kJoint > 0 ? local_moments : cross_;
+    T* __restrict__ predicted = kJoint > 0 ? cross + NN * DY : predicted_;
+    T* __restrict__ s0 = kJoint > 0 ? predicted + DY : s0_;
+    observation_moments(predicted, cross, s0);
     int observed = 0;
     for (int i = 0; i < dy; ++i) observed += mask[i] ? 1 : 0;
-#pragma GCC unroll 16
-    for (int i = 0; i < N * N; ++i) a[i] = T{};
+    // Only the lower triangle is read by the factorisation: every entry of it is set below
+    // (zero where a block is masked, and the last row's x columns).
+#pragma GCC unroll 8
+    for (int i = 0; i < n; ++i) {
+#pragma GCC unroll 8
+      for (int j = 0; j < dy; ++j) a[(dy + i) * N + j] = T{};
+    }
+#pragma GCC unroll 8
+    for (int j = 0; j < N; ++j) a[(N - 1) * N + j] = T{};
 #pragma GCC unroll 8
     for (int i = 0; i < dy; ++i) {  // S block (masked rows and columns → identity)
 #pragma GCC unroll 8
@@ -777,7 +812,7 @@ class Filter {
         T v = T{} + ((i == j) ? 1.0 : 0.0);
         if (mask[i] && mask[j]) {
           const T oi = i == j ? obs_var_[i] : T{};
-          v = 0.5 * ((s0_[i * dy + j] + oi) + (s0_[j * dy + i] + oi));
+          v = 0.5 * ((s0[i * dy + j] + oi) + (s0[j * dy + i] + oi));
         }
         a[i * N + j] = v;
       }
@@ -786,14 +821,14 @@ class Filter {
     for (int i = 0; i < n; ++i) {  // C block and P block
 #pragma GCC unroll 8
       for (int j = 0; j < dy; ++j) {
-        if (mask[j]) a[(dy + i) * N + j] = cross_[i * dy + j];
+        if (mask[j]) a[(dy + i) * N + j] = cross[i * dy + j];
       }
 #pragma GCC unroll 8
       for (int j = 0; j <= i; ++j) a[(dy + i) * N + dy + j] = cov[i * n + j];
     }
 #pragma GCC unroll 8
     for (int j = 0; j < dy; ++j) {
-      if (mask[j]) a[(N - 1) * N + j] = y[j] - predicted_[j];
+      if (mask[j]) a[(N - 1) * N + j] = y[j] - predicted[j];
     }
     cholesky_columns<kJoint>(a, N, dy + n);
     T zz{}, logdet{};
@@ -801,7 +836,9 @@ class Filter {
     for (int j = 0; j < dy; ++j) {
       const T z = a[(N - 1) * N + j];
       zz = zz + z * z;
-      logdet = logdet + lane_log(a[j * N + j]);
+      T log_diagonal;
+      lane_log(a[j * N + j], log_diagonal);
+      logdet = logdet + log_diagonal;
     }
 #pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
@@ -843,7 +880,8 @@ class Filter {
   }
 
   // ŷ = H m, C = P Hᵀ, S = H C (without Γ): exact moments of a linear observation.
-  void observation_moments() {
+  void observation_moments(T* __restrict__ predicted, T* __restrict__ cross,
+                           T* __restrict__ s0) const {
     const int n = this->n(), dy = this->dy();
     const double* H = s_.obs_matrix;
 #pragma GCC unroll 8
@@ -851,7 +889,7 @@ class Filter {
       T sum{};
 #pragma GCC unroll 8
       for (int k = 0; k < n; ++k) sum = sum + H[i * n + k] * mean[k];
-      predicted_[i] = sum;
+      predicted[i] = sum;
     }
 #pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
@@ -860,7 +898,7 @@ class Filter {
         T sum{};
 #pragma GCC unroll 8
         for (int k = 0; k < n; ++k) sum = sum + cov[i * n + k] * H[j * n + k];
-        cross_[i * dy + j] = sum;
+        cross[i * dy + j] = sum;
       }
     }
 #pragma GCC unroll 8
@@ -869,8 +907,8 @@ class Filter {
       for (int j = 0; j < dy; ++j) {
         T sum{};
 #pragma GCC unroll 8
-        for (int k = 0; k < n; ++k) sum = sum + H[i * n + k] * cross_[k * dy + j];
-        s0_[i * dy + j] = sum;
+        for (int k = 0; k < n; ++k) sum = sum + H[i * n + k] * cross[k * dy + j];
+        s0[i * dy + j] = sum;
       }
     }
   }
