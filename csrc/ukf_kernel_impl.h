@@ -782,8 +782,9 @@ class Filter {
 
   // Update and marginalisation, eqs (11)-(12), for the observed components of y: one
   // factorisation of the joint covariance of (y, x) with the innovation as a last row.
-  // Returns log p(y_k | y_1..k−1) per lane; leaves the filtered mean and factor in mean, chol.
-  T update(const double* y, const bool* mask) {
+  // Adds log p(y_k | y_1..k−1) per lane to total; leaves the filtered mean and factor in mean
+  // and chol. (The sum is an out-parameter: no Vec is returned by value.)
+  void update(const double* y, const bool* mask, T& total) {
     const int n = this->n(), dy = this->dy(), N = dy + n + 1;
     // With compile-time sizes the joint matrix and the moments are local arrays with constant
     // indices, which the compiler keeps in registers or at fixed stack slots.
@@ -849,7 +850,7 @@ class Filter {
 #pragma GCC unroll 8
       for (int j = 0; j < n; ++j) chol[i * n + j] = j <= i ? a[(dy + i) * N + dy + j] : T{};
     }
-    return (-0.5 * zz - logdet) - 0.5 * observed * kLog2Pi;
+    total = total + ((-0.5 * zz - logdet) - 0.5 * observed * kLog2Pi);
   }
 
   static constexpr int lanes() { return std::is_same<T, Vec>::value ? kWidth : 1; }
@@ -986,7 +987,7 @@ void run_group(const Settings& s, const TrajectoryData& data, const Member* memb
       advance(dt, steps);
       filter.predicted_moments(prop.q, prop.p, C);
     }
-    total = total + filter.update(data.ys + k * s.dy, data.masks + k * s.dy);
+    filter.update(data.ys + k * s.dy, data.masks + k * s.dy, total);
     bool any_finite = false;
     for (int g = 0; g < G; ++g) {
       any_finite = any_finite || (valid[g] && std::isfinite(F::get(total, g)));
