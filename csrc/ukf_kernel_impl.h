@@ -585,7 +585,7 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
 // The fast propagation for these settings, or nullptr (Runge-Kutta, or a basis without a
 // compile-time table: then Propagator::advance).
 inline FastAdvanceFn select_fast_advance(const Settings& s) {
-  if (!s.composition) return nullptr;
+  if (!s.composition || !kManyRegisters) return nullptr;
 #define SYMPLID_TRY_FAST(D, ORDER)                                                      \
   if (FixedBasis<D, ORDER>::matches(s)) {                                               \
     return s.has_mass ? &fast_advance<D, ORDER, true> : &fast_advance<D, ORDER, false>; \
