@@ -21,12 +21,17 @@
 #include <limits>
 #include <string>
 #include <tuple>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
+
+// Forces inlining of the small functions of the hot loops (the substep and the force), so
+// that a block of sigma points stays in registers for a whole gap.
+#define SYMPLID_INLINE inline __attribute__((always_inline))
 
 namespace symplid {
 
@@ -83,7 +88,6 @@ struct Workspace {
   }
   static constexpr std::size_t kVecDoubles = sizeof(Vec) / sizeof(double);
   std::vector<double> lane_storage;
-  std::vector<double> members;
   std::vector<int> term_start, term_coef_index, factor_start, factor_rows;
   std::vector<double> term_mult;
 };
@@ -113,20 +117,26 @@ struct Member {
 #pragma GCC push_options
 #pragma GCC target("avx512f,avx512vl,avx512dq,avx2,fma")
 #define SYMPLID_ISA_NS avx512
+#define SYMPLID_MANY_REGISTERS 1
 #include "ukf_kernel_impl.h"
+#undef SYMPLID_MANY_REGISTERS
 #undef SYMPLID_ISA_NS
 #pragma GCC pop_options
 
 #pragma GCC push_options
 #pragma GCC target("avx2,fma")
 #define SYMPLID_ISA_NS avx2
+#define SYMPLID_MANY_REGISTERS 0
 #include "ukf_kernel_impl.h"
+#undef SYMPLID_MANY_REGISTERS
 #undef SYMPLID_ISA_NS
 #pragma GCC pop_options
 #endif
 
 #define SYMPLID_ISA_NS baseline
+#define SYMPLID_MANY_REGISTERS 0
 #include "ukf_kernel_impl.h"
+#undef SYMPLID_MANY_REGISTERS
 #undef SYMPLID_ISA_NS
 
 namespace symplid {

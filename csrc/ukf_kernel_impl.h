@@ -19,6 +19,9 @@ namespace symplid {
 namespace SYMPLID_ISA_NS {
 
 constexpr int kWidth = 8;  // lanes per Vec
+// Whether a Vec is one of 32 registers (AVX-512), so that several blocks of sigma points fit
+// in registers at once; SYMPLID_MANY_REGISTERS is set by ukf_kernel.cc per instruction set.
+constexpr bool kManyRegisters = SYMPLID_MANY_REGISTERS;
 
 template <int N>
 struct FixedChunks {
@@ -377,98 +380,379 @@ class Propagator {
   GradientFn fixed_gradient_ = nullptr;
 };
 
+// ---------------------------------------------------------------- fast leapfrog propagation
+// The hot loop of the kernel is Ψ over a gap: `steps` leapfrog compositions of every sigma
+// point. Sigma points do not interact during a gap, so instead of sweeping all lanes through
+// memory once per substep (a force call through a pointer, powers and forces stored and
+// reloaded every time), the fast path keeps a few vectors of sigma points in registers for the
+// whole gap: a Block holds the state of one vector (or one scalar) of lanes, and several
+// blocks are advanced in the same loop body so that the processor overlaps their dependency
+// chains. The arithmetic is the reference's, operation for operation (see Propagator).
+
+// A block of lanes (T = Vec for eight lanes, double for one) for a fixed basis of degree ORDER
+// in D coordinates; MASS says whether the velocity is M⁻¹p (else p).
+template <int D, int ORDER, bool MASS, class T>
+struct Block {
+  using Basis = FixedBasis<D, ORDER>;
+  static constexpr auto kTable = Basis::kTable;
+
+  T q[D], p[D], f[D];
+  T tc[Basis::kTable.start[D]];  // c_m e_mj per term, for these lanes
+
+  // ∂U/∂q at q into out, straight-line: powers by repeated multiplication, then per
+  // component the terms in basis order (the first term starts the sum: 0 + v = v).
+  SYMPLID_INLINE void force(T (&out)[D]) const {
+    T pw[D][ORDER + 1];
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) {
+      pw[i][1] = q[i];
+#pragma GCC unroll 16
+      for (int k = 2; k <= ORDER; ++k) pw[i][k] = pw[i][k - 1] * q[i];
+    }
+#pragma GCC unroll 16
+    for (int j = 0; j < D; ++j) {
+      T acc{};
+#pragma GCC unroll 128
+      for (int t = kTable.start[j]; t < kTable.start[j + 1]; ++t) {
+        T v = tc[t];
+#pragma GCC unroll 8
+        for (int k = 0; k < kTable.num_factors[t]; ++k) {
+          v = v * pw[kTable.factor_coord[t][k]][kTable.factor_power[t][k]];
+        }
+        acc = (t == kTable.start[j]) ? v : acc + v;
+      }
+      out[j] = acc;
+    }
+  }
+
+  // M⁻¹ v (v itself without a mass matrix), as Propagator::velocity.
+  SYMPLID_INLINE static void velocity(const T (&v)[D], T (&out)[D], const double* inv_mass) {
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) {
+      if (!MASS) {
+        out[i] = v[i];
+        continue;
+      }
+      T sum = inv_mass[i * D] * v[0];
+#pragma GCC unroll 16
+      for (int j = 1; j < D; ++j) sum = sum + inv_mass[i * D + j] * v[j];
+      out[i] = sum;
+    }
+  }
+
+  // One leapfrog step of size h with the force at q in f (eqs 5-6, as Propagator::leapfrog).
+  SYMPLID_INLINE void step(double h, double half_h, double half_h2, const double* inv_mass) {
+    T vp[D], vg[D], f1[D];
+    velocity(p, vp, inv_mass);
+    velocity(f, vg, inv_mass);
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) q[i] = (q[i] + h * vp[i]) - half_h2 * vg[i];
+    force(f1);
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) {
+      p[i] = p[i] - half_h * (f[i] + f1[i]);
+      f[i] = f1[i];
+    }
+  }
+
+  // Moves the lanes between registers and the kernel's arrays (d rows of C vectors): `at` is
+  // the vector's index in a row for a Vec block, the lane's index for a double block.
+  void load(const Vec* qs, const Vec* ps, const Vec* tcs, int C, int at) {
+    for (int i = 0; i < D; ++i) {
+      get(qs + i * C, at, q[i]);
+      get(ps + i * C, at, p[i]);
+    }
+    for (int t = 0; t < kTable.start[D]; ++t) {
+      get(tcs + t, std::is_same<T, Vec>::value ? 0 : at % kWidth, tc[t]);
+    }
+    force(f);
+  }
+  void store(Vec* qs, Vec* ps, int C, int at) const {
+    for (int i = 0; i < D; ++i) {
+      put(qs + i * C, at, q[i]);
+      put(ps + i * C, at, p[i]);
+    }
+  }
+  SYMPLID_INLINE static void get(const Vec* row, int at, T& out) {
+    if constexpr (std::is_same<T, Vec>::value) {
+      out = row[at];
+    } else {
+      out = reinterpret_cast<const double*>(row)[at];
+    }
+  }
+  SYMPLID_INLINE static void put(Vec* row, int at, const T& v) {
+    if constexpr (std::is_same<T, Vec>::value) {
+      row[at] = v;
+    } else {
+      reinterpret_cast<double*>(row)[at] = v;
+    }
+  }
+};
+
+// Advances the given blocks together over `steps` steps of the composition (weights w).
+template <class... Blocks>
+SYMPLID_INLINE void leapfrog_blocks(const Settings& s, double dt, int steps, Blocks&... blocks) {
+  for (int k = 0; k < steps; ++k) {
+    for (int w = 0; w < s.ncomp; ++w) {
+      const double h = s.comp_w[w] * dt;
+      const double half_h2 = 0.5 * h * h;
+      const double half_h = 0.5 * h;
+      (blocks.step(h, half_h, half_h2, s.inv_mass), ...);
+    }
+  }
+}
+
+// Ψ over one gap for every lane of the arrays q, p (d rows of C vectors): G = 1 takes the
+// lanes of one θ (its npts sigma points), G = kWidth one vector per sigma point.
+using FastAdvanceFn = void (*)(const Settings&, Vec*, Vec*, const Vec*, int, int, double, int);
+
+template <int D, int ORDER, bool MASS>
+void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G, double dt,
+                  int steps) {
+  if (steps <= 0) return;
+  using V = Block<D, ORDER, MASS, Vec>;
+  using S = Block<D, ORDER, MASS, double>;
+  // Whole vectors of lanes in use; with one θ, a last partly used vector counts as whole
+  // (its padding lanes hold finite copies of the centre point) unless it has a single lane,
+  // which then goes in a scalar block.
+  int full = C;
+  bool lone = false;
+  if (G == 1) {
+    full = s.npts / kWidth;
+    const int rest = s.npts % kWidth;
+    if (rest > 1) ++full;
+    lone = rest == 1;
+  }
+  const int lane = full * kWidth;  // the lone scalar lane
+  int c = 0;
+  if (!kManyRegisters) {
+    // A Vec is already two (AVX2) or four (SSE2) independent registers: one block at a time
+    // fills the sixteen registers without spilling.
+    for (; c < full; ++c) {
+      V a;
+      a.load(q, p, tc, C, c);
+      leapfrog_blocks(s, dt, steps, a);
+      a.store(q, p, C, c);
+    }
+    if (lone) {
+      S x;
+      x.load(q, p, tc, C, lane);
+      leapfrog_blocks(s, dt, steps, x);
+      x.store(q, p, C, lane);
+    }
+    return;
+  }
+  // Three vectors at a time hide the latency of one step's chain; the leftovers go in a pair
+  // or alone, with the lone lane beside them.
+  for (; c + 3 <= full; c += 3) {
+    V a, b, e;
+    a.load(q, p, tc, C, c);
+    b.load(q, p, tc, C, c + 1);
+    e.load(q, p, tc, C, c + 2);
+    leapfrog_blocks(s, dt, steps, a, b, e);
+    a.store(q, p, C, c);
+    b.store(q, p, C, c + 1);
+    e.store(q, p, C, c + 2);
+  }
+  S x;
+  if (lone) x.load(q, p, tc, C, lane);
+  if (c + 2 == full) {
+    V a, b;
+    a.load(q, p, tc, C, c);
+    b.load(q, p, tc, C, c + 1);
+    if (lone) {
+      leapfrog_blocks(s, dt, steps, a, b, x);
+    } else {
+      leapfrog_blocks(s, dt, steps, a, b);
+    }
+    a.store(q, p, C, c);
+    b.store(q, p, C, c + 1);
+  } else if (c + 1 == full) {
+    V a;
+    a.load(q, p, tc, C, c);
+    if (lone) {
+      leapfrog_blocks(s, dt, steps, a, x);
+    } else {
+      leapfrog_blocks(s, dt, steps, a);
+    }
+    a.store(q, p, C, c);
+  } else if (lone) {
+    leapfrog_blocks(s, dt, steps, x);
+  }
+  if (lone) x.store(q, p, C, lane);
+}
+
+// The fast propagation for these settings, or nullptr (Runge-Kutta, or a basis without a
+// compile-time table: then Propagator::advance).
+inline FastAdvanceFn select_fast_advance(const Settings& s) {
+  if (!s.composition || !kManyRegisters) return nullptr;
+#define SYMPLID_TRY_FAST(D, ORDER)                                                      \
+  if (FixedBasis<D, ORDER>::matches(s)) {                                               \
+    return s.has_mass ? &fast_advance<D, ORDER, true> : &fast_advance<D, ORDER, false>; \
+  }
+  SYMPLID_TRY_FAST(1, 2) SYMPLID_TRY_FAST(1, 3) SYMPLID_TRY_FAST(1, 4) SYMPLID_TRY_FAST(1, 5)
+  SYMPLID_TRY_FAST(2, 2) SYMPLID_TRY_FAST(2, 3) SYMPLID_TRY_FAST(2, 4) SYMPLID_TRY_FAST(2, 5)
+  SYMPLID_TRY_FAST(3, 2) SYMPLID_TRY_FAST(3, 3) SYMPLID_TRY_FAST(3, 4) SYMPLID_TRY_FAST(3, 5)
+#undef SYMPLID_TRY_FAST
+  return nullptr;
+}
+
+// ---------------------------------------------------------------- the filter's dense algebra
+// The per-gap algebra of eqs (10)-(12) on a lane type T: double for one θ, Vec for a group of
+// eight θ sharing the data, lane g holding member g (sigma point k of the group is then the
+// vector k of every state row, see run_group). Every lane does the reference's operations in
+// the reference's order, so a member's numbers do not depend on its group. Sizes NN (state)
+// and DY (observation) are compile-time for the common models, so the small loops unroll
+// completely; 0 means "read it from the settings".
+
+// Per-lane square root and logarithm (out-parameters: no Vec crosses a call by value).
+SYMPLID_INLINE void lane_sqrt(const double& x, double& r) { r = std::sqrt(x); }
+SYMPLID_INLINE void lane_sqrt(const Vec& x, Vec& r) {
+#pragma GCC unroll 8
+  for (int w = 0; w < kWidth; ++w) r[w] = std::sqrt(x[w]);
+}
+SYMPLID_INLINE void lane_log(const double& x, double& r) { r = std::log(x); }
+SYMPLID_INLINE void lane_log(const Vec& x, Vec& r) {
+  for (int w = 0; w < kWidth; ++w) r[w] = std::log(x[w]);
+}
+
 // The first `columns` columns of the lower Cholesky factor of the symmetric N x N matrix a
 // (row-major, lower triangle read and overwritten), right-looking as in the reference: per
 // column j, col = a[:, j] / sqrt(a[j, j]) below the diagonal, then a −= col colᵀ. The factor
-// is left in the lower triangle of a; a failed factorisation leaves NaN, never an error.
-inline void cholesky_columns(double* a, int N, int columns) {
-  for (int j = 0; j < columns; ++j) {
-    const double root = std::sqrt(a[j * N + j]);
+// is left in the lower triangle of a; a failed factorisation leaves NaN, never an error. With a
+// compile-time N the loops unroll, so the independent divisions and updates of a column
+// overlap and only the chain sqrt → division → next diagonal element stays sequential.
+template <int FIXED_N, class T>
+SYMPLID_INLINE void cholesky_columns(T* __restrict__ a, int runtime_n, int columns) {
+  const int N = FIXED_N > 0 ? FIXED_N : runtime_n;
+#pragma GCC unroll 16
+  for (int j = 0; j < N; ++j) {
+    if (j == columns) break;
+    T root;
+    lane_sqrt(a[j * N + j], root);
+#pragma GCC unroll 16
     for (int i = j; i < N; ++i) a[i * N + j] = a[i * N + j] / root;
     if (j == columns - 1) break;
+#pragma GCC unroll 16
     for (int i = j + 1; i < N; ++i) {
-      const double ci = a[i * N + j];
+      const T ci = a[i * N + j];
+#pragma GCC unroll 16
       for (int k = j + 1; k <= i; ++k) a[i * N + k] -= ci * a[k * N + j];
     }
   }
 }
 
-// Per-member filter state and the small dense algebra of eqs (10)-(12).
-class MemberFilter {
+// Per-lane filter state (mean, factor, predicted covariance) and the algebra of one gap.
+template <class T, int NN, int DY>
+class Filter {
  public:
-  MemberFilter(const Settings& s, const Member& m, double* work) : s_(s), m_(m) {
-    const int n = s.n, dy = s.dy, N = s.dy + s.n + 1;
-    mean = work;
-    chol = mean + n;
-    cov = chol + n * n;
-    joint_ = cov + n * n;
-    cross_ = joint_ + N * N;
-    predicted_ = cross_ + n * dy;
-    s0_ = predicted_ + dy;
+  static constexpr int kJoint = NN > 0 && DY > 0 ? DY + NN + 1 : 0;
+
+  // Members' θ, x0 and P0 per lane (member w % G in lane w); storage from `work`.
+  Filter(const Settings& s, const Member* members, int G, T* work) : s_(s) {
+    const int n = this->n(), dy = this->dy(), N = dy + n + 1;
+    mean = take(work, n);
+    chol = take(work, n * n);
+    cov = take(work, n * n);
+    joint_ = take(work, N * N);
+    cross_ = take(work, n * dy);
+    predicted_ = take(work, dy);
+    s0_ = take(work, dy * dy);
+    centred_ = take(work, n * s.npts);
+    process_var_ = take(work, n);
+    obs_var_ = take(work, dy);
+    x0_ = take(work, n);
+    p0_ = take(work, n * n);
+    const int first_obs = s.ncoef + (s.diagonal ? n : 1);
+    for (int w = 0; w < lanes(); ++w) {
+      const Member& m = members[w % G];
+      for (int i = 0; i < n; ++i) {
+        set(process_var_[i], w, m.theta[s.ncoef + (s.diagonal ? i : 0)]);
+        set(x0_[i], w, m.x0[i]);
+        for (int k = 0; k < n; ++k) set(p0_[i * n + k], w, m.P0[i * n + k]);
+      }
+      for (int i = 0; i < dy; ++i) set(obs_var_[i], w, m.theta[first_obs + (s.diagonal ? i : 0)]);
+    }
   }
 
+  // T values of workspace the constructor takes.
   static std::size_t workspace(const Settings& s) {
     const int n = s.n, dy = s.dy, N = s.dy + s.n + 1;
-    return n + 2 * n * n + N * N + n * dy + dy + dy * dy;
+    return n + 3 * n * n + N * N + n * dy + 2 * dy + dy * dy + n * s.npts + 2 * n;
   }
 
-  // x0 and the factor of symmetrise(P0); false when a variance in θ is not positive.
-  bool start() {
-    const int n = s_.n;
-    for (int i = 0; i < n; ++i) mean[i] = m_.x0[i];
+  int n() const { return NN > 0 ? NN : s_.n; }
+  int dy() const { return DY > 0 ? DY : s_.dy; }
+
+  // x0 and the factor of symmetrise(P0).
+  void start() {
+    const int n = this->n();
+    for (int i = 0; i < n; ++i) mean[i] = x0_[i];
     for (int i = 0; i < n; ++i) {
-      for (int k = 0; k < n; ++k) chol[i * n + k] = 0.5 * (m_.P0[i * n + k] + m_.P0[k * n + i]);
+      for (int k = 0; k < n; ++k) chol[i * n + k] = 0.5 * (p0_[i * n + k] + p0_[k * n + i]);
     }
-    cholesky_columns(chol, n, n);
-    zero_upper(chol, n);
-    for (int v = s_.ncoef; v < s_.nparams; ++v) {
-      if (!(m_.theta[v] > 0.0)) return false;
-    }
-    return true;
+    cholesky_columns<NN>(chol, n, n);
+    zero_upper(chol);
   }
 
-  // Write the sigma points m, m ± scale·L[:, c] into this member's lanes: sigma point k of
-  // member g is lane k·G + g of rows of `stride` doubles (q rows, then p rows).
-  void sigma_points(double* q, double* p, int stride, int G, int g) const {
-    const int n = s_.n, d = s_.d;
+  // The sigma points m, m ± scale·L[:, c]: point k of component i is rows[i][k], where a
+  // state row is q's (i < d) or p's row, seen as T values (lanes for one θ, vectors of the
+  // group's members otherwise). Padding lanes (one θ) get the centre: finite, never read.
+  void sigma_points(Vec* q, Vec* p, int C) const {
+    const int n = this->n(), d = n / 2;
+#pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
-      double* row = (i < d ? q + i * stride : p + (i - d) * stride) + g;
+      T* row = reinterpret_cast<T*>(i < d ? q + i * C : p + (i - d) * C);
       row[0] = mean[i];
+#pragma GCC unroll 8
       for (int c = 0; c < n; ++c) {
-        const double spread = s_.scale * chol[i * n + c];
-        row[(1 + c) * G] = mean[i] + spread;
-        row[(1 + n + c) * G] = mean[i] - spread;
+        const T spread = s_.scale * chol[i * n + c];
+        row[1 + c] = mean[i] + spread;
+        row[1 + n + c] = mean[i] - spread;
       }
-      if (G == 1) {  // padding lanes: copies of the centre point (finite, never read)
-        for (int k = s_.npts; k < stride; ++k) row[k] = mean[i];
-      }
+      const int end = static_cast<int>(C * sizeof(Vec) / sizeof(T));
+      for (int k = s_.npts; k < end; ++k) row[k] = mean[i];
     }
   }
 
   // Predicted moments, eq (10): weighted mean and covariance of the propagated points,
   // plus Σ, symmetrised, plus jitter·I (into mean and cov).
-  void predicted_moments(const double* q, const double* p, int stride, int G, int g) {
-    const int n = s_.n, d = s_.d, np = s_.npts;
-    double centred[kMaxStack];
-    double* c = np * n <= kMaxStack ? centred : scratch(np * n);
+  void predicted_moments(const Vec* q, const Vec* p, int C) {
+    const int n = this->n(), d = n / 2, np = NN > 0 ? 2 * NN + 1 : s_.npts;
+    const double* wm = s_.wm;
+    const double* wc = s_.wc;
+    T local_centred[NN > 0 ? NN * (2 * NN + 1) : 1];
+    T* __restrict__ c = NN > 0 ? local_centred : centred_;
+#pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
-      const double* row = (i < d ? q + i * stride : p + (i - d) * stride) + g;
-      double sum = 0.0;
-      for (int k = 0; k < np; ++k) sum += row[k * G] * s_.wm[k];
+      const T* row = reinterpret_cast<const T*>(i < d ? q + i * C : p + (i - d) * C);
+      T sum = T{} + row[0] * wm[0];
+#pragma GCC unroll 16
+      for (int k = 1; k < np; ++k) sum = sum + row[k] * wm[k];
       mean[i] = sum;
-      for (int k = 0; k < np; ++k) c[i * np + k] = row[k * G] - sum;
+#pragma GCC unroll 16
+      for (int k = 0; k < np; ++k) c[i * np + k] = row[k] - sum;
     }
+#pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
+      T weighted[NN > 0 ? 2 * NN + 1 : 1];  // wc_k c_ik, shared by the row's entries
+      T* wci = NN > 0 ? weighted : joint_;  // (the joint matrix is free until update)
+#pragma GCC unroll 16
+      for (int k = 0; k < np; ++k) wci[k] = wc[k] * c[i * np + k];
+#pragma GCC unroll 8
       for (int j = 0; j < n; ++j) {
-        double sum = 0.0;
-        for (int k = 0; k < np; ++k) sum += s_.wc[k] * c[i * np + k] * c[j * np + k];
+        T sum = T{} + wci[0] * c[j * np];
+#pragma GCC unroll 16
+        for (int k = 1; k < np; ++k) sum = sum + wci[k] * c[j * np + k];
         cov[i * n + j] = sum;
       }
-      cov[i * n + i] += process_variance(i);
+      cov[i * n + i] = cov[i * n + i] + process_var_[i];
     }
+#pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {  // symmetrise (Σ + jitter on the diagonal)
+#pragma GCC unroll 8
       for (int j = 0; j < i; ++j) {
-        const double v = 0.5 * (cov[i * n + j] + cov[j * n + i]);
+        const T v = 0.5 * (cov[i * n + j] + cov[j * n + i]);
         cov[i * n + j] = v;
         cov[j * n + i] = v;
       }
@@ -478,19 +762,19 @@ class MemberFilter {
 
   // The factor of cov for the next substep's sigma points (noise added per substep).
   void factor_covariance() {
-    const int n = s_.n;
+    const int n = this->n();
     for (int i = 0; i < n * n; ++i) chol[i] = cov[i];
-    cholesky_columns(chol, n, n);
-    zero_upper(chol, n);
+    cholesky_columns<NN>(chol, n, n);
+    zero_upper(chol);
   }
 
   // cov = chol cholᵀ (a gap of zero substeps with noise per substep).
   void covariance_from_factor() {
-    const int n = s_.n;
+    const int n = this->n();
     for (int i = 0; i < n; ++i) {
       for (int j = 0; j < n; ++j) {
-        double sum = 0.0;
-        for (int k = 0; k < n; ++k) sum += chol[i * n + k] * chol[j * n + k];
+        T sum = T{};
+        for (int k = 0; k < n; ++k) sum = sum + chol[i * n + k] * chol[j * n + k];
         cov[i * n + j] = sum;
       }
     }
@@ -498,182 +782,251 @@ class MemberFilter {
 
   // Update and marginalisation, eqs (11)-(12), for the observed components of y: one
   // factorisation of the joint covariance of (y, x) with the innovation as a last row.
-  // Returns log p(y_k | y_1..k−1); leaves the filtered mean and factor in mean and chol.
-  double update(const double* y, const bool* mask) {
-    const int n = s_.n, dy = s_.dy, N = dy + n + 1;
-    double* a = joint_;
-    observation_moments();
+  // Adds log p(y_k | y_1..k−1) per lane to total; leaves the filtered mean and factor in mean
+  // and chol. (The sum is an out-parameter: no Vec is returned by value.)
+  void update(const double* y, const bool* mask, T& total) {
+    const int n = this->n(), dy = this->dy(), N = dy + n + 1;
+    // With compile-time sizes the joint matrix and the moments are local arrays with constant
+    // indices, which the compiler keeps in registers or at fixed stack slots.
+    T local_joint[kJoint > 0 ? kJoint * kJoint : 1];
+    T local_moments[kJoint > 0 ? NN * DY + DY + DY * DY : 1];
+    T* __restrict__ a = kJoint > 0 ? local_joint : joint_;
+    T* __restrict__ cross = kJoint > 0 ? local_moments : cross_;
+    T* __restrict__ predicted = kJoint > 0 ? cross + NN * DY : predicted_;
+    T* __restrict__ s0 = kJoint > 0 ? predicted + DY : s0_;
+    observation_moments(predicted, cross, s0);
     int observed = 0;
     for (int i = 0; i < dy; ++i) observed += mask[i] ? 1 : 0;
-    for (int i = 0; i < N * N; ++i) a[i] = 0.0;
+    // Only the lower triangle is read by the factorisation: every entry of it is set below
+    // (zero where a block is masked, and the last row's x columns).
+#pragma GCC unroll 8
+    for (int i = 0; i < n; ++i) {
+#pragma GCC unroll 8
+      for (int j = 0; j < dy; ++j) a[(dy + i) * N + j] = T{};
+    }
+#pragma GCC unroll 8
+    for (int j = 0; j < N; ++j) a[(N - 1) * N + j] = T{};
+#pragma GCC unroll 8
     for (int i = 0; i < dy; ++i) {  // S block (masked rows and columns → identity)
+#pragma GCC unroll 8
       for (int j = 0; j <= i; ++j) {
-        double v = (i == j) ? 1.0 : 0.0;
+        T v = T{} + ((i == j) ? 1.0 : 0.0);
         if (mask[i] && mask[j]) {
-          v = 0.5 * ((s0_[i * dy + j] + obs_variance(i, j)) + (s0_[j * dy + i] + obs_variance(j, i)));
+          const T oi = i == j ? obs_var_[i] : T{};
+          v = 0.5 * ((s0[i * dy + j] + oi) + (s0[j * dy + i] + oi));
         }
         a[i * N + j] = v;
       }
     }
+#pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {  // C block and P block
-      for (int j = 0; j < dy; ++j) a[(dy + i) * N + j] = mask[j] ? cross_[i * dy + j] : 0.0;
+#pragma GCC unroll 8
+      for (int j = 0; j < dy; ++j) {
+        if (mask[j]) a[(dy + i) * N + j] = cross[i * dy + j];
+      }
+#pragma GCC unroll 8
       for (int j = 0; j <= i; ++j) a[(dy + i) * N + dy + j] = cov[i * n + j];
     }
-    for (int j = 0; j < dy; ++j) a[(N - 1) * N + j] = mask[j] ? y[j] - predicted_[j] : 0.0;
-    cholesky_columns(a, N, dy + n);
-    double zz = 0.0, logdet = 0.0;
+#pragma GCC unroll 8
     for (int j = 0; j < dy; ++j) {
-      const double z = a[(N - 1) * N + j];
-      zz += z * z;
-      logdet += std::log(a[j * N + j]);
+      if (mask[j]) a[(N - 1) * N + j] = y[j] - predicted[j];
     }
+    cholesky_columns<kJoint>(a, N, dy + n);
+    T zz{}, logdet{};
+#pragma GCC unroll 8
+    for (int j = 0; j < dy; ++j) {
+      const T z = a[(N - 1) * N + j];
+      zz = zz + z * z;
+      T log_diagonal;
+      lane_log(a[j * N + j], log_diagonal);
+      logdet = logdet + log_diagonal;
+    }
+#pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
-      double shift = 0.0;
-      for (int j = 0; j < dy; ++j) shift += a[(dy + i) * N + j] * a[(N - 1) * N + j];
+      T shift{};
+#pragma GCC unroll 8
+      for (int j = 0; j < dy; ++j) shift = shift + a[(dy + i) * N + j] * a[(N - 1) * N + j];
       mean[i] = mean[i] + shift;
-      for (int j = 0; j < n; ++j) chol[i * n + j] = j <= i ? a[(dy + i) * N + dy + j] : 0.0;
+#pragma GCC unroll 8
+      for (int j = 0; j < n; ++j) chol[i * n + j] = j <= i ? a[(dy + i) * N + dy + j] : T{};
     }
-    return (-0.5 * zz - logdet) - 0.5 * observed * kLog2Pi;
+    total = total + ((-0.5 * zz - logdet) - 0.5 * observed * kLog2Pi);
+  }
+
+  static constexpr int lanes() { return std::is_same<T, Vec>::value ? kWidth : 1; }
+  static double get(const T& v, int w) {
+    if constexpr (std::is_same<T, Vec>::value) {
+      return v[w];
+    } else {
+      (void)w;
+      return v;
+    }
   }
 
  private:
-  static constexpr int kMaxStack = 512;
   static constexpr double kLog2Pi = 1.8378770664093454835606594728112;
 
-  double process_variance(int i) const {
-    return m_.theta[s_.ncoef + (s_.diagonal ? i : 0)];
+  static T* take(T*& work, int size) {
+    T* out = work;
+    work += size;
+    return out;
   }
-
-  double obs_variance(int i, int j) const {
-    if (i != j) return 0.0;
-    const int first = s_.ncoef + (s_.diagonal ? s_.n : 1);
-    return m_.theta[first + (s_.diagonal ? i : 0)];
+  static void set(T& v, int w, double x) {
+    if constexpr (std::is_same<T, Vec>::value) {
+      v[w] = x;
+    } else {
+      (void)w;
+      v = x;
+    }
   }
 
   // ŷ = H m, C = P Hᵀ, S = H C (without Γ): exact moments of a linear observation.
-  void observation_moments() {
-    const int n = s_.n, dy = s_.dy;
+  void observation_moments(T* __restrict__ predicted, T* __restrict__ cross,
+                           T* __restrict__ s0) const {
+    const int n = this->n(), dy = this->dy();
     const double* H = s_.obs_matrix;
+#pragma GCC unroll 8
     for (int i = 0; i < dy; ++i) {
-      double sum = 0.0;
-      for (int k = 0; k < n; ++k) sum += H[i * n + k] * mean[k];
-      predicted_[i] = sum;
+      T sum{};
+#pragma GCC unroll 8
+      for (int k = 0; k < n; ++k) sum = sum + H[i * n + k] * mean[k];
+      predicted[i] = sum;
     }
+#pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
+#pragma GCC unroll 8
       for (int j = 0; j < dy; ++j) {
-        double sum = 0.0;
-        for (int k = 0; k < n; ++k) sum += cov[i * n + k] * H[j * n + k];
-        cross_[i * dy + j] = sum;
+        T sum{};
+#pragma GCC unroll 8
+        for (int k = 0; k < n; ++k) sum = sum + cov[i * n + k] * H[j * n + k];
+        cross[i * dy + j] = sum;
       }
     }
+#pragma GCC unroll 8
     for (int i = 0; i < dy; ++i) {
+#pragma GCC unroll 8
       for (int j = 0; j < dy; ++j) {
-        double sum = 0.0;
-        for (int k = 0; k < n; ++k) sum += H[i * n + k] * cross_[k * dy + j];
-        s0_[i * dy + j] = sum;
+        T sum{};
+#pragma GCC unroll 8
+        for (int k = 0; k < n; ++k) sum = sum + H[i * n + k] * cross[k * dy + j];
+        s0[i * dy + j] = sum;
       }
     }
   }
 
-  static void zero_upper(double* a, int n) {
+  void zero_upper(T* a) const {
+    const int n = this->n();
     for (int i = 0; i < n; ++i) {
-      for (int k = i + 1; k < n; ++k) a[i * n + k] = 0.0;
+      for (int k = i + 1; k < n; ++k) a[i * n + k] = T{};
     }
-  }
-
-  double* scratch(int size) {
-    big_.resize(size);
-    return big_.data();
   }
 
   const Settings& s_;
-  const Member& m_;
-  std::vector<double> big_;
-  double* joint_;
-  double* cross_;
-  double* predicted_;
-  double* s0_;
+  T* joint_;
+  T* cross_;
+  T* predicted_;
+  T* s0_;
+  T* centred_;
+  T* process_var_;  // per component (all equal for isotropic noise)
+  T* obs_var_;
+  T* x0_;
+  T* p0_;
 
  public:
-  double* mean;  // n: filtered (or predicted) mean
-  double* chol;  // n x n: lower factor of the filtered covariance
-  double* cov;   // n x n: predicted covariance
+  T* mean;  // n: filtered (or predicted) mean
+  T* chol;  // n x n: lower factor of the filtered covariance
+  T* cov;   // n x n: predicted covariance
 };
 
-// The filter recursion (Theorem 1) for a group of G members sharing one data set (G is 1 or
-// kWidth: then each vector holds one sigma point of the eight members).
-template <class Chunks>
+// The filter recursion (Theorem 1) for a group of G members sharing one data set (G is 1, or
+// kWidth with T = Vec: then each vector holds one sigma point of the eight members).
+template <class Chunks, class T, int NN, int DY>
 void run_group(const Settings& s, const TrajectoryData& data, const Member* members, int G,
                Chunks chunks, Workspace& work) {
+  using F = Filter<T, NN, DY>;
   const int C = chunks.count();
-  const int stride = C * kWidth;  // doubles per state row
-  const std::size_t member_size = MemberFilter::workspace(s);
-  Vec* lanes = work.lanes(Propagator<Chunks>::workspace(s, C));
-  work.members.resize(G * member_size);
+  Vec* lanes = work.lanes(Propagator<Chunks>::workspace(s, C) +
+                          (F::workspace(s) * sizeof(T) + sizeof(Vec) - 1) / sizeof(Vec));
   Propagator<Chunks> prop(s, chunks, lanes);
-  double* q = reinterpret_cast<double*>(prop.q);
-  double* p = reinterpret_cast<double*>(prop.p);
+  const FastAdvanceFn fast = select_fast_advance(s);
+  F filter(s, members, G, reinterpret_cast<T*>(lanes + Propagator<Chunks>::workspace(s, C)));
 
-  std::vector<MemberFilter> filters;
-  filters.reserve(G);
   bool valid[kMaxGroup];
-  double total[kMaxGroup];
-  for (int g = 0; g < G; ++g) {
-    filters.emplace_back(s, members[g], work.members.data() + g * member_size);
-    valid[g] = filters[g].start();
-    total[g] = 0.0;
+  for (int g = 0; g < G; ++g) {  // variances in θ must be positive
+    valid[g] = true;
+    for (int v = s.ncoef; v < s.nparams; ++v) valid[g] = valid[g] && members[g].theta[v] > 0.0;
   }
+  filter.start();
   for (int t = 0; t < s.num_terms; ++t) {  // c_m e_mj per lane: member g in lane g mod G
     for (int w = 0; w < kWidth; ++w) {
       prop.term_coef[t][w] = members[w % G].theta[s.term_coef_index[t]] * s.term_mult[t];
     }
   }
+  auto advance = [&](double dt, int steps) {
+    if (fast != nullptr) {
+      fast(s, prop.q, prop.p, prop.term_coef, C, G, dt, steps);
+    } else {
+      prop.advance(dt, steps);
+    }
+  };
+  T total{};
   for (int k = 0; k < data.num_gaps; ++k) {
     const double dt = data.step_size[k];
     int steps = s.uniform ? s.max_steps : static_cast<int>(data.num_steps[k]);
     steps = std::max(0, std::min(steps, s.max_steps));
     if (s.per_step) {
-      if (steps == 0) {
-        for (int g = 0; g < G; ++g) filters[g].covariance_from_factor();
-      }
+      if (steps == 0) filter.covariance_from_factor();
       for (int st = 0; st < steps; ++st) {
-        for (int g = 0; g < G; ++g) filters[g].sigma_points(q, p, stride, G, g);
-        prop.advance(dt, 1);
-        for (int g = 0; g < G; ++g) {
-          filters[g].predicted_moments(q, p, stride, G, g);
-          filters[g].factor_covariance();
-        }
+        filter.sigma_points(prop.q, prop.p, C);
+        advance(dt, 1);
+        filter.predicted_moments(prop.q, prop.p, C);
+        filter.factor_covariance();
       }
     } else {
-      for (int g = 0; g < G; ++g) filters[g].sigma_points(q, p, stride, G, g);
-      prop.advance(dt, steps);
-      for (int g = 0; g < G; ++g) filters[g].predicted_moments(q, p, stride, G, g);
+      filter.sigma_points(prop.q, prop.p, C);
+      advance(dt, steps);
+      filter.predicted_moments(prop.q, prop.p, C);
     }
+    filter.update(data.ys + k * s.dy, data.masks + k * s.dy, total);
     bool any_finite = false;
     for (int g = 0; g < G; ++g) {
-      total[g] += filters[g].update(data.ys + k * s.dy, data.masks + k * s.dy);
-      any_finite = any_finite || (valid[g] && std::isfinite(total[g]));
+      any_finite = any_finite || (valid[g] && std::isfinite(F::get(total, g)));
     }
     if (!any_finite) break;  // every member already failed: −∞ for all
   }
   for (int g = 0; g < G; ++g) {
-    const bool ok = valid[g] && std::isfinite(total[g]);
-    *members[g].out = ok ? total[g] : -std::numeric_limits<double>::infinity();
+    const double value = F::get(total, g);
+    const bool ok = valid[g] && std::isfinite(value);
+    *members[g].out = ok ? value : -std::numeric_limits<double>::infinity();
   }
 }
 
-// Entry point for this instruction set: a compile-time chunk count where one is common.
+// The filter's sizes: compile-time for full-state or position observations of d = 1..3.
+template <class Chunks, class T, int NN>
+void run_sized(const Settings& s, const TrajectoryData& data, const Member* members, int G,
+               Chunks chunks, Workspace& work) {
+  if (s.n == NN && s.dy == NN) return run_group<Chunks, T, NN, NN>(s, data, members, G, chunks, work);
+  if (s.n == NN && s.dy == NN / 2) {
+    return run_group<Chunks, T, NN, NN / 2>(s, data, members, G, chunks, work);
+  }
+  return run_group<Chunks, T, 0, 0>(s, data, members, G, chunks, work);
+}
+
+// Entry point for this instruction set: compile-time chunk counts and sizes where common
+// (one θ: npts lanes in 1 or 2 vectors; a group: one vector per sigma point).
 inline void evaluate(const Settings& s, const TrajectoryData& data, const Member* members,
                      int G, Workspace& work) {
   const int chunks = (G * s.npts + kWidth - 1) / kWidth;
-  switch (chunks) {
-    case 1: return run_group(s, data, members, G, FixedChunks<1>{}, work);
-    case 2: return run_group(s, data, members, G, FixedChunks<2>{}, work);
-    case 5: return run_group(s, data, members, G, FixedChunks<5>{}, work);
-    case 9: return run_group(s, data, members, G, FixedChunks<9>{}, work);
-    case 13: return run_group(s, data, members, G, FixedChunks<13>{}, work);
-    default: return run_group(s, data, members, G, RuntimeChunks{chunks}, work);
+  if (G == 1) {
+    if (s.d == 1) return run_sized<FixedChunks<1>, double, 2>(s, data, members, G, {}, work);
+    if (s.d == 2) return run_sized<FixedChunks<2>, double, 4>(s, data, members, G, {}, work);
+    if (s.d == 3) return run_sized<FixedChunks<2>, double, 6>(s, data, members, G, {}, work);
+    return run_group<RuntimeChunks, double, 0, 0>(s, data, members, G, RuntimeChunks{chunks}, work);
   }
+  if (s.d == 1) return run_sized<FixedChunks<5>, Vec, 2>(s, data, members, G, {}, work);
+  if (s.d == 2) return run_sized<FixedChunks<9>, Vec, 4>(s, data, members, G, {}, work);
+  if (s.d == 3) return run_sized<FixedChunks<13>, Vec, 6>(s, data, members, G, {}, work);
+  return run_group<RuntimeChunks, Vec, 0, 0>(s, data, members, G, RuntimeChunks{chunks}, work);
 }
 
 }  // namespace SYMPLID_ISA_NS
