@@ -15,6 +15,7 @@ This module imports nothing from symplid: every layer may use it.
 from __future__ import annotations
 
 import difflib
+import importlib
 from collections.abc import Callable, Iterator, Mapping
 from typing import Generic, TypeVar, overload
 
@@ -36,12 +37,17 @@ class Registry(Mapping[str, T], Generic[T]):
     ----------
     kind
         What an entry is, for messages (``"integrator"``, ``"prior family"``).
+    load
+        Modules that register built-in entries, imported (once) the first time a name is
+        looked up and not found — how a registry read by a lower layer (the sweep) finds the
+        entries a higher layer (the paper's experiment) registers, without importing it.
     """
 
-    def __init__(self, kind: str) -> None:
+    def __init__(self, kind: str, load: tuple[str, ...] = ()) -> None:
         self.kind = kind
         self._entries: dict[str, T] = {}
         self._aliases: dict[str, str] = {}
+        self._load = list(load)
 
     @overload
     def register(self, name: str, entry: T, *, aliases: tuple[str, ...] = (),
@@ -83,9 +89,18 @@ class Registry(Mapping[str, T], Generic[T]):
         """The registered name that ``name`` (or an alias) stands for; ``ValueError`` if none."""
         key = normalise(name)
         key = self._aliases.get(key, key)
+        if key not in self._entries and self._load_builtins():
+            key = self._aliases.get(normalise(name), normalise(name))
         if key not in self._entries:
             raise ValueError(self.unknown_message(name))
         return key
+
+    def _load_builtins(self) -> bool:
+        """Import the modules of built-in entries not imported yet; whether any was."""
+        pending, self._load = self._load, []
+        for module in pending:
+            importlib.import_module(module)
+        return bool(pending)
 
     def unknown_message(self, name: object) -> str:
         """``unknown integrator 'lepfrog' (did you mean 'leapfrog'?); choose one of ...``."""
@@ -98,7 +113,8 @@ class Registry(Mapping[str, T], Generic[T]):
         return self._entries[self.canonical(name)]
 
     def names(self) -> tuple[str, ...]:
-        """The canonical names, in registration order."""
+        """The canonical names, in registration order (built-in entries loaded first)."""
+        self._load_builtins()
         return tuple(self._entries)
 
     def __getitem__(self, name: str) -> T:
@@ -111,13 +127,15 @@ class Registry(Mapping[str, T], Generic[T]):
         if not isinstance(name, str):
             return False
         key = normalise(name)
+        if self._aliases.get(key, key) not in self._entries and self._load_builtins():
+            key = normalise(name)
         return self._aliases.get(key, key) in self._entries
 
     def __iter__(self) -> Iterator[str]:
-        return iter(tuple(self._entries))
+        return iter(self.names())
 
     def __len__(self) -> int:
-        return len(self._entries)
+        return len(self.names())
 
     def __repr__(self) -> str:
         return f"Registry({self.kind!r}: {', '.join(self._entries)})"

@@ -8,7 +8,8 @@ experiment's keys plus any dotted run setting (``"sampler.gamma" = 0.02``).
 
 The registry object lives in this layer so that the sweep can read it;
 :mod:`symplid.experiments` re-exports it as ``symplid.experiments.EXPERIMENTS`` and its modules
-register their entries when imported::
+register their entries when imported — which the registry does by itself the first time a
+name is looked up (``load=``), so ``run_sweep(spec)`` finds ``"paper"`` without an import::
 
     from symplid.experiments import EXPERIMENTS, Experiment
 
@@ -76,5 +77,5 @@ class Experiment:
         return {spec.setting: key for key, spec in self.keys.items() if spec.setting}
 
 
-EXPERIMENTS: Registry[Experiment] = Registry("experiment")
+EXPERIMENTS: Registry[Experiment] = Registry("experiment", load=("symplid.experiments",))
 """Experiments by name; filled by :mod:`symplid.experiments` (``"paper"``) and by users."""
