@@ -524,24 +524,9 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
     lone = rest == 1;
   }
   const int lane = full * kWidth;  // the lone scalar lane
+  // Only used where the vector registers are many (select_fast_advance): with AVX2 or SSE2
+  // a Vec is already two or four registers and register blocks would spill.
   int c = 0;
-  if (!kManyRegisters) {
-    // A Vec is already two (AVX2) or four (SSE2) independent registers: one block at a time
-    // fills the sixteen registers without spilling.
-    for (; c < full; ++c) {
-      V a;
-      a.load(q, p, tc, C, c);
-      leapfrog_blocks(s, dt, steps, a);
-      a.store(q, p, C, c);
-    }
-    if (lone) {
-      S x;
-      x.load(q, p, tc, C, lane);
-      leapfrog_blocks(s, dt, steps, x);
-      x.store(q, p, C, lane);
-    }
-    return;
-  }
   // Three vectors at a time hide the latency of one step's chain; the leftovers go in a pair
   // or alone, with the lone lane beside them.
   for (; c + 3 <= full; c += 3) {
