@@ -15,9 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.compiled import jit_for
 from symplid.dynamics.integrators import Integrator, make_dynamics
 from symplid.dynamics.potentials import inverse_mass
-from symplid.dynamics.trajectory import propagate
+from symplid.dynamics.trajectory import propagate, substeps
 from symplid.inference.predictive import (
     PosteriorPredictive,
     check_state,
@@ -254,8 +255,7 @@ def forecast_with_noise(
     gaps = np.diff(np.concatenate([[float(t_start)], times]))
     if times.size == 0 or np.any(gaps <= 0) or not np.all(np.isfinite(gaps)):
         raise ValueError("times must be finite, increasing and after t_start")
-    num_steps = np.ceil(gaps / model.dt - 1e-9).astype(np.int64)
-    step_sizes = gaps / num_steps
+    num_steps, step_sizes = substeps(gaps, model.dt)  # the model's own substeps (eq. 14)
     key, _ = key_and_seed(seed)
     key_x, key_y = jax.random.split(key)
     S, T = theta.shape[0], times.size
@@ -268,7 +268,7 @@ def forecast_with_noise(
     per_step = model.process_noise_per == "step"
     scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
     inv_mass = inverse_mass(model.mass, model.potential.dim)
-    run = _noisy_paths(model.integrator, model.potential, inv_mass, int(num_steps.max()))
+    run = jit_for(model.potential, _noisy_paths, model.integrator, int(num_steps.max()))
     states = np.array(
         run(
             jnp.asarray(theta[:, :nc]),
@@ -277,6 +277,7 @@ def forecast_with_noise(
             z * jnp.asarray(scale_by_gap)[None, :, None],
             jnp.asarray(step_sizes),
             jnp.asarray(num_steps),
+            inv_mass,
         )
     )
     states[~np.all(np.isfinite(starts), axis=1)] = np.nan
@@ -290,24 +291,25 @@ def forecast_with_noise(
     )
 
 
-def _noisy_paths(integrator: Integrator, potential: Any, inv_mass: Any, max_steps: int):
-    """A compiled function: every draw's path over the gaps, process noise added per gap."""
+def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, starts,
+                 scale, z, step_sizes, num_steps, inv_mass):
+    """Every draw's path over the gaps, process noise added per gap (compiled per potential
+    by :func:`~symplid.compiled.jit_for`)."""
     d = potential.dim
 
-    def one(coefficients, start, scale, z, step_sizes, num_steps):
-        dynamics = make_dynamics(potential, coefficients, inv_mass)
+    def one(c, start, sc, zz):
+        dynamics = make_dynamics(potential, c, inv_mass)
 
         def gap(x, inputs):
             h, n, zk = inputs
             q, p = propagate(integrator, dynamics, x[:d], x[d:], h, n, max_steps)
-            x = jnp.concatenate([q, p]) + scale * zk
+            x = jnp.concatenate([q, p]) + sc * zk
             return x, x
 
-        _, xs = jax.lax.scan(gap, start, (step_sizes, num_steps, z))
+        _, xs = jax.lax.scan(gap, start, (step_sizes, num_steps, zz))
         return xs
 
-    batched = jax.vmap(one, in_axes=(0, 0, 0, 0, None, None))
-    return jax.jit(batched)
+    return jax.vmap(one)(coefficients, starts, scale, z)
 
 
 def filtered_end_states(
