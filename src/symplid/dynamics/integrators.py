@@ -76,6 +76,10 @@ class Integrator:
     force_step: ForceStepFn | None = None
     """Optional ``(dynamics, q, p, ∂U(q), dt) -> (q⁺, p⁺, ∂U(q⁺))``: the same step, reusing the
     force at the start (first-same-as-last), so a run of steps costs one force per step."""
+    scheme: tuple | None = None
+    """The method as data, for compiled backends: ``("composition", weights)`` (leapfrog
+    sub-steps of ``w·Δt``) or ``("runge-kutta", a, b)`` (a Butcher tableau); None when the
+    step is only a function."""
 
 
 def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
@@ -124,7 +128,21 @@ def symplectic_integrator(
     name: str, order: int, weights: tuple[float, ...], description: str
 ) -> Integrator:
     step, force_step = symplectic_composition(weights)
-    return Integrator(name, order, True, step, description, force_step)
+    scheme = ("composition", tuple(float(w) for w in weights))
+    return Integrator(name, order, True, step, description, force_step, scheme)
+
+
+def runge_kutta_integrator(
+    name: str,
+    order: int,
+    a: tuple[tuple[float, ...], ...],
+    b: tuple[float, ...],
+    description: str,
+) -> Integrator:
+    """An explicit Runge–Kutta integrator from its Butcher tableau (not symplectic)."""
+    scheme = ("runge-kutta", tuple(tuple(float(x) for x in row) for row in a),
+              tuple(float(x) for x in b))
+    return Integrator(name, order, False, runge_kutta(a, b), description, scheme=scheme)
 
 
 def runge_kutta(a: tuple[tuple[float, ...], ...], b: tuple[float, ...]) -> StepFn:
@@ -177,40 +195,37 @@ INTEGRATORS.register(
     ),
 )
 INTEGRATORS.register(
-    "euler", Integrator("euler", 1, False, runge_kutta(((0.0,),), (1.0,)), "forward Euler")
+    "euler", runge_kutta_integrator("euler", 1, ((0.0,),), (1.0,), "forward Euler")
 )
 INTEGRATORS.register(
     "rk2-midpoint",
-    Integrator(
+    runge_kutta_integrator(
         "rk2-midpoint",
         2,
-        False,
-        runge_kutta(((0.0, 0.0), (0.5, 0.0)), (0.0, 1.0)),
+        ((0.0, 0.0), (0.5, 0.0)),
+        (0.0, 1.0),
         "explicit midpoint (the paper's non-symplectic RK2)",
     ),
     aliases=("rk2",),
 )
 INTEGRATORS.register(
     "rk2-heun",
-    Integrator(
-        "rk2-heun", 2, False, runge_kutta(((0.0, 0.0), (1.0, 0.0)), (0.5, 0.5)), "Heun's method"
+    runge_kutta_integrator(
+        "rk2-heun", 2, ((0.0, 0.0), (1.0, 0.0)), (0.5, 0.5), "Heun's method"
     ),
 )
 INTEGRATORS.register(
     "rk4",
-    Integrator(
+    runge_kutta_integrator(
         "rk4",
         4,
-        False,
-        runge_kutta(
-            (
-                (0.0, 0.0, 0.0, 0.0),
-                (0.5, 0.0, 0.0, 0.0),
-                (0.0, 0.5, 0.0, 0.0),
-                (0.0, 0.0, 1.0, 0.0),
-            ),
-            (1 / 6, 1 / 3, 1 / 3, 1 / 6),
+        (
+            (0.0, 0.0, 0.0, 0.0),
+            (0.5, 0.0, 0.0, 0.0),
+            (0.0, 0.5, 0.0, 0.0),
+            (0.0, 0.0, 1.0, 0.0),
         ),
+        (1 / 6, 1 / 3, 1 / 3, 1 / 6),
         "classical Runge–Kutta",
     ),
 )

@@ -35,7 +35,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
-from symplid.dynamics.integrators import INTEGRATORS
 from symplid.dynamics.potentials import Polynomial, inverse_mass
 from symplid.filters import unscented_weights
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
@@ -51,22 +50,6 @@ Array = jax.Array
 TARGET_NAME = "symplid_ukf_loglik"
 _LIBRARY_STEM = "_ukf_kernel"
 
-_CBRT2 = 2.0 ** (1.0 / 3.0)
-_RK4_A = ((0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0), (0.0, 0.5, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
-
-# The propagators the kernel knows, by registry name: a leapfrog composition (sub-step weights)
-# or an explicit Runge–Kutta method (Butcher a, b), the same numbers as dynamics.integrators.
-SCHEMES: dict[str, tuple[str, tuple[Any, ...]]] = {
-    "leapfrog": ("composition", ((1.0,),)),
-    "yoshida4": (
-        "composition",
-        ((1.0 / (2.0 - _CBRT2), -_CBRT2 / (2.0 - _CBRT2), 1.0 / (2.0 - _CBRT2)),),
-    ),
-    "euler": ("runge-kutta", (((0.0,),), (1.0,))),
-    "rk2-midpoint": ("runge-kutta", (((0.0, 0.0), (0.5, 0.0)), (0.0, 1.0))),
-    "rk2-heun": ("runge-kutta", (((0.0, 0.0), (1.0, 0.0)), (0.5, 0.5))),
-    "rk4": ("runge-kutta", (_RK4_A, (1 / 6, 1 / 3, 1 / 3, 1 / 6))),
-}
 
 
 class KernelUnavailableWarning(UserWarning):
@@ -151,9 +134,9 @@ def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = N
     """
     if not isinstance(model.potential, Polynomial):
         return f"the potential is a {type(model.potential).__name__}, not a Polynomial"
-    name = model.integrator.name
-    if name not in SCHEMES or INTEGRATORS.get(name) is not model.integrator:
-        return f"the integrator {name!r} is not one of {', '.join(SCHEMES)}"
+    if model.integrator.scheme is None:
+        return (f"the integrator {model.integrator.name!r} is a step function without a "
+                "composition or Butcher tableau")
     if model.observation_matrix is None:
         return "the observation operator is a function, not a matrix"
     if not jax.config.read("jax_enable_x64"):
@@ -179,7 +162,7 @@ def _attributes(model: StateSpaceModel, prepared: PreparedData) -> dict[str, Any
     """The model's static settings as FFI attributes (numbers and 1-D arrays)."""
     potential = model.potential
     d = potential.dim
-    kind, numbers = SCHEMES[model.integrator.name]
+    kind, *numbers = model.integrator.scheme
     weights = unscented_weights(model.state_dim, model.alpha, model.beta, model.kappa)
     inv_mass = inverse_mass(model.mass, d)
     placeholder = np.zeros(1)
@@ -318,7 +301,6 @@ def log_likelihood_fn(
 
 __all__ = [
     "COMPILED_BACKEND",
-    "SCHEMES",
     "TARGET_NAME",
     "KernelUnavailableWarning",
     "available",
