@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from symplid.dynamics.potentials import Polynomial
+from symplid.dynamics.families import build_family
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import find_map
 from symplid.inference.samplers import SAMPLERS, draws_array, sample
@@ -40,7 +40,7 @@ def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
     layout = observation_layout(obs)
     observation = layout.kind if m.observation == "auto" else m.observation
     return HamiltonianModel(
-        Polynomial(layout.dim, m.order),
+        build_family(layout.dim, m),
         integrator=m.integrator,
         dt=m.dt,
         observation=observation,

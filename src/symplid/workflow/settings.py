@@ -8,6 +8,8 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     seed = 0                      # seeds [map] and [sampler] unless they set their own
 
     [model]                       # the state-space model, eq. (7)
+    potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES
+    hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES
     order = 3                     # polynomial potential of total degree ≤ 3 (eqs 17–18)
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES
 from symplid.dynamics.integrators import INTEGRATORS
 from symplid.inference.samplers import SAMPLERS
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
@@ -32,6 +33,8 @@ __all__ = [
 class ModelSettings:
     """The state-space model of eq. (7) and its unscented filter (Theorem 1)."""
 
+    potential: str = setting("polynomial", choices=POTENTIAL_FAMILIES)
+    hamiltonian: str = setting("separable", choices=HAMILTONIAN_FAMILIES)
     order: int = setting(3, minimum=1)
     integrator: str = setting("leapfrog", choices=INTEGRATORS)
     dt: float = setting(0.25, minimum=0.0, strict=True)

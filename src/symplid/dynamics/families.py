@@ -1,0 +1,77 @@
+"""Families of potentials and Hamiltonians that settings, the command line and sweeps name.
+
+A run's settings describe the model by name (``model.potential = "polynomial"`` with
+``model.order``; ``model.potential = "mlp"`` with ``model.width`` and ``model.depth``;
+``model.hamiltonian = "double-pendulum"``). Each name is an entry of one of the two
+registries below, and the entry builds the object for the data's dimension::
+
+    from symplid.dynamics.families import POTENTIAL_FAMILIES, Family
+
+    POTENTIAL_FAMILIES.register("mine", Family(
+        "mine", lambda dim, options: MyPotential(dim, options.order), "U(q) of my kind"))
+
+``options`` is the run's model settings (any object with attributes: ``order``, ``width``,
+``depth``, ...), so a family reads the keys it needs and ignores the rest.
+
+* :data:`POTENTIAL_FAMILIES`: U(q; θ) for the separable H = ½pᵀM⁻¹p + U(q) (eq. 2).
+* :data:`HAMILTONIAN_FAMILIES`: the Hamiltonian itself. ``"separable"`` (the default) means
+  "½pᵀM⁻¹p plus the potential family above"; any other entry returns a whole H(q, p; θ),
+  which replaces the potential family.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from symplid.dynamics.potentials import Polynomial
+from symplid.registry import Registry
+
+__all__ = ["HAMILTONIAN_FAMILIES", "POTENTIAL_FAMILIES", "SEPARABLE", "Family", "build_family"]
+
+BuildFn = Callable[[int, Any], Any]
+
+#: The name of the Hamiltonian family ½pᵀM⁻¹p + U(q) with U from ``model.potential``.
+SEPARABLE = "separable"
+
+
+@dataclass(frozen=True)
+class Family:
+    """A named family: ``build(dim, options)`` returns a potential (or a Hamiltonian)."""
+
+    name: str
+    build: BuildFn
+    description: str = ""
+
+
+POTENTIAL_FAMILIES: Registry[Family] = Registry("potential family")
+HAMILTONIAN_FAMILIES: Registry[Family] = Registry("Hamiltonian family")
+
+POTENTIAL_FAMILIES.register(
+    "polynomial",
+    Family(
+        "polynomial",
+        lambda dim, options: Polynomial(dim, options.order),
+        "U(q) = Σ c_α q^α over the monomials of degree 2..order (eq. 13)",
+    ),
+)
+HAMILTONIAN_FAMILIES.register(
+    SEPARABLE,
+    Family(SEPARABLE, lambda dim, options: None, "H = ½pᵀM⁻¹p + U(q), U from model.potential"),
+)
+
+
+def build_family(dim: int, options: Any) -> Any:
+    """The potential or Hamiltonian that ``options.hamiltonian`` / ``options.potential`` name.
+
+    ``options.hamiltonian`` other than ``"separable"`` wins; otherwise the potential family
+    ``options.potential`` (``"polynomial"`` when the attribute is absent) is built.
+    """
+    hamiltonian = getattr(options, "hamiltonian", SEPARABLE)
+    entry = HAMILTONIAN_FAMILIES.get_entry(hamiltonian)
+    if entry.name != SEPARABLE:
+        return entry.build(dim, options)
+    return POTENTIAL_FAMILIES.get_entry(getattr(options, "potential", "polynomial")).build(
+        dim, options
+    )
