@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.dynamics.integrators import make_dynamics
+from symplid.dynamics.damping import bind_dynamics
 from symplid.dynamics.potentials import inverse_mass
 from symplid.dynamics.trajectory import propagate
 from symplid.filters import (
@@ -97,6 +97,9 @@ class StateSpaceModel(Protocol):
     def num_coefficients(self) -> int: ...
 
     @property
+    def num_dynamics_params(self) -> int: ...
+
+    @property
     def observation_matrix(self) -> np.ndarray | None: ...
 
     def split(self, theta: Array) -> tuple[Array, Array, Array]: ...
@@ -113,7 +116,7 @@ def filter_result(
     model
         The state-space model (static: it fixes the program).
     theta
-        Parameters ``[coefficients of U, process variance(s), observation variance(s)]``;
+        Parameters ``[coefficients of U, (γ,) process variance(s), observation variance(s)]``;
         may be traced.
     prepared
         Data from :meth:`HamiltonianModel.prepare` (concrete: it fixes the substep counts).
@@ -148,7 +151,7 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
     """
     weights = unscented_weights(model.state_dim, model.alpha, model.beta, model.kappa)
     moments = _observation_moments(model, weights)
-    nc = model.num_coefficients
+    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ for a damped model
 
     def filter_fn(theta, inputs, ys, masks, x0, p0) -> FilterResult:
         # Invalid variances give −∞; meanwhile the filter runs on their absolute values (a
@@ -156,10 +159,9 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         variances = theta[nc:]
         variances_ok = jnp.all(variances > 0)
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
-        coeffs, proc, obs = model.split(theta)
-        dynamics = make_dynamics(
-            model.potential, coeffs, inverse_mass(model.mass, model.potential.dim)
-        )
+        _, proc, obs = model.split(theta)
+        inv_mass = inverse_mass(model.mass, model.potential.dim)
+        dynamics = bind_dynamics(model.integrator, model.potential, theta[:nc], inv_mass)
         predict = _prediction(model, dynamics, proc, weights, max_steps, uniform_steps)
         result = run_filter(predict, moments, x0, p0, inputs, ys, masks, obs)
         ll = jnp.where(variances_ok, result.log_likelihood, -jnp.inf)

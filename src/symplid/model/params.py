@@ -17,10 +17,11 @@ bounds         bijector        θ = f(z)                 log |df/dz|
 (a, b)         ``logit``       a + (b − a)·σ(z)         log(b − a) − softplus(z) − softplus(−z)
 =============  ==============  =======================  ==============================
 
-The variances (groups :data:`POSITIVE_GROUPS`) are bounded below by 0 whatever their prior, so
-they get the ``log`` bijector. The MAP search uses a gentler space (:class:`SearchSpace`): only
-parameters bounded below alone are searched on a log scale, with a floor; the others are
-searched as themselves within their bounds, which L-BFGS-B handles directly.
+The variances and the damping rate γ (groups :data:`POSITIVE_GROUPS`) are bounded below by 0
+whatever their prior, so they get the ``log`` bijector. The MAP search uses a gentler space
+(:class:`SearchSpace`): only parameters bounded below alone are searched on a log scale, with a
+floor; the others are searched as themselves within their bounds, which L-BFGS-B handles
+directly.
 """
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ from symplid.model.priors import Prior, log_density_sum
 
 Array = jax.Array
 
-POSITIVE_GROUPS = ("process_var", "obs_var")
-"""Groups whose parameters are variances: bounded below by 0 whatever their prior."""
+POSITIVE_GROUPS = ("damping", "process_var", "obs_var")
+"""Groups bounded below by 0 whatever their prior: the damping rate and the variances."""
 
 MAX_UNCONSTRAINED_VARIANCE = 4.0
 """Cap on each variance of a covariance pushed to the unconstrained space."""
@@ -99,7 +100,7 @@ class ParameterSpace:
     def from_priors(
         cls, names: Sequence[str], groups: Sequence[str], priors: Sequence[Prior]
     ) -> ParameterSpace:
-        """Bounds from the priors' supports, and 0 below every variance."""
+        """Bounds from the priors' supports, and 0 below every variance and damping rate."""
         props = []
         for name, group, prior in zip(names, groups, priors, strict=True):
             lo, hi = prior.support

@@ -176,7 +176,9 @@ class Posterior:
         model = self.model
         self.num_model_params = m = int(model.num_params)
         nc, nq = int(model.num_coefficients), int(model.num_process_noise)
-        groups = ["coefficients"] * nc + ["process_var"] * nq + ["obs_var"] * (m - nc - nq)
+        nd = int(getattr(model, "num_damping", 0))
+        groups = ["coefficients"] * nc + ["damping"] * nd + ["process_var"] * nq
+        groups += ["obs_var"] * (m - nc - nd - nq)
         names = list(model.param_names)
         if self.learn_initial_state:
             for k in range(self.num_trajectories):

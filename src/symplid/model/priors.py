@@ -43,7 +43,7 @@ Array = jax.Array
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-GROUPS = ("coefficients", "process_var", "obs_var", "initial_state")
+GROUPS = ("coefficients", "damping", "process_var", "obs_var", "initial_state")
 """The groups of θ a :class:`PriorSpec` assigns priors to."""
 
 
@@ -398,6 +398,10 @@ def _default_variance() -> Prior:
     return HalfNormal(1.0)
 
 
+def _default_damping() -> Prior:
+    return HalfNormal(1.0)
+
+
 @dataclass(frozen=True)
 class PriorSpec:
     """Which prior each parameter of θ gets: one per group, overridden per parameter name.
@@ -417,6 +421,9 @@ class PriorSpec:
         ``{parameter name: prior}``: an **absolute** prior for that one parameter, e.g.
         ``{"q1^2": Normal(0.5, 0.1), "x0[0].p1": Normal(0.3, 0.1)}``. Names are checked
         against the posterior's parameter names.
+    damping
+        Prior of the damping rate γ of a damped model (default HalfNormal(1); γ is bounded
+        below by 0 whatever its prior).
 
     Every field also accepts a ``to_dict`` mapping or text such as ``"laplace(0, 10)"``.
     """
@@ -426,9 +433,10 @@ class PriorSpec:
     obs_var: Prior = field(default_factory=_default_variance)
     initial_state: Prior | None = None
     overrides: Mapping[str, Prior] = field(default_factory=dict)
+    damping: Prior = field(default_factory=_default_damping)
 
     def __post_init__(self) -> None:
-        for group in ("coefficients", "process_var", "obs_var"):
+        for group in ("coefficients", "damping", "process_var", "obs_var"):
             object.__setattr__(self, group, as_prior(getattr(self, group), f"prior of {group}"))
         if self.initial_state is not None:
             prior = as_prior(self.initial_state, "prior of initial_state")
@@ -450,7 +458,7 @@ class PriorSpec:
     def from_dict(cls, spec: Mapping[str, Any]) -> PriorSpec:
         """From ``{group or parameter name: prior}`` (priors as dicts, text or objects).
 
-        Keys are the groups (``coefficients``, ``process_var``, ``obs_var``,
+        Keys are the groups (``coefficients``, ``damping``, ``process_var``, ``obs_var``,
         ``initial_state``), ``variances`` (both variances at once, as in the settings file),
         ``overrides`` (a nested mapping), or any other string, read as a parameter name.
         """
@@ -476,6 +484,7 @@ class PriorSpec:
         """Groups and overrides as plain dicts (``initial_state`` None means the default)."""
         return {
             "coefficients": self.coefficients.to_dict(),
+            "damping": self.damping.to_dict(),
             "process_var": self.process_var.to_dict(),
             "obs_var": self.obs_var.to_dict(),
             "initial_state": None if self.initial_state is None else self.initial_state.to_dict(),

@@ -12,7 +12,9 @@ the model holds the settings, the layout of θ and the data preparation, and del
     θ = [coefficients of U ..., process-noise variance(s) ..., observation-noise variance(s) ...]
 
 with one variance each (``noise="isotropic"``: Σ = θ_Σ I, Γ = θ_Γ I, the paper's choice) or
-one per component (``noise="diagonal"``). Variances, not standard deviations.
+one per component (``noise="diagonal"``). Variances, not standard deviations. With
+``damping=True`` the damping rate γ (:mod:`symplid.dynamics.damping`) comes right after the
+coefficients: θ_Ψ = [coefficients ..., γ].
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import cached
+from symplid.dynamics.damping import is_damped, with_damping
 from symplid.dynamics.integrators import Integrator, get_integrator
 from symplid.dynamics.potentials import Potential, hamiltonian, inverse_mass, mass_matrix
 from symplid.dynamics.trajectory import substeps
@@ -76,6 +79,12 @@ class HamiltonianModel:
         Likelihood backend from :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS`
         (``"jax"``: the reference) or ``"auto"`` (the best one that supports the model; see
         :attr:`likelihood_backend`). :meth:`filter` always runs the JAX reference.
+    damping
+        Learn a damping rate γ ≥ 0: ṗ = −∂U/∂q − γM⁻¹p (:mod:`symplid.dynamics.damping`). θ
+        gets the entry ``gamma`` after the coefficients; a symplectic composition (leapfrog,
+        yoshida4) becomes the conformally symplectic splitting, a Runge–Kutta method the
+        damped Runge–Kutta step (:attr:`integrator` is then the damped one, its ``base`` the
+        named one).
     """
 
     potential: Potential
@@ -91,9 +100,16 @@ class HamiltonianModel:
     jitter: float = 1e-12
     unroll: int = 1
     backend: str = "auto"
+    damping: bool = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "integrator", get_integrator(self.integrator))
+        integrator = get_integrator(self.integrator)
+        if is_damped(integrator) and not self.damping:
+            raise ValueError(f"the integrator {integrator.name!r} is damped: pass damping=True")
+        object.__setattr__(self, "damping", bool(self.damping))
+        object.__setattr__(
+            self, "integrator", with_damping(integrator) if self.damping else integrator
+        )
         if not np.isfinite(self.dt) or self.dt <= 0:
             raise ValueError(f"dt must be a positive number, got {self.dt}")
         if self.process_noise_per not in ("gap", "step"):
@@ -152,6 +168,16 @@ class HamiltonianModel:
         return self.potential.num_params
 
     @property
+    def num_damping(self) -> int:
+        """1 when the model learns a damping rate γ, else 0."""
+        return int(self.damping)
+
+    @property
+    def num_dynamics_params(self) -> int:
+        """Size of θ_Ψ, the propagator's parameters: the coefficients, then γ when damped."""
+        return self.num_coefficients + self.num_damping
+
+    @property
     def num_process_noise(self) -> int:
         return 1 if self.noise == "isotropic" else self.state_dim
 
@@ -161,12 +187,13 @@ class HamiltonianModel:
 
     @property
     def num_params(self) -> int:
-        return self.num_coefficients + self.num_process_noise + self.num_obs_noise
+        return self.num_dynamics_params + self.num_process_noise + self.num_obs_noise
 
     @property
     def param_names(self) -> tuple[str, ...]:
-        """Coefficient names, then ``process_var`` and ``obs_var`` (indexed when diagonal)."""
-        names = list(self.potential.param_names)
+        """Coefficient names, ``gamma`` when damped, then ``process_var`` and ``obs_var``
+        (indexed when diagonal)."""
+        names = list(self.potential.param_names) + ["gamma"] * self.num_damping
         if self.noise == "isotropic":
             names += ["process_var", "obs_var"]
         else:
@@ -177,23 +204,33 @@ class HamiltonianModel:
     @property
     def variance_slice(self) -> slice:
         """Where the variances sit in θ (they must be positive)."""
-        return slice(self.num_coefficients, self.num_params)
+        return slice(self.num_dynamics_params, self.num_params)
 
     def split(self, theta: Array) -> tuple[Array, Array, Array]:
-        """θ → (coefficients, Σ, Γ) with Σ and Γ as full matrices."""
+        """θ → (coefficients, Σ, Γ) with Σ and Γ as full matrices (γ: :meth:`damping_rate`)."""
         theta = jnp.asarray(theta)
-        nc, nq = self.num_coefficients, self.num_process_noise
+        nc, nd, nq = self.num_coefficients, self.num_dynamics_params, self.num_process_noise
         coeffs = theta[:nc]
-        q_var = theta[nc : nc + nq]
-        r_var = theta[nc + nq :]
+        q_var = theta[nd : nd + nq]
+        r_var = theta[nd + nq :]
         proc = jnp.eye(self.state_dim) * (q_var[0] if nq == 1 else q_var)
         obs = jnp.eye(self.obs_dim) * (r_var[0] if r_var.shape[0] == 1 else r_var)
         return coeffs, proc, obs
 
-    def pack(self, coefficients, process_var, obs_var) -> np.ndarray:
-        """(coefficients, process variance(s), observation variance(s)) → θ."""
+    def damping_rate(self, theta: Array) -> Array:
+        """γ from θ (0 for an undamped model)."""
+        theta = jnp.asarray(theta)
+        return theta[..., self.num_coefficients] if self.damping else jnp.zeros(theta.shape[:-1])
+
+    def pack(self, coefficients, process_var, obs_var, gamma=None) -> np.ndarray:
+        """(coefficients, process variance(s), observation variance(s)) → θ; ``gamma`` (γ) is
+        required for a damped model and refused otherwise."""
+        if (gamma is None) == self.damping:
+            need = "needs" if self.damping else "has no"
+            raise ValueError(f"this model {need} a damping rate: pass gamma accordingly")
+        damping = [] if gamma is None else [np.ravel(gamma)]
         out = np.concatenate(
-            [np.ravel(coefficients), np.ravel(process_var), np.ravel(obs_var)]
+            [np.ravel(coefficients), *damping, np.ravel(process_var), np.ravel(obs_var)]
         ).astype(float)
         if out.shape[0] != self.num_params:
             raise ValueError(
