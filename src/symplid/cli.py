@@ -248,6 +248,12 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 )
 @click.option("--dt", type=float, default=None, help="Learning step.")
 @click.option(
+    "--damping",
+    is_flag=True,
+    default=None,
+    help="Learn a damping rate γ (ṗ = −∂U/∂q − γM⁻¹p; model.damping = true).",
+)
+@click.option(
     "--method",
     cls=RegistryOption,
     registry=sampler_registry,
@@ -310,6 +316,7 @@ def fit(
     order,
     integrator,
     dt,
+    damping,
     method,
     iterations,
     samples,
@@ -348,6 +355,7 @@ def fit(
         "model.order": order,
         "model.integrator": integrator,
         "model.dt": dt,
+        "model.damping": True if damping else None,
         "sampler.method": method,
         "sampler.num_iterations": iterations,
         "sampler.burn_in": burn_in,
@@ -478,15 +486,20 @@ def report(run) -> None:
     default=None,
     help="Comma-separated propagators [default: the settings' one].",
 )
+@click.option(
+    "--damping",
+    is_flag=True,
+    help="Every candidate without and with a learned damping rate γ (is damping needed?).",
+)
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Any setting.")
 @click.option("--no-progress", is_flag=True)
 @user_errors
 def compare(
-    data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
+    data, out, config, orders, integrators, damping, x0, learn_initial_state, sets, no_progress
 ) -> None:
-    """Rank polynomial orders (and propagators) for DATA by the Laplace log evidence."""
+    """Rank polynomial orders (propagators, damping) for DATA by the Laplace log evidence."""
     from symplid.io import read_observations
     from symplid.workflow.compare import compare_models, parse_orders
 
@@ -505,6 +518,7 @@ def compare(
         out=out,
         progress=not no_progress,
         source=source,
+        dampings=[False, True] if damping else None,
     )
     from symplid.workflow.compare import format_table
 
@@ -512,6 +526,7 @@ def compare(
     best = table.iloc[0]
     click.echo(
         f"best: order {best['order']} with {best['integrator']}"
+        + (f", damped (γ = {best['gamma']:.3g})" if best["damping"] else "")
         + (f"; table in {out}" if out is not None else "")
     )
 

@@ -16,7 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import jit_for
-from symplid.dynamics.integrators import Integrator, make_dynamics
+from symplid.dynamics.damping import bind_dynamics, with_damping
+from symplid.dynamics.integrators import Integrator
 from symplid.dynamics.potentials import inverse_mass
 from symplid.dynamics.trajectory import propagate, substeps
 from symplid.inference.predictive import (
@@ -112,7 +113,9 @@ def forecast_from_filter(
     z = np.asarray(jax.random.normal(key_state, (used.shape[0], model.state_dim)))
     starts = _sample_filtered(model, theta[used], prepared, [x0] * used.shape[0], P0, z)
     inv_mass = inverse_mass(model.mass, model.potential.dim)
-    coefficients = theta[used, : model.num_coefficients]
+    coefficients = theta[used, : model.num_dynamics_params]  # θ_Ψ: with γ when damped
+    if model.damping:
+        integrator = with_damping(integrator)
     return predictive_band(
         model.potential, inv_mass, coefficients, starts, used, t_last, t_end, dt, integrator,
         quantiles, num_paths, seed_int, every, batch_size,
@@ -261,7 +264,7 @@ def forecast_with_noise(
     S, T = theta.shape[0], times.size
     z = jax.random.normal(key_x, (S, T, model.state_dim))
     e = np.asarray(jax.random.normal(key_y, (S, T, H.shape[0])))
-    nc = model.num_coefficients
+    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
     proc = np.stack([np.diag(np.asarray(model.split(row)[1])) for row in theta])
     obs_var = np.stack([np.diag(np.asarray(model.split(row)[2])) for row in theta])
     noise_scale = np.sqrt(np.maximum(proc, 0.0))
@@ -298,7 +301,7 @@ def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coeffic
     d = potential.dim
 
     def one(c, start, sc, zz):
-        dynamics = make_dynamics(potential, c, inv_mass)
+        dynamics = bind_dynamics(integrator, potential, c, inv_mass)
 
         def gap(x, inputs):
             h, n, zk = inputs

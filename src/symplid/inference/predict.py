@@ -32,7 +32,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from symplid.dynamics.integrators import Integrator, get_integrator
+from symplid.dynamics.integrators import Integrator
 from symplid.dynamics.potentials import Potential
 from symplid.inference.forecast import forecast_from_filter
 from symplid.inference.measures import hamiltonian_along, prediction_horizon
@@ -45,7 +45,7 @@ from symplid.inference.predictive import (
     key_and_seed,
     positive_int,
     predictive_band,
-    resolve_coefficients,
+    resolve_propagator,
     time_grid,
 )
 from symplid.model.statespace import HamiltonianModel
@@ -83,7 +83,8 @@ def predict_trajectory(
         A :class:`~symplid.HamiltonianModel` (its potential and mass are used; its learning
         integrator and dt are not) or a potential.
     theta_or_coefficients
-        θ of the model (the variances are ignored) or the potential's coefficients.
+        θ of the model (the variances are ignored) or the potential's coefficients; for a
+        damped model θ or θ_Ψ = [coefficients, γ] (the path is then damped too).
     x0
         Initial state ``(q, p)`` at ``t0``, shape ``(2d,)``.
     t_end
@@ -106,8 +107,8 @@ def predict_trajectory(
     times : ndarray, shape (T,)
     states : ndarray, shape (T, 2d)
     """
-    potential, coefficients, inv_mass = resolve_coefficients(
-        model_or_potential, theta_or_coefficients, mass
+    potential, coefficients, inv_mass, integ = resolve_propagator(
+        model_or_potential, theta_or_coefficients, integrator, mass
     )
     if coefficients.ndim != 1:
         raise ValueError(
@@ -117,7 +118,6 @@ def predict_trajectory(
     x0 = check_state(x0, potential.dim)
     if x0.ndim != 1:
         raise ValueError(f"x0 must have shape ({2 * potential.dim},), got {x0.shape}")
-    integ = get_integrator(integrator)
     times, n, h = time_grid(float(t0), float(t_end), float(dt), every)
     paths = integrate_paths(potential, integ, n, every, coefficients[None], x0[None], h, inv_mass)
     return times, paths[0]
@@ -175,7 +175,9 @@ def posterior_predictive(
     -------
     PosteriorPredictive
     """
-    potential, draws, inv_mass = resolve_coefficients(model_or_potential, coefficient_draws, mass)
+    potential, draws, inv_mass, integ = resolve_propagator(
+        model_or_potential, coefficient_draws, integrator, mass
+    )
     draws = flatten_draws(draws)
     x0 = check_state(x0, potential.dim)
     if x0.ndim == 1:
@@ -186,6 +188,6 @@ def posterior_predictive(
     order = np.asarray(jax.random.permutation(key, draws.shape[0]))
     used = order if max_draws is None else order[: positive_int(max_draws, "max_draws")]
     return predictive_band(
-        potential, inv_mass, draws[used], x0[used], used, t0, t_end, dt, integrator,
+        potential, inv_mass, draws[used], x0[used], used, t0, t_end, dt, integ,
         quantiles, num_paths, seed_int, every, batch_size,
     )

@@ -18,7 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import jit_for
-from symplid.dynamics.integrators import Integrator, get_integrator, make_dynamics
+from symplid.dynamics.damping import bind_dynamics, with_damping
+from symplid.dynamics.integrators import Integrator, get_integrator
 from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.trajectory import solve
 from symplid.model.statespace import HamiltonianModel
@@ -88,7 +89,9 @@ def resolve_coefficients(model_or_potential: Any, coefficients: Any, mass: Any =
     """(potential, coefficients with trailing axis num_params, M⁻¹) from a model or a potential.
 
     With a :class:`HamiltonianModel`, ``coefficients`` may be full θ vectors (the variances are
-    dropped) or bare coefficients, and the model's mass is used unless ``mass`` is given.
+    dropped), θ_Ψ (coefficients and γ of a damped model; γ is dropped) or bare coefficients,
+    and the model's mass is used unless ``mass`` is given. For paths of a damped model see
+    :func:`resolve_propagator`.
     """
     coefficients = np.asarray(coefficients, dtype=float)
     if coefficients.ndim == 0:
@@ -97,7 +100,7 @@ def resolve_coefficients(model_or_potential: Any, coefficients: Any, mass: Any =
         model = model_or_potential
         potential = model.potential
         n = coefficients.shape[-1]
-        if n == model.num_params:
+        if n in (model.num_params, model.num_dynamics_params):
             coefficients = coefficients[..., : model.num_coefficients]
         elif n != model.num_coefficients:
             raise ValueError(
@@ -119,6 +122,28 @@ def resolve_coefficients(model_or_potential: Any, coefficients: Any, mass: Any =
             f"HamiltonianModel, got {type(model_or_potential).__name__}"
         )
     return potential, coefficients, inverse_mass(mass, potential.dim)
+
+
+def resolve_propagator(
+    model_or_potential: Any, theta_or_coefficients: Any, integrator: str | Integrator, mass: Any
+) -> tuple[Any, np.ndarray, Any, Integrator]:
+    """(potential, θ_Ψ, M⁻¹, integrator) for integrating paths: :func:`resolve_coefficients`,
+    except that a damped model keeps γ (θ_Ψ = [coefficients, γ]) and integrates with the
+    damped form of ``integrator`` (:func:`~symplid.dynamics.damping.with_damping`)."""
+    model = model_or_potential
+    if not (isinstance(model, HamiltonianModel) and model.damping):
+        potential, coefficients, inv_mass = resolve_coefficients(model, theta_or_coefficients, mass)
+        return potential, coefficients, inv_mass, get_integrator(integrator)
+    params = np.asarray(theta_or_coefficients, dtype=float)
+    n, nd = params.shape[-1] if params.ndim else 1, model.num_dynamics_params
+    if n not in (model.num_params, nd):
+        raise ValueError(
+            f"the model is damped: expected θ with {model.num_params} entries "
+            f"({', '.join(model.param_names)}) or θ_Ψ with {nd} (the coefficients and gamma), "
+            f"got {n}"
+        )
+    potential, _, inv_mass = resolve_coefficients(model, params, mass)
+    return potential, params[..., :nd], inv_mass, with_damping(integrator)
 
 
 def check_state(x0: Any, dim: int, name: str = "x0") -> np.ndarray:
@@ -167,7 +192,7 @@ def _batch_paths(potential, integrator, num_steps, every, coefficients, x0, step
     """
 
     def one(c: Array, x: Array) -> Array:
-        dynamics = make_dynamics(potential, c, inv_mass)
+        dynamics = bind_dynamics(integrator, potential, c, inv_mass)
         return solve(integrator, dynamics, x, step_size, num_steps, every)
 
     return jax.vmap(one)(coefficients, x0)
@@ -184,6 +209,8 @@ def integrate_paths(
     inv_mass: Any,
 ) -> np.ndarray:
     """Paths for a batch of coefficient vectors ``(B, P)`` and initial states ``(B, 2d)``.
+
+    For a damped ``integrator`` each row is θ_Ψ = [coefficients, γ].
 
     ``num_steps`` steps of ``step_size``, stored as in :func:`time_grid`: shape ``(B, T, 2d)``.
     """

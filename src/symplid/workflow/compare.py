@@ -1,11 +1,13 @@
-"""Model comparison by the Laplace evidence: which polynomial order, which propagator.
+"""Model comparison by the Laplace evidence: which polynomial order, which propagator, and
+whether the dynamics need damping.
 
 The paper fixes the model form (a cubic potential, eqs 17–18) and the propagator (leapfrog,
 eq. 14). With data of an unknown system both are choices, and the marginal likelihood of the
 data under each choice, p(Y | model) = ∫ L(θ; Y) π(θ) dθ (Section II-B.2, eqs 8–9), ranks
 them: it rewards fit and penalises parameters the data do not need (the Occam factor).
 
-:func:`compare_models` fits every (order, integrator) pair of a grid by MAP and Hessian
+:func:`compare_models` fits every (order, integrator, damping) candidate of a grid by MAP and
+Hessian
 (:func:`symplid.inference.map.find_map`; no sampling) and ranks them by the Laplace approximation
 
     log p(Y | model) ≈ log π(θ*) + log L(θ*) + (d/2) log 2π − ½ log det H
@@ -21,6 +23,8 @@ The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
 ========================  ==================================================================
 ``rank``                  1 = the largest Laplace log evidence
 ``order``, ``integrator``  the candidate
+``damping``               whether it learns a damping rate γ (:mod:`symplid.dynamics.damping`)
+``gamma``                 its MAP γ (NaN for an undamped candidate)
 ``num_params``            the size of θ (coefficients, variances, learned initial states)
 ``log_likelihood``        log L(θ*) at the MAP (Theorem 1, by the UKF)
 ``log_posterior``         log π(θ*) + log L(θ*), the unnormalised log posterior at the MAP
@@ -46,6 +50,8 @@ Example::
     from symplid.workflow.compare import compare_models, parse_orders
     table = compare_models(obs, settings, orders=parse_orders("2..5"),
                            integrators=["leapfrog", "rk2-midpoint"], out="runs/compare")
+    # is damping needed? every candidate with and without γ
+    table = compare_models(obs, settings, dampings=[False, True])
 """
 
 from __future__ import annotations
@@ -86,6 +92,8 @@ COLUMNS = (
     "rank",
     "order",
     "integrator",
+    "damping",
+    "gamma",
     "num_params",
     "log_likelihood",
     "log_posterior",
@@ -199,6 +207,7 @@ class CandidateFit:
     map_result: Any
     log_likelihood: float
     seconds: float
+    damping: bool = False
 
 
 def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
@@ -247,12 +256,13 @@ def fit_candidates(
     integrators: Sequence[str] | str | None = None,
     progress: bool = True,
     source: str = "settings",
+    dampings: Sequence[bool] | None = None,
 ) -> list[CandidateFit]:
-    """MAP and Hessian of every (order, integrator) candidate, in grid order.
+    """MAP and Hessian of every (order, integrator, damping) candidate, in grid order.
 
     Parameters are those of :func:`compare_models`. Each candidate uses ``settings`` with
-    ``model.order`` and ``model.integrator`` replaced, and the MAP search of ``settings.map``
-    (its seed and number of starts), without the sampler.
+    ``model.order``, ``model.integrator`` and ``model.damping`` replaced, and the MAP search
+    of ``settings.map`` (its seed and number of starts), without the sampler.
     """
 
     datasets = _as_list(obs)
@@ -262,13 +272,16 @@ def fit_candidates(
     )
     base = _resolve_all(settings, datasets, source)
     data: Observations | list[Observations] = datasets[0] if len(datasets) == 1 else datasets
-    grid = [(o, i) for i in integrator_list for o in order_list]
+    damping_list = [settings.model.damping] if dampings is None else _dampings(dampings)
+    grid = [(o, i, g) for g in damping_list for i in integrator_list for o in order_list]
     fits: list[CandidateFit] = []
     bar = _progress(len(grid), progress)
     try:
-        for order, integrator in grid:
-            bar.set_postfix_str(f"order {order}, {integrator}")
-            model_settings = dataclasses.replace(base.model, order=order, integrator=integrator)
+        for order, integrator, damping in grid:
+            bar.set_postfix_str(f"order {order}, {integrator}" + (", damped" if damping else ""))
+            model_settings = dataclasses.replace(
+                base.model, order=order, integrator=integrator, damping=damping
+            )
             s = dataclasses.replace(base, model=model_settings)
             start = time.perf_counter()
             model = build_model(s, datasets[0])
@@ -281,13 +294,34 @@ def fit_candidates(
             fits.append(
                 CandidateFit(
                     order, integrator, s, posterior, result, result.log_posterior - log_prior,
-                    seconds,
+                    seconds, damping,
                 )
             )
             bar.update(1)
     finally:
         bar.close()
     return fits
+
+
+def _dampings(values: Sequence[bool]) -> list[bool]:
+    """The damping choices of a comparison, without repeats (each must be a bool)."""
+    out: list[bool] = []
+    for v in values:
+        if not isinstance(v, bool | np.bool_):
+            raise ValueError(f"dampings: expected true/false values, got {v!r}")
+        if bool(v) not in out:
+            out.append(bool(v))
+    if not out:
+        raise ValueError("dampings: give at least one of false, true")
+    return out
+
+
+def _gamma(fit: CandidateFit) -> float:
+    """The MAP damping rate of a damped candidate (NaN otherwise)."""
+    names = list(getattr(fit.posterior, "param_names", ()))
+    if not fit.damping or "gamma" not in names:
+        return math.nan
+    return float(np.asarray(fit.map_result.theta)[names.index("gamma")])
 
 
 def _progress(total: int, enabled: bool):
@@ -320,6 +354,8 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
             {
                 "order": int(fit.order),
                 "integrator": fit.integrator,
+                "damping": bool(fit.damping),
+                "gamma": _gamma(fit),
                 "num_params": k,
                 "log_likelihood": float(fit.log_likelihood),
                 "log_posterior": float(r.log_posterior),
@@ -350,7 +386,7 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
 def format_table(table: pd.DataFrame, title: str | None = None) -> str:
     """The comparison table as aligned text (what ``compare.txt`` holds)."""
     header = (
-        "rank", "order", "integrator", "params", "log L", "log post", "log evidence",
+        "rank", "order", "integrator", "damping", "params", "log L", "log post", "log evidence",
         "Δ log ev", "prob", "BIC", "process var", "obs var", "MAP s", "on a bound",
     )
     lines_body = []
@@ -360,6 +396,7 @@ def format_table(table: pd.DataFrame, title: str | None = None) -> str:
                 str(row.rank),
                 str(row.order),
                 str(row.integrator),
+                f"γ = {row.gamma:.3g}" if row.damping else "no",
                 str(row.num_params),
                 _num(row.log_likelihood, 2),
                 _num(row.log_posterior, 2),
@@ -374,7 +411,7 @@ def format_table(table: pd.DataFrame, title: str | None = None) -> str:
             )
         )
     widths = [max(len(h), *(len(r[j]) for r in lines_body)) for j, h in enumerate(header)]
-    left = {2, 13}
+    left = {2, 3, 14}
 
     def fmt(cells: Sequence[str]) -> str:
         out = [
@@ -439,8 +476,9 @@ def compare_models(
     out: str | os.PathLike | None = None,
     progress: bool = True,
     source: str = "settings",
+    dampings: Sequence[bool] | None = None,
 ) -> pd.DataFrame:
-    """Rank polynomial orders and propagators by the Laplace log evidence (MAP only).
+    """Rank polynomial orders, propagators and damping by the Laplace log evidence (MAP only).
 
     Parameters
     ----------
@@ -464,13 +502,17 @@ def compare_models(
         Show a progress bar over the candidates.
     source
         Where the settings came from (a file name), for error messages.
+    dampings
+        Damping choices, e.g. ``[False, True]``: every candidate without and with a learned
+        damping rate γ, so the evidence says whether the data need dissipation; None: the
+        settings' ``model.damping`` only.
 
     Returns
     -------
     pandas.DataFrame
         One row per candidate, best first, with the columns of :data:`COLUMNS`.
     """
-    fits = fit_candidates(obs, settings, orders, integrators, progress, source)
+    fits = fit_candidates(obs, settings, orders, integrators, progress, source, dampings)
     table = comparison_table(fits)
     if out is not None:
         n = _num_measured(fits[0])

@@ -51,6 +51,7 @@ def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
         beta=m.beta,
         kappa=m.kappa,
         jitter=m.jitter,
+        damping=m.damping,
     )
 
 

@@ -91,7 +91,7 @@ def predict_run(
     t_end, dt, num_paths, t0 = _prediction_args(settings, obs, t_end, dt, num_paths)
     p = settings.prediction
     theta_map = np.asarray(folder.read_map()["theta"], dtype=float)
-    nc = model.num_coefficients
+    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
     x0_map = np.asarray(posterior.initial_state(theta_map))
     every = max(1, round((t_end - t0) / dt / 2000))
     times, path = predict_trajectory(

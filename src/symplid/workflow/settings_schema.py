@@ -46,6 +46,8 @@ class ModelSettings:
     beta: float = setting(2.0)
     kappa: float = setting(0.0)
     jitter: float = setting(1e-12, minimum=0.0)
+    damping: bool = setting(False)
+    """Learn a damping rate γ: ṗ = −∂U/∂q − γM⁻¹p (:mod:`symplid.dynamics.damping`)."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +78,7 @@ class PriorSettings:
     """Priors by group of θ: the paper's Laplace(0, 10) and half-normal(1) (Section IV).
 
     ``variances`` is the prior of both the process- and the observation-noise variance;
+    ``damping`` that of the damping rate γ of a damped model (``model.damping = true``);
     ``initial_state`` (used when the initial state is learned) is the prior of the offset of
     each component from its centre.
     """
@@ -83,6 +86,7 @@ class PriorSettings:
     coefficients: Prior = field(default_factory=lambda: Laplace(0.0, 10.0))
     variances: Prior = field(default_factory=lambda: HalfNormal(1.0))
     initial_state: Prior = field(default_factory=lambda: Normal(0.0, 1.0))
+    damping: Prior = field(default_factory=lambda: HalfNormal(1.0))
 
     def prior_spec(self, learned_initial_state: bool) -> PriorSpec:
         """The :class:`~symplid.model.priors.PriorSpec` of these groups for the posterior."""
@@ -91,6 +95,7 @@ class PriorSettings:
             process_var=self.variances,
             obs_var=self.variances,
             initial_state=self.initial_state if learned_initial_state else None,
+            damping=self.damping,
         )
 
 

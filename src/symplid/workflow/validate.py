@@ -47,7 +47,7 @@ class Spec:
     Parameters
     ----------
     type
-        ``int``, ``float``, ``str`` or ``tuple`` (a list of numbers).
+        ``int``, ``float``, ``str``, ``bool`` or ``tuple`` (a list of numbers).
     default
         The value when the setting is not given (``None``: decided elsewhere, e.g. by a system).
     doc
@@ -119,6 +119,10 @@ def check_value(
         return word
     if isinstance(tp, types.UnionType) and float in typing.get_args(tp):  # a number or a word
         tp = float
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise error(source, key, f"must be true or false, got {value!r}")
+        return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise error(source, key, f"must be an integer, got {value!r}")
