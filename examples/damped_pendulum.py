@@ -23,7 +23,7 @@ file and draws one summary figure), so the same steps work on a real measurement
    noise-free truth.
 
 Run: ``python examples/damped_pendulum.py [OUT]`` (default ``examples/out/damped_pendulum``);
-a few minutes on one core, most of it compiling.
+about 16 minutes on a loaded 2-core machine, most of it compiling and sampling.
 """
 
 from __future__ import annotations

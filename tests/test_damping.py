@@ -30,6 +30,7 @@ from symplid.dynamics.damping import (
 from symplid.dynamics.integrators import get_integrator, make_dynamics
 from symplid.dynamics.systems import damped_pendulum
 from symplid.dynamics.trajectory import solve
+from symplid.experiments.paper import cell_data
 from symplid.inference.forecast import forecast_with_noise
 from symplid.inference.predict import predict_trajectory
 from symplid.model import kernel
@@ -37,6 +38,7 @@ from symplid.model.priors import PriorSpec
 from symplid.model.simulate import simulate
 from symplid.workflow.compare import comparison_table, fit_candidates
 from symplid.workflow.settings import settings_from_dict, settings_to_dict
+from symplid.workflow.sweep import cell_settings, sweep_spec_from_dict
 from symplid.workflow.validate import SettingsError
 
 HH = symplid.get_system("henon-heiles")
@@ -204,6 +206,18 @@ def test_settings_key_and_prior_of_damping():
     assert s.priors.prior_spec(False).damping == symplid.HalfNormal(0.3)
     with pytest.raises(SettingsError, match=r"model\.damping must be true or false"):
         settings_from_dict({"model": {"damping": "yes"}})
+
+
+def test_a_sweep_varies_damping_by_its_settings_key():
+    spec = sweep_spec_from_dict({
+        "base": {"system": "damped-pendulum", "num_obs": 4, "obs_interval": 0.5},
+        "sweep": {"grid": {"model.damping": [False, True]}},
+    })
+    models = [cell_settings(c.settings).model for c in spec.cells]
+    assert [m.damping for m in models] == [False, True]
+    system, data = cell_data(spec.cells[1].settings)
+    assert system.damping == 0.1
+    np.testing.assert_array_equal(data.values, simulate(system, times=data.times).values)
 
 
 # ----------------------------------------------------------------------------- identification
