@@ -148,7 +148,7 @@ def test_dump_writes_every_key(tmp_path):
     expected |= {"seed", "priors.coefficients.family", "priors.coefficients.loc"}
     expected |= {"priors.coefficients.scale", "priors.variances.family", "priors.variances.scale"}
     expected |= {"priors.initial_state.family", "priors.initial_state.loc"}
-    expected |= {"priors.initial_state.scale"}
+    expected |= {"priors.initial_state.scale", "priors.damping.family", "priors.damping.scale"}
     assert keys(written) == expected
     assert written["sampler"]["num_iterations"] == 200_000
 
