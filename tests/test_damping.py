@@ -32,7 +32,7 @@ from symplid.dynamics.systems import damped_pendulum
 from symplid.dynamics.trajectory import solve
 from symplid.experiments.paper import cell_data
 from symplid.inference.forecast import forecast_with_noise
-from symplid.inference.predict import predict_trajectory
+from symplid.inference.predict import forecast_from_filter, predict_trajectory
 from symplid.model import kernel
 from symplid.model.priors import PriorSpec
 from symplid.model.simulate import simulate
@@ -195,6 +195,18 @@ def test_predictions_and_noisy_forecasts_of_a_damped_model_follow_the_damped_flo
     for m in (model, rk):
         fc = forecast_with_noise(m, theta[None], np.array([[1.0, 0.0]]), 0.0, grid, seed=0)
         np.testing.assert_allclose(fc.states[0], damped_oscillator(grid, gamma), atol=2e-3)
+
+
+def test_forecast_from_the_filter_of_a_damped_model_continues_the_damped_flow():
+    gamma = 0.2
+    model = symplid.HamiltonianModel(symplid.Polynomial(1, 2), dt=0.1, damping=True)
+    times = np.arange(1.0, 6.0)
+    data = symplid.Observations(times, damped_oscillator(times, gamma), ("q1", "p1"))
+    theta = np.tile(model.pack([0.0, 0.5], 1e-10, 1e-8, gamma=gamma), (4, 1))
+    band = forecast_from_filter(model, theta, data, [1.0, 0.0], 15.0, dt=0.01, num_paths=0)
+    exact = damped_oscillator(band.times, gamma)
+    np.testing.assert_allclose(band.median, exact, atol=2e-3)
+    assert band.integrator == "damped-leapfrog"
 
 
 def test_settings_key_and_prior_of_damping():
