@@ -27,7 +27,12 @@ from symplid.dynamics.damping import (
     is_damped,
     with_damping,
 )
-from symplid.dynamics.integrators import get_integrator, make_dynamics
+from symplid.dynamics.integrators import (
+    Integrator,
+    get_integrator,
+    leapfrog_step,
+    make_dynamics,
+)
 from symplid.dynamics.systems import damped_pendulum
 from symplid.dynamics.trajectory import solve
 from symplid.experiments.paper import cell_data
@@ -155,6 +160,11 @@ def test_damped_model_layout_and_backends():
     assert float(proc[0, 0]) == 1e-4 and float(obs[0, 0]) == 0.01
     with pytest.raises(ValueError, match="needs a damping rate"):
         model.pack([0.0, 0.5, 0.0, -0.04], 1e-4, 0.01)
+    step_only = Integrator("mine", 2, True, leapfrog_step)
+    with pytest.raises(ValueError, match="'mine' cannot be damped"):
+        symplid.HamiltonianModel(symplid.Polynomial(1, 4), integrator=step_only, damping=True)
+    with pytest.raises(ValueError, match="pass damping=True"):
+        symplid.HamiltonianModel(symplid.Polynomial(1, 4), integrator=model.integrator)
     # The compiled kernel declines, so "auto" falls back to the JAX reference.
     assert "damped" in kernel.unsupported_reason(model)
     assert model.likelihood_backend == "jax"
