@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from symplid import runtime
+from symplid.dynamics.damping import with_damping
 from symplid.dynamics.potentials import hamiltonian
 from symplid.dynamics.systems import get_system
 from symplid.experiments.paper_cells import (
@@ -186,7 +187,14 @@ class ApproachResult:
 
     @property
     def num_coefficients(self) -> int:
-        return self.param_names.index("process_var")
+        names = self.param_names
+        return names.index("gamma") if "gamma" in names else names.index("process_var")
+
+    @property
+    def gamma_map(self) -> float | None:
+        """The MAP damping rate of a damped fit (None for an undamped one)."""
+        names = self.param_names
+        return float(self.map_theta[names.index("gamma")]) if "gamma" in names else None
 
     @property
     def process_noise_draws(self) -> np.ndarray:
@@ -233,14 +241,19 @@ def analyse_approach(
     x0 = system.initial_state
     h_true = float(hamiltonian(system.potential, system.coefficients, x0))
     h_map = float(hamiltonian(system.potential, result.coefficients_map, x0))
+    params, integrator = result.coefficients_map, "leapfrog"
+    if result.gamma_map is not None:  # a damped fit predicts with its γ
+        params, integrator = np.append(params, result.gamma_map), with_damping("leapfrog")
     times, path = predict_trajectory(
-        system.potential, result.coefficients_map, x0, t_end, dt=prediction_dt
+        system.potential, params, x0, t_end, dt=prediction_dt, integrator=integrator
     )
     truth_on_grid = np.stack([np.interp(times, truth_times, col) for col in truth.T], axis=1)
     horizon = prediction_horizon(times, path, truth_on_grid, threshold, 0)
     noise = result.process_noise_draws
     fs = result.fit_summary
+    damping = {} if result.gamma_map is None else {"gamma_map": result.gamma_map}
     return {
+        **damping,
         "integrator": result.integrator,
         "map_hamiltonian": h_map,
         "hamiltonian_rel_error": abs(h_map - h_true) / h_true,
@@ -257,12 +270,14 @@ def analyse_approach(
 
 
 def truth_path(system, t_end: float, prediction_dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV)."""
+    """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV; its
+    damped form for a damped system)."""
 
     n = round(t_end / prediction_dt)
     times = prediction_dt * np.arange(1, n + 1)
     states = true_trajectory(
-        system.potential, system.coefficients, system.initial_state, times, TRUTH_DT
+        system.potential, system.coefficients, system.initial_state, times, TRUTH_DT,
+        damping=system.damping,
     )
     return np.concatenate([[0.0], times]), np.concatenate([system.initial_state[None], states])
 

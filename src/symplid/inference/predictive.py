@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import jit_for
-from symplid.dynamics.damping import bind_dynamics, with_damping
+from symplid.dynamics.damping import bind_dynamics, is_damped, with_damping
 from symplid.dynamics.integrators import Integrator, get_integrator
 from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.trajectory import solve
@@ -129,11 +129,17 @@ def resolve_propagator(
 ) -> tuple[Any, np.ndarray, Any, Integrator]:
     """(potential, θ_Ψ, M⁻¹, integrator) for integrating paths: :func:`resolve_coefficients`,
     except that a damped model keeps γ (θ_Ψ = [coefficients, γ]) and integrates with the
-    damped form of ``integrator`` (:func:`~symplid.dynamics.damping.with_damping`)."""
+    damped form of ``integrator`` (:func:`~symplid.dynamics.damping.with_damping`); with a
+    potential and a damped ``integrator``, θ_Ψ = [coefficients, γ] is expected."""
     model = model_or_potential
+    integ = get_integrator(integrator)
+    if isinstance(model, Potential) and is_damped(integ):  # [coefficients, γ] given
+        params = np.asarray(theta_or_coefficients, dtype=float)
+        potential, _, inv_mass = resolve_coefficients(model, params[..., :-1], mass)
+        return potential, params, inv_mass, integ
     if not (isinstance(model, HamiltonianModel) and model.damping):
         potential, coefficients, inv_mass = resolve_coefficients(model, theta_or_coefficients, mass)
-        return potential, coefficients, inv_mass, get_integrator(integrator)
+        return potential, coefficients, inv_mass, integ
     params = np.asarray(theta_or_coefficients, dtype=float)
     n, nd = params.shape[-1] if params.ndim else 1, model.num_dynamics_params
     if n not in (model.num_params, nd):
