@@ -19,12 +19,16 @@ from symplid.workflow.commandline import (
     OneLineErrors,
     RegistryOption,
     UserError,
-    converged,
+    config_option,
+    fit_result_line,
     floats,
     integrator_registry,
+    no_progress_option,
     rk2_variants,
     sampler_registry,
+    sets_option,
     settings_from_options,
+    simulate_to_file,
     time_or_word,
     user_errors,
 )
@@ -98,7 +102,7 @@ def main() -> None:
     help="Processes (the two approaches run in parallel).",
 )
 @click.option("--quick", is_flag=True, help="A small budget for a smoke test (under a minute).")
-@click.option("--no-progress", is_flag=True, help="No progress bars.")
+@no_progress_option
 @user_errors
 def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_progress) -> None:
     """The paper's Hénon–Heiles experiment: leapfrog against RK2, all figures and a table."""
@@ -187,39 +191,8 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
 @user_errors
 def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x0, missing) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
-    import numpy as np
-
-    from symplid.dynamics.systems import get_system
-    from symplid.io import write_observations
-    from symplid.model.data import Observations
-    from symplid.model.simulate import simulate as run
-
-    sys_ = get_system(system)
-    grid = floats(times, "--times")
-    if grid is None and (t_end is not None or num_obs is not None):
-        n = num_obs or sys_.num_obs
-        end = t_end if t_end is not None else sys_.obs_interval * n
-        if end <= 0:
-            raise UserError(f"--t-end must be positive, got {end}")
-        grid = list(end / n * np.arange(1, n + 1))
-    obs = run(
-        sys_,
-        times=grid,
-        noise_std=noise_std,
-        seed=seed,
-        x0=floats(x0, "--x0"),
-        observation=observation,
-    )
-    if missing > 0:
-        rng = np.random.default_rng(seed + 1)
-        values = np.array(obs.values)
-        values[rng.random(values.shape) < missing] = np.nan
-        obs = Observations(obs.times, values, obs.names)
-    path = write_observations(obs, out)
-    click.echo(
-        f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} "
-        f"(x0 = {', '.join(f'{v:g}' for v in (x0 and floats(x0, '--x0')) or sys_.initial_state)})"
-    )
+    click.echo(simulate_to_file(system, out, t_end, num_obs, times, noise_std, seed,
+                                observation, x0, missing))
 
 
 # ----------------------------------------------------------------------------- fit
@@ -231,13 +204,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     required=True,
     help="Run folder to write (must not exist, or be empty).",
 )
-@click.option(
-    "--config",
-    "config",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="Settings file (TOML); command-line options override it.",
-)
+@config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option(
     "--integrator",
@@ -280,13 +247,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     help='Time of the initial state: a number, or "first" (the first observation time) '
     "[default: 0].",
 )
-@click.option(
-    "--set",
-    "sets",
-    multiple=True,
-    metavar="KEY=VALUE",
-    help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
-)
+@sets_option
 @click.option(
     "--holdout",
     type=click.FloatRange(0, 1, min_open=True, max_open=True),
@@ -301,7 +262,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     help="Hold out the observations after time T (instead of --holdout).",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
-@click.option("--no-progress", is_flag=True, help="No progress bar or status lines.")
+@no_progress_option
 @user_errors
 def fit(
     data,
@@ -369,20 +330,7 @@ def fit(
         warn=True,
         status=None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True),
     )
-    s = outcome.summary
-    extra = ""
-    if "rhat_max" in s:
-        extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
-        if not outcome.interrupted and not converged(s):
-            extra += " (not converged: see the warnings; run longer)"
-    head = f"{out}: "
-    if outcome.interrupted:
-        total = outcome.settings.sampler.num_iterations
-        head += f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws kept; "
-    click.echo(
-        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
-        f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
-    )
+    click.echo(fit_result_line(out, outcome, time.perf_counter() - start))
     if outcome.interrupted:
         raise Interrupted
     if heldout is not None:
@@ -458,13 +406,7 @@ def report(run) -> None:
     default=None,
     help="Folder for compare.csv and compare.txt.",
 )
-@click.option(
-    "--config",
-    "config",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="Settings file (TOML) shared by every candidate.",
-)
+@config_option("Settings file (TOML) shared by every candidate.")
 @click.option(
     "--orders",
     type=str,
@@ -480,8 +422,8 @@ def report(run) -> None:
 )
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Any setting.")
-@click.option("--no-progress", is_flag=True)
+@sets_option
+@no_progress_option
 @user_errors
 def compare(
     data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
@@ -537,7 +479,7 @@ def compare(
     default=None,
     help="Local worker processes [default: one per core].",
 )
-@click.option("--no-progress", is_flag=True)
+@no_progress_option
 @user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
@@ -562,7 +504,7 @@ def study() -> None:
 @click.option("--no-variants", is_flag=True, help="Only the paper's setting (no dt, σ variants).")
 @click.option("--scheduler", type=str, default=None)
 @click.option("--workers", type=click.IntRange(min=1), default=None)
-@click.option("--no-progress", is_flag=True)
+@no_progress_option
 @user_errors
 def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
     """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""

@@ -23,12 +23,17 @@ __all__ = [
     "OneLineErrors",
     "RegistryOption",
     "UserError",
+    "config_option",
     "converged",
+    "fit_result_line",
     "floats",
     "integrator_registry",
+    "no_progress_option",
     "rk2_variants",
     "sampler_registry",
+    "sets_option",
     "settings_from_options",
+    "simulate_to_file",
     "time_or_word",
     "user_errors",
 ]
@@ -183,3 +188,72 @@ def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: 
     return merge_overrides(settings, overrides, source="command line"), source
 
 
+
+
+# ----------------------------------------------------------------------------- shared options
+def no_progress_option(fn: Callable) -> Callable:
+    return click.option("--no-progress", is_flag=True, help="No progress bars.")(fn)
+
+
+def config_option(help_text: str) -> Callable[[Callable], Callable]:
+    return click.option("--config", "config", type=click.Path(dir_okay=False, path_type=Path),
+                        default=None, help=help_text)
+
+
+def sets_option(fn: Callable) -> Callable:
+    return click.option(
+        "--set", "sets", multiple=True, metavar="KEY=VALUE",
+        help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
+    )(fn)
+
+
+# ----------------------------------------------------------------------------- command bodies
+def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
+    """The one line ``symplid fit`` prints: MAP, evidence, convergence, or "interrupted"."""
+    s = outcome.summary
+    extra = ""
+    if "rhat_max" in s:
+        extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
+        if not outcome.interrupted and not converged(s):
+            extra += " (not converged: see the warnings; run longer)"
+    head = f"{out}: "
+    if outcome.interrupted:
+        total = outcome.settings.sampler.num_iterations
+        head += (f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws "
+                 "kept (continue with --resume); ")
+    return (
+        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
+        f"{s['log_evidence_laplace']:.2f}{extra}; {seconds:.0f} s"
+    )
+
+
+def simulate_to_file(system: str, out: Path, t_end: float | None, num_obs: int | None,
+                     times: str | None, noise_std: float | None, seed: int, observation: str,
+                     x0: str | None, missing: float) -> str:
+    """``symplid simulate``: write noisy observations of a named system; returns its line."""
+    import numpy as np
+
+    from symplid.dynamics.systems import get_system
+    from symplid.io import write_observations
+    from symplid.model.data import Observations
+    from symplid.model.simulate import simulate as run
+
+    sys_ = get_system(system)
+    grid = floats(times, "--times")
+    if grid is None and (t_end is not None or num_obs is not None):
+        n = num_obs or sys_.num_obs
+        end = t_end if t_end is not None else sys_.obs_interval * n
+        if end <= 0:
+            raise UserError(f"--t-end must be positive, got {end}")
+        grid = list(end / n * np.arange(1, n + 1))
+    start = floats(x0, "--x0")
+    obs = run(sys_, times=grid, noise_std=noise_std, seed=seed, x0=start,
+              observation=observation)
+    if missing > 0:
+        rng = np.random.default_rng(seed + 1)
+        values = np.array(obs.values)
+        values[rng.random(values.shape) < missing] = np.nan
+        obs = Observations(obs.times, values, obs.names)
+    path = write_observations(obs, out)
+    shown = ", ".join(f"{v:g}" for v in (start or sys_.initial_state))
+    return f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} (x0 = {shown})"
