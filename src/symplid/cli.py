@@ -25,6 +25,7 @@ from symplid.workflow.commandline import (
     integrator_registry,
     no_progress_option,
     rk2_variants,
+    run_fit,
     sampler_registry,
     sets_option,
     settings_from_options,
@@ -197,114 +198,60 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 
 # ----------------------------------------------------------------------------- fit
 @main.command()
-@click.argument("data", type=click.Path(path_type=Path))
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Run folder to write (must not exist, or be empty).",
-)
+@click.argument("data", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Run folder to write (must not exist, or be empty).")
 @config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
-@click.option(
-    "--integrator",
-    cls=RegistryOption,
-    registry=integrator_registry,
-    default=None,
-    help="Learning propagator: {choices}.",
-)
+@click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
+              help="Learning propagator: {choices}.")
 @click.option("--dt", type=float, default=None, help="Learning step.")
-@click.option(
-    "--method",
-    cls=RegistryOption,
-    registry=sampler_registry,
-    default=None,
-    help="Sampler: {choices}.",
-)
-@click.option(
-    "--iterations",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Iterations per chain, burn-in included.",
-)
+@click.option("--method", cls=RegistryOption, registry=sampler_registry, default=None,
+              help="Sampler: {choices}.")
+@click.option("--iterations", type=click.IntRange(min=1), default=None,
+              help="Iterations per chain, burn-in included (draws kept: iterations − burn-in).")
 @click.option("--samples", type=click.IntRange(min=1), default=None, hidden=True)
-@click.option(
-    "--burn-in", type=click.IntRange(min=0), default=None, help="Iterations discarded per chain."
-)
+@click.option("--burn-in", type=click.IntRange(min=0), default=None,
+              help="Iterations discarded per chain.")
 @click.option("--chains", type=click.IntRange(min=1), default=None, help="Independent chains.")
-@click.option(
-    "--seed",
-    type=click.IntRange(min=0),
-    default=None,
-    help="Seed of the MAP starts and of the sampler [default: 0].",
-)
-@click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Seed of the MAP starts and of the sampler [default: 0].")
+@click.option("--x0", type=str, default=None,
+              help="Known initial state q1..qd,p1..pd (several DATA: one such group per file, "
+              "or one for all).")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
-@click.option(
-    "--t0",
-    type=str,
-    default=None,
-    help='Time of the initial state: a number, or "first" (the first observation time) '
-    "[default: 0].",
-)
+@click.option("--t0", type=str, default=None,
+              help='Time of the initial state: a number, or "first" (the first observation '
+              "time) [default: 0].")
+@click.option("--time-unit", type=str, default=None,
+              help="Unit of the data's times, on the figures' axes [default: s].")
 @sets_option
-@click.option(
-    "--holdout",
-    type=click.FloatRange(0, 1, min_open=True, max_open=True),
-    default=None,
-    help="Hold out the last FRACTION of the observation times: fit on the rest, then score "
-    "the forecast on them (summary.json: holdout).",
-)
-@click.option(
-    "--holdout-after",
-    type=float,
-    default=None,
-    help="Hold out the observations after time T (instead of --holdout).",
-)
+@click.option("--holdout", type=click.FloatRange(0, 1, min_open=True, max_open=True),
+              default=None, help="Hold out the last FRACTION of the observation times: fit on "
+              "the rest, then score the forecast on them (summary.json: holdout).")
+@click.option("--holdout-after", type=float, default=None,
+              help="Hold out the observations after time T (instead of --holdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
+@click.option("--resume", is_flag=True,
+              help="Continue the interrupted run in --out (its own settings and data).")
 @no_progress_option
 @user_errors
-def fit(
-    data,
-    out,
-    config,
-    order,
-    integrator,
-    dt,
-    method,
-    iterations,
-    samples,
-    burn_in,
-    chains,
-    seed,
-    x0,
-    learn_initial_state,
-    t0,
-    holdout,
-    holdout_after,
-    sets,
-    overwrite,
-    no_progress,
-) -> None:
+def fit(data, out, config, order, integrator, dt, method, iterations, samples, burn_in, chains,
+        seed, x0, learn_initial_state, t0, time_unit, holdout, holdout_after, sets, overwrite,
+        resume, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
-    Ctrl-C (or SIGTERM) during sampling keeps the draws made so far, marks the run
-    "interrupted" and exits with code 130 (143).
+    Several DATA files, or a `trajectory` column in one, are several trajectories of the same
+    system: they share θ, each has its own initial state. Ctrl-C (or SIGTERM) during sampling
+    keeps the draws made so far, marks the run "interrupted" and exits with code 130 (143);
+    `symplid fit --resume --out RUN` continues it.
     """
-    from symplid.io import read_observations
-    from symplid.workflow.fit import fit as run
-
     if samples is not None:
-        warnings.warn("--samples is deprecated; use --iterations", FutureWarning, stacklevel=1)
+        warnings.warn("--samples is deprecated (it counted burn-in too); use --iterations",
+                      FutureWarning, stacklevel=1)
         if iterations is not None:
             raise UserError("--samples and --iterations are the same option; give --iterations")
         iterations = samples
-    obs = read_observations(data)
-    heldout = None
-    if holdout is not None or holdout_after is not None:
-        from symplid.workflow.forecasting import split_holdout
-
-        obs, heldout = split_holdout(obs, holdout, holdout_after)
     overrides = {
         "model.order": order,
         "model.integrator": integrator,
@@ -317,19 +264,11 @@ def fit(
         "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
         "initial_state.t0": time_or_word(t0, "--t0"),
+        "plots.time_unit": time_unit,
     }
-    settings, source = settings_from_options(config, overrides, sets)
     start = time.perf_counter()
-    outcome = run(
-        obs,
-        settings,
-        out=out,
-        progress=not no_progress,
-        source=source,
-        overwrite=overwrite,
-        warn=True,
-        status=None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True),
-    )
+    outcome, heldout = run_fit(data, out, config, overrides, sets, (holdout, holdout_after),
+                               overwrite, resume, no_progress)
     click.echo(fit_result_line(out, outcome, time.perf_counter() - start))
     if outcome.interrupted:
         raise Interrupted

@@ -30,6 +30,7 @@ __all__ = [
     "integrator_registry",
     "no_progress_option",
     "rk2_variants",
+    "run_fit",
     "sampler_registry",
     "sets_option",
     "settings_from_options",
@@ -176,11 +177,18 @@ def time_or_word(text: str | None, name: str) -> float | str | None:
         return text.strip()
 
 
-def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...]):
-    """Settings from the defaults, then ``config``, then the options and ``--set`` pairs."""
+def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...],
+                          base: Any = None):
+    """Settings from the defaults (or ``base``), then ``config``, then the options and
+    ``--set`` pairs."""
     from symplid.workflow.settings import Settings, load_settings, merge_overrides, parse_override
 
-    settings = load_settings(config) if config is not None else Settings()
+    if base is not None and config is not None:
+        settings = _merged_file(base, config)
+    elif config is not None:
+        settings = load_settings(config)
+    else:
+        settings = base if base is not None else Settings()
     source = str(config) if config is not None else "command line"
     for text in sets:
         key, value = parse_override(text)
@@ -257,3 +265,93 @@ def simulate_to_file(system: str, out: Path, t_end: float | None, num_obs: int |
     path = write_observations(obs, out)
     shown = ", ".join(f"{v:g}" for v in (start or sys_.initial_state))
     return f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} (x0 = {shown})"
+
+
+def _merged_file(base: Any, config: Path) -> Any:
+    """``base`` with the keys of the settings file ``config`` replaced (the others kept)."""
+    import tomllib
+
+    from symplid.workflow.settings import settings_from_dict, settings_to_dict
+
+    try:
+        given = tomllib.loads(Path(config).read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as err:
+        raise UserError(f"{config}: {err}") from None
+
+    def merge(into: dict, extra: dict) -> dict:
+        for key, value in extra.items():
+            if isinstance(value, dict) and isinstance(into.get(key), dict):
+                merge(into[key], value)
+            else:
+                into[key] = value
+        return into
+
+    return settings_from_dict(merge(settings_to_dict(base), given), source=str(config))
+
+
+def run_fit(paths: tuple[Path, ...], out: Path, config: Path | None, overrides: dict[str, Any],
+            sets: tuple[str, ...], holdout: tuple[float | None, float | None], overwrite: bool,
+            resume: bool, no_progress: bool) -> tuple[Any, Any]:
+    """``symplid fit``: a new run from the data files, or ``--resume`` of an interrupted one.
+    Returns the outcome and the held-out observations (or None)."""
+    from symplid.workflow.fit import fit
+
+    status = None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True)
+    given = config is not None or bool(sets) or any(v is not None for v in overrides.values())
+    if resume:
+        if overwrite:
+            raise UserError("--resume continues the run in --out; --overwrite would replace it")
+        return _resume(paths, out, config, overrides, sets, holdout, given, no_progress, status)
+    if not paths:
+        raise UserError("give the DATA file(s) to fit (or --resume an interrupted run)")
+    obs, heldout = _read_fit_data(paths, holdout)
+    settings, source = settings_from_options(config, overrides, sets)
+    outcome = fit(obs, settings, out=out, progress=not no_progress, source=source,
+                  overwrite=overwrite, warn=True, status=status)
+    return outcome, heldout
+
+
+def _read_fit_data(paths: tuple[Path, ...], holdout: tuple[float | None, float | None]):
+    from symplid.io import read_trajectories
+
+    obs = read_trajectories(paths)
+    if holdout == (None, None):
+        return obs, None
+    from symplid.workflow.forecasting import split_holdout
+
+    if isinstance(obs, list):
+        raise UserError("--holdout scores a forecast of one trajectory; give one")
+    return split_holdout(obs, *holdout)
+
+
+def _resume(paths, out, config, overrides, sets, holdout, given, no_progress, status):
+    from symplid.workflow.resume import resume_fit
+    from symplid.workflow.settings import resolve_for_data
+
+    heldout = None
+    if paths:
+        obs, heldout = _read_fit_data(paths, holdout)
+    elif holdout != (None, None):
+        raise UserError("--holdout with --resume needs the DATA file(s) again")
+
+    def expected(run_settings: Any, run_obs: Any) -> Any:
+        if paths and not _same_data(obs, run_obs):
+            raise UserError(f"{out}: the DATA given are not the data of the run; --resume "
+                            "continues the run with its own data (give none, or the same)")
+        if not given:
+            return None
+        asked, source = settings_from_options(config, dict(overrides), sets, base=run_settings)
+        return resolve_for_data(asked, run_obs, source)
+
+    outcome = resume_fit(out, progress=not no_progress, warn=True, status=status,
+                         expected=expected)
+    return outcome, heldout
+
+
+def _same_data(a: Any, b: Any) -> bool:
+    import numpy as np
+
+    a, b = (list(x) if isinstance(x, list | tuple) else [x] for x in (a, b))
+    return len(a) == len(b) and all(
+        np.array_equal(x.times, y.times) and np.array_equal(x.values, y.values, equal_nan=True)
+        for x, y in zip(a, b, strict=True))

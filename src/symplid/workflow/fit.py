@@ -24,7 +24,7 @@ from symplid.dynamics.families import build_family
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import find_map
 from symplid.inference.samplers import SAMPLERS, draws_array, sample
-from symplid.io import observation_layout
+from symplid.io import as_list, observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
@@ -33,11 +33,12 @@ from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, resolve_for_data
 
 
-def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
-    """The state-space model of eq. (7) that ``settings.model`` describes, for these data."""
+def build_model(settings: Settings, obs: Observations | list[Observations]) -> HamiltonianModel:
+    """The state-space model of eq. (7) that ``settings.model`` describes, for these data
+    (one trajectory, or a list of them observed the same way)."""
 
     m = settings.model
-    layout = observation_layout(obs)
+    layout = observation_layout(as_list(obs)[0])
     observation = layout.kind if m.observation == "auto" else m.observation
     return HamiltonianModel(
         build_family(layout.dim, m),
@@ -54,12 +55,18 @@ def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
     )
 
 
-def build_posterior(settings: Settings, obs: Observations, model: HamiltonianModel):
-    """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``."""
+def build_posterior(settings: Settings, obs: Observations | list[Observations],
+                    model: HamiltonianModel):
+    """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``.
+
+    Several trajectories share θ; ``initial_state.x0`` is then one state for all, or one
+    after the other (K·2d numbers)."""
 
     init = settings.initial_state
     learned = init.mode == "learned"
     x0 = np.asarray(init.x0, dtype=float) if init.x0 else None
+    if x0 is not None and not isinstance(obs, Observations):
+        x0 = np.resize(x0, (len(obs), model.state_dim))  # one for all, or one each
     return Posterior(
         model,
         obs,
@@ -99,8 +106,10 @@ def sample_for(
     progress: bool = True,
     progress_label: str | None = None,
     progress_position: int = 0,
+    return_state: bool = False,
 ) -> Any:
-    """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``."""
+    """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``
+    (and the chains' final states with ``return_state``, see ``symplid.sample``)."""
 
     s = settings.sampler
     # The [sampler] section's method-specific keys go to the samplers whose settings class
@@ -123,6 +132,7 @@ def sample_for(
         progress=progress,
         progress_label=progress_label,
         progress_position=progress_position,
+        return_state=return_state,
     )
 
 
@@ -184,23 +194,36 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     if folder is not None:
         folder.write_map(map_result)
     start = time.perf_counter()
-    idata = sample_for(settings, posterior, map_result, progress, progress_label, progress_position)
+    idata, checkpoint = sample_for(settings, posterior, map_result, progress, progress_label,
+                                   progress_position, return_state=True)
     timings["sampler_s"] = time.perf_counter() - start
+    return save_run(folder, FitOutcome(settings, obs, model, posterior, map_result, idata,
+                                       timings=timings), checkpoint, warn)
+
+
+def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = None,
+             warn: bool = False) -> FitOutcome:
+    """Summarise the draws of ``outcome`` and write them: a finished run, or an interrupted
+    one with its sampler state (``checkpoint``) for ``fit --resume``. SIGINT and SIGTERM wait
+    until the files are written."""
+    idata, settings = outcome.idata, outcome.settings
     with deferred_interrupts():  # a second Ctrl-C must not lose the draws the first kept
         interrupted = bool(idata.attrs.get("interrupted", False)) if idata is not None else False
         table = diagnostics_summary(idata, show=False, warn=warn and not interrupted)
-        summary = fit_summary(posterior, map_result, idata, table)
-        summary["timings"] = timings
+        summary = fit_summary(outcome.posterior, outcome.map_result, idata, table)
+        summary["timings"] = outcome.timings
         summary["interrupted"] = interrupted
         if interrupted:
             summary["iterations_done"] = int(idata.attrs.get("iterations", 0))
-        outcome = FitOutcome(
-            settings, obs, model, posterior, map_result, idata, summary, timings, interrupted
-        )
+        outcome.summary, outcome.interrupted = summary, interrupted
         if folder is not None:
             folder.write_posterior(idata)
             folder.write_summary(summary)
             if interrupted:
+                if checkpoint is not None:
+                    from symplid.inference.samplers.resume import checkpoint_arrays
+
+                    folder.write_npz(RunFolder.SAMPLER_STATE, **checkpoint_arrays(checkpoint))
                 folder.mark_interrupted(
                     f"after {summary['iterations_done']:,} of "
                     f"{settings.sampler.num_iterations:,} iterations per chain (the draws "

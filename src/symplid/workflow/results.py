@@ -6,6 +6,7 @@ A run folder holds::
     data.csv         the data the run used (symplid.io.write_observations)
     map.json         the MAP point, its log posterior, the Hessian, ... (write_map)
     posterior.nc     the draws as ArviZ InferenceData (netCDF through h5netcdf)
+    sampler_state.npz   only while interrupted: the chains' states, for ``fit --resume``
     summary.json     the run's numbers, and summary.txt, the same as a readable table
     figures/*.png
     report.md
@@ -25,7 +26,10 @@ An update of a finished run (``mode="a"``) never makes it unfinished: its marker
 ``update started`` (readers ignore it, since every file is replaced atomically), and a failed
 or interrupted update removes it again. A sampler stopped by Ctrl-C or SIGTERM leaves the
 marker ``interrupted: ...`` (:meth:`RunFolder.mark_interrupted`): the draws made so far are in
-``posterior.nc``, and readers refuse the run with a one-line message that says what to do.
+``posterior.nc``, the chains' states in ``sampler_state.npz``, and readers refuse the run with a
+one-line message that says what to do. ``mode="c"`` opens such a run to continue it
+(``symplid fit --resume``): the marker stays as it is until the continuation saves (a failed or
+killed continuation leaves the interrupted run as it was, resumable).
 
 The files' formats (strict JSON with non-finite floats, netCDF attributes, the summary table)
 are :mod:`symplid.io.runfiles`; their names are re-exported here.
@@ -42,7 +46,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from symplid.io import read_observations, write_observations
+from symplid.io import read_trajectories, write_trajectories
 from symplid.io.runfiles import (
     RunFolderError,
     atomic_write_text,
@@ -68,7 +72,7 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- the folder
-Mode = Literal["w", "a", "r"]
+Mode = Literal["w", "a", "r", "c"]
 
 
 class RunFolder:
@@ -86,6 +90,8 @@ class RunFolder:
         ``"r"``: read an existing, finished run; nothing can be written.
         ``"a"``: add to an existing, finished run (``predict``, ``report``): the marker is
         written again until :meth:`finish`.
+        ``"c"``: continue an interrupted run (its marker says ``interrupted:``); anything else
+        is refused with a one-line message (a finished run: "nothing to resume").
     overwrite
         Only for ``mode="w"``.
     allow_incomplete
@@ -115,7 +121,9 @@ class RunFolder:
     SUMMARY_TEXT = "summary.txt"
     REPORT = "report.md"
     FIGURES = "figures"
-    RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES)
+    SAMPLER_STATE = "sampler_state.npz"
+    RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES,
+                 SAMPLER_STATE)
     UPDATE = "update"
     INTERRUPTED = "interrupted:"
 
@@ -127,14 +135,17 @@ class RunFolder:
         overwrite: bool = False,
         allow_incomplete: bool = False,
     ) -> None:
-        if mode not in ("w", "a", "r"):
-            raise ValueError(f"mode must be 'w', 'a' or 'r', got {mode!r}")
+        if mode not in ("w", "a", "r", "c"):
+            raise ValueError(f"mode must be 'w', 'a', 'r' or 'c', got {mode!r}")
         self.path = Path(path)
         self.mode: Mode = mode
         self._finished = False
         if mode == "w":
             _check_parents(self.path)
             self._create(overwrite)
+        elif mode == "c":
+            self._check_existing(allow_incomplete=True)
+            self._check_resumable()
         else:
             self._check_existing(allow_incomplete)
             if mode == "a":
@@ -184,12 +195,23 @@ class RunFolder:
             return  # an update (predict, report) in progress or killed: the run is finished
         if reason.startswith(self.INTERRUPTED):
             raise RunFolderError(
-                f"{path}: sampling was {reason}; resuming is not supported yet: fit again "
-                "with --overwrite (or a new --out) and a budget that can finish"
+                f"{path}: sampling was {reason}; continue it with 'symplid fit --resume --out "
+                f"{path}', or fit again with --overwrite"
             )
         raise RunFolderError(
             f"{path}: the run that wrote this folder did not finish ({reason}); run it again"
         )
+
+    def _check_resumable(self) -> None:
+        path = self.path
+        if self.is_complete:
+            raise RunFolderError(f"{path}: the run is finished; nothing to resume")
+        reason = self.incomplete_reason or "unknown reason"
+        if not reason.startswith(self.INTERRUPTED) or not self.file(self.SAMPLER_STATE).exists():
+            raise RunFolderError(
+                f"{path}: the run did not stop in sampling with its draws kept ({reason}); "
+                "it cannot be resumed: fit again with --overwrite"
+            )
 
     def _write_marker(self, reason: str) -> None:
         stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
@@ -215,6 +237,7 @@ class RunFolder:
         missing = [name for name in required if not (self.path / name).exists()]
         if missing:
             raise RuntimeError(f"{self.path}: cannot finish the run, missing {', '.join(missing)}")
+        (self.path / self.SAMPLER_STATE).unlink(missing_ok=True)  # only an interrupted run's
         (self.path / self.MARKER).unlink(missing_ok=True)
         self._finished = True
 
@@ -231,8 +254,8 @@ class RunFolder:
         For an update of a finished run (``mode="a"``) the marker is removed instead: the
         files it replaced were replaced atomically, so the run is still the finished run.
         """
-        if self.mode == "r":
-            return
+        if self.mode in ("r", "c"):
+            return  # "c": the interrupted run's files are untouched until it saves
         if self.mode == "a":
             (self.path / self.MARKER).unlink(missing_ok=True)
             return
@@ -288,10 +311,11 @@ class RunFolder:
         self._check_writable()
         return dump_settings(settings, self.file(self.SETTINGS))
 
-    def write_data(self, obs: Observations) -> Path:
-        """data.csv: the observations the run used."""
+    def write_data(self, obs: Observations | list[Observations]) -> Path:
+        """data.csv: the observations the run used (several trajectories: with a
+        ``trajectory`` column, :mod:`symplid.io.trajectories`)."""
         self._check_writable()
-        return write_observations(obs, self.file(self.DATA))
+        return write_trajectories(obs, self.file(self.DATA))
 
     def write_json(self, name: str, obj: Any) -> Path:
         """Any JSON file in the folder (see the module's JSON conventions)."""
@@ -369,8 +393,9 @@ class RunFolder:
     def read_settings(self) -> Settings:
         return load_settings(self._need(self.SETTINGS))
 
-    def read_data(self) -> Observations:
-        return read_observations(self._need(self.DATA))
+    def read_data(self) -> Observations | list[Observations]:
+        """The run's data: one :class:`Observations`, or a list for several trajectories."""
+        return read_trajectories([self._need(self.DATA)])
 
     def read_json(self, name: str) -> Any:
         return read_json(self._need(name))

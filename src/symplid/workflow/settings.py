@@ -60,6 +60,11 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     t_end = 200.0
     num_paths = 100
 
+    [plots]                       # figures only: never changes a result
+    time_unit = "s"               # the data's time unit, on every time axis
+    max_pair_params = 6           # parameters in the pair plot (the first ones of θ)
+    max_trace_params = 16         # parameters in the trace plot
+
 Prior families are those of :data:`symplid.model.priors.PRIOR_FAMILIES` and their keys are
 the fields of the family's class: ``laplace`` and ``normal`` (``loc``, ``scale``),
 ``half-normal`` (``scale``), ``uniform`` (``low``, ``high``), ``log-normal`` (``mu``, ``sigma``
@@ -103,6 +108,7 @@ from symplid.workflow.settings_schema import (
     InitialStateSettings,
     MapSettings,
     ModelSettings,
+    PlotSettings,
     PredictionSettings,
     PriorSettings,
     SamplerSettings,
@@ -115,6 +121,7 @@ __all__ = [
     "InitialStateSettings",
     "MapSettings",
     "ModelSettings",
+    "PlotSettings",
     "PredictionSettings",
     "PriorSettings",
     "SamplerSettings",

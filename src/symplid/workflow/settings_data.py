@@ -40,8 +40,9 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
     more than one data gap before it (``t0 = "first"`` puts it there). The result is what a
     run folder records.
     """
-    layout = observation_layout(obs)
-    d = layout.dim
+    trajectories = list(obs) if isinstance(obs, list | tuple) else [obs]
+    layout = observation_layout(trajectories[0])
+    d, K = layout.dim, len(trajectories)
     model = settings.model
     observation = layout.kind if model.observation == "auto" else model.observation
     if observation != layout.kind:
@@ -59,16 +60,18 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
             f"is empty but initial_state.mode is 'known': give x0 ({2 * d} numbers, "
             'q1..qd then p1..pd) or set mode = "learned"',
         )
-    if init.x0 and len(init.x0) != 2 * d:
+    if init.x0 and len(init.x0) not in (2 * d, 2 * d * K):
+        each = f" (or {2 * d * K}: one state per trajectory)" if K > 1 else ""
         raise SettingsError(
             source,
             "initial_state.x0",
             f"has {len(init.x0)} numbers but the data's system has a {2 * d}-dimensional "
-            f"state (q1..q{d}, p1..p{d})",
+            f"state (q1..q{d}, p1..p{d}){each}",
         )
     if model.mass and len(model.mass) != d:
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
-    _check_data(obs, settings, source)
+    for k, one in enumerate(trajectories):
+        _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")
     return dataclasses.replace(settings, model=dataclasses.replace(model, observation=observation))
 
 

@@ -21,6 +21,7 @@ __all__ = [
     "InitialStateSettings",
     "MapSettings",
     "ModelSettings",
+    "PlotSettings",
     "PredictionSettings",
     "PriorSettings",
     "SamplerSettings",
@@ -136,6 +137,17 @@ class PredictionSettings:
 
 
 @dataclass(frozen=True)
+class PlotSettings:
+    """What the run's figures show: the data's time unit (axis labels), and how many
+    parameters the pair plot and the trace plot draw (the first ones in θ's order; a
+    figure that leaves some out says so)."""
+
+    time_unit: str = setting("s")
+    max_pair_params: int = setting(6, minimum=2)
+    max_trace_params: int = setting(16, minimum=1)
+
+
+@dataclass(frozen=True)
 class Settings:
     """Everything a run needs; the defaults are the paper's Hénon–Heiles experiment."""
 
@@ -146,6 +158,7 @@ class Settings:
     map: MapSettings = field(default_factory=MapSettings)
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     prediction: PredictionSettings = field(default_factory=PredictionSettings)
+    plots: PlotSettings = field(default_factory=PlotSettings)
 
 
 #: Renamed keys: old dotted key → new dotted key (the old one is read with a FutureWarning).

@@ -38,7 +38,7 @@ import dataclasses
 import json
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -51,7 +51,16 @@ from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, Sampler
 from symplid.inference.samplers.run import ChainRun, ChunkReport, run_chains
 from symplid.model.params import pushforward_covariance
 
-__all__ = ["draws_array", "overdispersed_starts", "sample"]
+__all__ = ["SamplerCheckpoint", "draws_array", "overdispersed_starts", "sample"]
+
+
+class SamplerCheckpoint(NamedTuple):
+    """Where a run's chains stand: their states (stacked over chains) after
+    ``iterations_done`` iterations per chain (burn-in included)."""
+
+    states: Any
+    iterations_done: int
+
 
 _POSTERIOR_ATTRIBUTES = ("num_params", "param_names", "log_density")
 _UNCONSTRAINED_ATTRIBUTES = ("to_unconstrained", "from_unconstrained",
@@ -78,6 +87,7 @@ def sample(
     progress_label: str | None = None,
     progress_position: int | None = None,
     num_samples: int | None = None,
+    return_state: bool = False,
 ):
     """Draw from a posterior with a registered sampler (DRAM, NUTS, ...).
 
@@ -121,12 +131,17 @@ def sample(
     callback
         Called after every chunk with a :class:`~.run.ChunkReport`; raising
         ``KeyboardInterrupt`` there stops the run like Ctrl-C.
+    return_state
+        Also return the chains' final states as a
+        :class:`~symplid.inference.samplers.resume.SamplerCheckpoint`, from which
+        :func:`~symplid.inference.samplers.resume.resume_sampling` continues an interrupted run.
 
     Returns
     -------
     arviz.InferenceData
-        See the module docstring for the layout. A run stopped by ``KeyboardInterrupt``
-        returns the draws made so far with ``attrs["interrupted"] = 1`` and a
+        See the module docstring for the layout (and the checkpoint: ``return_state``). A run
+        stopped by ``KeyboardInterrupt`` returns the draws made so far with
+        ``attrs["interrupted"] = 1`` and a
         :class:`~symplid.inference.samplers.run.SamplingInterrupted` warning.
     """
     method = SAMPLERS.canonical(method)
@@ -171,7 +186,10 @@ def sample(
     }
     attrs = _attrs(method, seed, record_settings, names, theta_map, cov_map, starts, run,
                    extra_attrs, init)
-    return _to_inference_data(run, names, attrs)
+    idata = _to_inference_data(run, names, attrs)
+    if return_state:
+        return idata, SamplerCheckpoint(run.states, int(run.iterations_done))
+    return idata
 
 
 # ----------------------------------------------------------------------------- checks
