@@ -199,8 +199,8 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 # ----------------------------------------------------------------------------- fit
 @main.command()
 @click.argument("data", nargs=-1, type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Run folder to write (must not exist, or be empty).")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Run folder to write (must not exist, or be empty)  [required]")
 @config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
@@ -234,11 +234,13 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
 @click.option("--resume", is_flag=True,
               help="Continue the interrupted run in --out (its own settings and data).")
+@click.option("--report/--no-report", default=True, show_default=True,
+              help="Write report.md and the figures when the fit finishes (as symplid report).")
 @no_progress_option
 @user_errors
 def fit(data, out, config, order, integrator, dt, method, iterations, samples, burn_in, chains,
         seed, x0, learn_initial_state, t0, time_unit, holdout, holdout_after, sets, overwrite,
-        resume, no_progress) -> None:
+        resume, report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
     Several DATA files, or a `trajectory` column in one, are several trajectories of the same
@@ -272,6 +274,10 @@ def fit(data, out, config, order, integrator, dt, method, iterations, samples, b
     click.echo(fit_result_line(out, outcome, time.perf_counter() - start))
     if outcome.interrupted:
         raise Interrupted
+    if report:
+        from symplid.workflow.run_tools import report_run
+
+        click.echo(report_run(out))
     if heldout is not None:
         from symplid.workflow.forecasting import score_holdout
 

@@ -77,9 +77,14 @@ def truncation_note(shown: int, total: int, option: str) -> str | None:
     return f"showing the first {shown} of {total} parameters (raise {option} to see more)"
 
 
-def _note(fig: Figure, text: str | None) -> None:
-    if text:
-        fig.text(0.01, 0.995, text, fontsize=8, color="0.3", ha="left", va="bottom")
+def _note(fig: Figure, text: str | None, corner: bool = False) -> None:
+    """A grey note at the top of the figure (``corner``: in the empty upper right of a corner
+    plot)."""
+    if text and corner:
+        fig.text(0.97, 0.9, text.replace(" (", "\n("), fontsize=8.5, color="0.3", ha="right",
+                 va="top")
+    elif text:
+        fig.suptitle(text, fontsize=8.5, color="0.3", x=0.01, ha="left")
 
 
 def _values(given: Mapping[str, float] | Sequence[float] | None, labels: list[str],
@@ -240,7 +245,7 @@ def plot_pair(
                 ax.tick_params(labelleft=False)
     _pair_legend(fig, marks)
     if params is None:
-        _note(fig, truncation_note(k, len(all_labels), option))
+        _note(fig, truncation_note(k, len(all_labels), option), corner=True)
     return finish(fig, path)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from symplid.plotting.style import COLORS, compact_ticks, finish, legend_above, new_figure
+from symplid.plotting.style import COLORS, compact_ticks, finish, new_figure
 
 __all__ = ["PotentialSlice", "plot_potential"]
 
@@ -72,11 +72,10 @@ def plot_potential(
             ax.plot(s.data, np.zeros_like(s.data), "|", ms=8, color=COLORS["data"],
                     transform=ax.get_xaxis_transform(), label="data positions")
         ax.set_xlabel(s.label)
-        ax.set_title(f"U along {s.label}" + (f" ({s.fixed})" if s.fixed else ""),
-                     fontsize=9, loc="left")
+        if s.fixed:
+            ax.set_title(f"U along {s.label} ({s.fixed})", fontsize=9, loc="left")
         ax.grid(alpha=0.25)
         compact_ticks(ax, "y")
     axes[0].set_ylabel("U(q)")
-    handles, _ = axes[0].get_legend_handles_labels()
-    legend_above(axes[0], handles, ncol=len(handles), fontsize=7.5)
+    axes[0].legend(loc="upper center", fontsize=7.5, framealpha=0.9)
     return finish(fig, path)

@@ -8,6 +8,7 @@ errors); Ctrl-C and SIGTERM become "interrupted" and exit code 128 + the signal'
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -221,7 +222,8 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
     s = outcome.summary
     extra = ""
     if "rhat_max" in s:
-        extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
+        extra = "; " + _convergence_words(s["rhat_max"], s["ess_min"],
+                                          outcome.settings.sampler.num_chains)
         if not outcome.interrupted and not converged(s):
             extra += " (not converged: see the warnings; run longer)"
     head = f"{out}: "
@@ -233,6 +235,15 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
         f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
         f"{s['log_evidence_laplace']:.2f}{extra}; {seconds:.0f} s"
     )
+
+
+def _convergence_words(rhat: float, ess: float, chains: int) -> str:
+    if not math.isfinite(ess):
+        return "R-hat and ESS not computable (too few draws)"
+    if not math.isfinite(rhat):
+        why = " with one chain" if chains == 1 else ""
+        return f"R-hat not computable{why}, min ESS {ess:.0f}"
+    return f"max R-hat {rhat:.3f}, min ESS {ess:.0f}"
 
 
 def simulate_to_file(system: str, out: Path, t_end: float | None, num_obs: int | None,
@@ -298,12 +309,16 @@ def run_fit(paths: tuple[Path, ...], out: Path, config: Path | None, overrides: 
 
     status = None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True)
     given = config is not None or bool(sets) or any(v is not None for v in overrides.values())
+    if resume and out is None:
+        raise UserError("--resume continues the run in --out RUN: give --out")
     if resume:
         if overwrite:
             raise UserError("--resume continues the run in --out; --overwrite would replace it")
         return _resume(paths, out, config, overrides, sets, holdout, given, no_progress, status)
     if not paths:
         raise UserError("give the DATA file(s) to fit (or --resume an interrupted run)")
+    if out is None:
+        raise UserError("give the run folder to write: --out RUN")
     obs, heldout = _read_fit_data(paths, holdout)
     settings, source = settings_from_options(config, overrides, sets)
     outcome = fit(obs, settings, out=out, progress=not no_progress, source=source,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -259,6 +260,8 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
             out["acceptance_rate"] = float(np.asarray(stats[key]).mean())
             break
     if table is not None:
-        out["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy()))
-        out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
+        with warnings.catch_warnings():  # all NaN on very short chains: NaN, said in words
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy()))
+            out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
     return out

@@ -64,6 +64,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     time_unit = "s"               # the data's time unit, on every time axis
     max_pair_params = 6           # parameters in the pair plot (the first ones of θ)
     max_trace_params = 16         # parameters in the trace plot
+    truth = ""                    # the system that made the data, if known (e.g. "henon-heiles")
 
 Prior families are those of :data:`symplid.model.priors.PRIOR_FAMILIES` and their keys are
 the fields of the family's class: ``laplace`` and ``normal`` (``loc``, ``scale``),

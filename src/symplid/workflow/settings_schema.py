@@ -138,11 +138,14 @@ class PredictionSettings:
 
 @dataclass(frozen=True)
 class PlotSettings:
-    """What the run's figures show: the data's time unit (axis labels), and how many
-    parameters the pair plot and the trace plot draw (the first ones in θ's order; a
-    figure that leaves some out says so)."""
+    """What the run's figures show: the data's time unit (axis labels), how many parameters
+    the pair plot and the trace plot draw (the first ones in θ's order; a figure that leaves
+    some out says so), and the system the data came from when it is known (a name in
+    ``symplid.SYSTEMS``, e.g. for simulated data): its U and coefficients are drawn as the
+    truth."""
 
     time_unit: str = setting("s")
+    truth: str = setting("")
     max_pair_params: int = setting(6, minimum=2)
     max_trace_params: int = setting(16, minimum=1)
 
