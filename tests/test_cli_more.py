@@ -216,7 +216,8 @@ def test_potential_band_against_numpy():
 
 def test_one_initial_state_for_all_or_a_wrong_count(two_trajectories, two_runs, tmp_path):
     d = two_trajectories
-    wrong = run("fit", d["A"], d["B"], "--out", tmp_path / "r", "--x0", "1,0,0,0,0,0", "--order", "2")
+    wrong = run("fit", d["A"], d["B"], "--out", tmp_path / "r", "--x0", "1,0,0,0,0,0",
+                "--order", "2")
     assert wrong.exit_code == 2 and "(or 4: one state per trajectory)" in wrong.output
     summary = json.loads((two_runs[0] / "summary.json").read_text())
     assert summary["param_names"] == ["q1", "q1^2", "process_var", "obs_var"]
