@@ -23,7 +23,8 @@ SUMMARY_KEYS = {
     "rhat_max",
     "ess_min",
 }
-TINY_FIT = ["--iterations", "800", "--burn-in", "400", "--chains", "2", "--no-progress"]
+TINY_FIT = ["--iterations", "800", "--burn-in", "400", "--chains", "2", "--no-progress",
+            "--no-report"]
 
 
 def run(*args: str):

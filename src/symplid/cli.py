@@ -249,7 +249,7 @@ def fit(data, out, config, order, integrator, dt, method, iterations, samples, b
     `symplid fit --resume --out RUN` continues it.
     """
     if samples is not None:
-        warnings.warn("--samples is deprecated (it counted burn-in too); use --iterations",
+        warnings.warn("--samples is deprecated; use --iterations",
                       FutureWarning, stacklevel=1)
         if iterations is not None:
             raise UserError("--samples and --iterations are the same option; give --iterations")
