@@ -142,7 +142,7 @@ def test_dump_writes_every_key(tmp_path):
 
     expected = {
         f"{section}.{f.name}"
-        for section in ("model", "initial_state", "map", "sampler", "prediction")
+        for section in ("model", "initial_state", "map", "sampler", "prediction", "plots")
         for f in dataclasses.fields(getattr(Settings(), section))
     }
     expected |= {"seed", "priors.coefficients.family", "priors.coefficients.loc"}

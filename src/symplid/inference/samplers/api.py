@@ -132,16 +132,14 @@ def sample(
         Called after every chunk with a :class:`~.run.ChunkReport`; raising
         ``KeyboardInterrupt`` there stops the run like Ctrl-C.
     return_state
-        Also return the chains' final states as a
-        :class:`~symplid.inference.samplers.resume.SamplerCheckpoint`, from which
-        :func:`~symplid.inference.samplers.resume.resume_sampling` continues an interrupted run.
+        Also return the chains' final states (:class:`SamplerCheckpoint`), from which
+        :func:`~.resume.resume_sampling` continues an interrupted run.
 
     Returns
     -------
     arviz.InferenceData
-        See the module docstring for the layout (and the checkpoint: ``return_state``). A run
-        stopped by ``KeyboardInterrupt`` returns the draws made so far with
-        ``attrs["interrupted"] = 1`` and a
+        See the module docstring for the layout. A run stopped by ``KeyboardInterrupt``
+        returns the draws made so far with ``attrs["interrupted"] = 1`` and a
         :class:`~symplid.inference.samplers.run.SamplingInterrupted` warning.
     """
     method = SAMPLERS.canonical(method)
@@ -180,8 +178,7 @@ def sample(
         "method": method, "num_draws": num_draws, "num_chains": int(num_chains),
         "seed": int(seed), "burn_in": burn_in, "thin": int(thin),
         "init_spread": float(init_spread), "chunk_size": int(chunk_size),
-        "chain_method": chain_method,
-        "explicit_initial_positions": initial_positions is not None,
+        "chain_method": chain_method, "explicit_initial_positions": initial_positions is not None,
         "kernel": dataclasses.asdict(kernel_settings),
     }
     attrs = _attrs(method, seed, record_settings, names, theta_map, cov_map, starts, run,
