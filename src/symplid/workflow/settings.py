@@ -14,7 +14,12 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
     process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep)
-    noise = "isotropic"           # Σ = θ_Σ I, Γ = θ_Γ I ("diagonal": one variance per component)
+    noise = "auto"                # "isotropic": Σ = θ_Σ I, Γ = θ_Γ I; "diagonal": one variance per
+                                  # component; "per-kind": one Γ variance for q, one for p;
+                                  # "auto": per-kind for q and p columns, else isotropic
+    observation_noise = "additive" # "multiplicative": y = h(x)∘(1 + ε); "both" (filters.noise)
+    standardise = "auto"          # fit in q/a, p/a (a = RMS of the positions), report in the
+                                  # data's units; "auto": when a ∉ [0.1, 10] (workflow.scaling)
     observation = "auto"          # "full" / "positions"; "auto" follows the data file's columns
     mass = []                     # empty: M = I; else the diagonal of M
     alpha = 1.0                   # scaled unscented transform
@@ -110,6 +115,8 @@ from symplid.workflow.settings_schema import (
     SamplerSettings,
     Settings,
 )
+from symplid.workflow.auto import resolve_noise
+from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
 __all__ = [
@@ -468,7 +475,9 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
     """Check the settings against a data set and fill what the data decide.
 
     ``model.observation = "auto"`` becomes ``"full"`` or ``"positions"`` from the data's columns
-    (see :func:`symplid.io.observation_kind`). Checks that the observation kind matches the
+    (see :func:`symplid.io.observation_kind`), ``model.noise = "auto"`` becomes ``"per-kind"``
+    or ``"isotropic"`` (:func:`symplid.workflow.auto.resolve_noise`) and ``model.standardise = "auto"`` becomes
+    ``"on"`` or ``"off"`` (:func:`symplid.workflow.scaling.resolve_standardise`). Checks that the observation kind matches the
     columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is before
     the first observation (or is ``"first"``), that the data have two times or more and no
     column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
@@ -506,7 +515,17 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
     if model.mass and len(model.mass) != d:
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
     _check_data(obs, settings, source)
-    return dataclasses.replace(settings, model=dataclasses.replace(model, observation=observation))
+    try:
+        standardise = resolve_standardise(model, obs)
+    except ValueError as err:
+        raise SettingsError(source, "model.standardise", str(err)) from None
+    resolved = dataclasses.replace(
+        model,
+        observation=observation,
+        noise=resolve_noise(model.noise, observation),
+        standardise=standardise,
+    )
+    return dataclasses.replace(settings, model=resolved)
 
 
 def _check_data(obs: Any, settings: Settings, source: str) -> None:
