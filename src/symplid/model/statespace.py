@@ -42,8 +42,8 @@ from symplid.dynamics.integrators import Integrator, get_integrator
 from symplid.dynamics.potentials import Potential, hamiltonian, inverse_mass, mass_matrix
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult, unscented_weights
-from symplid.filters.noise import ObservationNoise, get_observation_noise
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
+from symplid.filters.noise import ObservationNoise, get_observation_noise
 from symplid.model import kernel  # noqa: F401  (registers the compiled backend)
 from symplid.model.data import DataError, Observations
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData

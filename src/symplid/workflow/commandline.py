@@ -111,6 +111,12 @@ def sampler_registry() -> Any:
     return SAMPLERS
 
 
+def observation_noise_registry() -> Any:
+    from symplid.filters.noise import OBSERVATION_NOISE
+
+    return OBSERVATION_NOISE
+
+
 class RegistryOption(click.Option):
     """An option whose help lists a registry's names (``{choices}``), read when shown."""
 

@@ -102,6 +102,8 @@ import tomli_w
 from symplid.io import observation_layout
 from symplid.model.data import DataError
 from symplid.model.priors import PRIOR_FAMILIES, Prior
+from symplid.workflow.auto import resolve_noise
+from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.settings_schema import (
     PRIOR_DEFAULTS,
     PRIOR_SPECS,
@@ -115,8 +117,6 @@ from symplid.workflow.settings_schema import (
     SamplerSettings,
     Settings,
 )
-from symplid.workflow.auto import resolve_noise
-from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
 __all__ = [
@@ -476,10 +476,11 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
 
     ``model.observation = "auto"`` becomes ``"full"`` or ``"positions"`` from the data's columns
     (see :func:`symplid.io.observation_kind`), ``model.noise = "auto"`` becomes ``"per-kind"``
-    or ``"isotropic"`` (:func:`symplid.workflow.auto.resolve_noise`) and ``model.standardise = "auto"`` becomes
-    ``"on"`` or ``"off"`` (:func:`symplid.workflow.scaling.resolve_standardise`). Checks that the observation kind matches the
-    columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is before
-    the first observation (or is ``"first"``), that the data have two times or more and no
+    or ``"isotropic"`` (:func:`symplid.workflow.auto.resolve_noise`) and
+    ``model.standardise = "auto"`` becomes ``"on"`` or ``"off"``
+    (:func:`symplid.workflow.scaling.resolve_standardise`). Checks that the observation kind
+    matches the columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is
+    before the first observation (or is ``"first"``), that the data have two times or more and no
     column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
     integrator steps. Warns (one line) when θ has more entries than there are data values,
     and when a learned initial state whose prior is centred on the first observation sits
