@@ -6,8 +6,8 @@ eqs 5–6, or an explicit Runge–Kutta method) as the propagator Ψ of eq. (14)
 observation operator in the state-space model of eq. (7), missing values, additive isotropic,
 diagonal or per-kind noise, Σ once per gap or once per substep, a constant mass matrix — the
 log marginal likelihood is computed by a C++ kernel (``csrc/ukf_kernel.cc``) that propagates
-the sigma points as vector lanes. It equals the JAX reference (:func:`~.likelihood.filter_result`) to
-rounding and is
+the sigma points as vector lanes. It equals the JAX reference
+(:func:`~.likelihood.filter_result`) to rounding and is
 
 * ``jit``-able: it is an XLA custom call, ~0.2 µs of overhead inside a compiled loop;
 * ``vmap``-able over θ (and over x0, P0 or the data): a batch reaches the kernel as one call,
