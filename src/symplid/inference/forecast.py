@@ -271,8 +271,7 @@ def forecast_with_noise(
     z = jax.random.normal(key_x, (S, T, model.state_dim))
     e = np.asarray(jax.random.normal(key_y, (S, T, H.shape[0])))
     nc = model.num_coefficients
-    proc = np.stack([np.diag(np.asarray(model.split(row)[1])) for row in theta])
-    obs_var = np.stack([np.diag(np.asarray(model.split(row)[2])) for row in theta])
+    proc, obs_var = (np.asarray(v) for v in jax.vmap(_noise_diagonals(model))(theta))
     noise_scale = np.sqrt(np.maximum(proc, 0.0))
     per_step = model.process_noise_per == "step"
     scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
@@ -294,7 +293,7 @@ def forecast_with_noise(
     obs_mean = states @ H.T
     noise = model.noise_model
     if noise.multiplicative:
-        rel_var = np.stack([np.asarray(model.relative_variances(row)) for row in theta])
+        rel_var = np.asarray(jax.vmap(model.relative_variances)(theta))
         e_rel = np.asarray(jax.random.normal(jax.random.fold_in(key_y, 1), e.shape))
         observations = noise.sample(
             obs_mean, np.maximum(obs_var, 0.0)[:, None, :],
@@ -308,6 +307,16 @@ def forecast_with_noise(
         times, float(t_start), levels, _nanquantile(states, levels),
         _nanquantile(observations, levels), states, observations, obs_var, obs_mean, rel_var,
     )
+
+
+def _noise_diagonals(model: HamiltonianModel):
+    """θ ↦ (diag Σ, diag Γ), to be vmapped over the draws."""
+
+    def diagonals(theta):
+        _, proc, obs = model.split(theta)
+        return jnp.diagonal(proc), jnp.diagonal(obs)
+
+    return diagonals
 
 
 def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, starts,
