@@ -70,7 +70,7 @@ def _one_observation(y, mask=None) -> symplid.Observations:
 def test_one_step_likelihood_is_the_exact_gaussian_of_the_moments(noise_model):
     model = _model(noise_model, backend="jax")
     mean, cov = _exact_moments(noise_model)
-    for y in (mean + [0.1, -0.2], mean - [0.3, 0.05]):
+    for y in (mean + np.array([0.1, -0.2]), mean - np.array([0.3, 0.05])):
         ll = model.log_likelihood(_theta(model), _one_observation(y), X0, P0)
         assert float(ll) == pytest.approx(multivariate_normal(mean, cov).logpdf(y), abs=1e-9)
 
@@ -95,7 +95,7 @@ def test_exact_moments_equal_monte_carlo_of_the_model():
     np.testing.assert_allclose(np.cov(y.T), cov, rtol=0.01, atol=5e-4)
     # and the filter's one-step log-likelihood is the Gaussian density of those MC moments
     model = _model("both", backend="jax")
-    y_obs = mean + [0.1, -0.2]
+    y_obs = mean + np.array([0.1, -0.2])
     ll = float(model.log_likelihood(_theta(model), _one_observation(y_obs), X0, P0))
     mc = multivariate_normal(y.mean(axis=0), np.cov(y.T)).logpdf(y_obs)
     assert ll == pytest.approx(mc, abs=0.02)
@@ -104,7 +104,7 @@ def test_exact_moments_equal_monte_carlo_of_the_model():
 def test_missing_component_uses_the_marginal_of_the_observed_one():
     model = _model("multiplicative", backend="jax")
     mean, cov = _exact_moments("multiplicative")
-    y = mean + [0.2, 0.0]
+    y = mean + np.array([0.2, 0.0])
     ll = model.log_likelihood(_theta(model), _one_observation(y, mask=[True, False]), X0, P0)
     expected = multivariate_normal(mean[:1], cov[:1, :1]).logpdf(y[:1])
     assert float(ll) == pytest.approx(expected, abs=1e-9)
