@@ -218,3 +218,20 @@ def test_forecast_bands_use_the_noise_model():
     var = OBS_VAR + REL_VAR * one.obs_means[0] ** 2
     expected_lpd = np.sum(-0.5 * (np.log(2 * np.pi * var) + 0.01 / var))
     assert one.log_predictive_density(y) == pytest.approx(expected_lpd, rel=1e-12)
+
+
+def test_a_registered_noise_model_is_a_setting_and_a_model():
+    from symplid.filters.noise import ObservationNoise
+    from symplid.workflow.settings import Settings, SettingsError, merge_overrides
+
+    entry = ObservationNoise("proportional", False, True, "a toy entry")
+    OBSERVATION_NOISE.register("proportional", entry)
+    try:
+        s = merge_overrides(Settings(), {"model.observation_noise": "Proportional"})
+        assert s.model.observation_noise == "proportional"
+        model = _model(s.model.observation_noise)
+        assert model.noise_model is entry and model.param_names[-1] == "obs_rel_var"
+    finally:
+        OBSERVATION_NOISE.unregister("proportional")
+    with pytest.raises(SettingsError, match="did you mean 'multiplicative'"):
+        merge_overrides(Settings(), {"model.observation_noise": "multiplicatve"})
