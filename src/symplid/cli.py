@@ -22,7 +22,7 @@ from symplid.workflow.commandline import (
     converged,
     floats,
     integrator_registry,
-    observation_noise_registry,
+    noise_model_names,
     rk2_variants,
     sampler_registry,
     settings_from_options,
@@ -177,21 +177,10 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     show_default=True,
     help="Observe the full state, or the positions only.",
 )
-@click.option(
-    "--observation-noise",
-    cls=RegistryOption,
-    registry=observation_noise_registry,
-    default="additive",
-    show_default=True,
-    help="Observation-noise model: {choices} (multiplicative: y = h(x)(1 + ε)).",
-)
-@click.option(
-    "--rel-std",
-    type=click.FloatRange(min=0),
-    default=0.05,
-    show_default=True,
-    help="Standard deviation of the relative noise ε (multiplicative noise).",
-)
+@click.option("--observation-noise", type=LazyChoice(noise_model_names), default="additive",
+              show_default=True, help="Observation noise (multiplicative: y = h(x)(1 + ε)).")
+@click.option("--rel-std", type=click.FloatRange(min=0), default=0.05, show_default=True,
+              help="Standard deviation of the relative noise ε of multiplicative noise.")
 @click.option("--x0", type=str, default=None, help="Initial state q1..qd,p1..pd (comma-separated).")
 @click.option(
     "--missing",
@@ -201,10 +190,8 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     help="Fraction of values to blank out at random (NaN).",
 )
 @user_errors
-def simulate(
-    system, out, t_end, num_obs, times, noise_std, seed, observation, observation_noise,
-    rel_std, x0, missing,
-) -> None:
+def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, observation_noise,
+             rel_std, x0, missing) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
     import numpy as np
 
@@ -228,7 +215,7 @@ def simulate(
         seed=seed,
         x0=floats(x0, "--x0"),
         observation=observation,
-        observation_noise=_noise_model_name(observation_noise),
+        observation_noise=observation_noise,
         rel_std=rel_std,
     )
     if missing > 0:
@@ -241,13 +228,6 @@ def simulate(
         f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} "
         f"(x0 = {', '.join(f'{v:g}' for v in (x0 and floats(x0, '--x0')) or sys_.initial_state)})"
     )
-
-
-def _noise_model_name(name: str) -> str:
-    registry = observation_noise_registry()
-    if name not in registry:
-        raise UserError(f"--observation-noise: {registry.unknown_message(name)}")
-    return registry.canonical(name)
 
 
 # ----------------------------------------------------------------------------- fit
@@ -275,13 +255,8 @@ def _noise_model_name(name: str) -> str:
     help="Learning propagator: {choices}.",
 )
 @click.option("--dt", type=float, default=None, help="Learning step.")
-@click.option(
-    "--observation-noise",
-    cls=RegistryOption,
-    registry=observation_noise_registry,
-    default=None,
-    help="Observation-noise model: {choices} [default: additive].",
-)
+@click.option("--observation-noise", type=LazyChoice(noise_model_names), default=None,
+              help="Observation-noise model [default: additive].")
 @click.option(
     "--method",
     cls=RegistryOption,

@@ -111,10 +111,11 @@ def sampler_registry() -> Any:
     return SAMPLERS
 
 
-def observation_noise_registry() -> Any:
+def noise_model_names() -> tuple[str, ...]:
+    """The registered observation-noise models (``--observation-noise``)."""
     from symplid.filters.noise import OBSERVATION_NOISE
 
-    return OBSERVATION_NOISE
+    return OBSERVATION_NOISE.names()
 
 
 class RegistryOption(click.Option):
