@@ -235,3 +235,23 @@ def test_a_registered_noise_model_is_a_setting_and_a_model():
         OBSERVATION_NOISE.unregister("proportional")
     with pytest.raises(SettingsError, match="did you mean 'multiplicative'"):
         merge_overrides(Settings(), {"model.observation_noise": "multiplicatve"})
+
+
+@pytest.mark.slow
+def test_map_recovers_the_relative_variance():
+    """Data with 10 % relative noise: the MAP of a multiplicative model finds r ≈ 0.01 and the
+    potential, and the Laplace interval of r covers the truth."""
+    from symplid.inference.map import find_map
+
+    system = symplid.get_system("harmonic")
+    times = np.linspace(0.5, 30.0, 60)
+    obs = symplid.simulate(system, times=times, observation_noise="multiplicative",
+                           rel_std=0.1, seed=4)
+    model = symplid.HamiltonianModel(system.potential, observation_noise="multiplicative")
+    post = symplid.Posterior(model, obs, x0=system.initial_state)
+    result = find_map(post, seed=0, num_starts=2, warn=False)
+    theta = dict(zip(post.param_names, result.theta, strict=True))
+    assert theta["q1^2"] == pytest.approx(0.5, abs=0.01)
+    rel = theta["obs_rel_var"]
+    sd = result.std[post.param_names.index("obs_rel_var")]
+    assert abs(rel - 0.01) < 3 * sd and 0.005 < rel < 0.02
