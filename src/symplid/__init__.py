@@ -30,6 +30,7 @@ from symplid.dynamics.potentials import (  # noqa: E402
     hamiltonian,
 )
 from symplid.dynamics.systems import SYSTEMS, System, get_system  # noqa: E402
+from symplid.filters.noise import OBSERVATION_NOISE  # noqa: E402
 from symplid.inference import baselines, predict, samplers  # noqa: E402
 from symplid.inference.diagnostics import summary  # noqa: E402
 from symplid.inference.map import BoundWarning, MapResult, find_map  # noqa: E402
@@ -44,6 +45,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "INTEGRATORS",
+    "OBSERVATION_NOISE",
     "SYSTEMS",
     "BoundWarning",
     "DataError",
