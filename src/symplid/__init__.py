@@ -43,6 +43,7 @@ _PUBLIC = {
     "Polynomial": "symplid.dynamics.potentials",
     "Potential": "symplid.dynamics.potentials",
     "hamiltonian": "symplid.dynamics.potentials",
+    "OBSERVATION_NOISE": "symplid.filters.noise",
     "SYSTEMS": "symplid.dynamics.systems",
     "System": "symplid.dynamics.systems",
     "get_system": "symplid.dynamics.systems",
@@ -89,6 +90,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "INTEGRATORS",
+    "OBSERVATION_NOISE",
     "SYSTEMS",
     "BoundWarning",
     "DataError",

@@ -24,6 +24,7 @@ from symplid.workflow.commandline import (
     floats,
     integrator_registry,
     no_progress_option,
+    noise_model_names,
     rk2_variants,
     run_fit,
     sampler_registry,
@@ -181,6 +182,10 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     show_default=True,
     help="Observe the full state, or the positions only.",
 )
+@click.option("--observation-noise", type=LazyChoice(noise_model_names), default="additive",
+              show_default=True, help="Observation noise (multiplicative: y = h(x)(1 + ε)).")
+@click.option("--rel-std", type=click.FloatRange(min=0), default=0.05, show_default=True,
+              help="Standard deviation of the relative noise ε of multiplicative noise.")
 @click.option("--x0", type=str, default=None, help="Initial state q1..qd,p1..pd (comma-separated).")
 @click.option(
     "--missing",
@@ -190,10 +195,11 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     help="Fraction of values to blank out at random (NaN).",
 )
 @user_errors
-def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x0, missing) -> None:
+def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, observation_noise,
+             rel_std, x0, missing) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
     click.echo(simulate_to_file(system, out, t_end, num_obs, times, noise_std, seed,
-                                observation, x0, missing))
+                                observation, x0, missing, observation_noise, rel_std))
 
 
 # ----------------------------------------------------------------------------- fit
@@ -206,6 +212,8 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
               help="Learning propagator: {choices}.")
 @click.option("--dt", type=float, default=None, help="Learning step.")
+@click.option("--observation-noise", type=LazyChoice(noise_model_names), default=None,
+              help="Observation-noise model [default: additive].")
 @click.option("--method", cls=RegistryOption, registry=sampler_registry, default=None,
               help="Sampler: {choices}.")
 @click.option("--iterations", type=click.IntRange(min=1), default=None,
@@ -238,9 +246,9 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
               help="Write report.md and the figures when the fit finishes (as symplid report).")
 @no_progress_option
 @user_errors
-def fit(data, out, config, order, integrator, dt, method, iterations, samples, burn_in, chains,
-        seed, x0, learn_initial_state, t0, time_unit, holdout, holdout_after, sets, overwrite,
-        resume, report, no_progress) -> None:
+def fit(data, out, config, order, integrator, dt, observation_noise, method, iterations,
+        samples, burn_in, chains, seed, x0, learn_initial_state, t0, time_unit, holdout,
+        holdout_after, sets, overwrite, resume, report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
     Several DATA files, or a `trajectory` column in one, are several trajectories of the same
@@ -258,6 +266,7 @@ def fit(data, out, config, order, integrator, dt, method, iterations, samples, b
         "model.order": order,
         "model.integrator": integrator,
         "model.dt": dt,
+        "model.observation_noise": observation_noise,
         "sampler.method": method,
         "sampler.num_iterations": iterations,
         "sampler.burn_in": burn_in,

@@ -39,7 +39,7 @@ from symplid.model.priors import Prior, log_density_sum
 
 Array = jax.Array
 
-POSITIVE_GROUPS = ("process_var", "obs_var")
+POSITIVE_GROUPS = ("process_var", "obs_var", "obs_rel_var")
 """Groups whose parameters are variances: bounded below by 0 whatever their prior."""
 
 MAX_UNCONSTRAINED_VARIANCE = 4.0

@@ -125,6 +125,7 @@ class Posterior:
         and the bijectors to the unconstrained space.
     num_params, param_names, param_groups
         Size, names and groups (``coefficients``, ``process_var``, ``obs_var``,
+        ``obs_rel_var``,
         ``initial_state``) of θ.
     priors
         The resolved absolute prior of each parameter.
@@ -176,7 +177,9 @@ class Posterior:
         model = self.model
         self.num_model_params = m = int(model.num_params)
         nc, nq = int(model.num_coefficients), int(model.num_process_noise)
-        groups = ["coefficients"] * nc + ["process_var"] * nq + ["obs_var"] * (m - nc - nq)
+        groups = list(getattr(model, "param_groups", None) or (
+            ["coefficients"] * nc + ["process_var"] * nq + ["obs_var"] * (m - nc - nq)
+        ))
         names = list(model.param_names)
         if self.learn_initial_state:
             for k in range(self.num_trajectories):

@@ -43,7 +43,7 @@ Array = jax.Array
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-GROUPS = ("coefficients", "process_var", "obs_var", "initial_state")
+GROUPS = ("coefficients", "process_var", "obs_var", "obs_rel_var", "initial_state")
 """The groups of θ a :class:`PriorSpec` assigns priors to."""
 
 
@@ -408,6 +408,9 @@ class PriorSpec:
         Prior of every potential coefficient (default Laplace(0, 10), the paper's b = 10).
     process_var, obs_var
         Priors of the process- and observation-noise variances (default HalfNormal(1)).
+    obs_rel_var
+        Prior of the relative variances of multiplicative observation noise (default
+        HalfNormal(1); see :mod:`symplid.filters.noise`).
     initial_state
         For a learned initial state: the prior of the **offset** of each component from its
         centre (the first observation, see :class:`symplid.model.posterior.Posterior`). ``None``
@@ -425,10 +428,11 @@ class PriorSpec:
     process_var: Prior = field(default_factory=_default_variance)
     obs_var: Prior = field(default_factory=_default_variance)
     initial_state: Prior | None = None
+    obs_rel_var: Prior = field(default_factory=_default_variance)
     overrides: Mapping[str, Prior] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for group in ("coefficients", "process_var", "obs_var"):
+        for group in ("coefficients", "process_var", "obs_var", "obs_rel_var"):
             object.__setattr__(self, group, as_prior(getattr(self, group), f"prior of {group}"))
         if self.initial_state is not None:
             prior = as_prior(self.initial_state, "prior of initial_state")
@@ -450,8 +454,8 @@ class PriorSpec:
     def from_dict(cls, spec: Mapping[str, Any]) -> PriorSpec:
         """From ``{group or parameter name: prior}`` (priors as dicts, text or objects).
 
-        Keys are the groups (``coefficients``, ``process_var``, ``obs_var``,
-        ``initial_state``), ``variances`` (both variances at once, as in the settings file),
+        Keys are the groups (``coefficients``, ``process_var``, ``obs_var``, ``obs_rel_var``,
+        ``initial_state``), ``variances`` (all the variances at once, as in the settings file),
         ``overrides`` (a nested mapping), or any other string, read as a parameter name.
         """
         if isinstance(spec, PriorSpec):
@@ -464,6 +468,7 @@ class PriorSpec:
             if key == "variances":
                 kwargs.setdefault("process_var", value)
                 kwargs.setdefault("obs_var", value)
+                kwargs.setdefault("obs_rel_var", value)
             elif key in GROUPS:
                 kwargs[key] = value
             elif key == "overrides":
@@ -478,6 +483,7 @@ class PriorSpec:
             "coefficients": self.coefficients.to_dict(),
             "process_var": self.process_var.to_dict(),
             "obs_var": self.obs_var.to_dict(),
+            "obs_rel_var": self.obs_rel_var.to_dict(),
             "initial_state": None if self.initial_state is None else self.initial_state.to_dict(),
             "overrides": {k: v.to_dict() for k, v in self.overrides.items()},
         }

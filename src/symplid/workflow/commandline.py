@@ -118,6 +118,13 @@ def sampler_registry() -> Any:
     return SAMPLERS
 
 
+def noise_model_names() -> tuple[str, ...]:
+    """The registered observation-noise models (``--observation-noise``)."""
+    from symplid.filters.noise import OBSERVATION_NOISE
+
+    return OBSERVATION_NOISE.names()
+
+
 class RegistryOption(click.Option):
     """An option whose help lists a registry's names (``{choices}``), read when shown."""
 
@@ -248,7 +255,8 @@ def _convergence_words(rhat: float, ess: float, chains: int) -> str:
 
 def simulate_to_file(system: str, out: Path, t_end: float | None, num_obs: int | None,
                      times: str | None, noise_std: float | None, seed: int, observation: str,
-                     x0: str | None, missing: float) -> str:
+                     x0: str | None, missing: float, observation_noise: str = "additive",
+                     rel_std: float = 0.05) -> str:
     """``symplid simulate``: write noisy observations of a named system; returns its line."""
     import numpy as np
 
@@ -267,7 +275,7 @@ def simulate_to_file(system: str, out: Path, t_end: float | None, num_obs: int |
         grid = list(end / n * np.arange(1, n + 1))
     start = floats(x0, "--x0")
     obs = run(sys_, times=grid, noise_std=noise_std, seed=seed, x0=start,
-              observation=observation)
+              observation=observation, observation_noise=observation_noise, rel_std=rel_std)
     if missing > 0:
         rng = np.random.default_rng(seed + 1)
         values = np.array(obs.values)

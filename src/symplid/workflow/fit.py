@@ -29,8 +29,10 @@ from symplid.io import as_list, observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
+from symplid.workflow.auto import auto_notes, resolve_noise
 from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.results import RunFolder
+from symplid.workflow.scaling import scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
 
 
@@ -47,7 +49,8 @@ def build_model(settings: Settings, obs: Observations | list[Observations]) -> H
         dt=m.dt,
         observation=observation,
         process_noise_per=m.process_noise_per,
-        noise=m.noise,
+        noise=resolve_noise(m.noise, observation),
+        observation_noise=m.observation_noise,
         mass=list(m.mass) if m.mass else None,
         alpha=m.alpha,
         beta=m.beta,
@@ -92,6 +95,8 @@ class FitOutcome:
     summary: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     interrupted: bool = False
+    standardised_scale: float | None = None
+    """The position scale a of ``model.standardise`` (None: fitted in the data's units)."""
 
 
 def find_map_for(settings: Settings, posterior) -> Any:
@@ -160,7 +165,9 @@ def fit(
     ``status`` receives a one-line message before the (silent) MAP search and compilation.
     """
 
-    settings = resolve_for_data(settings, obs, source)
+    given, settings = settings, resolve_for_data(settings, obs, source)
+    for note in auto_notes(given, settings, obs) if status is not None else ():
+        status(note)
     folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
     try:
         return _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
@@ -188,18 +195,29 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
         status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
                "filter: this can take a minute)...")
     start = time.perf_counter()
-    model = build_model(settings, obs)
-    posterior = build_posterior(settings, obs, model)
-    map_result = find_map_for(settings, posterior)
+    # model.standardise: the fit runs on q/a, p/a and is reported in the data's units.
+    scaling = scaling_for(settings, obs)
+    fit_settings = settings if scaling is None else scaling.settings(settings)
+    fit_obs = obs if scaling is None else scaling.observations(obs)
+    model = build_model(fit_settings, fit_obs)
+    posterior = build_posterior(fit_settings, fit_obs, model)
+    map_fit = find_map_for(settings, posterior)
+    groups = posterior.param_groups
+    map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
     timings["map_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_map(map_result)
     start = time.perf_counter()
-    idata, checkpoint = sample_for(settings, posterior, map_result, progress, progress_label,
+    idata, checkpoint = sample_for(settings, posterior, map_fit, progress, progress_label,
                                    progress_position, return_state=True)
     timings["sampler_s"] = time.perf_counter() - start
-    return save_run(folder, FitOutcome(settings, obs, model, posterior, map_result, idata,
-                                       timings=timings), checkpoint, warn)
+    if scaling is not None:
+        idata = scaling.inference_data(idata, groups, obs)
+        model = build_model(settings, obs)
+        posterior = build_posterior(settings, obs, model)
+    outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
+                         standardised_scale=None if scaling is None else scaling.scale)
+    return save_run(folder, outcome, checkpoint, warn)
 
 
 def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = None,
@@ -213,6 +231,8 @@ def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = No
         table = diagnostics_summary(idata, show=False, warn=warn and not interrupted)
         summary = fit_summary(outcome.posterior, outcome.map_result, idata, table)
         summary["timings"] = outcome.timings
+        if outcome.standardised_scale is not None:
+            summary["standardised_scale"] = outcome.standardised_scale
         summary["interrupted"] = interrupted
         if interrupted:
             summary["iterations_done"] = int(idata.attrs.get("iterations", 0))

@@ -25,7 +25,7 @@ import numpy as np
 from symplid.inference.map_result import MapResult
 from symplid.inference.samplers.resume import resume_sampling
 from symplid.workflow.fit import FitOutcome, build_model, build_posterior, save_run
-from symplid.workflow.results import RunFolder
+from symplid.workflow.results import RunFolder, RunFolderError
 from symplid.workflow.settings import Settings, SettingsError, settings_to_dict
 
 __all__ = ["check_same_settings", "resume_fit"]
@@ -79,6 +79,11 @@ def resume_fit(
         if asked is not None:
             check_same_settings(settings, asked, out)
     summary = folder.read_summary() if folder.file(RunFolder.SUMMARY).exists() else {}
+    if summary.get("standardised_scale") is not None:
+        raise RunFolderError(
+            f"{out}: this run was fitted in standardised coordinates (model.standardise), "
+            "which --resume does not continue yet; fit again with --overwrite"
+        )
     done = summary.get("iterations_done", "?")
     if status is not None:
         status(f"resuming {out} at iteration {done} of "

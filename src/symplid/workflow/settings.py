@@ -14,7 +14,12 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
     process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep)
-    noise = "isotropic"           # Σ = θ_Σ I, Γ = θ_Γ I ("diagonal": one variance per component)
+    noise = "auto"                # "isotropic": Σ = θ_Σ I, Γ = θ_Γ I; "diagonal": one variance per
+                                  # component; "per-kind": one Γ variance for q, one for p;
+                                  # "auto": per-kind for q and p columns, else isotropic
+    observation_noise = "additive" # "multiplicative": y = h(x)∘(1 + ε); "both" (filters.noise)
+    standardise = "auto"          # fit in q/a, p/a (a = RMS of the positions), report in the
+                                  # data's units; "auto": when a ∉ [0.1, 10] (workflow.scaling)
     observation = "auto"          # "full" / "positions"; "auto" follows the data file's columns
     mass = []                     # empty: M = I; else the diagonal of M
     alpha = 1.0                   # scaled unscented transform

@@ -16,6 +16,8 @@ import numpy as np
 
 from symplid.io import observation_layout
 from symplid.model.data import DataError
+from symplid.workflow.auto import resolve_noise
+from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.settings_schema import Settings
 from symplid.workflow.validate import SettingsError
 
@@ -31,9 +33,12 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
     """Check the settings against a data set and fill what the data decide.
 
     ``model.observation = "auto"`` becomes ``"full"`` or ``"positions"`` from the data's columns
-    (see :func:`symplid.io.observation_kind`). Checks that the observation kind matches the
-    columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is before
-    the first observation (or is ``"first"``), that the data have two times or more and no
+    (see :func:`symplid.io.observation_kind`), ``model.noise = "auto"`` becomes ``"per-kind"``
+    or ``"isotropic"`` (:func:`symplid.workflow.auto.resolve_noise`) and
+    ``model.standardise = "auto"`` becomes ``"on"`` or ``"off"``
+    (:func:`symplid.workflow.scaling.resolve_standardise`). Checks that the observation kind
+    matches the columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is
+    before the first observation (or is ``"first"``), that the data have two times or more and no
     column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
     integrator steps. Warns (one line) when θ has more entries than there are data values,
     and when a learned initial state whose prior is centred on the first observation sits
@@ -72,7 +77,17 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
     for k, one in enumerate(trajectories):
         _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")
-    return dataclasses.replace(settings, model=dataclasses.replace(model, observation=observation))
+    try:
+        standardise = resolve_standardise(model, trajectories)
+    except ValueError as err:
+        raise SettingsError(source, "model.standardise", str(err)) from None
+    resolved = dataclasses.replace(
+        model,
+        observation=observation,
+        noise=resolve_noise(model.noise, observation),
+        standardise=standardise,
+    )
+    return dataclasses.replace(settings, model=resolved)
 
 
 def _check_data(obs: Any, settings: Settings, source: str) -> None:

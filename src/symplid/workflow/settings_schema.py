@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES
 from symplid.dynamics.integrators import INTEGRATORS
+from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.samplers import SAMPLERS
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
 from symplid.workflow.validate import Spec, setting
@@ -40,7 +41,9 @@ class ModelSettings:
     integrator: str = setting("leapfrog", choices=INTEGRATORS)
     dt: float = setting(0.25, minimum=0.0, strict=True)
     process_noise_per: str = setting("gap", choices=("gap", "step"))
-    noise: str = setting("isotropic", choices=("isotropic", "diagonal"))
+    noise: str = setting("auto", choices=("auto", "isotropic", "diagonal", "per-kind"))
+    observation_noise: str = setting("additive", choices=OBSERVATION_NOISE)
+    standardise: str = setting("auto", choices=("auto", "on", "off"))
     observation: str = setting("auto", choices=("auto", "full", "positions"))
     mass: tuple[float, ...] = setting(())
     alpha: float = setting(1.0, minimum=0.0, strict=True)
@@ -76,7 +79,8 @@ class InitialStateSettings:
 class PriorSettings:
     """Priors by group of θ: the paper's Laplace(0, 10) and half-normal(1) (Section IV).
 
-    ``variances`` is the prior of both the process- and the observation-noise variance;
+    ``variances`` is the prior of every noise variance (process, observation, and the relative
+    variance of multiplicative observation noise);
     ``initial_state`` (used when the initial state is learned) is the prior of the offset of
     each component from its centre.
     """
@@ -91,6 +95,7 @@ class PriorSettings:
             coefficients=self.coefficients,
             process_var=self.variances,
             obs_var=self.variances,
+            obs_rel_var=self.variances,
             initial_state=self.initial_state if learned_initial_state else None,
         )
 
