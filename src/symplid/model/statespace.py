@@ -28,7 +28,13 @@ import numpy as np
 
 from symplid.compiled import cached
 from symplid.dynamics.integrators import Integrator, get_integrator
-from symplid.dynamics.potentials import Potential, hamiltonian, inverse_mass, mass_matrix
+from symplid.dynamics.potentials import (
+    Potential,
+    coefficient_name,
+    hamiltonian,
+    inverse_mass,
+    mass_matrix,
+)
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult, unscented_weights
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
@@ -165,8 +171,9 @@ class HamiltonianModel:
 
     @property
     def param_names(self) -> tuple[str, ...]:
-        """Coefficient names, then ``process_var`` and ``obs_var`` (indexed when diagonal)."""
-        names = list(self.potential.param_names)
+        """Coefficient names (``c[q1^2]``: :func:`~symplid.dynamics.potentials.coefficient_name`),
+        then ``process_var`` and ``obs_var`` (indexed when diagonal)."""
+        names = [coefficient_name(n) for n in self.potential.param_names]
         if self.noise == "isotropic":
             names += ["process_var", "obs_var"]
         else:
