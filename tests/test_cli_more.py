@@ -220,4 +220,4 @@ def test_one_initial_state_for_all_or_a_wrong_count(two_trajectories, two_runs, 
                 "--order", "2")
     assert wrong.exit_code == 2 and "(or 4: one state per trajectory)" in wrong.output
     summary = json.loads((two_runs[0] / "summary.json").read_text())
-    assert summary["param_names"] == ["q1", "q1^2", "process_var", "obs_var"]
+    assert summary["param_names"] == ["c[q1]", "c[q1^2]", "process_var", "obs_var"]

@@ -132,7 +132,7 @@ def test_report_without_posterior_warns_in_one_line(copy_of):
 def test_report_has_a_convergence_table(copy_of):
     assert run("report", copy_of).exit_code == 0
     report = (copy_of / "report.md").read_text()
-    assert "## Convergence" in report and "| q1^2 |" in report and "R-hat" in report
+    assert "## Convergence" in report and "| c[q1^2] |" in report and "R-hat" in report
 
 
 # ----------------------------------------------------------------------------- interruptions

@@ -55,6 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import cached, clear
+from symplid.dynamics.potentials import coefficient_name
 from symplid.model.data import Observations
 from symplid.model.initial_state import (
     KNOWN_P0,
@@ -208,7 +209,7 @@ class Posterior:
         """The absolute prior of every entry of θ (group priors, per-name overrides)."""
         m = self.num_model_params
         priors = [
-            self.prior.overrides.get(name) or self.prior.group_prior(group)
+            self.prior.overrides.get(coefficient_name(name)) or self.prior.group_prior(group)
             for name, group in zip(names[:m], groups[:m], strict=True)
         ]
         self._x0_centres: list[np.ndarray] = []

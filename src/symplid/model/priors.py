@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.dynamics.potentials import coefficient_name
 from symplid.registry import Registry
 
 Array = jax.Array
@@ -418,8 +419,9 @@ class PriorSpec:
         Must have support on the whole real line (normal or laplace).
     overrides
         ``{parameter name: prior}``: an **absolute** prior for that one parameter, e.g.
-        ``{"q1^2": Normal(0.5, 0.1), "x0[0].p1": Normal(0.3, 0.1)}``. Names are checked
-        against the posterior's parameter names.
+        ``{"c[q1^2]": Normal(0.5, 0.1), "x0[0].p1": Normal(0.3, 0.1)}``. Names are checked
+        against the posterior's parameter names; a coefficient's bare monomial (``"q1^2"``,
+        its name before coefficients were written ``c[...]``) is still understood.
 
     Every field also accepts a ``to_dict`` mapping or text such as ``"laplace(0, 10)"``.
     """
@@ -447,7 +449,8 @@ class PriorSpec:
         object.__setattr__(
             self,
             "overrides",
-            {str(k): as_prior(v, f"prior of {k!r}") for k, v in self.overrides.items()},
+            {coefficient_name(str(k)): as_prior(v, f"prior of {k!r}")
+             for k, v in self.overrides.items()},
         )
 
     @classmethod
@@ -496,7 +499,8 @@ class PriorSpec:
 
     def check_names(self, names: Sequence[str]) -> None:
         """Raise ``ValueError`` if an override names no parameter of θ."""
-        unknown = [k for k in self.overrides if k not in names]
+        known = {coefficient_name(str(n)) for n in names}
+        unknown = [k for k in self.overrides if k not in known]
         if unknown:
             raise ValueError(
                 f"prior given for unknown parameter(s) {', '.join(map(repr, unknown))}; "

@@ -39,7 +39,13 @@ import numpy as np
 
 from symplid.compiled import cached
 from symplid.dynamics.integrators import Integrator, get_integrator
-from symplid.dynamics.potentials import Potential, hamiltonian, inverse_mass, mass_matrix
+from symplid.dynamics.potentials import (
+    Potential,
+    coefficient_name,
+    hamiltonian,
+    inverse_mass,
+    mass_matrix,
+)
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult, unscented_weights
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
@@ -230,9 +236,10 @@ class HamiltonianModel:
 
     @property
     def param_names(self) -> tuple[str, ...]:
-        """Coefficient names, then ``process_var``, ``obs_var`` and ``obs_rel_var`` (indexed
-        by component when diagonal, by kind when per-kind)."""
-        names = list(self.potential.param_names)
+        """Coefficient names (``c[q1^2]``: :func:`~symplid.dynamics.potentials.coefficient_name`),
+        then ``process_var``, ``obs_var`` and ``obs_rel_var`` (indexed by component when
+        diagonal, by kind when per-kind)."""
+        names = [coefficient_name(n) for n in self.potential.param_names]
         if self.noise == "diagonal":
             names += [f"process_var[{i}]" for i in range(self.num_process_noise)]
         else:

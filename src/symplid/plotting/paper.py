@@ -203,9 +203,11 @@ def _mark_escapes(ax, curves: Sequence[Curves], lim: tuple[float, float]) -> lis
             after = np.asarray(c.values)[np.asarray(c.times) >= t][:1]
             top = not (after.size and np.isfinite(after[0]) and after[0] < lim[0])
             y = lim[1] if top else lim[0]
-            ax.annotate(f"{c.label} escaped (t ≈ {t:.3g})", xy=(t, y), xytext=(-4, -12 if top
-                        else 12), textcoords="offset points", ha="right", fontsize=8,
-                        color=color, arrowprops=dict(arrowstyle="->", color=color, lw=0.8))
+            ax.annotate(f"{c.label} escaped (t ≈ {t:.3g})", xy=(t, y),
+                        xytext=(-30, -45 if top else 45), textcoords="offset points",
+                        ha="right", va="center", fontsize=8, color=color, zorder=6,
+                        bbox=dict(boxstyle="round,pad=0.2", fc="white", ec=color, lw=0.6),
+                        arrowprops=dict(arrowstyle="->", color=color, lw=0.8))
         if c.samples is not None:
             gone = sum(first_exit(c.sample_times, row, lim) is not None for row in c.samples)
             if gone:

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from symplid.dynamics.potentials import coefficient_name
 from symplid.inference.measures import potential_slices
 from symplid.inference.predict import posterior_predictive, predict_trajectory
 from symplid.io import as_list, observation_layout
@@ -44,9 +45,9 @@ def truth_values(settings: Any, model: Any) -> tuple[Any, dict[str, float]] | No
     from symplid.dynamics.systems import get_system
 
     system = get_system(name)
-    true = dict(zip(system.potential.param_names, np.asarray(system.coefficients, float),
-                    strict=True))
-    names = tuple(model.potential.param_names)
+    true = dict(zip(map(coefficient_name, system.potential.param_names),
+                    np.asarray(system.coefficients, float), strict=True))
+    names = [coefficient_name(n) for n in model.potential.param_names]
     if system.potential.dim != model.potential.dim or not set(true) <= set(names):
         return system, {}
     return system, {n: float(true.get(n, 0.0)) for n in names}

@@ -7,7 +7,7 @@ what is particular to it.
 Layout of the result
 --------------------
 * ``posterior``: **one variable per parameter**, named by ``posterior.param_names``
-  (``q1``, ``q1^2``, ..., ``process_var``, ``obs_var``), each shaped ``(chain, draw)``.
+  (``c[q1]``, ``c[q1^2]``, ..., ``process_var``, ``obs_var``), each shaped ``(chain, draw)``.
   ``az.summary`` then prints one row per parameter under its own name, which reads better
   than ``theta[0]``..``theta[10]``. :func:`draws_array` stacks them back into
   ``(chain, draw, num_params)`` in the posterior's order.
