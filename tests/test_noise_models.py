@@ -251,7 +251,7 @@ def test_map_recovers_the_relative_variance():
     post = symplid.Posterior(model, obs, x0=system.initial_state)
     result = find_map(post, seed=0, num_starts=2, warn=False)
     theta = dict(zip(post.param_names, result.theta, strict=True))
-    assert theta["q1^2"] == pytest.approx(0.5, abs=0.01)
+    assert theta["c[q1^2]"] == pytest.approx(0.5, abs=0.01)
     rel = theta["obs_rel_var"]
     sd = result.std[post.param_names.index("obs_rel_var")]
     assert abs(rel - 0.01) < 3 * sd and 0.005 < rel < 0.02
