@@ -255,3 +255,16 @@ def test_map_recovers_the_relative_variance():
     rel = theta["obs_rel_var"]
     sd = result.std[post.param_names.index("obs_rel_var")]
     assert abs(rel - 0.01) < 3 * sd and 0.005 < rel < 0.02
+
+
+@pytest.mark.parametrize("observation", ["full", "positions"])
+def test_settings_count_the_variances_the_model_lays_out(observation):
+    """The settings' check of θ's size (before any model exists) agrees with the model."""
+    from symplid.workflow.auto import num_noise_variances
+
+    for name in OBSERVATION_NOISE:
+        for noise in ("isotropic", "diagonal", "per-kind"):
+            model = symplid.HamiltonianModel(symplid.Polynomial(2, 2), observation=observation,
+                                             noise=noise, observation_noise=name)
+            expected = model.num_params - model.num_coefficients
+            assert num_noise_variances(noise, observation, name, 2) == expected

@@ -125,3 +125,35 @@ def test_auto_rule_and_errors(well):
         resolve_standardise(pendulum, big)
     with pytest.raises(SettingsError, match=r"model\.standardise"):
         merge_overrides(Settings(), {"model.standardise": "yes"})
+
+
+@pytest.mark.slow
+def test_fit_writes_the_run_in_the_data_units(well, tmp_path):
+    """symplid fit on data × 1000: one line says it standardises, and the MAP, the draws and
+    the run folder are in the data's units (U = −½q² + ¼q⁴ becomes −½q² + ¼·10⁻⁶ q⁴)."""
+    from symplid.workflow.fit import fit
+    from symplid.workflow.results import RunFolder
+
+    system, _, big = well
+    s = merge_overrides(Settings(), {
+        "initial_state.x0": list(system.initial_state * SCALE), "model.order": 4,
+        "map.num_starts": 2, "sampler.num_iterations": 400, "sampler.burn_in": 200,
+        "sampler.num_chains": 1,
+    })
+    notes: list[str] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        outcome = fit(big, s, out=tmp_path / "run", progress=False, status=notes.append)
+    assert any("model.standardise" in n for n in notes)
+    assert any("model.noise" in n for n in notes)  # q and p columns: one variance per kind
+    theta = dict(zip(outcome.posterior.param_names, outcome.map_result.theta, strict=True))
+    assert theta["q1^2"] == pytest.approx(-0.5, abs=0.06)
+    assert theta["q1^4"] * SCALE**2 == pytest.approx(0.25, abs=0.03)
+    assert 0.2 < theta["obs_var[q]"] / (0.05 * SCALE) ** 2 < 5
+    draws = outcome.idata.posterior["q1^4"].values * SCALE**2
+    assert np.median(draws) == pytest.approx(0.25, abs=0.04)
+    scale = outcome.summary["standardised_scale"]
+    assert scale == pytest.approx(position_scale(big)) == outcome.idata.attrs["standardised_scale"]
+    folder = RunFolder(tmp_path / "run", "r")
+    assert folder.read_settings().model.standardise == "on"
+    np.testing.assert_allclose(folder.read_map()["theta"], outcome.map_result.theta)

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.workflow.scaling import position_scale
 
-__all__ = ["auto_notes", "resolve_noise"]
+__all__ = ["auto_notes", "num_noise_variances", "resolve_noise"]
 
 
 def resolve_noise(noise: str, observation: str) -> str:
@@ -26,6 +27,16 @@ def resolve_noise(noise: str, observation: str) -> str:
     if noise != "auto":
         return noise
     return "per-kind" if observation == "full" else "isotropic"
+
+
+def num_noise_variances(noise: str, observation: str, observation_noise: str, dim: int) -> int:
+    """How many variances θ holds for a resolved ``noise`` layout (as HamiltonianModel lays
+    them out): Σ's, then Γ's and the relative ones that the noise model has."""
+    d_y = 2 * dim if observation == "full" else dim
+    per_term = {"isotropic": 1, "diagonal": d_y, "per-kind": 2 if observation == "full" else 1}
+    entry = OBSERVATION_NOISE.get_entry(observation_noise)
+    terms = int(entry.additive) + int(entry.multiplicative)
+    return (2 * dim if noise == "diagonal" else 1) + terms * per_term[noise]
 
 
 def auto_notes(given: Any, resolved: Any, obs: Any) -> list[str]:

@@ -20,7 +20,9 @@ Laplace covariance, the draws, the summaries and the predictions are mapped back
 units (θ = D θ', D diagonal; covariance D C' D, Hessian D⁻¹ H' D⁻¹), and the log likelihood,
 log posterior and Laplace evidence are those of the user's data: with N measured values,
 log p(y) = log p'(y') − N log a, and the log posterior density of θ (the push-forward of the
-standardised prior) also loses Σ log D.
+standardised prior) also loses Σ log D. A sampler's own tuning (its step size, mass matrix or
+proposal in ``idata.attrs``) stays in the space it ran in; ``attrs["standardised_scale"]``
+and ``summary.json["standardised_scale"]`` record a.
 
 Rule of ``model.standardise``: ``"on"``, ``"off"``, or ``"auto"`` (default), which is on when
 the model is a separable polynomial one and ``a`` lies outside [0.1, 10] — data near unit scale

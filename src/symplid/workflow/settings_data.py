@@ -16,7 +16,7 @@ import numpy as np
 
 from symplid.io import observation_layout
 from symplid.model.data import DataError
-from symplid.workflow.auto import resolve_noise
+from symplid.workflow.auto import num_noise_variances, resolve_noise
 from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.settings_schema import Settings
 from symplid.workflow.validate import SettingsError
@@ -128,7 +128,10 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
         )
     values = int(np.sum(obs.mask))
     d = _dim(obs)
-    num_params = math.comb(d + model.order, model.order) - 1 + 2
+    kind = observation_layout(obs).kind
+    num_params = math.comb(d + model.order, model.order) - 1 + num_noise_variances(
+        resolve_noise(model.noise, kind), kind, model.observation_noise, d
+    )
     num_params += 2 * d if init.mode == "learned" else 0
     if num_params > values:
         warnings.warn(
