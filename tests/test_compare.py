@@ -85,8 +85,11 @@ def double_well():
 @pytest.fixture(scope="module")
 def settings(double_well):
     system, _ = double_well
+    # one observation variance for q and p (the data share one noise level; the default
+    # "auto" would give one per kind and a parameter more to every candidate)
     return merge_overrides(
-        Settings(), {"initial_state.x0": list(system.initial_state), "map.num_starts": 1}
+        Settings(), {"initial_state.x0": list(system.initial_state), "map.num_starts": 1,
+                     "model.noise": "isotropic"}
     )
 
 

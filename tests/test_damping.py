@@ -42,6 +42,7 @@ from symplid.model import kernel
 from symplid.model.priors import PriorSpec
 from symplid.model.simulate import simulate
 from symplid.workflow.compare import comparison_table, fit_candidates
+from symplid.workflow.scaling import Scaling
 from symplid.workflow.settings import settings_from_dict, settings_to_dict
 from symplid.workflow.sweep import cell_settings, sweep_spec_from_dict
 from symplid.workflow.validate import SettingsError
@@ -152,7 +153,10 @@ def test_damped_pendulum_truth_matches_an_ode_solver():
 # ----------------------------------------------------------------------------- the model
 def test_damped_model_layout_and_backends():
     model = symplid.HamiltonianModel(symplid.Polynomial(1, 4), damping=True)
-    assert model.param_names == ("q1", "q1^2", "q1^3", "q1^4", "gamma", "process_var", "obs_var")
+    assert model.param_names == (
+        "c[q1]", "c[q1^2]", "c[q1^3]", "c[q1^4]", "gamma", "process_var", "obs_var"
+    )
+    assert model.param_groups == ("coefficients",) * 4 + ("damping", "process_var", "obs_var")
     assert is_damped(model.integrator) and model.integrator.base.name == "leapfrog"
     theta = model.pack([0.0, 0.5, 0.0, -0.04], 1e-4, 0.01, gamma=0.1)
     assert float(model.damping_rate(theta)) == 0.1
@@ -179,6 +183,54 @@ def test_damped_model_layout_and_backends():
     i = post.param_names.index("gamma")
     assert post.param_groups[i] == "damping" and post.lower[i] == 0.0
     assert post.priors[i] == PriorSpec().damping
+
+
+def test_damped_theta_with_the_observation_noise_models():
+    """γ sits after the coefficients whatever the noise: then Σ, Γ per kind, relative r."""
+    model = symplid.HamiltonianModel(
+        symplid.Polynomial(1, 2), damping=True, noise="per-kind", observation_noise="both"
+    )
+    assert model.param_names == (
+        "c[q1]", "c[q1^2]", "gamma", "process_var", "obs_var[q]", "obs_var[p]",
+        "obs_rel_var[q]", "obs_rel_var[p]",
+    )
+    assert model.param_groups == (
+        "coefficients", "coefficients", "damping", "process_var", "obs_var", "obs_var",
+        "obs_rel_var", "obs_rel_var",
+    )
+    theta = model.pack([0.0, 0.5], 1e-4, [0.01, 0.02], [0.03, 0.04], gamma=0.1)
+    assert float(model.damping_rate(theta)) == pytest.approx(0.1)
+    _, proc, obs = model.split(theta)
+    np.testing.assert_allclose(np.diag(proc), [1e-4, 1e-4])
+    np.testing.assert_allclose(np.diag(obs), [0.01, 0.02])
+    np.testing.assert_allclose(model.relative_variances(theta), [0.03, 0.04])
+    only_rel = symplid.HamiltonianModel(
+        symplid.Polynomial(1, 2), damping=True, observation_noise="multiplicative"
+    )
+    assert only_rel.param_names[2:] == ("gamma", "process_var", "obs_rel_var")
+    theta = only_rel.pack([0.0, 0.5], 1e-4, obs_rel_var=0.01, gamma=0.2)
+    assert float(only_rel.damping_rate(theta)) == pytest.approx(0.2)
+    np.testing.assert_allclose(only_rel.relative_variances(theta), [0.01, 0.01])
+
+
+def test_standardising_leaves_gamma_unchanged():
+    """q' = q/a, p' = p/a keeps ṗ' = −∂U'/∂q' − γ M⁻¹p': the likelihood maps exactly with γ's
+    factor 1 (log p(y | θ) = log p'(y' | θ') − N log a)."""
+    system = damped_pendulum(gamma=0.1)
+    obs = simulate(system, times=np.arange(0.5, 8.0, 0.5), noise_std=0.02, seed=2)
+    a = 300.0
+    big = symplid.Observations(obs.times, obs.values * a, obs.names)
+    model = symplid.HamiltonianModel(symplid.Polynomial(1, 4), dt=0.25, damping=True)
+    scaling = Scaling(a, (1, 2, 3, 4))
+    factors = scaling.factors(model.param_groups)
+    assert factors[model.param_names.index("gamma")] == 1.0
+    theta_std = model.pack([0.0, 0.5, 0.0, -0.04], 1e-4, 4e-4, gamma=0.1)
+    theta_user = theta_std * factors
+    x0 = np.asarray(system.initial_state)
+    ll_user = model.log_likelihood(theta_user, big, x0 * a, 1e-6 * a**2)
+    ll_std = model.log_likelihood(theta_std, scaling.observations(big), x0, 1e-6)
+    expected = float(ll_std) + scaling.log_likelihood_shift(big)
+    assert float(ll_user) == pytest.approx(expected, rel=1e-9)
 
 
 def test_zero_damping_likelihood_is_the_undamped_one_exactly(hh, hh_data):
@@ -298,8 +350,8 @@ def test_gamma_is_recovered_from_damped_pendulum_data(damped_fits):
     assert abs(gamma - 0.1) < 3 * sd and sd < 0.02
     # The coefficients are the Taylor series of ω²(1 − cos q): ½ q² − q⁴/24 (ω² = 1).
     c = dict(zip(names, fit.map_result.theta, strict=True))
-    assert c["q1^2"] == pytest.approx(0.5, abs=0.03)
-    assert c["q1^4"] == pytest.approx(-1 / 24, abs=0.04)
+    assert c["c[q1^2]"] == pytest.approx(0.5, abs=0.03)
+    assert c["c[q1^4]"] == pytest.approx(-1 / 24, abs=0.04)
     table = comparison_table(damped_fits)
     assert bool(table.loc[0, "damping"]) and table.loc[0, "gamma"] == pytest.approx(gamma)
 

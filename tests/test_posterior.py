@@ -102,7 +102,7 @@ def test_hh_density_is_prior_plus_likelihood(hh, hh_post, hh_loglik):
 
 def test_hh_layout(hh_post):
     assert hh_post.num_params == 11
-    assert hh_post.param_names[:3] == ("q1", "q2", "q1^2")
+    assert hh_post.param_names[:3] == ("c[q1]", "c[q2]", "c[q1^2]")
     assert hh_post.param_names[-2:] == ("process_var", "obs_var")
     assert hh_post.param_groups == ("coefficients",) * 9 + ("process_var", "obs_var")
     assert isinstance(hh_post.lower, np.ndarray) and isinstance(hh_post.upper, np.ndarray)
@@ -320,7 +320,7 @@ def test_errors_name_the_problem(osc, osc_model, osc_sets):
         Posterior(osc_model, data, x0=x0s, t0=[0.0, 0.0])
     with pytest.raises(ValueError, match="P0 of trajectory 0 must be positive semi-definite"):
         Posterior(osc_model, d, x0=x0s[0], P0=np.diag([1.0, -1.0]))
-    with pytest.raises(ValueError, match=r"unknown parameter\(s\) 'q3'"):
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) 'c\[q3\]'"):
         Posterior(osc_model, d, x0=x0s[0], prior={"q3": Normal(0, 1)})
     with pytest.raises(TypeError, match=r"data\[1\] must be a symplid.Observations"):
         Posterior(osc_model, [d, d.values], x0=x0s[:2])

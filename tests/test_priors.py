@@ -150,12 +150,14 @@ def test_prior_spec_from_dict_and_round_trip():
     })
     assert spec.coefficients == Normal(0.0, 3.0)
     assert spec.process_var == spec.obs_var == LogNormal(-5.0, 2.0)
-    assert spec.overrides == {"q1^2": Normal(0.5, 0.1)}
+    # A coefficient's bare monomial (its old name) is read as its θ name c[...].
+    assert spec.overrides == {"c[q1^2]": Normal(0.5, 0.1)}
     assert spec.initial_state == Laplace(0.0, 0.2)
     assert PriorSpec.from_dict(spec.to_dict()) == spec
+    spec.check_names(["c[q1]", "c[q1^2]"])
     spec.check_names(["q1", "q1^2"])
-    with pytest.raises(ValueError, match=r"unknown parameter\(s\) 'q1\^2'"):
-        spec.check_names(["q1", "q2"])
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) 'c\[q1\^2\]'"):
+        spec.check_names(["c[q1]", "c[q2]"])
 
 
 def test_prior_spec_rejects_bad_entries():

@@ -23,7 +23,8 @@ from symplid.cli import main
 from symplid.workflow.interrupts import deferred_interrupts, terminate_as_interrupt
 from symplid.workflow.results import RunFolder
 
-TINY = ["--iterations", "400", "--burn-in", "200", "--chains", "2", "--no-progress"]
+TINY = ["--iterations", "400", "--burn-in", "200", "--chains", "2", "--no-progress",
+        "--no-report"]
 
 
 def run(*args):
@@ -92,12 +93,13 @@ def test_a_failed_predict_leaves_the_run_finished(copy_of, args, words):
 
 
 def test_a_crash_or_ctrl_c_during_predict_leaves_the_run_finished(copy_of, monkeypatch):
+    import symplid.workflow.run_figures as figures
     import symplid.workflow.run_tools as tools
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(tools, "posterior_predictive", interrupted)
+    monkeypatch.setattr(figures, "posterior_predictive", interrupted)
     result = run("predict", copy_of, "--t-end", "15")
     assert result.exit_code == 130 and "interrupted" in result.output
     assert is_finished(copy_of)
@@ -130,7 +132,7 @@ def test_report_without_posterior_warns_in_one_line(copy_of):
 def test_report_has_a_convergence_table(copy_of):
     assert run("report", copy_of).exit_code == 0
     report = (copy_of / "report.md").read_text()
-    assert "## Convergence" in report and "| q1^2 |" in report and "R-hat" in report
+    assert "## Convergence" in report and "| c[q1^2] |" in report and "R-hat" in report
 
 
 # ----------------------------------------------------------------------------- interruptions

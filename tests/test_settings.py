@@ -33,14 +33,17 @@ def _load_text(tmp_path, text: str, name: str = "run.toml") -> Settings:
 # ----------------------------------------------------------------------------- defaults
 def test_defaults_are_the_papers_numbers():
     s = Settings()
-    # Section IV of the paper and DESIGN.md: cubic potential, leapfrog at dt = 0.25, one
-    # isotropic variance each for Σ and Γ, process noise once per gap.
+    # Section IV of the paper and DESIGN.md: cubic potential, leapfrog at dt = 0.25, process
+    # noise once per gap. The noise layout and the standardisation default to "auto" (decided
+    # by the data); the paper's experiment sets one isotropic variance each for Σ and Γ and
+    # no standardisation itself (see test_paper_settings_fix_the_auto_defaults).
     assert (s.model.order, s.model.integrator, s.model.dt) == (3, "leapfrog", 0.25)
     assert (s.model.process_noise_per, s.model.noise, s.model.observation) == (
         "gap",
-        "isotropic",
+        "auto",
         "auto",
     )
+    assert (s.model.observation_noise, s.model.standardise) == ("additive", "auto")
     assert (s.model.alpha, s.model.beta, s.model.kappa, s.model.jitter) == (1.0, 2.0, 0.0, 1e-12)
     assert s.model.mass == ()
     # Known initial state with covariance 1e-16 I at t0 = 0.
@@ -71,6 +74,24 @@ def test_defaults_are_the_papers_numbers():
     assert s.map.num_starts >= 1
 
 
+def test_paper_settings_fix_the_auto_defaults(hh_data):
+    """The paper's experiment (reproduce, its sweeps) does not depend on the "auto" rules."""
+    from symplid.experiments.paper import PaperConfig, paper_settings
+    from symplid.experiments.paper_cells import known_initial_state
+    from symplid.workflow.settings import resolve_for_data
+
+    for approach in ("leapfrog", "rk2"):
+        m = resolve_for_data(paper_settings(PaperConfig(), approach), hh_data).model
+        assert (m.noise, m.standardise, m.observation_noise) == ("isotropic", "off", "additive")
+    assert known_initial_state({})["model"] == {"noise": "isotropic", "standardise": "off"}
+    # while a user's full-state file gets one variance per kind, positions-only one in all
+    init = paper_settings(PaperConfig(), "leapfrog").initial_state
+    default = resolve_for_data(Settings(initial_state=init), hh_data).model
+    assert (default.noise, default.standardise) == ("per-kind", "off")
+    positions = symplid.Observations(hh_data.times, hh_data.values[:, :2], ("q1", "q2"))
+    assert resolve_for_data(Settings(initial_state=init), positions).model.noise == "isotropic"
+
+
 def test_defaults_build_the_papers_model():
     """The defaults are accepted as they are by HamiltonianModel (no translation needed)."""
     m = Settings().model
@@ -79,7 +100,8 @@ def test_defaults_build_the_papers_model():
         integrator=m.integrator,
         dt=m.dt,
         process_noise_per=m.process_noise_per,
-        noise=m.noise,
+        noise="isotropic",  # the paper's (the default "auto" is resolved from the data)
+        observation_noise=m.observation_noise,
         alpha=m.alpha,
         beta=m.beta,
         kappa=m.kappa,
@@ -142,7 +164,7 @@ def test_dump_writes_every_key(tmp_path):
 
     expected = {
         f"{section}.{f.name}"
-        for section in ("model", "initial_state", "map", "sampler", "prediction")
+        for section in ("model", "initial_state", "map", "sampler", "prediction", "plots")
         for f in dataclasses.fields(getattr(Settings(), section))
     }
     expected |= {"seed", "priors.coefficients.family", "priors.coefficients.loc"}

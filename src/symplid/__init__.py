@@ -9,41 +9,88 @@ sampler's acceptance ratios are not trustworthy in float32. This is the only glo
 setting the package touches. Before JAX is imported, :func:`symplid.runtime.configure_xla`
 asks XLA to compile small loops whole (merged with the user's ``XLA_FLAGS``; the numbers agree
 to rounding, the filter runs several times faster; ``SYMPLID_XLA_FLAGS=off`` opts out).
+
+The public names below are imported when first used (PEP 562), so that ``import symplid``
+(and ``symplid --version``, ``symplid --help``) does not start JAX. Float64 holds all the
+same: when JAX is already imported it is switched on at once; otherwise ``JAX_ENABLE_X64`` is
+set, which JAX reads when it starts, so any ``symplid`` module that imports JAX computes in
+float64 from its first array.
 """
 
 from __future__ import annotations
+
+import importlib
+import os
+import sys
+from typing import Any
 
 from symplid import runtime
 
 runtime.configure_xla()  # must run before JAX starts its backend
 
-import jax  # noqa: E402
+if "jax" in sys.modules:
+    sys.modules["jax"].config.update("jax_enable_x64", True)
+else:
+    os.environ["JAX_ENABLE_X64"] = "1"  # read by JAX when it starts
 
-jax.config.update("jax_enable_x64", True)
+#: public name -> the module that defines it (imported on first access)
+_PUBLIC = {
+    "INTEGRATORS": "symplid.dynamics.integrators",
+    "Integrator": "symplid.dynamics.integrators",
+    "get_integrator": "symplid.dynamics.integrators",
+    "MLPPotential": "symplid.dynamics.neural",
+    "FunctionPotential": "symplid.dynamics.potentials",
+    "Polynomial": "symplid.dynamics.potentials",
+    "Potential": "symplid.dynamics.potentials",
+    "hamiltonian": "symplid.dynamics.potentials",
+    "OBSERVATION_NOISE": "symplid.filters.noise",
+    "SYSTEMS": "symplid.dynamics.systems",
+    "System": "symplid.dynamics.systems",
+    "get_system": "symplid.dynamics.systems",
+    "summary": "symplid.inference.diagnostics",
+    "BoundWarning": "symplid.inference.map",
+    "MapResult": "symplid.inference.map",
+    "find_map": "symplid.inference.map",
+    "sample": "symplid.inference.samplers",
+    "DataError": "symplid.model.data",
+    "Observations": "symplid.model.data",
+    "Posterior": "symplid.model.posterior",
+    "HalfNormal": "symplid.model.priors",
+    "Laplace": "symplid.model.priors",
+    "LogNormal": "symplid.model.priors",
+    "Normal": "symplid.model.priors",
+    "Uniform": "symplid.model.priors",
+    "simulate": "symplid.model.simulate",
+    "true_trajectory": "symplid.model.simulate",
+    "HamiltonianModel": "symplid.model.statespace",
+}
+_SUBMODULES = {
+    "baselines": "symplid.inference.baselines",
+    "predict": "symplid.inference.predict",
+    "samplers": "symplid.inference.samplers",
+}
 
-from symplid.dynamics.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
-from symplid.dynamics.neural import MLPPotential  # noqa: E402
-from symplid.dynamics.potentials import (  # noqa: E402
-    FunctionPotential,
-    Polynomial,
-    Potential,
-    hamiltonian,
-)
-from symplid.dynamics.systems import SYSTEMS, System, get_system  # noqa: E402
-from symplid.inference import baselines, predict, samplers  # noqa: E402
-from symplid.inference.diagnostics import summary  # noqa: E402
-from symplid.inference.map import BoundWarning, MapResult, find_map  # noqa: E402
-from symplid.inference.samplers import sample  # noqa: E402
-from symplid.model.data import DataError, Observations  # noqa: E402
-from symplid.model.posterior import Posterior  # noqa: E402
-from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal, Uniform  # noqa: E402
-from symplid.model.simulate import simulate, true_trajectory  # noqa: E402
-from symplid.model.statespace import HamiltonianModel  # noqa: E402
+
+def __getattr__(name: str) -> Any:
+    if name in _SUBMODULES:
+        value = importlib.import_module(_SUBMODULES[name])
+    elif name in _PUBLIC:
+        value = getattr(importlib.import_module(_PUBLIC[name]), name)
+    else:
+        raise AttributeError(f"module 'symplid' has no attribute {name!r}")
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __version__ = "0.1.0"
 
 __all__ = [
     "INTEGRATORS",
+    "OBSERVATION_NOISE",
     "SYSTEMS",
     "BoundWarning",
     "DataError",

@@ -19,12 +19,18 @@ from symplid.workflow.commandline import (
     OneLineErrors,
     RegistryOption,
     UserError,
-    converged,
+    config_option,
+    fit_result_line,
     floats,
     integrator_registry,
+    no_progress_option,
+    noise_model_names,
     rk2_variants,
+    run_fit,
     sampler_registry,
+    sets_option,
     settings_from_options,
+    simulate_to_file,
     time_or_word,
     user_errors,
 )
@@ -98,7 +104,7 @@ def main() -> None:
     help="Processes (the two approaches run in parallel).",
 )
 @click.option("--quick", is_flag=True, help="A small budget for a smoke test (under a minute).")
-@click.option("--no-progress", is_flag=True, help="No progress bars.")
+@no_progress_option
 @user_errors
 def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_progress) -> None:
     """The paper's Hénon–Heiles experiment: leapfrog against RK2, all figures and a table."""
@@ -176,6 +182,10 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     show_default=True,
     help="Observe the full state, or the positions only.",
 )
+@click.option("--observation-noise", type=LazyChoice(noise_model_names), default="additive",
+              show_default=True, help="Observation noise (multiplicative: y = h(x)(1 + ε)).")
+@click.option("--rel-std", type=click.FloatRange(min=0), default=0.05, show_default=True,
+              help="Standard deviation of the relative noise ε of multiplicative noise.")
 @click.option("--x0", type=str, default=None, help="Initial state q1..qd,p1..pd (comma-separated).")
 @click.option(
     "--missing",
@@ -185,177 +195,81 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     help="Fraction of values to blank out at random (NaN).",
 )
 @user_errors
-def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x0, missing) -> None:
+def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, observation_noise,
+             rel_std, x0, missing) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
-    import numpy as np
-
-    from symplid.dynamics.systems import get_system
-    from symplid.io import write_observations
-    from symplid.model.data import Observations
-    from symplid.model.simulate import simulate as run
-
-    sys_ = get_system(system)
-    grid = floats(times, "--times")
-    if grid is None and (t_end is not None or num_obs is not None):
-        n = num_obs or sys_.num_obs
-        end = t_end if t_end is not None else sys_.obs_interval * n
-        if end <= 0:
-            raise UserError(f"--t-end must be positive, got {end}")
-        grid = list(end / n * np.arange(1, n + 1))
-    obs = run(
-        sys_,
-        times=grid,
-        noise_std=noise_std,
-        seed=seed,
-        x0=floats(x0, "--x0"),
-        observation=observation,
-    )
-    if missing > 0:
-        rng = np.random.default_rng(seed + 1)
-        values = np.array(obs.values)
-        values[rng.random(values.shape) < missing] = np.nan
-        obs = Observations(obs.times, values, obs.names)
-    path = write_observations(obs, out)
-    click.echo(
-        f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} "
-        f"(x0 = {', '.join(f'{v:g}' for v in (x0 and floats(x0, '--x0')) or sys_.initial_state)})"
-    )
+    click.echo(simulate_to_file(system, out, t_end, num_obs, times, noise_std, seed,
+                                observation, x0, missing, observation_noise, rel_std))
 
 
 # ----------------------------------------------------------------------------- fit
 @main.command()
-@click.argument("data", type=click.Path(path_type=Path))
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Run folder to write (must not exist, or be empty).",
-)
-@click.option(
-    "--config",
-    "config",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="Settings file (TOML); command-line options override it.",
-)
+@click.argument("data", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Run folder to write (must not exist, or be empty)  [required]")
+@config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
-@click.option(
-    "--integrator",
-    cls=RegistryOption,
-    registry=integrator_registry,
-    default=None,
-    help="Learning propagator: {choices}.",
-)
+@click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
+              help="Learning propagator: {choices}.")
 @click.option("--dt", type=float, default=None, help="Learning step.")
-@click.option(
-    "--damping",
-    is_flag=True,
-    default=None,
-    help="Learn a damping rate γ (ṗ = −∂U/∂q − γM⁻¹p; model.damping = true).",
-)
-@click.option(
-    "--method",
-    cls=RegistryOption,
-    registry=sampler_registry,
-    default=None,
-    help="Sampler: {choices}.",
-)
-@click.option(
-    "--iterations",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Iterations per chain, burn-in included.",
-)
+@click.option("--damping", is_flag=True, default=None,
+              help="Learn a damping rate γ (ṗ = −∂U/∂q − γM⁻¹p; model.damping = true).")
+@click.option("--observation-noise", type=LazyChoice(noise_model_names), default=None,
+              help="Observation-noise model [default: additive].")
+@click.option("--method", cls=RegistryOption, registry=sampler_registry, default=None,
+              help="Sampler: {choices}.")
+@click.option("--iterations", type=click.IntRange(min=1), default=None,
+              help="Iterations per chain, burn-in included (draws kept: iterations − burn-in).")
 @click.option("--samples", type=click.IntRange(min=1), default=None, hidden=True)
-@click.option(
-    "--burn-in", type=click.IntRange(min=0), default=None, help="Iterations discarded per chain."
-)
+@click.option("--burn-in", type=click.IntRange(min=0), default=None,
+              help="Iterations discarded per chain.")
 @click.option("--chains", type=click.IntRange(min=1), default=None, help="Independent chains.")
-@click.option(
-    "--seed",
-    type=click.IntRange(min=0),
-    default=None,
-    help="Seed of the MAP starts and of the sampler [default: 0].",
-)
-@click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Seed of the MAP starts and of the sampler [default: 0].")
+@click.option("--x0", type=str, default=None,
+              help="Known initial state q1..qd,p1..pd (several DATA: one such group per file, "
+              "or one for all).")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
-@click.option(
-    "--t0",
-    type=str,
-    default=None,
-    help='Time of the initial state: a number, or "first" (the first observation time) '
-    "[default: 0].",
-)
-@click.option(
-    "--set",
-    "sets",
-    multiple=True,
-    metavar="KEY=VALUE",
-    help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
-)
-@click.option(
-    "--holdout",
-    type=click.FloatRange(0, 1, min_open=True, max_open=True),
-    default=None,
-    help="Hold out the last FRACTION of the observation times: fit on the rest, then score "
-    "the forecast on them (summary.json: holdout).",
-)
-@click.option(
-    "--holdout-after",
-    type=float,
-    default=None,
-    help="Hold out the observations after time T (instead of --holdout).",
-)
+@click.option("--t0", type=str, default=None,
+              help='Time of the initial state: a number, or "first" (the first observation '
+              "time) [default: 0].")
+@click.option("--time-unit", type=str, default=None,
+              help="Unit of the data's times, on the figures' axes [default: s].")
+@sets_option
+@click.option("--holdout", type=click.FloatRange(0, 1, min_open=True, max_open=True),
+              default=None, help="Hold out the last FRACTION of the observation times: fit on "
+              "the rest, then score the forecast on them (summary.json: holdout).")
+@click.option("--holdout-after", type=float, default=None,
+              help="Hold out the observations after time T (instead of --holdout).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing run folder.")
-@click.option("--no-progress", is_flag=True, help="No progress bar or status lines.")
+@click.option("--resume", is_flag=True,
+              help="Continue the interrupted run in --out (its own settings and data).")
+@click.option("--report/--no-report", default=True, show_default=True,
+              help="Write report.md and the figures when the fit finishes (as symplid report).")
+@no_progress_option
 @user_errors
-def fit(
-    data,
-    out,
-    config,
-    order,
-    integrator,
-    dt,
-    damping,
-    method,
-    iterations,
-    samples,
-    burn_in,
-    chains,
-    seed,
-    x0,
-    learn_initial_state,
-    t0,
-    holdout,
-    holdout_after,
-    sets,
-    overwrite,
-    no_progress,
-) -> None:
+def fit(data, out, config, order, integrator, dt, damping, observation_noise, method,
+        iterations, samples, burn_in, chains, seed, x0, learn_initial_state, t0, time_unit,
+        holdout, holdout_after, sets, overwrite, resume, report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
-    Ctrl-C (or SIGTERM) during sampling keeps the draws made so far, marks the run
-    "interrupted" and exits with code 130 (143).
+    Several DATA files, or a `trajectory` column in one, are several trajectories of the same
+    system: they share θ, each has its own initial state. Ctrl-C (or SIGTERM) during sampling
+    keeps the draws made so far, marks the run "interrupted" and exits with code 130 (143);
+    `symplid fit --resume --out RUN` continues it.
     """
-    from symplid.io import read_observations
-    from symplid.workflow.fit import fit as run
-
     if samples is not None:
-        warnings.warn("--samples is deprecated; use --iterations", FutureWarning, stacklevel=1)
+        warnings.warn("--samples is deprecated; use --iterations",
+                      FutureWarning, stacklevel=1)
         if iterations is not None:
             raise UserError("--samples and --iterations are the same option; give --iterations")
         iterations = samples
-    obs = read_observations(data)
-    heldout = None
-    if holdout is not None or holdout_after is not None:
-        from symplid.workflow.forecasting import split_holdout
-
-        obs, heldout = split_holdout(obs, holdout, holdout_after)
     overrides = {
         "model.order": order,
         "model.integrator": integrator,
         "model.dt": dt,
         "model.damping": True if damping else None,
+        "model.observation_noise": observation_noise,
         "sampler.method": method,
         "sampler.num_iterations": iterations,
         "sampler.burn_in": burn_in,
@@ -364,35 +278,18 @@ def fit(
         "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
         "initial_state.t0": time_or_word(t0, "--t0"),
+        "plots.time_unit": time_unit,
     }
-    settings, source = settings_from_options(config, overrides, sets)
     start = time.perf_counter()
-    outcome = run(
-        obs,
-        settings,
-        out=out,
-        progress=not no_progress,
-        source=source,
-        overwrite=overwrite,
-        warn=True,
-        status=None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True),
-    )
-    s = outcome.summary
-    extra = ""
-    if "rhat_max" in s:
-        extra = f"; max R-hat {s['rhat_max']:.3f}, min ESS {s['ess_min']:.0f}"
-        if not outcome.interrupted and not converged(s):
-            extra += " (not converged: see the warnings; run longer)"
-    head = f"{out}: "
-    if outcome.interrupted:
-        total = outcome.settings.sampler.num_iterations
-        head += f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws kept; "
-    click.echo(
-        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
-        f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
-    )
+    outcome, heldout = run_fit(data, out, config, overrides, sets, (holdout, holdout_after),
+                               overwrite, resume, no_progress)
+    click.echo(fit_result_line(out, outcome, time.perf_counter() - start))
     if outcome.interrupted:
         raise Interrupted
+    if report:
+        from symplid.workflow.run_tools import report_run
+
+        click.echo(report_run(out))
     if heldout is not None:
         from symplid.workflow.forecasting import score_holdout
 
@@ -466,13 +363,7 @@ def report(run) -> None:
     default=None,
     help="Folder for compare.csv and compare.txt.",
 )
-@click.option(
-    "--config",
-    "config",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="Settings file (TOML) shared by every candidate.",
-)
+@config_option("Settings file (TOML) shared by every candidate.")
 @click.option(
     "--orders",
     type=str,
@@ -493,8 +384,8 @@ def report(run) -> None:
 )
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Any setting.")
-@click.option("--no-progress", is_flag=True)
+@sets_option
+@no_progress_option
 @user_errors
 def compare(
     data, out, config, orders, integrators, damping, x0, learn_initial_state, sets, no_progress
@@ -552,7 +443,7 @@ def compare(
     default=None,
     help="Local worker processes [default: one per core].",
 )
-@click.option("--no-progress", is_flag=True)
+@no_progress_option
 @user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
@@ -577,7 +468,7 @@ def study() -> None:
 @click.option("--no-variants", is_flag=True, help="Only the paper's setting (no dt, σ variants).")
 @click.option("--scheduler", type=str, default=None)
 @click.option("--workers", type=click.IntRange(min=1), default=None)
-@click.option("--no-progress", is_flag=True)
+@no_progress_option
 @user_errors
 def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
     """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""

@@ -23,6 +23,7 @@ coefficients of **−U** in this same order.
 from __future__ import annotations
 
 import itertools
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
@@ -66,6 +67,15 @@ def monomial_exponents(dim: int, order: int) -> tuple[tuple[int, ...], ...]:
         ]
         exponents.extend(sorted(of_degree, reverse=True))
     return tuple(exponents)
+
+
+_MONOMIAL = re.compile(r"^q[1-9][0-9]*(\^[0-9]+)?(\*q[1-9][0-9]*(\^[0-9]+)?)*$")
+
+
+def coefficient_name(term: str) -> str:
+    """The name of a coefficient in θ: a monomial's ``q1^2`` becomes ``c[q1^2]`` (a bare
+    ``q1`` would read as the state's position q1); any other name is kept."""
+    return f"c[{term}]" if _MONOMIAL.match(term) else term
 
 
 def term_name(exponent: tuple[int, ...]) -> str:
@@ -172,12 +182,14 @@ class Polynomial:
         return jnp.stack(grads)
 
     def coefficients_from(self, terms: Mapping[str | tuple[int, ...], float]) -> np.ndarray:
-        """Coefficient vector from ``{term: value}``; terms by name (``'q1^2*q2'``) or exponent.
+        """Coefficient vector from ``{term: value}``; terms by name (``'q1^2*q2'``, or its θ
+        name ``'c[q1^2*q2]'``) or exponent.
 
         Terms not named are zero. An unknown term is an error, not silently dropped.
         """
         index = {e: m for m, e in enumerate(self.exponents)}
         by_name = {term_name(e): m for m, e in enumerate(self.exponents)}
+        by_name |= {coefficient_name(name): m for name, m in by_name.items()}
         out = np.zeros(self.num_params)
         for key, val in terms.items():
             if isinstance(key, str):

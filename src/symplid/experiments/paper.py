@@ -28,6 +28,7 @@ from symplid.dynamics.potentials import hamiltonian
 from symplid.dynamics.systems import get_system
 from symplid.experiments.paper_cells import (
     CELL_KEYS,
+    PAPER_MODEL,
     SWEEP_METRICS,
     cell_data,
     known_initial_state,
@@ -120,6 +121,7 @@ def paper_settings(config: PaperConfig, approach: str) -> Settings:
             "model.order": config.order,
             "model.integrator": config.integrator(approach),
             "model.dt": config.dt,
+            **{f"model.{key}": value for key, value in PAPER_MODEL.items()},
             "initial_state.x0": [float(v) for v in system.initial_state],
             "map.num_starts": config.num_starts,
             "sampler.num_iterations": config.iterations,

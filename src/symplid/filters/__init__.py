@@ -2,8 +2,9 @@
 
 Layer 2 of the package (above :mod:`symplid.dynamics`): small-matrix linear algebra
 (:mod:`~symplid.filters.linalg`), the unscented transform (:mod:`~symplid.filters.unscented`),
-the Gaussian update and the recursion (:mod:`~symplid.filters.update`), and the registry of
-likelihood backends (:mod:`~symplid.filters.backends`).
+the Gaussian update and the recursion (:mod:`~symplid.filters.update`), the observation-noise
+models (:mod:`~symplid.filters.noise`) and the registry of likelihood backends
+(:mod:`~symplid.filters.backends`).
 """
 
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend

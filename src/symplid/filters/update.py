@@ -128,7 +128,7 @@ def run_filter(
     inputs: object,
     ys: Array,
     masks: Array,
-    obs_cov: Array,
+    obs_cov: Array | Callable[[ObservationMoments], Array],
 ) -> FilterResult:
     """The UKF recursion of Theorem 1 over all observations, as one ``lax.scan``.
 
@@ -146,15 +146,19 @@ def run_filter(
     ys, masks
         Observations ``(n, d_y)`` with missing entries set to any finite value, and the
         ``(n, d_y)`` boolean mask of measured entries.
+    obs_cov
+        The observation-noise covariance Γ added to S (eq. 12), or a function of the step's
+        :class:`ObservationMoments` that gives it (a noise model whose covariance depends on
+        the prediction, e.g. multiplicative noise: :mod:`symplid.filters.noise`).
     """
 
     def body(carry, xs):
         mean, chol = carry
         inp, y, mask = xs
         m_pred, p_pred = predict(mean, chol, inp)
-        m_new, chol_new, ll = gaussian_update(
-            m_pred, p_pred, y, mask, moments(m_pred, p_pred), obs_cov
-        )
+        obs_moments = moments(m_pred, p_pred)
+        noise_cov = obs_cov(obs_moments) if callable(obs_cov) else obs_cov
+        m_new, chol_new, ll = gaussian_update(m_pred, p_pred, y, mask, obs_moments, noise_cov)
         return (m_new, chol_new), (m_new, chol_new, m_pred, p_pred, ll)
 
     chol0 = cholesky(symmetrize(cov0))

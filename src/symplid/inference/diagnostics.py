@@ -8,7 +8,10 @@ are not yet to be trusted.
 
 from __future__ import annotations
 
+import logging
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import ModuleType
 from typing import Any
 
@@ -77,7 +80,8 @@ def summary(
     az = import_arviz()
     if not hasattr(idata, "posterior"):
         raise ValueError("idata has no posterior group; pass the result of symplid.sample")
-    table = az.summary(idata, var_names=var_names, round_to="none")
+    with quiet_arviz():  # NaN statistics of short chains: one ConvergenceWarning says it below
+        table = az.summary(idata, var_names=var_names, round_to="none")
     notes = _sampler_notes(idata)
     if show:
         import pandas as pd
@@ -108,7 +112,37 @@ def _sampler_notes(idata: Any) -> list[str]:
     return notes
 
 
+#: ArviZ computes R-hat and ESS from this many draws per chain on.
+MIN_DRAWS = 4
+
+
+@contextmanager
+def quiet_arviz() -> Iterator[None]:
+    """Silence NumPy's RuntimeWarnings (degrees of freedom ≤ 0, all-NaN slices) and ArviZ's
+    logged shape warnings while statistics of very short chains are computed: their NaNs are
+    reported once, in words, by :func:`summary`'s warnings."""
+    # ArviZ logs through its own Logger instance (``arviz._log``), not logging.getLogger's.
+    logger = getattr(import_arviz(), "_log", None) or logging.getLogger("arviz")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            yield
+    finally:
+        logger.setLevel(level)
+
+
 def _warn(table, idata, rhat_threshold: float, ess_threshold: float) -> None:
+    draws = int(idata.posterior.sizes.get("draw", 0))
+    if draws < MIN_DRAWS:
+        warnings.warn(
+            f"only {draws} draw(s) per chain: R-hat and ESS need at least {MIN_DRAWS}; "
+            "run longer (more iterations after burn-in)",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+        return
     rhat = table["r_hat"].to_numpy(dtype=float)
     bad_rhat = ~(rhat <= rhat_threshold)
     if bad_rhat.any():

@@ -165,9 +165,13 @@ class NoisyForecast:
         Every draw's sampled path and new observations, ``(S, T, 2d)`` and ``(S, T, d_y)``
         (NaN for a draw whose filter or path failed).
     obs_var
-        Every draw's observation-noise variances ``(S, d_y)`` (for predictive densities).
+        Every draw's observation-noise variances ``(S, d_y)`` (for predictive densities;
+        zeros for purely multiplicative noise).
     obs_means
         h(X) of every draw's path (no observation noise), ``(S, T, d_y)``.
+    rel_var
+        Every draw's relative variances of multiplicative noise ``(S, d_y)`` (zeros for
+        additive noise): given X, Y has variance Γ + r ∘ h(X)² (:mod:`symplid.filters.noise`).
     """
 
     times: np.ndarray
@@ -179,6 +183,7 @@ class NoisyForecast:
     observations: np.ndarray
     obs_var: np.ndarray
     obs_means: np.ndarray = field(repr=False)
+    rel_var: np.ndarray | None = field(default=None, repr=False)
 
     def band(self, level: float = 0.95, observations: bool = True) -> tuple[np.ndarray, ...]:
         """(lower, upper) of the central ``level`` band, from the draws (not the stored
@@ -191,12 +196,15 @@ class NoisyForecast:
         """Σ_k log p(y_k | data) for new values ``(T, d_y)`` at :attr:`times` (NaN = missing).
 
         The predictive density of each time is the Monte-Carlo mixture over the draws,
-        (1/S) Σ_s N(y_k; h(x_k^s), Γ^s), with the measured components of y_k only.
+        (1/S) Σ_s N(y_k; h(x_k^s), Γ^s + r^s ∘ h(x_k^s)²), with the measured components of
+        y_k only (r = 0 for additive noise).
         """
         y = np.asarray(values, dtype=float)
         mean = self.obs_means
         ok = np.all(np.isfinite(mean), axis=(1, 2))
         mean, var = mean[ok], self.obs_var[ok][:, None, :]
+        if self.rel_var is not None:
+            var = var + self.rel_var[ok][:, None, :] * mean**2
         measured = np.isfinite(y)
         resid = np.where(measured, y - mean, 0.0)
         terms = np.where(measured, -0.5 * (np.log(2 * np.pi * var) + resid**2 / var), 0.0)
@@ -229,8 +237,9 @@ def forecast_with_noise(
     carried to every time of ``times`` by the model's own propagator Ψ (its integrator at
     ⌈gap/dt⌉ equal substeps, eq. 14), with process noise ξ ~ N(0, Σ(θ^s)) added once per gap
     (for ``process_noise_per="step"``: N(0, n·Σ) over a gap of n substeps). New observations
-    add η ~ N(0, Γ(θ^s)) to h(X). This is the model the likelihood of Theorem 1 assumes, so a
-    band from it can be checked against held-out data.
+    follow the model's observation noise (:mod:`symplid.filters.noise`): h(X) + η with
+    η ~ N(0, Γ(θ^s)), h(X)∘(1 + ε) with ε ~ N(0, diag r(θ^s)), or both. This is the model
+    the likelihood of Theorem 1 assumes, so a band from it can be checked against held-out data.
 
     Parameters
     ----------
@@ -265,8 +274,7 @@ def forecast_with_noise(
     z = jax.random.normal(key_x, (S, T, model.state_dim))
     e = np.asarray(jax.random.normal(key_y, (S, T, H.shape[0])))
     nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
-    proc = np.stack([np.diag(np.asarray(model.split(row)[1])) for row in theta])
-    obs_var = np.stack([np.diag(np.asarray(model.split(row)[2])) for row in theta])
+    proc, obs_var = (np.asarray(v) for v in jax.vmap(_noise_diagonals(model))(theta))
     noise_scale = np.sqrt(np.maximum(proc, 0.0))
     per_step = model.process_noise_per == "step"
     scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
@@ -286,12 +294,32 @@ def forecast_with_noise(
     states[~np.all(np.isfinite(starts), axis=1)] = np.nan
     states[~np.isfinite(states)] = np.nan
     obs_mean = states @ H.T
-    observations = obs_mean + np.sqrt(np.maximum(obs_var, 0.0))[:, None, :] * e
+    noise = model.noise_model
+    if noise.multiplicative:
+        rel_var = np.asarray(jax.vmap(model.relative_variances)(theta))
+        e_rel = np.asarray(jax.random.normal(jax.random.fold_in(key_y, 1), e.shape))
+        observations = noise.sample(
+            obs_mean, np.maximum(obs_var, 0.0)[:, None, :],
+            np.maximum(rel_var, 0.0)[:, None, :], np.stack([e_rel, e]),
+        )
+    else:
+        rel_var = None
+        observations = obs_mean + np.sqrt(np.maximum(obs_var, 0.0))[:, None, :] * e
     levels = tuple(float(q) for q in quantiles)
     return NoisyForecast(
         times, float(t_start), levels, _nanquantile(states, levels),
-        _nanquantile(observations, levels), states, observations, obs_var, obs_mean,
+        _nanquantile(observations, levels), states, observations, obs_var, obs_mean, rel_var,
     )
+
+
+def _noise_diagonals(model: HamiltonianModel):
+    """θ ↦ (diag Σ, diag Γ), to be vmapped over the draws."""
+
+    def diagonals(theta):
+        _, proc, obs = model.split(theta)
+        return jnp.diagonal(proc), jnp.diagonal(obs)
+
+    return diagonals
 
 
 def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, starts,

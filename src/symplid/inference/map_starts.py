@@ -28,6 +28,8 @@ def default_start(posterior: Any) -> np.ndarray:
             v = data_var
         elif groups[i] == "obs_var" and data_var is not None:
             v = 0.1 * data_var
+        elif groups[i] == "obs_rel_var":
+            v = 0.1
         elif priors is not None:
             v = float(priors[i].median)
         else:

@@ -18,7 +18,7 @@ from symplid.dynamics.potentials import Potential, hamiltonian
 from symplid.inference.predictive import resolve_coefficients
 from symplid.model.statespace import HamiltonianModel
 
-__all__ = ["hamiltonian_along", "prediction_horizon"]
+__all__ = ["hamiltonian_along", "potential_slices", "prediction_horizon"]
 
 
 def hamiltonian_along(
@@ -133,3 +133,39 @@ def prediction_horizon(
     if not outside.any():
         return float(times[-1])
     return float(times[int(np.argmax(outside))])
+
+
+def _potential_values(potential: Potential, coefficients: jax.Array, points: jax.Array):
+    """U at every point ``(M, d)`` for every coefficient vector ``(S, P)``: ``(S, M)``."""
+    at_points = jax.vmap(lambda c: jax.vmap(lambda q: potential.value(q, c))(points))
+    return at_points(coefficients)
+
+
+def potential_slices(
+    potential: Potential,
+    coefficients: Any,
+    centre: Sequence[float],
+    lower: Sequence[float],
+    upper: Sequence[float],
+    num: int = 161,
+    levels: tuple[float, ...] = (0.025, 0.5, 0.975),
+) -> list[dict[str, np.ndarray]]:
+    """The learned potential U(q; c) along one line per axis, with its posterior band.
+
+    Slice i runs q_i over ``[lower_i, upper_i]`` with the other coordinates at ``centre``
+    (for d = 1, U over the range). ``coefficients`` ``(S, P)`` are posterior draws; a single
+    row ``(P,)`` (the MAP, the truth) gives its own values as every quantile. Returns one dict
+    per axis: ``q`` ``(num,)``, ``points`` ``(num, d)`` and ``quantiles``
+    ``(len(levels), num)``.
+    """
+    coefficients = jnp.atleast_2d(jnp.asarray(coefficients, dtype=float))
+    centre = np.asarray(centre, dtype=float)
+    out = []
+    for i in range(centre.size):
+        q = np.linspace(float(lower[i]), float(upper[i]), int(num))
+        line = np.tile(centre, (q.size, 1))
+        line[:, i] = q
+        values = np.asarray(_potential_values(potential, coefficients, jnp.asarray(line)))
+        quantiles = np.quantile(values, levels, axis=0)
+        out.append({"q": q, "points": line, "quantiles": quantiles})
+    return out

@@ -276,7 +276,12 @@ def ggn_precision(posterior: Posterior, theta: Any) -> np.ndarray:
             result = posterior.model.filter(model_theta, prepared, x0, P0)
             y_hat = result.predicted_means @ H.T
             _, _, obs_cov = posterior.model.split(model_theta)
-            S = jnp.einsum("ij,njk,lk->nil", H, result.predicted_covs, H) + obs_cov
+            S_h = jnp.einsum("ij,njk,lk->nil", H, result.predicted_covs, H)
+            S = S_h + obs_cov
+            if posterior.model.noise_model.multiplicative:  # + diag(r ∘ E[h∘h]), filters.noise
+                r = posterior.model.relative_variances(model_theta)
+                second = y_hat**2 + jnp.diagonal(S_h, axis1=1, axis2=2)
+                S = S + jnp.eye(S.shape[-1]) * (r * second)[:, None, :]
             return y_hat, S
 
         block = _fisher(moments, theta[:m], np.asarray(obs.mask))

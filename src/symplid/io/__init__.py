@@ -9,13 +9,23 @@ from symplid.io.datafiles import (
     read_observations,
     write_observations,
 )
+from symplid.io.trajectories import (
+    as_list,
+    num_trajectories,
+    read_trajectories,
+    write_trajectories,
+)
 
 __all__ = [
     "Layout",
+    "as_list",
     "column_names",
+    "num_trajectories",
     "observation_kind",
     "observation_layout",
     "positions_only",
     "read_observations",
+    "read_trajectories",
     "write_observations",
+    "write_trajectories",
 ]

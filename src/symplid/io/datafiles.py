@@ -50,6 +50,8 @@ __all__ = [
 Kind = Literal["full", "positions"]
 
 _COLUMN = re.compile(r"^([qp])([1-9][0-9]*)$")
+#: The CSV column that labels the rows of several trajectories (:mod:`symplid.io.trajectories`).
+TRAJECTORY_COLUMN = "trajectory"
 _MISSING = {"", "nan", "na", "n/a", "null", "none"}
 
 
@@ -168,9 +170,16 @@ def read_observations(path: str | os.PathLike) -> Observations:
         increasing, a ``p`` column without its ``q`` pair, columns out of order, unknown columns,
         no data rows, and anything :class:`Observations` rejects.
     """
+    path = check_data_file(path)
+    if path.suffix.lower() == ".csv":
+        return _read_csv(path)
+    return _read_npz(path)
+
+
+def check_data_file(path: str | os.PathLike) -> Path:
+    """A one-line :class:`DataError` unless ``path`` is a non-empty ``.csv``/``.npz`` file."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".csv", ".npz"):
+    if path.suffix.lower() not in (".csv", ".npz"):
         raise DataError(
             f"{path}: unknown data file type {path.suffix or '(no extension)'!r}; use .csv or .npz"
         )
@@ -180,16 +189,23 @@ def read_observations(path: str | os.PathLike) -> Observations:
         raise DataError(f"{path}: is a directory, not a data file")
     if path.stat().st_size == 0:
         raise DataError(f"{path}: the file is empty")
-    if suffix == ".csv":
-        return _read_csv(path)
-    return _read_npz(path)
+    return path
+
+
+def read_text(path: Path) -> str:
+    """The text of a CSV file (a one-line error when it is not UTF-8)."""
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a UTF-8 text file") from None
 
 
 def _read_csv(path: Path) -> Observations:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise DataError(f"{path}: not a UTF-8 text file") from None
+    return parse_csv(path, read_text(path))
+
+
+def parse_csv(path: Path, text: str) -> Observations:
+    """Observations from the text of a CSV file (``path`` names it in errors)."""
     rows = [
         (number, row)
         for number, row in enumerate(csv.reader(_io.StringIO(text)), start=1)
@@ -207,6 +223,11 @@ def _read_csv(path: Path) -> Observations:
     if len(header) == 1 and any(sep in header[0] for sep in (";", "\t", " ")):
         raise DataError(f"{path}: line {header_line}: columns must be separated by commas")
     names = [cell.lower() for cell in header]
+    if TRAJECTORY_COLUMN in names:
+        raise DataError(
+            f"{path}: line {header_line}: a '{TRAJECTORY_COLUMN}' column labels several "
+            "trajectories; read the file with symplid.io.read_trajectories (symplid fit does)"
+        )
     if names[0] != "t":
         if "t" in names:
             raise DataError(

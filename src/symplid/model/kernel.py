@@ -3,11 +3,11 @@
 For the common case — a :class:`~.potentials.Polynomial` potential of any dimension and
 order, one of the library's integrators (the symplectic compositions of the leapfrog of
 eqs 5–6, or an explicit Runge–Kutta method) as the propagator Ψ of eq. (14), a linear
-observation operator in the state-space model of eq. (7), missing values, isotropic or
-diagonal noise, Σ once per gap or once per substep, a constant mass matrix — the log marginal
-likelihood is computed by a C++ kernel (``csrc/ukf_kernel.cc``) that propagates the sigma
-points as vector lanes. It equals the JAX reference (:func:`~.likelihood.filter_result`) to
-rounding and is
+observation operator in the state-space model of eq. (7), missing values, additive isotropic,
+diagonal or per-kind noise, Σ once per gap or once per substep, a constant mass matrix — the
+log marginal likelihood is computed by a C++ kernel (``csrc/ukf_kernel.cc``) that propagates
+the sigma points as vector lanes. It equals the JAX reference
+(:func:`~.likelihood.filter_result`) to rounding and is
 
 * ``jit``-able: it is an XLA custom call, ~0.2 µs of overhead inside a compiled loop;
 * ``vmap``-able over θ (and over x0, P0 or the data): a batch reaches the kernel as one call,
@@ -141,6 +141,9 @@ def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = N
                 "composition or Butcher tableau")
     if model.observation_matrix is None:
         return "the observation operator is a function, not a matrix"
+    noise = getattr(model, "observation_noise", "additive")
+    if noise != "additive":
+        return f"the observation noise is {noise!r} (the kernel's update adds a constant Γ)"
     if not jax.config.read("jax_enable_x64"):
         return "float64 is switched off"
     if jax.default_backend() != "cpu":
@@ -189,7 +192,7 @@ def _attributes(model: StateSpaceModel, prepared: PreparedData) -> dict[str, Any
         "scale": float(weights.scale),
         "jitter": float(model.jitter),
         "per_step": np.int64(model.process_noise_per == "step"),
-        "diagonal": np.int64(model.noise == "diagonal"),
+        "diagonal": np.int64(model.noise != "isotropic"),  # per-kind: expanded, _kernel_theta
         "max_steps": np.int64(prepared.max_steps),
         "uniform": np.int64(prepared.uniform_steps),
     }
@@ -200,6 +203,18 @@ KernelFn = Callable[[Array, Array, Array, Array, Array, Array, Array], Array]
 _DIFFERENTIABLE = (0, 1, 2, 3, 5)
 
 
+def _kernel_theta(model: StateSpaceModel) -> Callable[[Array], Array]:
+    """θ in the kernel's layout: per-kind variances become the diagonal layout (Σ's one
+    variance repeated over the state, each Γ variance over the components of its kind)."""
+    if model.noise != "per-kind":
+        return lambda theta: theta
+    nc = model.num_coefficients
+    index = np.concatenate(
+        [np.arange(nc), np.full(model.state_dim, nc), nc + 1 + model.obs_noise_index]
+    )
+    return lambda theta: theta[..., index]
+
+
 def _build_kernel(model: StateSpaceModel, prepared: PreparedData) -> KernelFn:
     """``(θ, x0, P0, step_size, num_steps, ys, masks) -> log L``: the FFI call, with JVPs
     taken from the JAX reference filter so that derivatives are the JAX tier's."""
@@ -208,10 +223,11 @@ def _build_kernel(model: StateSpaceModel, prepared: PreparedData) -> KernelFn:
         TARGET_NAME, jax.ShapeDtypeStruct((), jnp.float64), vmap_method="expand_dims"
     )
     reference = build_filter(model, prepared.max_steps, prepared.uniform_steps)
+    layout = _kernel_theta(model)
 
     @jax.custom_jvp
     def kernel(theta, x0, p0, step_size, num_steps, ys, masks):
-        return call(theta, x0, p0, step_size, num_steps, ys, masks, **attrs)
+        return call(layout(theta), x0, p0, step_size, num_steps, ys, masks, **attrs)
 
     def kernel_jvp(primals, tangents):
         # Differentiate the reference in the arguments whose tangent is not a symbolic zero

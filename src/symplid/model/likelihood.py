@@ -4,6 +4,8 @@ For the model of eq. (7),
 
     X_k = Ψ(X_{k−1}; θ_Ψ) + ξ_k,   Y_k = h(X_k) + η_k,
 
+(or Y_k = h(X_k)∘(1 + ε_k) (+ η_k), the multiplicative models of
+:mod:`symplid.filters.noise`, whose update replaces Γ by R_k = Γ + diag(r ∘ E[h∘h])),
 the likelihood of the observations is computed by the unscented Kalman filter of eqs (10)–(12)
 with Ψ the integrator over each gap (eq. 14). Everything here is a pure function of the
 parameters θ and the prepared data: ``jit``-, ``vmap``- and ``grad``-able, no state::
@@ -104,6 +106,9 @@ class StateSpaceModel(Protocol):
 
     def split(self, theta: Array) -> tuple[Array, Array, Array]: ...
 
+    # Models with an observation-noise model other than additive (symplid.filters.noise) also
+    # have ``noise_model`` and ``noise_covariance(theta)``; the likelihood reads them by name.
+
 
 
 def filter_result(
@@ -116,7 +121,9 @@ def filter_result(
     model
         The state-space model (static: it fixes the program).
     theta
-        Parameters ``[coefficients of U, (γ,) process variance(s), observation variance(s)]``;
+        Parameters ``[coefficients of U, (γ,) process variance(s), observation variance(s),
+        relative observation variance(s)]`` (γ for a damped model only, the last for
+        multiplicative noise only);
         may be traced.
     prepared
         Data from :meth:`HamiltonianModel.prepare` (concrete: it fixes the substep counts).
@@ -163,11 +170,19 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         inv_mass = inverse_mass(model.mass, model.potential.dim)
         dynamics = bind_dynamics(model.integrator, model.potential, theta[:nc], inv_mass)
         predict = _prediction(model, dynamics, proc, weights, max_steps, uniform_steps)
+        if _multiplicative(model):  # Γ replaced by R_k(ŷ, S_h) (symplid.filters.noise)
+            obs = model.noise_covariance(theta)
         result = run_filter(predict, moments, x0, p0, inputs, ys, masks, obs)
         ll = jnp.where(variances_ok, result.log_likelihood, -jnp.inf)
         return result._replace(log_likelihood=ll)
 
     return filter_fn
+
+
+def _multiplicative(model: StateSpaceModel) -> bool:
+    """Whether the model's observation noise has a multiplicative term."""
+    noise = getattr(model, "noise_model", None)
+    return bool(noise is not None and noise.multiplicative)
 
 
 def _observation_moments(

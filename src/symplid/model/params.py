@@ -40,7 +40,7 @@ from symplid.model.priors import Prior, log_density_sum
 
 Array = jax.Array
 
-POSITIVE_GROUPS = ("damping", "process_var", "obs_var")
+POSITIVE_GROUPS = ("damping", "process_var", "obs_var", "obs_rel_var")
 """Groups bounded below by 0 whatever their prior: the damping rate and the variances."""
 
 MAX_UNCONSTRAINED_VARIANCE = 4.0

@@ -55,6 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import cached, clear
+from symplid.dynamics.potentials import coefficient_name
 from symplid.model.data import Observations
 from symplid.model.initial_state import (
     KNOWN_P0,
@@ -125,6 +126,7 @@ class Posterior:
         and the bijectors to the unconstrained space.
     num_params, param_names, param_groups
         Size, names and groups (``coefficients``, ``process_var``, ``obs_var``,
+        ``obs_rel_var``,
         ``initial_state``) of θ.
     priors
         The resolved absolute prior of each parameter.
@@ -177,8 +179,10 @@ class Posterior:
         self.num_model_params = m = int(model.num_params)
         nc, nq = int(model.num_coefficients), int(model.num_process_noise)
         nd = int(getattr(model, "num_damping", 0))
-        groups = ["coefficients"] * nc + ["damping"] * nd + ["process_var"] * nq
-        groups += ["obs_var"] * (m - nc - nd - nq)
+        groups = list(getattr(model, "param_groups", None) or (
+            ["coefficients"] * nc + ["damping"] * nd + ["process_var"] * nq
+            + ["obs_var"] * (m - nc - nd - nq)
+        ))
         names = list(model.param_names)
         if self.learn_initial_state:
             for k in range(self.num_trajectories):
@@ -207,7 +211,7 @@ class Posterior:
         """The absolute prior of every entry of θ (group priors, per-name overrides)."""
         m = self.num_model_params
         priors = [
-            self.prior.overrides.get(name) or self.prior.group_prior(group)
+            self.prior.overrides.get(coefficient_name(name)) or self.prior.group_prior(group)
             for name, group in zip(names[:m], groups[:m], strict=True)
         ]
         self._x0_centres: list[np.ndarray] = []

@@ -37,13 +37,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.dynamics.potentials import coefficient_name
 from symplid.registry import Registry
 
 Array = jax.Array
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
-GROUPS = ("coefficients", "damping", "process_var", "obs_var", "initial_state")
+GROUPS = ("coefficients", "damping", "process_var", "obs_var", "obs_rel_var", "initial_state")
 """The groups of θ a :class:`PriorSpec` assigns priors to."""
 
 
@@ -412,6 +413,9 @@ class PriorSpec:
         Prior of every potential coefficient (default Laplace(0, 10), the paper's b = 10).
     process_var, obs_var
         Priors of the process- and observation-noise variances (default HalfNormal(1)).
+    obs_rel_var
+        Prior of the relative variances of multiplicative observation noise (default
+        HalfNormal(1); see :mod:`symplid.filters.noise`).
     initial_state
         For a learned initial state: the prior of the **offset** of each component from its
         centre (the first observation, see :class:`symplid.model.posterior.Posterior`). ``None``
@@ -419,8 +423,9 @@ class PriorSpec:
         Must have support on the whole real line (normal or laplace).
     overrides
         ``{parameter name: prior}``: an **absolute** prior for that one parameter, e.g.
-        ``{"q1^2": Normal(0.5, 0.1), "x0[0].p1": Normal(0.3, 0.1)}``. Names are checked
-        against the posterior's parameter names.
+        ``{"c[q1^2]": Normal(0.5, 0.1), "x0[0].p1": Normal(0.3, 0.1)}``. Names are checked
+        against the posterior's parameter names; a coefficient's bare monomial (``"q1^2"``,
+        its name before coefficients were written ``c[...]``) is still understood.
     damping
         Prior of the damping rate γ of a damped model (default HalfNormal(1); γ is bounded
         below by 0 whatever its prior).
@@ -432,11 +437,12 @@ class PriorSpec:
     process_var: Prior = field(default_factory=_default_variance)
     obs_var: Prior = field(default_factory=_default_variance)
     initial_state: Prior | None = None
+    obs_rel_var: Prior = field(default_factory=_default_variance)
     overrides: Mapping[str, Prior] = field(default_factory=dict)
     damping: Prior = field(default_factory=_default_damping)
 
     def __post_init__(self) -> None:
-        for group in ("coefficients", "damping", "process_var", "obs_var"):
+        for group in ("coefficients", "damping", "process_var", "obs_var", "obs_rel_var"):
             object.__setattr__(self, group, as_prior(getattr(self, group), f"prior of {group}"))
         if self.initial_state is not None:
             prior = as_prior(self.initial_state, "prior of initial_state")
@@ -451,7 +457,8 @@ class PriorSpec:
         object.__setattr__(
             self,
             "overrides",
-            {str(k): as_prior(v, f"prior of {k!r}") for k, v in self.overrides.items()},
+            {coefficient_name(str(k)): as_prior(v, f"prior of {k!r}")
+             for k, v in self.overrides.items()},
         )
 
     @classmethod
@@ -459,7 +466,8 @@ class PriorSpec:
         """From ``{group or parameter name: prior}`` (priors as dicts, text or objects).
 
         Keys are the groups (``coefficients``, ``damping``, ``process_var``, ``obs_var``,
-        ``initial_state``), ``variances`` (both variances at once, as in the settings file),
+        ``obs_rel_var``, ``initial_state``), ``variances`` (all the variances at once, as in
+        the settings file),
         ``overrides`` (a nested mapping), or any other string, read as a parameter name.
         """
         if isinstance(spec, PriorSpec):
@@ -472,6 +480,7 @@ class PriorSpec:
             if key == "variances":
                 kwargs.setdefault("process_var", value)
                 kwargs.setdefault("obs_var", value)
+                kwargs.setdefault("obs_rel_var", value)
             elif key in GROUPS:
                 kwargs[key] = value
             elif key == "overrides":
@@ -487,6 +496,7 @@ class PriorSpec:
             "damping": self.damping.to_dict(),
             "process_var": self.process_var.to_dict(),
             "obs_var": self.obs_var.to_dict(),
+            "obs_rel_var": self.obs_rel_var.to_dict(),
             "initial_state": None if self.initial_state is None else self.initial_state.to_dict(),
             "overrides": {k: v.to_dict() for k, v in self.overrides.items()},
         }
@@ -499,7 +509,8 @@ class PriorSpec:
 
     def check_names(self, names: Sequence[str]) -> None:
         """Raise ``ValueError`` if an override names no parameter of θ."""
-        unknown = [k for k in self.overrides if k not in names]
+        known = {coefficient_name(str(n)) for n in names}
+        unknown = [k for k in self.overrides if k not in known]
         if unknown:
             raise ValueError(
                 f"prior given for unknown parameter(s) {', '.join(map(repr, unknown))}; "

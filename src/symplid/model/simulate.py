@@ -19,6 +19,7 @@ from symplid.dynamics.integrators import get_integrator
 from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.systems import System, get_system
 from symplid.dynamics.trajectory import solve_gaps, substeps
+from symplid.filters.noise import get_observation_noise
 from symplid.model.data import Observations
 
 
@@ -80,6 +81,8 @@ def simulate(
     dt: float = 1e-3,
     observation: str = "full",
     integrator: str = "leapfrog",
+    observation_noise: str = "additive",
+    rel_std: float = 0.05,
 ) -> Observations:
     """Noisy observations of a named system.
 
@@ -99,6 +102,12 @@ def simulate(
         Step of the fine "truth" integration.
     observation
         ``"full"`` or ``"positions"``.
+    observation_noise
+        A noise model of :data:`~symplid.filters.noise.OBSERVATION_NOISE`: ``"additive"``
+        (y = h(x) + σ·e, the paper's), ``"multiplicative"`` (y = h(x)∘(1 + ``rel_std``·e′))
+        or ``"both"``.
+    rel_std
+        Standard deviation of the relative noise ε of multiplicative noise.
     """
     if isinstance(system, str):
         system = get_system(system)
@@ -114,9 +123,18 @@ def simulate(
         system.potential, system.coefficients, x0, times, dt, integrator, damping=system.damping
     )
     clean = states if observation == "full" else states[:, : system.dim]
-    noise = np.asarray(jax.random.normal(jax.random.key(seed), clean.shape, dtype=jnp.float64))
+    noise_model = get_observation_noise(observation_noise)
+    if rel_std < 0:
+        raise ValueError("rel_std must be ≥ 0")
+    key = jax.random.key(seed)
+    noise = np.asarray(jax.random.normal(key, clean.shape, dtype=jnp.float64))
+    if noise_model.multiplicative:
+        relative = np.asarray(jax.random.normal(jax.random.fold_in(key, 1), clean.shape))
+        values = noise_model.sample(
+            clean, noise_std**2, float(rel_std) ** 2, np.stack([relative, noise])
+        )
+    else:
+        values = clean + noise_std * noise
     return Observations(
-        np.asarray(times, dtype=float),
-        clean + noise_std * noise,
-        state_names(system.dim, observation),
+        np.asarray(times, dtype=float), values, state_names(system.dim, observation)
     )

@@ -11,10 +11,20 @@ the model holds the settings, the layout of θ and the data preparation, and del
 
     θ = [coefficients of U ..., process-noise variance(s) ..., observation-noise variance(s) ...]
 
-with one variance each (``noise="isotropic"``: Σ = θ_Σ I, Γ = θ_Γ I, the paper's choice) or
-one per component (``noise="diagonal"``). Variances, not standard deviations. With
-``damping=True`` the damping rate γ (:mod:`symplid.dynamics.damping`) comes right after the
-coefficients: θ_Ψ = [coefficients ..., γ].
+with one variance each (``noise="isotropic"``: Σ = θ_Σ I, Γ = θ_Γ I, the paper's choice),
+one per component (``noise="diagonal"``), or one Σ variance and one Γ variance per kind of
+observed component (``noise="per-kind"``: positions and momenta; for data whose columns are
+measured differently, e.g. a velocity column smoothed from positions). Variances, not standard
+deviations. With ``damping=True`` the damping rate γ (:mod:`symplid.dynamics.damping`) comes
+right after the coefficients: θ_Ψ = [coefficients ..., γ].
+
+``observation_noise`` picks the noise model of Y_k from
+:data:`~symplid.filters.noise.OBSERVATION_NOISE`: ``"additive"`` (eq. 7, the default),
+``"multiplicative"`` (Y = h(X)∘(1 + ε), ε ~ N(0, diag r)) or ``"both"``. The relative
+variances r (``obs_rel_var``, laid out like Γ's) follow the additive ones, which a purely
+multiplicative model does not have::
+
+    θ = [coefficients ..., (γ), process var(s) ..., obs var(s) (additive) ..., obs rel var(s) ...]
 """
 
 from __future__ import annotations
@@ -31,15 +41,24 @@ import numpy as np
 from symplid.compiled import cached
 from symplid.dynamics.damping import is_damped, with_damping
 from symplid.dynamics.integrators import Integrator, get_integrator
-from symplid.dynamics.potentials import Potential, hamiltonian, inverse_mass, mass_matrix
+from symplid.dynamics.potentials import (
+    Potential,
+    coefficient_name,
+    hamiltonian,
+    inverse_mass,
+    mass_matrix,
+)
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult, unscented_weights
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
+from symplid.filters.noise import ObservationNoise, get_observation_noise
 from symplid.model import kernel  # noqa: F401  (registers the compiled backend)
 from symplid.model.data import DataError, Observations
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 
 Array = jax.Array
+#: The layouts of the noise variances (``HamiltonianModel.noise``).
+NOISE_LAYOUTS = ("isotropic", "diagonal", "per-kind")
 ObservationSpec = str | np.ndarray | Callable[[Array], Array]
 
 
@@ -64,7 +83,13 @@ class HamiltonianModel:
         ``"gap"`` (default): sigma points are formed once per observation gap, pushed through
         all its substeps, and Σ is added once. ``"step"``: Σ is added after every substep.
     noise
-        ``"isotropic"`` (one variance for Σ and one for Γ) or ``"diagonal"`` (one per component).
+        ``"isotropic"`` (one variance for Σ and one for Γ), ``"diagonal"`` (one per component)
+        or ``"per-kind"`` (one for Σ, and one per kind of observed component for Γ: positions,
+        momenta; needs ``observation="full"`` or ``"positions"``).
+    observation_noise
+        ``"additive"`` (Y = h(X) + η, eq. 7), ``"multiplicative"`` (Y = h(X)∘(1 + ε)) or
+        ``"both"``: a name in :data:`~symplid.filters.noise.OBSERVATION_NOISE`. The relative
+        variances have the layout of Γ's (``noise``).
     mass
         Constant mass matrix M (identity when None), as a ``(d, d)`` array or a length-d vector.
     alpha, beta, kappa
@@ -92,7 +117,7 @@ class HamiltonianModel:
     dt: float = 0.25
     observation: ObservationSpec = "full"
     process_noise_per: Literal["gap", "step"] = "gap"
-    noise: Literal["isotropic", "diagonal"] = "isotropic"
+    noise: Literal["isotropic", "diagonal", "per-kind"] = "isotropic"
     mass: Any = None
     alpha: float = 1.0
     beta: float = 2.0
@@ -101,6 +126,7 @@ class HamiltonianModel:
     unroll: int = 1
     backend: str = "auto"
     damping: bool = False
+    observation_noise: str = "additive"
 
     def __post_init__(self) -> None:
         integrator = get_integrator(self.integrator)
@@ -116,8 +142,13 @@ class HamiltonianModel:
             raise ValueError(
                 f"process_noise_per must be 'gap' or 'step', got {self.process_noise_per!r}"
             )
-        if self.noise not in ("isotropic", "diagonal"):
-            raise ValueError(f"noise must be 'isotropic' or 'diagonal', got {self.noise!r}")
+        if self.noise not in NOISE_LAYOUTS:
+            raise ValueError(
+                f"noise must be 'isotropic', 'diagonal' or 'per-kind', got {self.noise!r}"
+            )
+        object.__setattr__(
+            self, "observation_noise", get_observation_noise(self.observation_noise).name
+        )
         if self.jitter < 0:
             raise ValueError("jitter must be ≥ 0")
         unscented_weights(self.state_dim, self.alpha, self.beta, self.kappa)  # validates
@@ -135,6 +166,11 @@ class HamiltonianModel:
                     f"observation matrix must have {self.state_dim} columns, got {matrix.shape}"
                 )
             object.__setattr__(self, "observation", matrix)
+        if self.noise == "per-kind" and not isinstance(self.observation, str):
+            raise ValueError(
+                "noise='per-kind' needs observation='full' or 'positions' (the kinds of the "
+                "observed components); use 'diagonal' for a matrix or a function"
+            )
         object.__setattr__(self, "backend", check_backend_name(self.backend))
         if self.backend != "auto":
             select_backend(self.backend, self)  # a forced backend must support the model
@@ -179,27 +215,77 @@ class HamiltonianModel:
 
     @property
     def num_process_noise(self) -> int:
-        return 1 if self.noise == "isotropic" else self.state_dim
+        return self.state_dim if self.noise == "diagonal" else 1
+
+    @property
+    def noise_model(self) -> ObservationNoise:
+        """The observation-noise model (:data:`~symplid.filters.noise.OBSERVATION_NOISE`)."""
+        return get_observation_noise(self.observation_noise)
+
+    @property
+    def obs_noise_labels(self) -> tuple[str, ...]:
+        """The label of each observation variance: ``""`` (isotropic), the component's index
+        (diagonal) or its kind ``"q"``/``"p"`` (per-kind)."""
+        if self.noise == "isotropic":
+            return ("",)
+        if self.noise == "diagonal":
+            return tuple(str(i) for i in range(self.obs_dim))
+        return ("q", "p") if self.observation == "full" else ("q",)
+
+    @property
+    def obs_noise_index(self) -> np.ndarray:
+        """For each observed component, which of the observation variances it uses."""
+        d_y = self.obs_dim
+        if self.noise == "isotropic":
+            return np.zeros(d_y, dtype=int)
+        if self.noise == "diagonal":
+            return np.arange(d_y)
+        return np.arange(d_y) // self.potential.dim  # q1..qd → 0, p1..pd → 1
 
     @property
     def num_obs_noise(self) -> int:
-        return 1 if self.noise == "isotropic" else self.obs_dim
+        """How many additive observation variances θ holds (0 for multiplicative noise)."""
+        return len(self.obs_noise_labels) if self.noise_model.additive else 0
+
+    @property
+    def num_rel_noise(self) -> int:
+        """How many relative (multiplicative) observation variances θ holds."""
+        return len(self.obs_noise_labels) if self.noise_model.multiplicative else 0
 
     @property
     def num_params(self) -> int:
-        return self.num_dynamics_params + self.num_process_noise + self.num_obs_noise
+        return (
+            self.num_dynamics_params + self.num_process_noise + self.num_obs_noise
+            + self.num_rel_noise
+        )
 
     @property
     def param_names(self) -> tuple[str, ...]:
-        """Coefficient names, ``gamma`` when damped, then ``process_var`` and ``obs_var``
-        (indexed when diagonal)."""
-        names = list(self.potential.param_names) + ["gamma"] * self.num_damping
-        if self.noise == "isotropic":
-            names += ["process_var", "obs_var"]
-        else:
+        """Coefficient names (``c[q1^2]``: :func:`~symplid.dynamics.potentials.coefficient_name`),
+        ``gamma`` when damped, then ``process_var``, ``obs_var`` and ``obs_rel_var`` (indexed
+        by component when diagonal, by kind when per-kind)."""
+        names = [coefficient_name(n) for n in self.potential.param_names]
+        names += ["gamma"] * self.num_damping
+        if self.noise == "diagonal":
             names += [f"process_var[{i}]" for i in range(self.num_process_noise)]
-            names += [f"obs_var[{i}]" for i in range(self.num_obs_noise)]
+        else:
+            names += ["process_var"]
+        labels = [f"[{label}]" if label else "" for label in self.obs_noise_labels]
+        names += [f"obs_var{label}" for label in labels][: self.num_obs_noise]
+        names += [f"obs_rel_var{label}" for label in labels][: self.num_rel_noise]
         return tuple(names)
+
+    @property
+    def param_groups(self) -> tuple[str, ...]:
+        """The prior group of each entry of θ (``coefficients``, ``damping``, ``process_var``,
+        ``obs_var``, ``obs_rel_var``)."""
+        return tuple(
+            ["coefficients"] * self.num_coefficients
+            + ["damping"] * self.num_damping
+            + ["process_var"] * self.num_process_noise
+            + ["obs_var"] * self.num_obs_noise
+            + ["obs_rel_var"] * self.num_rel_noise
+        )
 
     @property
     def variance_slice(self) -> slice:
@@ -212,8 +298,12 @@ class HamiltonianModel:
         nc, nd, nq = self.num_coefficients, self.num_dynamics_params, self.num_process_noise
         coeffs = theta[:nc]
         q_var = theta[nd : nd + nq]
-        r_var = theta[nd + nq :]
         proc = jnp.eye(self.state_dim) * (q_var[0] if nq == 1 else q_var)
+        if self.num_obs_noise == 0:  # multiplicative noise only: Γ = 0
+            return coeffs, proc, jnp.zeros((self.obs_dim, self.obs_dim), theta.dtype)
+        r_var = theta[nd + nq : nd + nq + self.num_obs_noise]
+        if self.noise == "per-kind":
+            r_var = r_var[self.obs_noise_index]
         obs = jnp.eye(self.obs_dim) * (r_var[0] if r_var.shape[0] == 1 else r_var)
         return coeffs, proc, obs
 
@@ -222,15 +312,36 @@ class HamiltonianModel:
         theta = jnp.asarray(theta)
         return theta[..., self.num_coefficients] if self.damping else jnp.zeros(theta.shape[:-1])
 
-    def pack(self, coefficients, process_var, obs_var, gamma=None) -> np.ndarray:
-        """(coefficients, process variance(s), observation variance(s)) → θ; ``gamma`` (γ) is
-        required for a damped model and refused otherwise."""
+    def relative_variances(self, theta: Array) -> Array:
+        """The relative variances r of multiplicative noise, one per observed component
+        ``(d_y,)`` (zeros when the noise is additive only)."""
+        theta = jnp.asarray(theta)
+        if self.num_rel_noise == 0:
+            return jnp.zeros(self.obs_dim, theta.dtype)
+        start = self.num_params - self.num_rel_noise
+        return theta[..., start:][..., self.obs_noise_index]
+
+    def noise_covariance(self, theta: Array) -> Array | Callable[..., Array]:
+        """What the update adds to S at θ: Γ, or ``moments -> R_k`` for multiplicative noise
+        (:meth:`~symplid.filters.noise.ObservationNoise.covariance_fn`)."""
+        _, _, obs = self.split(theta)
+        if not self.noise_model.multiplicative:
+            return obs
+        return self.noise_model.covariance_fn(obs, self.relative_variances(theta))
+
+    def pack(
+        self, coefficients, process_var, obs_var=(), obs_rel_var=(), gamma=None
+    ) -> np.ndarray:
+        """(coefficients, process variance(s), observation variance(s), relative
+        observation variance(s)) → θ; ``gamma`` (γ) is required for a damped model and refused
+        otherwise."""
         if (gamma is None) == self.damping:
             need = "needs" if self.damping else "has no"
             raise ValueError(f"this model {need} a damping rate: pass gamma accordingly")
         damping = [] if gamma is None else [np.ravel(gamma)]
         out = np.concatenate(
-            [np.ravel(coefficients), *damping, np.ravel(process_var), np.ravel(obs_var)]
+            [np.ravel(coefficients), *damping, np.ravel(process_var), np.ravel(obs_var),
+             np.ravel(obs_rel_var)]
         ).astype(float)
         if out.shape[0] != self.num_params:
             raise ValueError(

@@ -5,6 +5,7 @@ Every function takes plain arrays or small dataclasses, returns a
 
 * :mod:`~symplid.plotting.paper`: the paper's four figures (Section IV);
 * :mod:`~symplid.plotting.diagnostics`: :func:`plot_traces` (chains), :func:`plot_pair` (corner);
+* :mod:`~symplid.plotting.potential`: :func:`plot_potential` (U(q) with its posterior band);
 * :mod:`~symplid.plotting.predictive`: :func:`plot_predictive` (data and predictive band for every
   observed component);
 * :mod:`~symplid.plotting.style`: :data:`COLORS`, :class:`Curves`, :func:`save_figure`;
@@ -18,16 +19,19 @@ from symplid.plotting.paper import (
     plot_process_noise,
     plot_trajectory_bands,
 )
+from symplid.plotting.potential import PotentialSlice, plot_potential
 from symplid.plotting.predictive import plot_forecast, plot_predictive
 from symplid.plotting.style import COLORS, Curves, save_figure
 
 __all__ = [
     "COLORS",
     "Curves",
+    "PotentialSlice",
     "plot_forecast",
     "plot_hamiltonians",
     "plot_pair",
     "plot_phase_portraits",
+    "plot_potential",
     "plot_predictive",
     "plot_process_noise",
     "plot_traces",

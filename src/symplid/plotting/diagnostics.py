@@ -19,7 +19,7 @@ from symplid.plotting.style import (
     new_figure,
 )
 
-__all__ = ["plot_pair", "plot_traces"]
+__all__ = ["plot_pair", "plot_traces", "truncation_note"]
 
 
 def _as_draws(draws: Any, names: Sequence[str] | None) -> tuple[np.ndarray, list[str]]:
@@ -54,6 +54,8 @@ def _as_draws(draws: Any, names: Sequence[str] | None) -> tuple[np.ndarray, list
 
 
 def _select(arr: np.ndarray, names: list[str], params: Sequence[str | int] | None, limit: int):
+    if limit < 1:
+        raise ValueError(f"max_params must be ≥ 1, got {limit}")
     if params is None:
         idx = list(range(min(arr.shape[2], limit)))
     else:
@@ -68,6 +70,35 @@ def _select(arr: np.ndarray, names: list[str], params: Sequence[str | int] | Non
     return arr[:, :, idx], [names[i] for i in idx]
 
 
+def truncation_note(shown: int, total: int, option: str) -> str | None:
+    """"showing the first k of P parameters (option)" when a figure leaves some out."""
+    if shown >= total:
+        return None
+    return f"showing the first {shown} of {total} parameters (raise {option} to see more)"
+
+
+def _note(fig: Figure, text: str | None, corner: bool = False) -> None:
+    """A grey note at the top of the figure (``corner``: in the empty upper right of a corner
+    plot)."""
+    if text and corner:
+        fig.text(0.97, 0.9, text.replace(" (", "\n("), fontsize=8.5, color="0.3", ha="right",
+                 va="top")
+    elif text:
+        fig.suptitle(text, fontsize=8.5, color="0.3", x=0.01, ha="left")
+
+
+def _values(given: Mapping[str, float] | Sequence[float] | None, labels: list[str],
+            what: str) -> list[float | None] | None:
+    if given is None:
+        return None
+    if isinstance(given, Mapping):
+        return [given.get(n) for n in labels]
+    values = list(given)
+    if len(values) != len(labels):
+        raise ValueError(f"{what} has {len(values)} values for {len(labels)} parameters")
+    return values
+
+
 def plot_traces(
     draws: Any,
     names: Sequence[str] | None = None,
@@ -75,6 +106,7 @@ def plot_traces(
     params: Sequence[str | int] | None = None,
     max_params: int = 16,
     path: str | Path | None = None,
+    option: str = "max_params",
 ) -> Figure:
     """Trace plot per parameter: draws against iteration per chain, and per-chain histograms.
 
@@ -86,13 +118,15 @@ def plot_traces(
     names
         Parameter names for an array (default θ1, θ2, ...).
     params
-        Names or indices to draw (default: the first ``max_params``).
+        Names or indices to draw (default: the first ``max_params``; when that leaves some
+        out, a note at the top says so, naming ``option``).
 
     Returns
     -------
     Figure with two axes per parameter (trace, histogram).
     """
-    arr, labels = _select(*_as_draws(draws, names), params, max_params)
+    full, all_labels = _as_draws(draws, names)
+    arr, labels = _select(full, all_labels, params, max_params)
     p = arr.shape[2]
     fig = new_figure(10.0, 1.55 * p + 0.5)
     axes = fig.subplots(p, 2, squeeze=False, width_ratios=(3, 1))
@@ -123,6 +157,8 @@ def plot_traces(
     axes[-1, 0].set_xlabel("draw")
     if arr.shape[0] > 1:
         legend_above(axes[0, 0], ncol=min(arr.shape[0], 8), fontsize=7.5)
+    if params is None:
+        _note(fig, truncation_note(p, len(all_labels), option))
     return finish(fig, path)
 
 
@@ -134,8 +170,10 @@ def plot_pair(
     max_params: int = 6,
     max_points: int = 3000,
     reference: Mapping[str, float] | Sequence[float] | None = None,
+    map_values: Mapping[str, float] | Sequence[float] | None = None,
     seed: int = 0,
     path: str | Path | None = None,
+    option: str = "max_params",
 ) -> Figure:
     """Corner plot: pairwise scatter below the diagonal, marginal histograms on it.
 
@@ -144,18 +182,21 @@ def plot_pair(
     draws, names
         As in :func:`plot_traces` (chains are pooled).
     params
-        Names or indices (default: the first ``max_params``).
+        Names or indices (default: the first ``max_params``; a note at the top says when
+        that leaves some out, naming ``option``).
     max_points
         Scatter at most this many draws (a seeded random subset).
     reference
-        Optional values to mark (e.g. the truth or the MAP), by name or in the order of
-        ``params``.
+        The true values to mark (lines and squares), by name or in the order shown.
+    map_values
+        The MAP to mark (dashed lines and crosses), by name or in the order shown.
 
     Returns
     -------
     Figure with k(k+1)/2 axes for k parameters.
     """
-    arr, labels = _select(*_as_draws(draws, names), params, max_params)
+    full, all_labels = _as_draws(draws, names)
+    arr, labels = _select(full, all_labels, params, max_params)
     flat = arr.reshape(-1, arr.shape[2])
     flat = flat[np.all(np.isfinite(flat), axis=1)]
     if flat.shape[0] == 0:
@@ -164,14 +205,10 @@ def plot_pair(
         flat_s = flat[np.random.default_rng(seed).choice(flat.shape[0], max_points, replace=False)]
     else:
         flat_s = flat
-    ref = None
-    if reference is not None:
-        if isinstance(reference, Mapping):
-            ref = [reference.get(n) for n in labels]
-        else:
-            ref = list(reference)
-            if len(ref) != len(labels):
-                raise ValueError(f"reference has {len(ref)} values for {len(labels)} parameters")
+    marks = [(v, style) for v, style in (
+        (_values(reference, labels, "reference"), dict(color=COLORS["truth"], ls="-", m="s")),
+        (_values(map_values, labels, "map_values"), dict(color="0.15", ls="--", m="x")),
+    ) if v is not None]
     k = len(labels)
     fig = new_figure(1.9 * k + 0.8, 1.9 * k + 0.6)
     grid = fig.add_gridspec(k, k)
@@ -184,13 +221,15 @@ def plot_pair(
             if i == j:
                 ax.hist(flat[:, i], bins=40, color=COLORS["leapfrog"], alpha=0.75)
                 ax.set_yticks([])
-                if ref is not None and ref[i] is not None:
-                    ax.axvline(ref[i], color=COLORS["truth"], lw=1.2)
+                for ref, st in marks:
+                    if ref[i] is not None:
+                        ax.axvline(ref[i], color=st["color"], ls=st["ls"], lw=1.2)
             else:
                 ax.plot(flat_s[:, j], flat_s[:, i], ".", ms=1.5, alpha=0.35,
                         color=COLORS["leapfrog"])
-                if ref is not None and ref[i] is not None and ref[j] is not None:
-                    ax.plot(ref[j], ref[i], "s", color=COLORS["truth"], ms=5)
+                for ref, st in marks:
+                    if ref[i] is not None and ref[j] is not None:
+                        ax.plot(ref[j], ref[i], st["m"], color=st["color"], ms=5)
             ax.tick_params(labelsize=6.5)
             ax.xaxis.set_major_locator(MaxNLocator(3))
             compact_ticks(ax, "x" if i == j else "both")
@@ -204,4 +243,17 @@ def plot_pair(
                 ax.set_ylabel(labels[i], fontsize=9)
             elif i != j:
                 ax.tick_params(labelleft=False)
+    _pair_legend(fig, marks)
+    if params is None:
+        _note(fig, truncation_note(k, len(all_labels), option), corner=True)
     return finish(fig, path)
+
+
+def _pair_legend(fig: Figure, marks: list) -> None:
+    from matplotlib.lines import Line2D
+
+    names = {"s": "truth", "x": "MAP"}
+    handles = [Line2D([], [], color=st["color"], ls=st["ls"], marker=st["m"], label=names[st["m"]])
+               for _, st in marks]
+    if handles:
+        fig.legend(handles=handles, loc="upper right", fontsize=8, frameon=False)

@@ -119,6 +119,7 @@ def plot_hamiltonians(
         "(a) integrated by leapfrog at the fine step",
         "(b) integrated by the learning integrator at the learning step",
     ),
+    time_unit: str = "s",
     path: str | Path | None = None,
 ) -> Figure:
     """Fig. 2: the Hamiltonian along predicted trajectories.
@@ -135,6 +136,11 @@ def plot_hamiltonians(
         step, showing the energy it gains.
     t_data_end
         Time of the last observation (a vertical line).
+    time_unit
+        Unit of the times, on the axis label.
+
+    A MAP curve that leaves the axis (an energy that runs away, e.g. a path escaping over
+    the saddle) is marked "escaped" where it leaves; the legend counts the samples that do.
 
     Returns
     -------
@@ -168,14 +174,46 @@ def plot_hamiltonians(
         lim = energy_limits(truth.values, *(c.values for c in curves), *samples)
         if lim is not None:
             ax.set_ylim(lim)
+            handles += _mark_escapes(ax, curves, lim)
         ax.set_title(title, loc="left", fontsize=10)
         ax.set_ylabel("H(q, p)")
         ax.grid(alpha=0.25)
         compact_ticks(ax, "y")
         ax.legend(handles=handles, loc="best", fontsize=8, ncol=3, framealpha=0.9)
-    axes[-1].set_xlabel("t [s]")
+    axes[-1].set_xlabel(f"t [{time_unit}]")
     axes[-1].set_xlim(time_span(list(fine) + list(coarse), (truth.times, truth.values)))
     return finish(fig, path)
+
+
+def first_exit(times: np.ndarray, values: np.ndarray, lim: tuple[float, float]) -> float | None:
+    """The first time a curve is outside ``lim`` (or not finite), or None if it never is."""
+    values = np.asarray(values, dtype=float)
+    out = ~np.isfinite(values) | (values < lim[0]) | (values > lim[1])
+    return float(np.asarray(times)[np.argmax(out)]) if out.any() else None
+
+
+def _mark_escapes(ax, curves: Sequence[Curves], lim: tuple[float, float]) -> list:
+    """Annotate "escaped" where a MAP curve leaves the axis; legend entries counting the
+    samples that leave it."""
+    extra = []
+    for k, c in enumerate(curves):
+        color = c.color or color_for(c.label, k)
+        t = first_exit(c.times, c.values, lim)
+        if t is not None:
+            after = np.asarray(c.values)[np.asarray(c.times) >= t][:1]
+            top = not (after.size and np.isfinite(after[0]) and after[0] < lim[0])
+            y = lim[1] if top else lim[0]
+            ax.annotate(f"{c.label} escaped (t ≈ {t:.3g})", xy=(t, y),
+                        xytext=(-30, -45 if top else 45), textcoords="offset points",
+                        ha="right", va="center", fontsize=8, color=color, zorder=6,
+                        bbox=dict(boxstyle="round,pad=0.2", fc="white", ec=color, lw=0.6),
+                        arrowprops=dict(arrowstyle="->", color=color, lw=0.8))
+        if c.samples is not None:
+            gone = sum(first_exit(c.sample_times, row, lim) is not None for row in c.samples)
+            if gone:
+                extra.append(Line2D([], [], color="none", label=f"{c.label}: {gone} of "
+                                    f"{len(c.samples)} samples leave the axis"))
+    return extra
 
 
 # ---------------------------------------------------------------------------- Fig. 3
@@ -187,6 +225,7 @@ def plot_trajectory_bands(
     t_data_end: float | None = None,
     ylabel: str = "q1",
     band_label: str = "2.5–97.5 % band",
+    time_unit: str = "s",
     path: str | Path | None = None,
 ) -> Figure:
     """Fig. 3: one component against time, one row per approach.
@@ -246,7 +285,7 @@ def plot_trajectory_bands(
         if lim is not None:
             ax.set_ylim(lim)
         legend_above(ax, handles, ncol=len(handles), fontsize=7.5)
-    axes[-1].set_xlabel("t [s]")
+    axes[-1].set_xlabel(f"t [{time_unit}]")
     axes[-1].set_xlim(time_span(approaches, truth))
     return finish(fig, path)
 
@@ -274,6 +313,10 @@ def plot_process_noise(
         Logarithmic x-axis and bins (the approaches differ by about an order of magnitude).
     bins
         Number of bins (common to every panel).
+
+    A MAP far outside the draws (e.g. a variance at its lower bound, 1e-14, when the draws
+    sit near 1e-7) would stretch the axis over decades with nothing in them: it is drawn as
+    an arrow at the axis' edge instead, and its value is given in the legend.
 
     Returns
     -------
@@ -303,13 +346,28 @@ def plot_process_noise(
         med = float(np.median(v))
         ax.axvline(med, color="black", lw=1.2, label=f"median {med:.3g}")
         if map_values and label in map_values:
-            ax.axvline(map_values[label], color="black", lw=1.2, ls="--",
-                       label=f"MAP {map_values[label]:.3g}")
+            _map_line(ax, float(map_values[label]), edges, log)
         ax.set_ylabel("draws")
         ax.set_title(label, loc="left", fontsize=10)
         ax.legend(fontsize=8, loc="upper right")
         ax.grid(alpha=0.25)
         if log:
             ax.set_xscale("log")
+    width = np.log(edges[-1] / edges[0]) if log else edges[-1] - edges[0]
+    pad = 0.03 * (width if width > 0 else 1.0)
+    axes[-1].set_xlim(*((edges[0] * np.exp(-pad), edges[-1] * np.exp(pad)) if log
+                        else (edges[0] - pad, edges[-1] + pad)))
     axes[-1].set_xlabel(xlabel)
     return finish(fig, path)
+
+
+def _map_line(ax, value: float, edges: np.ndarray, log: bool) -> None:
+    """The MAP as a dashed line, or, outside the draws' range, an arrow at the axis' edge."""
+    if edges[0] <= value <= edges[-1]:
+        ax.axvline(value, color="black", lw=1.2, ls="--", label=f"MAP {value:.3g}")
+        return
+    left = value < edges[0]
+    ax.annotate("", xy=(0.0 if left else 1.0, 0.5), xytext=(0.07 if left else 0.93, 0.5),
+                xycoords="axes fraction", arrowprops=dict(arrowstyle="->", color="black", lw=1.2))
+    ax.plot([], [], color="black", ls="--", label=f"MAP {value:.3g} (off the axis, "
+            f"{'below' if left else 'above'} every draw)")

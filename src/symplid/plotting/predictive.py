@@ -35,6 +35,8 @@ def plot_predictive(
     t_data_end: float | None = None,
     max_samples: int = 50,
     color: str = COLORS["leapfrog"],
+    time_unit: str = "s",
+    title: str | None = None,
     path: str | Path | None = None,
 ) -> Figure:
     """Data and posterior predictive band for every observed component, one row each.
@@ -57,6 +59,8 @@ def plot_predictive(
         End of the data (default: the last data time when data are given).
     max_samples
         Sample paths drawn at most.
+    time_unit, title
+        Unit of the times (axis label); a title above the panels.
 
     Returns
     -------
@@ -104,7 +108,9 @@ def plot_predictive(
             ax.set_ylim(lim)
     handles, _ = axes[0].get_legend_handles_labels()
     legend_above(axes[0], handles, ncol=len(handles), fontsize=7.5)
-    axes[-1].set_xlabel("t [s]")
+    axes[-1].set_xlabel(f"t [{time_unit}]")
+    if title:
+        fig.suptitle(title, fontsize=10, x=0.01, ha="left", y=1.0)
     starts = [times[0]] + ([observed.times[0]] if observed and observed.columns else [])
     axes[-1].set_xlim(min(starts), times[-1])
     return finish(fig, path)
@@ -154,6 +160,7 @@ def plot_forecast(
     *,
     heldout: Any = None,
     color: str = COLORS["leapfrog"],
+    time_unit: str = "s",
     path: str | Path | None = None,
 ) -> Figure:
     """A forecast from the end of the data: one panel per observed component.
@@ -195,5 +202,5 @@ def plot_forecast(
         ax.grid(alpha=0.25)
     handles, _ = axes[0].get_legend_handles_labels()
     legend_above(axes[0], handles, ncol=min(len(handles), 6), fontsize=7.5)
-    axes[-1].set_xlabel("t")
+    axes[-1].set_xlabel(f"t [{time_unit}]")
     return finish(fig, path)

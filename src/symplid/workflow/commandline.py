@@ -8,6 +8,7 @@ errors); Ctrl-C and SIGTERM become "interrupted" and exit code 128 + the signal'
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -23,12 +24,18 @@ __all__ = [
     "OneLineErrors",
     "RegistryOption",
     "UserError",
+    "config_option",
     "converged",
+    "fit_result_line",
     "floats",
     "integrator_registry",
+    "no_progress_option",
     "rk2_variants",
+    "run_fit",
     "sampler_registry",
+    "sets_option",
     "settings_from_options",
+    "simulate_to_file",
     "time_or_word",
     "user_errors",
 ]
@@ -111,6 +118,13 @@ def sampler_registry() -> Any:
     return SAMPLERS
 
 
+def noise_model_names() -> tuple[str, ...]:
+    """The registered observation-noise models (``--observation-noise``)."""
+    from symplid.filters.noise import OBSERVATION_NOISE
+
+    return OBSERVATION_NOISE.names()
+
+
 class RegistryOption(click.Option):
     """An option whose help lists a registry's names (``{choices}``), read when shown."""
 
@@ -171,11 +185,18 @@ def time_or_word(text: str | None, name: str) -> float | str | None:
         return text.strip()
 
 
-def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...]):
-    """Settings from the defaults, then ``config``, then the options and ``--set`` pairs."""
+def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: tuple[str, ...],
+                          base: Any = None):
+    """Settings from the defaults (or ``base``), then ``config``, then the options and
+    ``--set`` pairs."""
     from symplid.workflow.settings import Settings, load_settings, merge_overrides, parse_override
 
-    settings = load_settings(config) if config is not None else Settings()
+    if base is not None and config is not None:
+        settings = _merged_file(base, config)
+    elif config is not None:
+        settings = load_settings(config)
+    else:
+        settings = base if base is not None else Settings()
     source = str(config) if config is not None else "command line"
     for text in sets:
         key, value = parse_override(text)
@@ -183,3 +204,177 @@ def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: 
     return merge_overrides(settings, overrides, source="command line"), source
 
 
+
+
+# ----------------------------------------------------------------------------- shared options
+def no_progress_option(fn: Callable) -> Callable:
+    return click.option("--no-progress", is_flag=True, help="No progress bars.")(fn)
+
+
+def config_option(help_text: str) -> Callable[[Callable], Callable]:
+    return click.option("--config", "config", type=click.Path(dir_okay=False, path_type=Path),
+                        default=None, help=help_text)
+
+
+def sets_option(fn: Callable) -> Callable:
+    return click.option(
+        "--set", "sets", multiple=True, metavar="KEY=VALUE",
+        help="Any setting, e.g. --set priors.coefficients.scale=5 (repeatable).",
+    )(fn)
+
+
+# ----------------------------------------------------------------------------- command bodies
+def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
+    """The one line ``symplid fit`` prints: MAP, evidence, convergence, or "interrupted"."""
+    s = outcome.summary
+    extra = ""
+    if "rhat_max" in s:
+        extra = "; " + _convergence_words(s["rhat_max"], s["ess_min"],
+                                          outcome.settings.sampler.num_chains)
+        if not outcome.interrupted and not converged(s):
+            extra += " (not converged: see the warnings; run longer)"
+    head = f"{out}: "
+    if outcome.interrupted:
+        total = outcome.settings.sampler.num_iterations
+        head += (f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws "
+                 "kept (continue with --resume); ")
+    return (
+        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
+        f"{s['log_evidence_laplace']:.2f}{extra}; {seconds:.0f} s"
+    )
+
+
+def _convergence_words(rhat: float, ess: float, chains: int) -> str:
+    if not math.isfinite(ess):
+        return "R-hat and ESS not computable (too few draws)"
+    if not math.isfinite(rhat):
+        why = " with one chain" if chains == 1 else ""
+        return f"R-hat not computable{why}, min ESS {ess:.0f}"
+    return f"max R-hat {rhat:.3f}, min ESS {ess:.0f}"
+
+
+def simulate_to_file(system: str, out: Path, t_end: float | None, num_obs: int | None,
+                     times: str | None, noise_std: float | None, seed: int, observation: str,
+                     x0: str | None, missing: float, observation_noise: str = "additive",
+                     rel_std: float = 0.05) -> str:
+    """``symplid simulate``: write noisy observations of a named system; returns its line."""
+    import numpy as np
+
+    from symplid.dynamics.systems import get_system
+    from symplid.io import write_observations
+    from symplid.model.data import Observations
+    from symplid.model.simulate import simulate as run
+
+    sys_ = get_system(system)
+    grid = floats(times, "--times")
+    if grid is None and (t_end is not None or num_obs is not None):
+        n = num_obs or sys_.num_obs
+        end = t_end if t_end is not None else sys_.obs_interval * n
+        if end <= 0:
+            raise UserError(f"--t-end must be positive, got {end}")
+        grid = list(end / n * np.arange(1, n + 1))
+    start = floats(x0, "--x0")
+    obs = run(sys_, times=grid, noise_std=noise_std, seed=seed, x0=start,
+              observation=observation, observation_noise=observation_noise, rel_std=rel_std)
+    if missing > 0:
+        rng = np.random.default_rng(seed + 1)
+        values = np.array(obs.values)
+        values[rng.random(values.shape) < missing] = np.nan
+        obs = Observations(obs.times, values, obs.names)
+    path = write_observations(obs, out)
+    shown = ", ".join(f"{v:g}" for v in (start or sys_.initial_state))
+    return f"{path}: {obs.num_times} times × {obs.dim} components of {sys_.name} (x0 = {shown})"
+
+
+def _merged_file(base: Any, config: Path) -> Any:
+    """``base`` with the keys of the settings file ``config`` replaced (the others kept)."""
+    import tomllib
+
+    from symplid.workflow.settings import settings_from_dict, settings_to_dict
+
+    try:
+        given = tomllib.loads(Path(config).read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as err:
+        raise UserError(f"{config}: {err}") from None
+
+    def merge(into: dict, extra: dict) -> dict:
+        for key, value in extra.items():
+            if isinstance(value, dict) and isinstance(into.get(key), dict):
+                merge(into[key], value)
+            else:
+                into[key] = value
+        return into
+
+    return settings_from_dict(merge(settings_to_dict(base), given), source=str(config))
+
+
+def run_fit(paths: tuple[Path, ...], out: Path, config: Path | None, overrides: dict[str, Any],
+            sets: tuple[str, ...], holdout: tuple[float | None, float | None], overwrite: bool,
+            resume: bool, no_progress: bool) -> tuple[Any, Any]:
+    """``symplid fit``: a new run from the data files, or ``--resume`` of an interrupted one.
+    Returns the outcome and the held-out observations (or None)."""
+    from symplid.workflow.fit import fit
+
+    status = None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True)
+    given = config is not None or bool(sets) or any(v is not None for v in overrides.values())
+    if resume and out is None:
+        raise UserError("--resume continues the run in --out RUN: give --out")
+    if resume:
+        if overwrite:
+            raise UserError("--resume continues the run in --out; --overwrite would replace it")
+        return _resume(paths, out, config, overrides, sets, holdout, given, no_progress, status)
+    if not paths:
+        raise UserError("give the DATA file(s) to fit (or --resume an interrupted run)")
+    if out is None:
+        raise UserError("give the run folder to write: --out RUN")
+    obs, heldout = _read_fit_data(paths, holdout)
+    settings, source = settings_from_options(config, overrides, sets)
+    outcome = fit(obs, settings, out=out, progress=not no_progress, source=source,
+                  overwrite=overwrite, warn=True, status=status)
+    return outcome, heldout
+
+
+def _read_fit_data(paths: tuple[Path, ...], holdout: tuple[float | None, float | None]):
+    from symplid.io import read_trajectories
+
+    obs = read_trajectories(paths)
+    if holdout == (None, None):
+        return obs, None
+    from symplid.workflow.forecasting import split_holdout
+
+    if isinstance(obs, list):
+        raise UserError("--holdout scores a forecast of one trajectory; give one")
+    return split_holdout(obs, *holdout)
+
+
+def _resume(paths, out, config, overrides, sets, holdout, given, no_progress, status):
+    from symplid.workflow.resume import resume_fit
+    from symplid.workflow.settings import resolve_for_data
+
+    heldout = None
+    if paths:
+        obs, heldout = _read_fit_data(paths, holdout)
+    elif holdout != (None, None):
+        raise UserError("--holdout with --resume needs the DATA file(s) again")
+
+    def expected(run_settings: Any, run_obs: Any) -> Any:
+        if paths and not _same_data(obs, run_obs):
+            raise UserError(f"{out}: the DATA given are not the data of the run; --resume "
+                            "continues the run with its own data (give none, or the same)")
+        if not given:
+            return None
+        asked, source = settings_from_options(config, dict(overrides), sets, base=run_settings)
+        return resolve_for_data(asked, run_obs, source)
+
+    outcome = resume_fit(out, progress=not no_progress, warn=True, status=status,
+                         expected=expected)
+    return outcome, heldout
+
+
+def _same_data(a: Any, b: Any) -> bool:
+    import numpy as np
+
+    a, b = (list(x) if isinstance(x, list | tuple) else [x] for x in (a, b))
+    return len(a) == len(b) and all(
+        np.array_equal(x.times, y.times) and np.array_equal(x.values, y.values, equal_nan=True)
+        for x, y in zip(a, b, strict=True))

@@ -14,9 +14,11 @@ Hessian
 
 (with the 1-D treatment of parameters on a bound described in :mod:`symplid.inference.map`).
 Everything else in the settings (priors, dt, noise model, initial state, MAP starts and seed)
-is the same for every candidate, so the priors must be proper: the evidence of a candidate
-depends on the width of its coefficients' prior, and it is this width that makes an unneeded
-coefficient cost about log(prior width / posterior width) nats.
+is the same for every candidate (with ``model.standardise`` on, every candidate is fitted in
+the same standardised coordinates and reported in the data's units, so the evidences stay
+comparable: :mod:`symplid.workflow.scaling`), so the priors must be proper: the evidence of
+a candidate depends on the width of its coefficients' prior, and it is this width that makes
+an unneeded coefficient cost about log(prior width / posterior width) nats.
 
 The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
 
@@ -35,7 +37,8 @@ The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
 ``bic``                   −2 log L(θ*) + num_params · log n, n = the number of measured
                           values (a cruder, prior-free score; lower is better)
 ``process_var``           MAP process-noise variance (the mean when ``noise = "diagonal"``)
-``obs_var``               MAP observation-noise variance (the same)
+``obs_var``               MAP observation-noise variance (the same; NaN for purely
+                          multiplicative noise, whose relative variances are in map.json)
 ``at_bounds``             parameters whose MAP sits on a bound (comma separated; the
                           evidence is rougher then, see :mod:`symplid.inference.map`)
 ``converged``             whether the best MAP start reported convergence
@@ -74,6 +77,7 @@ from symplid.inference.map import find_map
 from symplid.io import observation_layout
 from symplid.model.data import DataError, Observations
 from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.scaling import resolve_standardise, scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
 
 __all__ = [
@@ -246,6 +250,12 @@ def _resolve_all(settings: Settings, datasets: list[Observations], source: str) 
                 "trajectories compared together must share their columns"
             )
         resolve_for_data(settings, obs, source)  # checks t0 against its first time
+    if settings.model.standardise == "auto" and len(datasets) > 1:  # the scale of them all
+        model = dataclasses.replace(settings.model, order=resolved.model.order)
+        standardise = resolve_standardise(model, datasets)
+        resolved = dataclasses.replace(
+            resolved, model=dataclasses.replace(resolved.model, standardise=standardise)
+        )
     return resolved
 
 
@@ -271,7 +281,6 @@ def fit_candidates(
         [settings.model.integrator] if integrators is None else parse_integrators(integrators)
     )
     base = _resolve_all(settings, datasets, source)
-    data: Observations | list[Observations] = datasets[0] if len(datasets) == 1 else datasets
     damping_list = [settings.model.damping] if dampings is None else _dampings(dampings)
     grid = [(o, i, g) for g in damping_list for i in integrator_list for o in order_list]
     fits: list[CandidateFit] = []
@@ -284,17 +293,25 @@ def fit_candidates(
             )
             s = dataclasses.replace(base, model=model_settings)
             start = time.perf_counter()
-            model = build_model(s, datasets[0])
-            posterior = build_posterior(s, data, model)  # type: ignore[arg-type]
+            # model.standardise: fit on q/a, p/a, report in the data's units (workflow.scaling)
+            scaling = scaling_for(s, datasets)
+            fit_s = s if scaling is None else scaling.settings(s)
+            fit_sets = datasets if scaling is None else [scaling.observations(d) for d in datasets]
+            fit_data = fit_sets[0] if len(fit_sets) == 1 else fit_sets
+            model = build_model(fit_s, fit_sets[0])
+            posterior = build_posterior(fit_s, fit_data, model)  # type: ignore[arg-type]
             result = find_map(
                 posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False
             )
             seconds = time.perf_counter() - start
             log_prior = float(posterior.log_prior(np.asarray(result.theta)))
+            log_likelihood = result.log_posterior - log_prior
+            if scaling is not None:
+                result = scaling.map_result(result, posterior.param_groups, datasets)
+                log_likelihood += scaling.log_likelihood_shift(datasets)
             fits.append(
                 CandidateFit(
-                    order, integrator, s, posterior, result, result.log_posterior - log_prior,
-                    seconds, damping,
+                    order, integrator, s, posterior, result, log_likelihood, seconds, damping,
                 )
             )
             bar.update(1)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,20 +25,23 @@ from symplid.dynamics.families import build_family
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import find_map
 from symplid.inference.samplers import SAMPLERS, draws_array, sample
-from symplid.io import observation_layout
+from symplid.io import as_list, observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
+from symplid.workflow.auto import auto_notes, resolve_noise
 from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.results import RunFolder
+from symplid.workflow.scaling import scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
 
 
-def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
-    """The state-space model of eq. (7) that ``settings.model`` describes, for these data."""
+def build_model(settings: Settings, obs: Observations | list[Observations]) -> HamiltonianModel:
+    """The state-space model of eq. (7) that ``settings.model`` describes, for these data
+    (one trajectory, or a list of them observed the same way)."""
 
     m = settings.model
-    layout = observation_layout(obs)
+    layout = observation_layout(as_list(obs)[0])
     observation = layout.kind if m.observation == "auto" else m.observation
     return HamiltonianModel(
         build_family(layout.dim, m),
@@ -45,7 +49,8 @@ def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
         dt=m.dt,
         observation=observation,
         process_noise_per=m.process_noise_per,
-        noise=m.noise,
+        noise=resolve_noise(m.noise, observation),
+        observation_noise=m.observation_noise,
         mass=list(m.mass) if m.mass else None,
         alpha=m.alpha,
         beta=m.beta,
@@ -55,12 +60,18 @@ def build_model(settings: Settings, obs: Observations) -> HamiltonianModel:
     )
 
 
-def build_posterior(settings: Settings, obs: Observations, model: HamiltonianModel):
-    """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``."""
+def build_posterior(settings: Settings, obs: Observations | list[Observations],
+                    model: HamiltonianModel):
+    """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``.
+
+    Several trajectories share θ; ``initial_state.x0`` is then one state for all, or one
+    after the other (K·2d numbers)."""
 
     init = settings.initial_state
     learned = init.mode == "learned"
     x0 = np.asarray(init.x0, dtype=float) if init.x0 else None
+    if x0 is not None and not isinstance(obs, Observations):
+        x0 = np.resize(x0, (len(obs), model.state_dim))  # one for all, or one each
     return Posterior(
         model,
         obs,
@@ -85,6 +96,8 @@ class FitOutcome:
     summary: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     interrupted: bool = False
+    standardised_scale: float | None = None
+    """The position scale a of ``model.standardise`` (None: fitted in the data's units)."""
 
 
 def find_map_for(settings: Settings, posterior) -> Any:
@@ -100,8 +113,10 @@ def sample_for(
     progress: bool = True,
     progress_label: str | None = None,
     progress_position: int = 0,
+    return_state: bool = False,
 ) -> Any:
-    """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``."""
+    """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``
+    (and the chains' final states with ``return_state``, see ``symplid.sample``)."""
 
     s = settings.sampler
     # The [sampler] section's method-specific keys go to the samplers whose settings class
@@ -124,6 +139,7 @@ def sample_for(
         progress=progress,
         progress_label=progress_label,
         progress_position=progress_position,
+        return_state=return_state,
     )
 
 
@@ -150,7 +166,9 @@ def fit(
     ``status`` receives a one-line message before the (silent) MAP search and compilation.
     """
 
-    settings = resolve_for_data(settings, obs, source)
+    given, settings = settings, resolve_for_data(settings, obs, source)
+    for note in auto_notes(given, settings, obs) if status is not None else ():
+        status(note)
     folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
     try:
         return _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
@@ -178,30 +196,56 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
         status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
                "filter: this can take a minute)...")
     start = time.perf_counter()
-    model = build_model(settings, obs)
-    posterior = build_posterior(settings, obs, model)
-    map_result = find_map_for(settings, posterior)
+    # model.standardise: the fit runs on q/a, p/a and is reported in the data's units.
+    scaling = scaling_for(settings, obs)
+    fit_settings = settings if scaling is None else scaling.settings(settings)
+    fit_obs = obs if scaling is None else scaling.observations(obs)
+    model = build_model(fit_settings, fit_obs)
+    posterior = build_posterior(fit_settings, fit_obs, model)
+    map_fit = find_map_for(settings, posterior)
+    groups = posterior.param_groups
+    map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
     timings["map_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_map(map_result)
     start = time.perf_counter()
-    idata = sample_for(settings, posterior, map_result, progress, progress_label, progress_position)
+    idata, checkpoint = sample_for(settings, posterior, map_fit, progress, progress_label,
+                                   progress_position, return_state=True)
     timings["sampler_s"] = time.perf_counter() - start
+    if scaling is not None:
+        idata = scaling.inference_data(idata, groups, obs)
+        model = build_model(settings, obs)
+        posterior = build_posterior(settings, obs, model)
+    outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
+                         standardised_scale=None if scaling is None else scaling.scale)
+    return save_run(folder, outcome, checkpoint, warn)
+
+
+def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = None,
+             warn: bool = False) -> FitOutcome:
+    """Summarise the draws of ``outcome`` and write them: a finished run, or an interrupted
+    one with its sampler state (``checkpoint``) for ``fit --resume``. SIGINT and SIGTERM wait
+    until the files are written."""
+    idata, settings = outcome.idata, outcome.settings
     with deferred_interrupts():  # a second Ctrl-C must not lose the draws the first kept
         interrupted = bool(idata.attrs.get("interrupted", False)) if idata is not None else False
         table = diagnostics_summary(idata, show=False, warn=warn and not interrupted)
-        summary = fit_summary(posterior, map_result, idata, table)
-        summary["timings"] = timings
+        summary = fit_summary(outcome.posterior, outcome.map_result, idata, table)
+        summary["timings"] = outcome.timings
+        if outcome.standardised_scale is not None:
+            summary["standardised_scale"] = outcome.standardised_scale
         summary["interrupted"] = interrupted
         if interrupted:
             summary["iterations_done"] = int(idata.attrs.get("iterations", 0))
-        outcome = FitOutcome(
-            settings, obs, model, posterior, map_result, idata, summary, timings, interrupted
-        )
+        outcome.summary, outcome.interrupted = summary, interrupted
         if folder is not None:
             folder.write_posterior(idata)
             folder.write_summary(summary)
             if interrupted:
+                if checkpoint is not None:
+                    from symplid.inference.samplers.resume import checkpoint_arrays
+
+                    folder.write_npz(RunFolder.SAMPLER_STATE, **checkpoint_arrays(checkpoint))
                 folder.mark_interrupted(
                     f"after {summary['iterations_done']:,} of "
                     f"{settings.sampler.num_iterations:,} iterations per chain (the draws "
@@ -237,6 +281,8 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
             out["acceptance_rate"] = float(np.asarray(stats[key]).mean())
             break
     if table is not None:
-        out["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy()))
-        out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
+        with warnings.catch_warnings():  # all NaN on very short chains: NaN, said in words
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy()))
+            out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
     return out

@@ -53,6 +53,9 @@ def _open(run: str | Path) -> _Run:
     folder = RunFolder(run, "r")
     settings = folder.read_settings()
     obs = folder.read_data()
+    if isinstance(obs, list):
+        raise DataError(f"{folder.path}: a forecast from the end of the data follows one "
+                        f"trajectory; this run has {len(obs)} (predict them with --from start)")
     model = build_model(settings, obs)
     posterior = build_posterior(settings, obs, model)
     if not folder.file(RunFolder.POSTERIOR).exists():

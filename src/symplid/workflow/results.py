@@ -6,6 +6,7 @@ A run folder holds::
     data.csv         the data the run used (symplid.io.write_observations)
     map.json         the MAP point, its log posterior, the Hessian, ... (write_map)
     posterior.nc     the draws as ArviZ InferenceData (netCDF through h5netcdf)
+    sampler_state.npz   only while interrupted: the chains' states, for ``fit --resume``
     summary.json     the run's numbers, and summary.txt, the same as a readable table
     figures/*.png
     report.md
@@ -25,21 +26,18 @@ An update of a finished run (``mode="a"``) never makes it unfinished: its marker
 ``update started`` (readers ignore it, since every file is replaced atomically), and a failed
 or interrupted update removes it again. A sampler stopped by Ctrl-C or SIGTERM leaves the
 marker ``interrupted: ...`` (:meth:`RunFolder.mark_interrupted`): the draws made so far are in
-``posterior.nc``, and readers refuse the run with a one-line message that says what to do.
+``posterior.nc``, the chains' states in ``sampler_state.npz``, and readers refuse the run with a
+one-line message that says what to do. ``mode="c"`` opens such a run to continue it
+(``symplid fit --resume``): the marker stays as it is until the continuation saves (a failed or
+killed continuation leaves the interrupted run as it was, resumable).
 
-JSON conventions
-----------------
-NumPy and JAX arrays become (nested) lists, NumPy scalars become numbers, tuples lists, dataclasses
-and NamedTuples objects. JSON has no NaN or infinity, so non-finite floats are written as the
-strings ``"nan"``, ``"inf"`` and ``"-inf"`` (not ``null``, which would lose which one it was);
-:func:`read_json` turns those strings back into floats. The files are strict JSON.
+The files' formats (strict JSON with non-finite floats, netCDF attributes, the summary table)
+are :mod:`symplid.io.runfiles`; their names are re-exported here.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import datetime as _dt
-import json
 import os
 import shutil
 from collections.abc import Mapping
@@ -48,9 +46,19 @@ from typing import Any, Literal
 
 import numpy as np
 
-from symplid.inference.jsonfloat import decode, encode_float
-from symplid.io import read_observations, write_observations
-from symplid.model.data import DataError, Observations
+from symplid.io import read_trajectories, write_trajectories
+from symplid.io.runfiles import (
+    RunFolderError,
+    atomic_write_text,
+    format_summary,
+    netcdf_attrs,
+    numeric_arrays,
+    read_json,
+    restore_attrs,
+    to_jsonable,
+    write_json,
+)
+from symplid.model.data import Observations
 from symplid.workflow.settings import Settings, dump_settings, load_settings
 
 __all__ = [
@@ -63,154 +71,8 @@ __all__ = [
 ]
 
 
-class RunFolderError(DataError):
-    """A run folder that cannot be used (missing, unfinished, not a run folder, ...)."""
-
-
-# ----------------------------------------------------------------------------- JSON
-def to_jsonable(obj: Any, where: str = "") -> Any:
-    """Convert ``obj`` to plain JSON types (see the module docstring for the rules)."""
-    if obj is None or isinstance(obj, bool | str):
-        return obj
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return encode_float(float(obj))
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    if isinstance(obj, Mapping):
-        return {str(k): to_jsonable(v, f"{where}.{k}" if where else str(k)) for k, v in obj.items()}
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {
-            f.name: to_jsonable(getattr(obj, f.name), f"{where}.{f.name}")
-            for f in dataclasses.fields(obj)
-        }
-    if isinstance(obj, tuple) and hasattr(obj, "_asdict"):  # NamedTuple
-        return to_jsonable(obj._asdict(), where)
-    if isinstance(obj, list | tuple | set | frozenset):
-        items = sorted(obj, key=str) if isinstance(obj, set | frozenset) else obj
-        return [to_jsonable(v, f"{where}[{i}]") for i, v in enumerate(items)]
-    if hasattr(obj, "__array__"):  # NumPy and JAX arrays
-        array = np.asarray(obj)
-        if array.dtype.kind in "biuf":
-            if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
-                return _nested(array.tolist())
-            return array.tolist()
-        if array.dtype.kind in "US":
-            return array.tolist()
-        raise TypeError(f"cannot write {array.dtype} array at {where or 'top level'} as JSON")
-    raise TypeError(f"cannot write {type(obj).__name__} at {where or 'top level'} as JSON")
-
-
-def _nested(value: Any) -> Any:
-    if isinstance(value, list):
-        return [_nested(v) for v in value]
-    return encode_float(value) if isinstance(value, float) else value
-
-
-def write_json(obj: Any, path: str | os.PathLike) -> Path:
-    """Write ``obj`` as strict, indented JSON (atomically); returns the path."""
-    path = Path(path)
-    text = json.dumps(to_jsonable(obj), indent=2, allow_nan=False)
-    _atomic_write_text(path, text + "\n")
-    return path
-
-
-def read_json(path: str | os.PathLike) -> Any:
-    """Read JSON written by :func:`write_json`; ``"nan"``/``"inf"``/``"-inf"`` become floats."""
-    path = Path(path)
-    try:
-        return decode(json.loads(path.read_text(encoding="utf-8")))
-    except FileNotFoundError:
-        raise RunFolderError(f"{path}: no such file") from None
-    except json.JSONDecodeError as err:
-        raise RunFolderError(f"{path}: not valid JSON ({err})") from None
-
-
-def _arrays(value: Any) -> Any:
-    """Lists of numbers (rectangular, any depth) become arrays (int or float), also in dicts."""
-    if isinstance(value, dict):
-        return {k: _arrays(v) for k, v in value.items()}
-    if isinstance(value, list) and value:
-        try:
-            array = np.asarray(value)
-        except (TypeError, ValueError):  # ragged
-            array = None
-        if array is not None and array.dtype.kind in "iuf":
-            return array
-        return [_arrays(v) for v in value]
-    return value
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
-# ----------------------------------------------------------------------------- summary table
-def format_summary(summary: Mapping[str, Any]) -> str:
-    """A readable text table of a (possibly nested) summary.
-
-    Top-level scalars come first, one per line. Sub-tables whose values are scalars (e.g. one
-    per propagator) become the columns of one table, rows being their keys; anything nested
-    deeper is flattened with dotted keys.
-    """
-    summary = to_jsonable(summary)
-    scalars = {k: v for k, v in summary.items() if not isinstance(v, dict)}
-    groups = {k: _flatten(v) for k, v in summary.items() if isinstance(v, dict)}
-    lines = []
-    width = max([len(k) for k in scalars] + [len(k) for g in groups.values() for k in g] + [1])
-    for key, value in scalars.items():
-        lines.append(f"{key:<{width}}  {_cell(value)}")
-    if groups:
-        rows: list[str] = []
-        for group in groups.values():
-            rows += [k for k in group if k not in rows]
-        cells = {name: {k: _cell(v) for k, v in g.items()} for name, g in groups.items()}
-        widths = {
-            name: max([len(name)] + [len(c) for c in col.values()]) for name, col in cells.items()
-        }
-        if lines:
-            lines.append("")
-        lines.append(" " * width + "".join(f"  {name:>{widths[name]}}" for name in groups))
-        for row in rows:
-            lines.append(
-                f"{row:<{width}}"
-                + "".join(f"  {cells[n].get(row, '—'):>{widths[n]}}" for n in groups)
-            )
-    return "\n".join(lines) + "\n"
-
-
-def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in table.items():
-        if isinstance(value, dict):
-            out.update(_flatten(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
-
-
-def _cell(value: Any) -> str:
-    if value is None:
-        return "—"
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, float):
-        return f"{value:.6g}"
-    if isinstance(value, list):
-        flat = np.ravel(np.asarray(decode(value), dtype=object))
-        shown = ", ".join(_cell(v) for v in flat[:6])
-        return f"[{shown}{', …' if flat.size > 6 else ''}]"
-    return str(value)
-
-
 # ----------------------------------------------------------------------------- the folder
-Mode = Literal["w", "a", "r"]
+Mode = Literal["w", "a", "r", "c"]
 
 
 class RunFolder:
@@ -228,6 +90,8 @@ class RunFolder:
         ``"r"``: read an existing, finished run; nothing can be written.
         ``"a"``: add to an existing, finished run (``predict``, ``report``): the marker is
         written again until :meth:`finish`.
+        ``"c"``: continue an interrupted run (its marker says ``interrupted:``); anything else
+        is refused with a one-line message (a finished run: "nothing to resume").
     overwrite
         Only for ``mode="w"``.
     allow_incomplete
@@ -257,7 +121,9 @@ class RunFolder:
     SUMMARY_TEXT = "summary.txt"
     REPORT = "report.md"
     FIGURES = "figures"
-    RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES)
+    SAMPLER_STATE = "sampler_state.npz"
+    RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES,
+                 SAMPLER_STATE)
     UPDATE = "update"
     INTERRUPTED = "interrupted:"
 
@@ -269,14 +135,17 @@ class RunFolder:
         overwrite: bool = False,
         allow_incomplete: bool = False,
     ) -> None:
-        if mode not in ("w", "a", "r"):
-            raise ValueError(f"mode must be 'w', 'a' or 'r', got {mode!r}")
+        if mode not in ("w", "a", "r", "c"):
+            raise ValueError(f"mode must be 'w', 'a', 'r' or 'c', got {mode!r}")
         self.path = Path(path)
         self.mode: Mode = mode
         self._finished = False
         if mode == "w":
             _check_parents(self.path)
             self._create(overwrite)
+        elif mode == "c":
+            self._check_existing(allow_incomplete=True)
+            self._check_resumable()
         else:
             self._check_existing(allow_incomplete)
             if mode == "a":
@@ -326,12 +195,23 @@ class RunFolder:
             return  # an update (predict, report) in progress or killed: the run is finished
         if reason.startswith(self.INTERRUPTED):
             raise RunFolderError(
-                f"{path}: sampling was {reason}; resuming is not supported yet: fit again "
-                "with --overwrite (or a new --out) and a budget that can finish"
+                f"{path}: sampling was {reason}; continue it with 'symplid fit --resume --out "
+                f"{path}', or fit again with --overwrite"
             )
         raise RunFolderError(
             f"{path}: the run that wrote this folder did not finish ({reason}); run it again"
         )
+
+    def _check_resumable(self) -> None:
+        path = self.path
+        if self.is_complete:
+            raise RunFolderError(f"{path}: the run is finished; nothing to resume")
+        reason = self.incomplete_reason or "unknown reason"
+        if not reason.startswith(self.INTERRUPTED) or not self.file(self.SAMPLER_STATE).exists():
+            raise RunFolderError(
+                f"{path}: the run did not stop in sampling with its draws kept ({reason}); "
+                "it cannot be resumed: fit again with --overwrite"
+            )
 
     def _write_marker(self, reason: str) -> None:
         stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
@@ -357,6 +237,7 @@ class RunFolder:
         missing = [name for name in required if not (self.path / name).exists()]
         if missing:
             raise RuntimeError(f"{self.path}: cannot finish the run, missing {', '.join(missing)}")
+        (self.path / self.SAMPLER_STATE).unlink(missing_ok=True)  # only an interrupted run's
         (self.path / self.MARKER).unlink(missing_ok=True)
         self._finished = True
 
@@ -373,8 +254,8 @@ class RunFolder:
         For an update of a finished run (``mode="a"``) the marker is removed instead: the
         files it replaced were replaced atomically, so the run is still the finished run.
         """
-        if self.mode == "r":
-            return
+        if self.mode in ("r", "c"):
+            return  # "c": the interrupted run's files are untouched until it saves
         if self.mode == "a":
             (self.path / self.MARKER).unlink(missing_ok=True)
             return
@@ -430,10 +311,11 @@ class RunFolder:
         self._check_writable()
         return dump_settings(settings, self.file(self.SETTINGS))
 
-    def write_data(self, obs: Observations) -> Path:
-        """data.csv: the observations the run used."""
+    def write_data(self, obs: Observations | list[Observations]) -> Path:
+        """data.csv: the observations the run used (several trajectories: with a
+        ``trajectory`` column, :mod:`symplid.io.trajectories`)."""
         self._check_writable()
-        return write_observations(obs, self.file(self.DATA))
+        return write_trajectories(obs, self.file(self.DATA))
 
     def write_json(self, name: str, obj: Any) -> Path:
         """Any JSON file in the folder (see the module's JSON conventions)."""
@@ -459,9 +341,9 @@ class RunFolder:
         safe = idata.copy()
         for group in safe.groups():
             dataset = getattr(safe, group)
-            dataset.attrs = _netcdf_attrs(dataset.attrs)
+            dataset.attrs = netcdf_attrs(dataset.attrs)
         if hasattr(safe, "attrs"):
-            safe.attrs = _netcdf_attrs(dict(safe.attrs))
+            safe.attrs = netcdf_attrs(dict(safe.attrs))
         safe.to_netcdf(str(tmp))
         os.replace(tmp, path)
         return path
@@ -473,7 +355,7 @@ class RunFolder:
         text = format_summary(summary)
         if table:
             text += "\n" + table.rstrip() + "\n"
-        _atomic_write_text(self.file(self.SUMMARY_TEXT), text)
+        atomic_write_text(self.file(self.SUMMARY_TEXT), text)
         return path
 
     def write_npz(self, name: str, **arrays: Any) -> Path:
@@ -498,7 +380,7 @@ class RunFolder:
         """report.md (Markdown; refer to figures as ``figures/<name>.png``)."""
         self._check_writable()
         path = self.file(self.REPORT)
-        _atomic_write_text(path, text if text.endswith("\n") else text + "\n")
+        atomic_write_text(path, text if text.endswith("\n") else text + "\n")
         return path
 
     # ------------------------------------------------------------------ readers
@@ -511,15 +393,16 @@ class RunFolder:
     def read_settings(self) -> Settings:
         return load_settings(self._need(self.SETTINGS))
 
-    def read_data(self) -> Observations:
-        return read_observations(self._need(self.DATA))
+    def read_data(self) -> Observations | list[Observations]:
+        """The run's data: one :class:`Observations`, or a list for several trajectories."""
+        return read_trajectories([self._need(self.DATA)])
 
     def read_json(self, name: str) -> Any:
         return read_json(self._need(name))
 
     def read_map(self) -> dict[str, Any]:
         """map.json, with every list of numbers turned into a float array."""
-        return _arrays(self.read_json(self.MAP))
+        return numeric_arrays(self.read_json(self.MAP))
 
     def read_summary(self) -> dict[str, Any]:
         return self.read_json(self.SUMMARY)
@@ -536,9 +419,9 @@ class RunFolder:
             idata = az.from_netcdf(str(path))
         for group in idata.groups():
             dataset = getattr(idata, group)
-            dataset.attrs = _restore_attrs(dict(dataset.attrs))
+            dataset.attrs = restore_attrs(dict(dataset.attrs))
         if hasattr(idata, "attrs"):
-            idata.attrs = _restore_attrs(dict(idata.attrs))
+            idata.attrs = restore_attrs(dict(idata.attrs))
         return idata
 
 
@@ -549,39 +432,3 @@ def _check_parents(path: Path) -> None:
             raise RunFolderError(f"{path}: {parent} is a file, not a folder")
 
 
-_JSON_ATTRS = "symplid_json_attrs"
-
-
-def _netcdf_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
-    """Attributes netCDF can hold as they are; the rest as JSON text, listed in one attribute."""
-    out: dict[str, Any] = {}
-    encoded = []
-    for key, value in attrs.items():
-        if _netcdf_ok(value):
-            out[key] = value
-        else:
-            out[key] = json.dumps(to_jsonable(value, key), allow_nan=False)
-            encoded.append(key)
-    if encoded:
-        out[_JSON_ATTRS] = json.dumps(encoded)
-    return out
-
-
-def _netcdf_ok(value: Any) -> bool:
-    if isinstance(value, bool | np.bool_):
-        return False
-    if isinstance(value, str | int | float | np.integer | np.floating):
-        return True
-    if isinstance(value, np.ndarray):
-        return value.ndim == 1 and value.dtype.kind in "iuf" and value.size > 0
-    return False
-
-
-def _restore_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
-    encoded = attrs.pop(_JSON_ATTRS, None)
-    if encoded is None:
-        return attrs
-    for key in json.loads(encoded):
-        if key in attrs:
-            attrs[key] = _arrays(decode(json.loads(attrs[key])))
-    return attrs

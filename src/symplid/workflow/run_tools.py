@@ -9,13 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD
+from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD, quiet_arviz
 from symplid.inference.diagnostics import summary as diagnostics_summary
-from symplid.inference.predict import posterior_predictive, predict_trajectory
 from symplid.inference.samplers import draws_array
-from symplid.plotting import plot_pair, plot_predictive, plot_traces, save_figure
+from symplid.io import as_list
+from symplid.plotting import plot_predictive, save_figure
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder, format_summary
+from symplid.workflow.run_figures import Figure, report_figures, trajectory_paths
 
 #: The most integrator steps a prediction may take ((t_end − t0)/dt), so that a mistyped
 #: horizon (1e9) is a one-line error rather than hours of work or an exhausted memory.
@@ -50,12 +51,13 @@ def save_atomically(figure: Any, path: Path) -> Path:
 
 
 def _prediction_args(settings, obs, t_end, dt, num_paths) -> tuple[float, float, int, float]:
-    """Check the prediction's arguments before anything is computed or written."""
+    """Check the prediction's arguments before anything is computed or written (``t0``: the
+    latest start of the trajectories)."""
     p = settings.prediction
     t_end = p.t_end if t_end is None else float(t_end)
     dt = p.dt if dt is None else float(dt)
     num_paths = p.num_paths if num_paths is None else int(num_paths)
-    t0 = settings.initial_state.start_time(obs.times[0])
+    t0 = max(settings.initial_state.start_time(o.times[0]) for o in as_list(obs))
     if not np.isfinite(t_end) or t_end <= t0:
         raise ValueError(f"--t-end must be after the initial time {t0:g}, got {t_end:g}")
     if not np.isfinite(dt) or dt <= 0:
@@ -81,67 +83,49 @@ def predict_run(
 
     The paths start from the known initial state or, when it was learned, from the MAP's
     (MAP path) and the posterior mean's (band). ``t_end``, ``dt`` and ``num_paths`` default to
-    the run's ``[prediction]`` settings. Every argument is checked and every path computed
-    before the folder is touched, and the files are replaced atomically: a failed or
-    interrupted prediction leaves a finished run finished. Returns a one-line description.
+    the run's ``[prediction]`` settings. Several trajectories are predicted each from its own
+    initial state: the arrays of trajectory k carry the suffix ``_k`` and its figure is
+    ``predictive_k``. Every argument is checked and every path computed before the folder is
+    touched, and the files are replaced atomically: a failed or interrupted prediction leaves
+    a finished run finished. Returns a one-line description.
     """
 
     folder = RunFolder(run, "r")
     settings, obs, model, posterior = _load(folder)
-    t_end, dt, num_paths, t0 = _prediction_args(settings, obs, t_end, dt, num_paths)
-    p = settings.prediction
+    t_end, dt, num_paths, _ = _prediction_args(settings, obs, t_end, dt, num_paths)
     theta_map = np.asarray(folder.read_map()["theta"], dtype=float)
-    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
-    x0_map = np.asarray(posterior.initial_state(theta_map))
-    every = max(1, round((t_end - t0) / dt / 2000))
-    times, path = predict_trajectory(
-        model, theta_map[:nc], x0_map, t_end, dt=dt, integrator=p.integrator, t0=t0, every=every
-    )
-    arrays: dict[str, Any] = {"times": times, "map_path": path}
     draws = _draws(folder, num_paths > 0, "predicting the MAP path only")
-    band = None
-    if draws is not None and num_paths > 0:
-        flat = draws.reshape(-1, draws.shape[-1])
-        if posterior.learn_initial_state:
-            # Every draw's coefficients from one start: the posterior mean initial state.
-            x0 = np.asarray(posterior.initial_state(flat.mean(axis=0)))
-        else:
-            x0 = x0_map
-        band = posterior_predictive(
-            model,
-            flat[:, :nc],
-            x0,
-            t_end,
-            dt=dt,
-            integrator=p.integrator,
-            num_paths=num_paths,
-            seed=settings.seed,
-            t0=t0,
-            every=every,
-        )
-        arrays.update(
-            band_times=band.times,
-            band_lower=band.lower,
-            band_upper=band.upper,
-            band_median=band.median,
-            sample_paths=band.paths,
-        )
-    figure = None
-    if band is not None:
-        # State names from the model (q1..qd, p1..pd); the data's columns pick the panels.
-        figure = plot_predictive(
-            band, obs, map_path=(times, path), t_data_end=float(obs.times[-1])
-        )
+    flat = None if draws is None else draws.reshape(-1, draws.shape[-1])
+    trajectories = as_list(obs)
+    arrays: dict[str, Any] = {}
+    figures = []
+    for k, one in enumerate(trajectories):
+        t0 = settings.initial_state.start_time(one.times[0])
+        times, path, band = trajectory_paths(settings, model, posterior, theta_map, flat, k,
+                                             t0, t_end, dt, num_paths)
+        tag = f"_{k}" if len(trajectories) > 1 else ""
+        arrays.update({f"times{tag}": times, f"map_path{tag}": path})
+        if band is None:
+            continue
+        arrays.update({f"band_times{tag}": band.times, f"band_lower{tag}": band.lower,
+                       f"band_upper{tag}": band.upper, f"band_median{tag}": band.median,
+                       f"sample_paths{tag}": band.paths})
+        figures.append((f"predictive{tag}", plot_predictive(
+            band, one, map_path=(times, path), t_data_end=float(one.times[-1]),
+            time_unit=settings.plots.time_unit)))
     with RunFolder(run, "a") as update:
         update.write_npz("predictions.npz", **arrays)
-        if figure is not None:
-            save_atomically(figure, update.figure_path("predictive"))
-    what = "MAP path and posterior band" if band is not None else "MAP path"
-    return f"{folder.file('predictions.npz')}: {what} to t = {t_end:g} (dt = {dt:g})"
+        for name, figure in figures:
+            save_atomically(figure, update.figure_path(name))
+    what = "MAP path and posterior band" if figures else "MAP path"
+    many = f" for {len(trajectories)} trajectories" if len(trajectories) > 1 else ""
+    return f"{folder.file('predictions.npz')}: {what}{many} to t = {t_end:g} (dt = {dt:g})"
 
 
 def report_run(run: str | Path) -> str:
-    """Write ``report.md``: the summary, a per-parameter R-hat/ESS table, and the figures.
+    """Write ``report.md``: the summary, a per-parameter R-hat/ESS table, and the figures
+    (traces, pairs, U(q) with its band, the data against the fit; see
+    :mod:`symplid.workflow.run_figures`).
 
     Everything is computed before the folder is touched; a failed or interrupted report leaves
     a finished run finished. A run whose ``posterior.nc`` is missing gets a one-line warning
@@ -149,21 +133,19 @@ def report_run(run: str | Path) -> str:
     """
 
     folder = RunFolder(run, "r")
-    settings, obs, _model, posterior = _load(folder)
+    settings, obs, model, posterior = _load(folder)
     summary = folder.read_summary() if folder.file("summary.json").exists() else {}
     idata = None
     if folder.file(RunFolder.POSTERIOR).exists():
         idata = folder.read_posterior()
     else:
         _draws(folder, True, "the report has no posterior table or figures")
-    names = list(posterior.param_names)
-    figures: list[tuple[str, str, Any]] = []
+    figures: list[Figure] = []
     table = None
     if idata is not None:
-        draws = draws_array(idata)
+        theta_map = np.asarray(folder.read_map()["theta"], dtype=float)
         table = convergence_table(idata)
-        figures.append(("Traces", "traces", plot_traces(draws, names)))
-        figures.append(("Pairs", "pairs", plot_pair(draws, names)))
+        figures = report_figures(settings, obs, model, posterior, draws_array(idata), theta_map)
     lines = [
         *_report_header(run, settings, obs),
         "```",
@@ -173,24 +155,36 @@ def report_run(run: str | Path) -> str:
     ]
     if table is not None:
         lines += ["## Convergence", "", table, ""]
+    notes = [f"{f.title}: {f.note}" for f in figures if f.note]
     with RunFolder(run, "a") as update:
-        for _title, name, figure in figures:
-            save_atomically(figure, update.figure_path(name))
-        shown = [(title, f"figures/{name}.png") for title, name, _ in figures]
-        if update.figure_path("predictive").exists():
-            shown.append(("Predictions", "figures/predictive.png"))
-        lines += [f"![{title}]({path})\n" for title, path in shown]
+        for f in figures:
+            save_atomically(f.figure, update.figure_path(f.name))
+        shown = [(f.title, f"figures/{f.name}.png", f.note) for f in figures]
+        shown += [(f"Predictions{_which(p)}", f"figures/{p.name}", "")
+                  for p in update.figures() if p.stem.startswith("predictive")]
+        for title, path, note in shown:
+            lines += [f"![{title}]({path})\n"] + ([f"*{note}*\n"] if note else [])
         update.write_report("\n".join(lines))
-    return f"{folder.file('report.md')}: {len(shown)} figures"
+    extra = f" ({'; '.join(notes)})" if notes else ""
+    return f"{folder.file('report.md')}: {len(shown)} figures{extra}"
+
+
+def _which(path: Path) -> str:
+    tail = path.stem.removeprefix("predictive").lstrip("_")
+    return f" (trajectory {tail})" if tail else ""
 
 
 def _report_header(run: str | Path, settings, obs) -> list[str]:
     m = settings.model
+    unit = settings.plots.time_unit
+    data = "; ".join(
+        f"{o.num_times} observations of {o.dim} components, t = {o.times[0]:g}..."
+        f"{o.times[-1]:g} {unit}" for o in as_list(obs))
+    many = f"{len(as_list(obs))} trajectories: " if isinstance(obs, list) else ""
     return [
         f"# Run {Path(run).name}",
         "",
-        f"{obs.num_times} observations of {obs.dim} components, t = {obs.times[0]:g}..."
-        f"{obs.times[-1]:g}; polynomial order {m.order}, {m.integrator} at dt = {m.dt:g}; "
+        f"{many}{data}; polynomial order {m.order}, {m.integrator} at dt = {m.dt:g}; "
         f"{settings.sampler.method.upper()}, {settings.sampler.num_chains} chains × "
         f"{settings.sampler.num_iterations:,} iterations ({settings.sampler.burn_in:,} burn-in).",
         "",
@@ -202,8 +196,7 @@ def convergence_table(idata: Any) -> str:
     a flag where R-hat > 1.01 or an ESS < 400 (the thresholds of
     :mod:`symplid.inference.diagnostics`)."""
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # ArviZ/NumPy on very short chains: the flags say it
+    with quiet_arviz():  # ArviZ/NumPy on very short chains: the flags say it
         table = diagnostics_summary(idata, show=False, warn=False)
     rows = [
         "| parameter | mean | sd | R-hat | ESS bulk | ESS tail | |",

@@ -14,13 +14,19 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
     process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep)
-    noise = "isotropic"           # Σ = θ_Σ I, Γ = θ_Γ I ("diagonal": one variance per component)
+    noise = "auto"                # "isotropic": Σ = θ_Σ I, Γ = θ_Γ I; "diagonal": one variance per
+                                  # component; "per-kind": one Γ variance for q, one for p;
+                                  # "auto": per-kind for q and p columns, else isotropic
+    observation_noise = "additive" # "multiplicative": y = h(x)∘(1 + ε); "both" (filters.noise)
+    standardise = "auto"          # fit in q/a, p/a (a = RMS of the positions), report in the
+                                  # data's units; "auto": when a ∉ [0.1, 10] (workflow.scaling)
     observation = "auto"          # "full" / "positions"; "auto" follows the data file's columns
     mass = []                     # empty: M = I; else the diagonal of M
     alpha = 1.0                   # scaled unscented transform
     beta = 2.0
     kappa = 0.0
     jitter = 1e-12
+    damping = false               # true: learn a damping rate γ, ṗ = −∂U/∂q − γM⁻¹p
 
     [initial_state]
     mode = "known"                # "known": X_0 ~ N(x0, p0_var I); "learned": x0 joins θ
@@ -33,6 +39,9 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     loc = 0.0
     scale = 10.0
     [priors.variances]
+    family = "half-normal"
+    scale = 1.0
+    [priors.damping]              # γ of a damped model (bounded below by 0)
     family = "half-normal"
     scale = 1.0
     [priors.initial_state]        # used when initial_state.mode = "learned"
@@ -59,6 +68,12 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     dt = 0.01
     t_end = 200.0
     num_paths = 100
+
+    [plots]                       # figures only: never changes a result
+    time_unit = "s"               # the data's time unit, on every time axis
+    max_pair_params = 6           # parameters in the pair plot (the first ones of θ)
+    max_trace_params = 16         # parameters in the trace plot
+    truth = ""                    # the system that made the data, if known (e.g. "henon-heiles")
 
 Prior families are those of :data:`symplid.model.priors.PRIOR_FAMILIES` and their keys are
 the fields of the family's class: ``laplace`` and ``normal`` (``loc``, ``scale``),
@@ -91,12 +106,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import tomli_w
 
-from symplid.io import observation_layout
-from symplid.model.data import DataError
 from symplid.model.priors import PRIOR_FAMILIES, Prior
+from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
 from symplid.workflow.settings_schema import (
     PRIOR_DEFAULTS,
     PRIOR_SPECS,
@@ -105,6 +118,7 @@ from symplid.workflow.settings_schema import (
     InitialStateSettings,
     MapSettings,
     ModelSettings,
+    PlotSettings,
     PredictionSettings,
     PriorSettings,
     SamplerSettings,
@@ -117,6 +131,7 @@ __all__ = [
     "InitialStateSettings",
     "MapSettings",
     "ModelSettings",
+    "PlotSettings",
     "PredictionSettings",
     "PriorSettings",
     "SamplerSettings",
@@ -455,120 +470,3 @@ def _prior_keys() -> set[str]:
     for cls in PRIOR_FAMILIES.values():
         keys |= {f.name for f in dataclasses.fields(cls)}
     return keys
-
-
-# ----------------------------------------------------------------------------- data
-#: The most integrator steps one gap between observations may take (⌈gap/dt⌉, eq. 14). The
-#: filter unrolls every gap into the same number of steps, so one huge gap (a time of 1e9 in a
-#: file) would otherwise ask for billions of steps and terabytes of memory.
-MAX_SUBSTEPS_PER_GAP = 1_000_000
-
-
-def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> Settings:
-    """Check the settings against a data set and fill what the data decide.
-
-    ``model.observation = "auto"`` becomes ``"full"`` or ``"positions"`` from the data's columns
-    (see :func:`symplid.io.observation_kind`). Checks that the observation kind matches the
-    columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is before
-    the first observation (or is ``"first"``), that the data have two times or more and no
-    column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
-    integrator steps. Warns (one line) when θ has more entries than there are data values,
-    and when a learned initial state whose prior is centred on the first observation sits
-    more than one data gap before it (``t0 = "first"`` puts it there). The result is what a
-    run folder records.
-    """
-    layout = observation_layout(obs)
-    d = layout.dim
-    model = settings.model
-    observation = layout.kind if model.observation == "auto" else model.observation
-    if observation != layout.kind:
-        have = "only positions (q1..qd)" if layout.kind == "positions" else "positions and momenta"
-        raise SettingsError(
-            source,
-            "model.observation",
-            f'is {model.observation!r} but the data have {have}; use "auto"',
-        )
-    init = settings.initial_state
-    if init.mode == "known" and not init.x0:
-        raise SettingsError(
-            source,
-            "initial_state.x0",
-            f"is empty but initial_state.mode is 'known': give x0 ({2 * d} numbers, "
-            'q1..qd then p1..pd) or set mode = "learned"',
-        )
-    if init.x0 and len(init.x0) != 2 * d:
-        raise SettingsError(
-            source,
-            "initial_state.x0",
-            f"has {len(init.x0)} numbers but the data's system has a {2 * d}-dimensional "
-            f"state (q1..q{d}, p1..p{d})",
-        )
-    if model.mass and len(model.mass) != d:
-        raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
-    _check_data(obs, settings, source)
-    return dataclasses.replace(settings, model=dataclasses.replace(model, observation=observation))
-
-
-def _check_data(obs: Any, settings: Settings, source: str) -> None:
-    """What a data set must offer the model of ``settings`` (see :func:`resolve_for_data`)."""
-    init, model = settings.initial_state, settings.model
-    times = np.asarray(obs.times, dtype=float)
-    if times.size < 2:
-        raise DataError(
-            f"the data have {times.size} observation time; at least 2 are needed to learn "
-            "the dynamics"
-        )
-    names = obs.names or tuple(f"column {j + 1}" for j in range(obs.dim))
-    empty = [names[j] for j in range(obs.dim) if not np.any(obs.mask[:, j])]
-    if empty:
-        raise DataError(
-            f"{', '.join(empty)} {'has' if len(empty) == 1 else 'have'} no values (every "
-            "entry is missing); remove the column or give its values"
-        )
-    first = float(times[0])
-    if init.at_first_observation:
-        starts = times[:-1]
-    else:
-        if not init.t0 < first:
-            raise SettingsError(
-                source,
-                "initial_state.t0",
-                f"({init.t0:g}) must be before the first observation time ({first:g}); "
-                't0 = "first" puts the initial state at the first observation',
-            )
-        starts = np.concatenate([[float(init.t0)], times[:-1]])
-    steps = np.ceil((times[-starts.size :] - starts) / model.dt)
-    if np.max(steps) > MAX_SUBSTEPS_PER_GAP:
-        k = int(np.argmax(steps))
-        raise DataError(
-            f"the gap from t = {starts[k]:g} to the next observation needs {steps[k]:.3g} "
-            f"integrator steps of model.dt = {model.dt:g}; at most {MAX_SUBSTEPS_PER_GAP:,} "
-            "are allowed per gap (check the time column, or raise model.dt)"
-        )
-    values = int(np.sum(obs.mask))
-    d = _dim(obs)
-    num_params = math.comb(d + model.order, model.order) - 1 + 2
-    num_params += 2 * d if init.mode == "learned" else 0
-    if num_params > values:
-        warnings.warn(
-            f"{source}: the model has {num_params} parameters (order {model.order}) for "
-            f"{values} data values; the priors decide most of the posterior "
-            "(lower model.order, or give more data)",
-            UserWarning,
-            stacklevel=3,
-        )
-    if init.mode == "learned" and not init.x0 and not init.at_first_observation:
-        lead = first - float(init.t0)
-        if times.size > 1 and lead > float(np.max(np.diff(times))):
-            warnings.warn(
-                f"{source}: the learned initial state sits at t0 = {init.t0:g} but its prior "
-                f"is centred on the first observation at t = {first:g}; set "
-                'initial_state.t0 = "first" (--t0 first) to put the state there',
-                UserWarning,
-                stacklevel=3,
-            )
-
-
-def _dim(obs: Any) -> int:
-    """The configuration dimension d of the system the data observe."""
-    return observation_layout(obs).dim

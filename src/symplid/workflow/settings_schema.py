@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES
 from symplid.dynamics.integrators import INTEGRATORS
+from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.samplers import SAMPLERS
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
 from symplid.workflow.validate import Spec, setting
@@ -21,6 +22,7 @@ __all__ = [
     "InitialStateSettings",
     "MapSettings",
     "ModelSettings",
+    "PlotSettings",
     "PredictionSettings",
     "PriorSettings",
     "SamplerSettings",
@@ -39,7 +41,9 @@ class ModelSettings:
     integrator: str = setting("leapfrog", choices=INTEGRATORS)
     dt: float = setting(0.25, minimum=0.0, strict=True)
     process_noise_per: str = setting("gap", choices=("gap", "step"))
-    noise: str = setting("isotropic", choices=("isotropic", "diagonal"))
+    noise: str = setting("auto", choices=("auto", "isotropic", "diagonal", "per-kind"))
+    observation_noise: str = setting("additive", choices=OBSERVATION_NOISE)
+    standardise: str = setting("auto", choices=("auto", "on", "off"))
     observation: str = setting("auto", choices=("auto", "full", "positions"))
     mass: tuple[float, ...] = setting(())
     alpha: float = setting(1.0, minimum=0.0, strict=True)
@@ -77,8 +81,9 @@ class InitialStateSettings:
 class PriorSettings:
     """Priors by group of θ: the paper's Laplace(0, 10) and half-normal(1) (Section IV).
 
-    ``variances`` is the prior of both the process- and the observation-noise variance;
-    ``damping`` that of the damping rate γ of a damped model (``model.damping = true``);
+    ``variances`` is the prior of every noise variance (process, observation, and the relative
+    variance of multiplicative observation noise); ``damping`` that of the damping rate γ of a
+    damped model (``model.damping = true``);
     ``initial_state`` (used when the initial state is learned) is the prior of the offset of
     each component from its centre.
     """
@@ -94,6 +99,7 @@ class PriorSettings:
             coefficients=self.coefficients,
             process_var=self.variances,
             obs_var=self.variances,
+            obs_rel_var=self.variances,
             initial_state=self.initial_state if learned_initial_state else None,
             damping=self.damping,
         )
@@ -141,6 +147,20 @@ class PredictionSettings:
 
 
 @dataclass(frozen=True)
+class PlotSettings:
+    """What the run's figures show: the data's time unit (axis labels), how many parameters
+    the pair plot and the trace plot draw (the first ones in θ's order; a figure that leaves
+    some out says so), and the system the data came from when it is known (a name in
+    ``symplid.SYSTEMS``, e.g. for simulated data): its U and coefficients are drawn as the
+    truth."""
+
+    time_unit: str = setting("s")
+    truth: str = setting("")
+    max_pair_params: int = setting(6, minimum=2)
+    max_trace_params: int = setting(16, minimum=1)
+
+
+@dataclass(frozen=True)
 class Settings:
     """Everything a run needs; the defaults are the paper's Hénon–Heiles experiment."""
 
@@ -151,6 +171,7 @@ class Settings:
     map: MapSettings = field(default_factory=MapSettings)
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     prediction: PredictionSettings = field(default_factory=PredictionSettings)
+    plots: PlotSettings = field(default_factory=PlotSettings)
 
 
 #: Renamed keys: old dotted key → new dotted key (the old one is read with a FutureWarning).

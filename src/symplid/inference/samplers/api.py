@@ -7,7 +7,7 @@ what is particular to it.
 Layout of the result
 --------------------
 * ``posterior``: **one variable per parameter**, named by ``posterior.param_names``
-  (``q1``, ``q1^2``, ..., ``process_var``, ``obs_var``), each shaped ``(chain, draw)``.
+  (``c[q1]``, ``c[q1^2]``, ..., ``process_var``, ``obs_var``), each shaped ``(chain, draw)``.
   ``az.summary`` then prints one row per parameter under its own name, which reads better
   than ``theta[0]``..``theta[10]``. :func:`draws_array` stacks them back into
   ``(chain, draw, num_params)`` in the posterior's order.
@@ -38,7 +38,7 @@ import dataclasses
 import json
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -51,7 +51,16 @@ from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, Sampler
 from symplid.inference.samplers.run import ChainRun, ChunkReport, run_chains
 from symplid.model.params import pushforward_covariance
 
-__all__ = ["draws_array", "overdispersed_starts", "sample"]
+__all__ = ["SamplerCheckpoint", "draws_array", "overdispersed_starts", "sample"]
+
+
+class SamplerCheckpoint(NamedTuple):
+    """Where a run's chains stand: their states (stacked over chains) after
+    ``iterations_done`` iterations per chain (burn-in included)."""
+
+    states: Any
+    iterations_done: int
+
 
 _POSTERIOR_ATTRIBUTES = ("num_params", "param_names", "log_density")
 _UNCONSTRAINED_ATTRIBUTES = ("to_unconstrained", "from_unconstrained",
@@ -78,6 +87,7 @@ def sample(
     progress_label: str | None = None,
     progress_position: int | None = None,
     num_samples: int | None = None,
+    return_state: bool = False,
 ):
     """Draw from a posterior with a registered sampler (DRAM, NUTS, ...).
 
@@ -121,6 +131,9 @@ def sample(
     callback
         Called after every chunk with a :class:`~.run.ChunkReport`; raising
         ``KeyboardInterrupt`` there stops the run like Ctrl-C.
+    return_state
+        Also return the chains' final states (:class:`SamplerCheckpoint`), from which
+        :func:`~.resume.resume_sampling` continues an interrupted run.
 
     Returns
     -------
@@ -165,13 +178,15 @@ def sample(
         "method": method, "num_draws": num_draws, "num_chains": int(num_chains),
         "seed": int(seed), "burn_in": burn_in, "thin": int(thin),
         "init_spread": float(init_spread), "chunk_size": int(chunk_size),
-        "chain_method": chain_method,
-        "explicit_initial_positions": initial_positions is not None,
+        "chain_method": chain_method, "explicit_initial_positions": initial_positions is not None,
         "kernel": dataclasses.asdict(kernel_settings),
     }
     attrs = _attrs(method, seed, record_settings, names, theta_map, cov_map, starts, run,
                    extra_attrs, init)
-    return _to_inference_data(run, names, attrs)
+    idata = _to_inference_data(run, names, attrs)
+    if return_state:
+        return idata, SamplerCheckpoint(run.states, int(run.iterations_done))
+    return idata
 
 
 # ----------------------------------------------------------------------------- checks

@@ -184,6 +184,7 @@ def run_chains(
     position: int | None = None,
     callback: Callable[[ChunkReport], None] | None = None,
     num_samples: int | None = None,
+    start: int = 0,
 ) -> ChainRun:
     """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
 
@@ -217,6 +218,11 @@ def run_chains(
     callback
         Called with a :class:`ChunkReport` after each chunk; it may raise
         ``KeyboardInterrupt`` to stop the run (used in tests to simulate Ctrl-C).
+    start
+        Iterations already done: ``states`` are the chains after them (the ``states`` of an
+        interrupted :class:`ChainRun`), and the run continues with iteration ``start + 1``.
+        Keys, burn-in, thinning and chunks follow the whole run's grid, so an interrupted run
+        continued this way gives the draws of the uninterrupted run (those after ``start``).
 
     Returns
     -------
@@ -232,16 +238,19 @@ def run_chains(
         num_draws = num_samples
     num_chains = _check_run(num_draws, burn_in, thin, chunk_size, chain_method, states)
     total = int(burn_in) + int(num_draws) * int(thin)
+    if int(start) != start or not 0 <= start < total:
+        raise ValueError(f"start must be an integer in [0, {total}), got {start!r}")
     # Equal chunks of at most `chunk_size` iterations; the last one runs fewer than
     # `chunk_len` iterations only when `total` does not divide evenly (then by < num_chunks).
     num_chunks = -(-total // int(chunk_size))
     chunk_len = -(-total // num_chunks)
     chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
     chain_keys = jax.random.split(rng_key, num_chains)
-    bar = _progress_bar(total, desc, progress, position)
+    bar = _progress_bar(total, desc, progress, position, int(start))
     started = time.perf_counter()
     try:
-        loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), callback)
+        loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), callback,
+                     int(start))
         states = loop.run(states, bar)
     finally:
         if bar is not None:
@@ -282,18 +291,21 @@ class _Loop:
     thin grid, reports to the callback, and stops cleanly on ``KeyboardInterrupt``."""
 
     def __init__(self, chunk_fn: Callable, chain_keys: jax.Array, total: int, chunk_len: int,
-                 burn_in: int, thin: int, callback: Callable[[ChunkReport], None] | None):
+                 burn_in: int, thin: int, callback: Callable[[ChunkReport], None] | None,
+                 start: int = 0):
         self.chunk_fn, self.chain_keys = chunk_fn, chain_keys
         self.total, self.chunk_len, self.burn_in, self.thin = total, chunk_len, burn_in, thin
         self.callback = callback
         self.kept: dict[str, list[np.ndarray]] = {}
-        self.draws_kept = self.done = 0
+        self.done = start
+        self.draws_kept = max(0, start - burn_in) // thin
         self.interrupted = False
 
     def run(self, states: Any, bar: Any) -> Any:
         chunk_index = 0
         while self.done < self.total:
-            num_active = min(self.chunk_len, self.total - self.done)
+            # Chunks on the whole run's grid (a resumed run starts at a chunk's end).
+            num_active = min(self.chunk_len - self.done % self.chunk_len, self.total - self.done)
             try:
                 new_states, records = self.chunk_fn(states, self.chain_keys,
                                                     jnp.int64(self.done), jnp.int64(num_active))
@@ -327,11 +339,11 @@ class _Loop:
             self.draws_kept += int(keep.sum())
 
 
-def _progress_bar(total: int, desc: str, enabled: bool, position: int | None = None):
+def _progress_bar(total: int, desc: str, enabled: bool, position: int | None = None,
+                  initial: int = 0):
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(
-        total=total, desc=desc, unit="it", unit_scale=True, dynamic_ncols=True, position=position
-    )
+    return tqdm(total=total, desc=desc, unit="it", unit_scale=True, dynamic_ncols=True,
+                position=position, initial=initial)

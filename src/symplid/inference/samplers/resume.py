@@ -1,0 +1,166 @@
+"""Continue an interrupted run of :func:`~symplid.inference.samplers.sample` where it stopped.
+
+An interrupted run (Ctrl-C, SIGTERM, a ``callback`` raising ``KeyboardInterrupt``) keeps its
+draws and, with ``sample(..., return_state=True)``, the chains' states after the last
+finished chunk (:class:`~.api.SamplerCheckpoint`). Everything else a continuation needs is
+in the draws' attributes: the method and every setting (``attrs["settings"]``: burn-in,
+thinning, chunk size, the kernel's settings), the seed and the parameter names.
+
+The continuation runs on the whole run's grid (:func:`~.run.run_chains` with ``start``): the
+key of iteration t of chain c is still ``fold_in(chain_key[c], t)``, the burn-in and thinning
+count from the run's first iteration and the chunks keep their length. A sampler whose state
+is all of its memory (DRAM: position, running mean and covariance, proposal factor, counters;
+NUTS: position, step size, mass matrix and both adaptation states) therefore continues
+exactly: the interrupted draws followed by the continued ones **are** the draws of the
+uninterrupted run, bit for bit (``tests/test_resume.py``).
+
+A checkpoint is stored as plain arrays (:func:`checkpoint_arrays`: the state's leaves, its
+tree structure as text, ``iterations_done``) and rebuilt against the kernel's own state
+structure (``jax.eval_shape`` of its ``init_states``), which checks shapes and dtypes.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import jax
+import numpy as np
+
+from symplid.compiled import cached_or_built
+from symplid.inference.samplers.api import (
+    SamplerCheckpoint,
+    _check_posterior,
+    _make_settings,
+    _to_inference_data,
+    draws_array,
+)
+from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
+from symplid.inference.samplers.run import ChainRun, ChunkReport, run_chains
+
+__all__ = ["checkpoint_arrays", "resume_sampling"]
+
+_ITERATIONS, _TREEDEF, _LEAF = "iterations_done", "treedef", "leaf_"
+
+
+def checkpoint_arrays(checkpoint: SamplerCheckpoint) -> dict[str, np.ndarray]:
+    """The checkpoint as named NumPy arrays (for ``numpy.savez``): the state's leaves
+    ``leaf_0``…, its tree structure as text and ``iterations_done``."""
+    leaves, treedef = jax.tree.flatten(checkpoint.states)
+    out = {f"{_LEAF}{i}": np.asarray(leaf) for i, leaf in enumerate(leaves)}
+    out[_TREEDEF] = np.asarray(str(treedef))
+    out[_ITERATIONS] = np.asarray(int(checkpoint.iterations_done))
+    return out
+
+
+def _restore(arrays: Mapping[str, Any], template: Any) -> SamplerCheckpoint:
+    """Rebuild the states from :func:`checkpoint_arrays` against the kernel's structure."""
+    shapes, treedef = jax.tree.flatten(template)
+    if str(np.asarray(arrays[_TREEDEF])) != str(treedef):
+        raise ValueError("the stored sampler state does not fit this sampler (another "
+                         "method or version wrote it)")
+    leaves = []
+    for i, shape in enumerate(shapes):
+        leaf = np.asarray(arrays[f"{_LEAF}{i}"])
+        if leaf.shape != shape.shape or leaf.dtype != shape.dtype:
+            raise ValueError(f"stored sampler state entry {i} is {leaf.dtype}{leaf.shape}, "
+                             f"the sampler expects {shape.dtype}{shape.shape}")
+        leaves.append(jax.numpy.asarray(leaf))
+    return SamplerCheckpoint(jax.tree.unflatten(treedef, leaves),
+                             int(np.asarray(arrays[_ITERATIONS])))
+
+
+def _state_template(spec: SamplerSpec, kernel: SamplerKernel, num_chains: int, d: int) -> Any:
+    """The shapes and dtypes of the kernel's chain states, without computing them."""
+    f64 = jax.numpy.float64
+    thetas = jax.ShapeDtypeStruct((num_chains, d), f64)
+    return jax.eval_shape(kernel.init_states, thetas, jax.ShapeDtypeStruct((d, d), f64))
+
+
+def _old_draws(idata: Any, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    draws = {"theta": draws_array(idata)}
+    stats = getattr(idata, "sample_stats", None)
+    if stats is not None:
+        draws.update({str(k): np.asarray(v.values) for k, v in stats.data_vars.items()})
+    return draws
+
+
+def resume_sampling(
+    posterior: Any,
+    idata: Any,
+    checkpoint: SamplerCheckpoint | Mapping[str, Any],
+    *,
+    progress: bool = True,
+    callback: Callable[[ChunkReport], None] | None = None,
+    progress_label: str | None = None,
+    progress_position: int | None = None,
+    return_state: bool = False,
+):
+    """Run the iterations an interrupted :func:`~.api.sample` run has left.
+
+    Parameters
+    ----------
+    posterior
+        The posterior the run sampled (same parameters, same log density).
+    idata
+        The interrupted run's draws (``attrs["interrupted"] = 1``), e.g. read back from
+        netCDF.
+    checkpoint
+        Its :class:`~.api.SamplerCheckpoint`, or the arrays of :func:`checkpoint_arrays`.
+    progress, callback, progress_label, progress_position, return_state
+        As for :func:`~.api.sample`.
+
+    Returns
+    -------
+    arviz.InferenceData
+        The whole run: the kept draws followed by the new ones, ``attrs["iterations"]`` the
+        iterations done in all, ``sampling_seconds`` summed. Interrupted again, it is marked
+        interrupted again and can be resumed again.
+    """
+    attrs = dict(idata.attrs)
+    record = json.loads(attrs["settings"]) if isinstance(attrs["settings"], str) else dict(
+        attrs["settings"])
+    method = SAMPLERS.canonical(record["method"])
+    spec = SAMPLERS[method]
+    num_params, names = _check_posterior(posterior, spec)
+    if list(names) != [str(n) for n in attrs["param_names"]]:
+        raise ValueError("the posterior's parameters are not those of the draws")
+    kernel_settings = _make_settings(method, spec.settings_class, record["kernel"])
+    burn_in, thin, num_draws = int(record["burn_in"]), int(record["thin"]), int(
+        record["num_draws"])
+    num_chains = int(record["num_chains"])
+    num_warmup = burn_in if spec.adapts_during_burn_in else 0
+    batch_logdensity = cached_or_built(
+        posterior, "batch-log-density", lambda: jax.jit(jax.vmap(posterior.log_density))
+    )
+    kernel: SamplerKernel = cached_or_built(
+        posterior, ("sampler", method, kernel_settings, num_warmup),
+        lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
+    )
+    if isinstance(checkpoint, Mapping):
+        checkpoint = _restore(checkpoint, _state_template(spec, kernel, num_chains, num_params))
+    total = burn_in + num_draws * thin
+    if checkpoint.iterations_done >= total:
+        raise ValueError(f"the run is finished ({total:,} iterations per chain): nothing to "
+                         "resume")
+    if checkpoint.iterations_done != int(attrs["iterations"]):
+        raise ValueError(f"the sampler state is at iteration {checkpoint.iterations_done:,} "
+                         f"but the draws end at {int(attrs['iterations']):,}")
+    _, run_key = jax.random.split(jax.random.key(int(record["seed"])), 2)
+    run = run_chains(kernel.step, checkpoint.states, run_key, num_draws, record=kernel.record,
+                     burn_in=burn_in, thin=thin, chunk_size=int(record["chunk_size"]),
+                     chain_method=record["chain_method"], progress=progress,
+                     callback=callback, desc=progress_label or method.upper(),
+                     position=progress_position, start=checkpoint.iterations_done)
+    old = _old_draws(idata, names)
+    draws = {k: np.concatenate([old[k], v], axis=1) if k in old else v
+             for k, v in run.draws.items()} if run.draws else old
+    elapsed = float(attrs.get("sampling_seconds", 0.0)) + run.elapsed
+    whole = ChainRun(draws, run.states, run.iterations_done, run.interrupted, elapsed)
+    attrs.update(iterations=int(run.iterations_done), interrupted=int(run.interrupted),
+                 sampling_seconds=elapsed, **kernel.final_attrs(run.states))
+    result = _to_inference_data(whole, names, attrs)
+    if return_state:
+        return result, SamplerCheckpoint(run.states, int(run.iterations_done))
+    return result

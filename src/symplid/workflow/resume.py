@@ -1,0 +1,104 @@
+"""Continue an interrupted run folder (``symplid fit --resume``).
+
+A run whose sampler was stopped by Ctrl-C or SIGTERM is marked ``interrupted`` and keeps its
+settings, data, MAP, draws and the chains' states (``sampler_state.npz``, see
+:mod:`symplid.workflow.results`). :func:`resume_fit` reloads them, runs the iterations left
+(:func:`symplid.inference.samplers.resume.resume_sampling`: on the whole run's key and chunk
+grid, so the draws are those an uninterrupted run with the same seed makes) and saves the run
+as :func:`symplid.workflow.fit.fit` does: a finished run, or interrupted again.
+
+The settings are the run's own; settings given again (the same command line, a file) must
+equal them, since a continuation under other settings would be neither run
+(:func:`check_same_settings`; the ``[plots]`` section, which changes no result, is exempt and
+stays the run's).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from symplid.inference.map_result import MapResult
+from symplid.inference.samplers.resume import resume_sampling
+from symplid.workflow.fit import FitOutcome, build_model, build_posterior, save_run
+from symplid.workflow.results import RunFolder, RunFolderError
+from symplid.workflow.settings import Settings, SettingsError, settings_to_dict
+
+__all__ = ["check_same_settings", "resume_fit"]
+
+
+def _flat(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if isinstance(value, Mapping):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def check_same_settings(run: Settings, given: Settings, where: str | Path) -> None:
+    """Refuse (one line) settings that differ from the interrupted run's own."""
+    have, want = _flat(settings_to_dict(run)), _flat(settings_to_dict(given))
+    changed = sorted(k for k in have.keys() | want.keys()
+                     if have.get(k) != want.get(k) and not k.startswith("plots."))
+    if changed:
+        shown = ", ".join(f"{k} ({have.get(k)!r} in the run, {want.get(k)!r} given)"
+                          for k in changed[:3])
+        more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
+        raise SettingsError(
+            str(where), None,
+            f"--resume continues the run as it was set up, but {shown}{more} changed; drop "
+            "those options, or fit anew with --overwrite",
+        )
+
+
+def resume_fit(
+    out: str | Path,
+    progress: bool = True,
+    warn: bool = False,
+    status: Callable[[str], None] | None = None,
+    expected: Callable[[Settings, Any], Settings | None] | None = None,
+) -> FitOutcome:
+    """Continue the interrupted run in ``out``; returns the outcome as :func:`fit` does.
+
+    ``expected(settings, data)``, when given, returns the settings the caller asks for (or
+    None: the run's own) given the run's; they must equal the run's
+    (:func:`check_same_settings`). A finished run, or one that did not stop in sampling, is
+    refused with a one-line :class:`~symplid.workflow.results.RunFolderError`; a failure or
+    a kill while continuing leaves the interrupted run as it was.
+    """
+    folder = RunFolder(out, "c")
+    settings, obs = folder.read_settings(), folder.read_data()
+    if expected is not None:
+        asked = expected(settings, obs)
+        if asked is not None:
+            check_same_settings(settings, asked, out)
+    summary = folder.read_summary() if folder.file(RunFolder.SUMMARY).exists() else {}
+    if summary.get("standardised_scale") is not None:
+        raise RunFolderError(
+            f"{out}: this run was fitted in standardised coordinates (model.standardise), "
+            "which --resume does not continue yet; fit again with --overwrite"
+        )
+    done = summary.get("iterations_done", "?")
+    if status is not None:
+        status(f"resuming {out} at iteration {done} of "
+               f"{settings.sampler.num_iterations:,} per chain (compiling first)...")
+    model = build_model(settings, obs)
+    posterior = build_posterior(settings, obs, model)
+    map_result = MapResult.from_dict(folder.read_map())
+    idata = folder.read_posterior()
+    with np.load(folder.file(RunFolder.SAMPLER_STATE)) as stored:
+        arrays = {name: stored[name] for name in stored.files}
+    start = time.perf_counter()
+    idata, checkpoint = resume_sampling(posterior, idata, arrays, progress=progress,
+                                        return_state=True)
+    timings = dict(summary.get("timings", {}))
+    timings["sampler_s"] = float(timings.get("sampler_s", 0.0)) + time.perf_counter() - start
+    timings["resumed"] = int(timings.get("resumed", 0)) + 1
+    outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings)
+    return save_run(folder, outcome, checkpoint, warn)

@@ -1,0 +1,159 @@
+"""Settings against a data set: what the data decide (the observation kind) and what they must
+offer the model (two times, no empty column, gaps the integrator can cross).
+
+:func:`resolve_for_data` is what every fit runs before it builds a model; it is re-exported by
+:mod:`symplid.workflow.settings`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from typing import Any
+
+import numpy as np
+
+from symplid.io import observation_layout
+from symplid.model.data import DataError
+from symplid.workflow.auto import num_noise_variances, resolve_noise
+from symplid.workflow.scaling import resolve_standardise
+from symplid.workflow.settings_schema import Settings
+from symplid.workflow.validate import SettingsError
+
+__all__ = ["MAX_SUBSTEPS_PER_GAP", "resolve_for_data"]
+
+#: The most integrator steps one gap between observations may take (⌈gap/dt⌉, eq. 14). The
+#: filter unrolls every gap into the same number of steps, so one huge gap (a time of 1e9 in a
+#: file) would otherwise ask for billions of steps and terabytes of memory.
+MAX_SUBSTEPS_PER_GAP = 1_000_000
+
+
+def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> Settings:
+    """Check the settings against a data set and fill what the data decide.
+
+    ``model.observation = "auto"`` becomes ``"full"`` or ``"positions"`` from the data's columns
+    (see :func:`symplid.io.observation_kind`), ``model.noise = "auto"`` becomes ``"per-kind"``
+    or ``"isotropic"`` (:func:`symplid.workflow.auto.resolve_noise`) and
+    ``model.standardise = "auto"`` becomes ``"on"`` or ``"off"``
+    (:func:`symplid.workflow.scaling.resolve_standardise`). Checks that the observation kind
+    matches the columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is
+    before the first observation (or is ``"first"``), that the data have two times or more and no
+    column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
+    integrator steps. Warns (one line) when θ has more entries than there are data values,
+    and when a learned initial state whose prior is centred on the first observation sits
+    more than one data gap before it (``t0 = "first"`` puts it there). The result is what a
+    run folder records.
+    """
+    trajectories = list(obs) if isinstance(obs, list | tuple) else [obs]
+    layout = observation_layout(trajectories[0])
+    d, K = layout.dim, len(trajectories)
+    model = settings.model
+    observation = layout.kind if model.observation == "auto" else model.observation
+    if observation != layout.kind:
+        have = "only positions (q1..qd)" if layout.kind == "positions" else "positions and momenta"
+        raise SettingsError(
+            source,
+            "model.observation",
+            f'is {model.observation!r} but the data have {have}; use "auto"',
+        )
+    init = settings.initial_state
+    if init.mode == "known" and not init.x0:
+        raise SettingsError(
+            source,
+            "initial_state.x0",
+            f"is empty but initial_state.mode is 'known': give x0 ({2 * d} numbers, "
+            'q1..qd then p1..pd) or set mode = "learned"',
+        )
+    if init.x0 and len(init.x0) not in (2 * d, 2 * d * K):
+        each = f" (or {2 * d * K}: one state per trajectory)" if K > 1 else ""
+        raise SettingsError(
+            source,
+            "initial_state.x0",
+            f"has {len(init.x0)} numbers but the data's system has a {2 * d}-dimensional "
+            f"state (q1..q{d}, p1..p{d}){each}",
+        )
+    if model.mass and len(model.mass) != d:
+        raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
+    for k, one in enumerate(trajectories):
+        _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")
+    try:
+        standardise = resolve_standardise(model, trajectories)
+    except ValueError as err:
+        raise SettingsError(source, "model.standardise", str(err)) from None
+    resolved = dataclasses.replace(
+        model,
+        observation=observation,
+        noise=resolve_noise(model.noise, observation),
+        standardise=standardise,
+    )
+    return dataclasses.replace(settings, model=resolved)
+
+
+def _check_data(obs: Any, settings: Settings, source: str) -> None:
+    """What a data set must offer the model of ``settings`` (see :func:`resolve_for_data`)."""
+    init, model = settings.initial_state, settings.model
+    times = np.asarray(obs.times, dtype=float)
+    if times.size < 2:
+        raise DataError(
+            f"the data have {times.size} observation time; at least 2 are needed to learn "
+            "the dynamics"
+        )
+    names = obs.names or tuple(f"column {j + 1}" for j in range(obs.dim))
+    empty = [names[j] for j in range(obs.dim) if not np.any(obs.mask[:, j])]
+    if empty:
+        raise DataError(
+            f"{', '.join(empty)} {'has' if len(empty) == 1 else 'have'} no values (every "
+            "entry is missing); remove the column or give its values"
+        )
+    first = float(times[0])
+    if init.at_first_observation:
+        starts = times[:-1]
+    else:
+        if not init.t0 < first:
+            raise SettingsError(
+                source,
+                "initial_state.t0",
+                f"({init.t0:g}) must be before the first observation time ({first:g}); "
+                't0 = "first" puts the initial state at the first observation',
+            )
+        starts = np.concatenate([[float(init.t0)], times[:-1]])
+    steps = np.ceil((times[-starts.size :] - starts) / model.dt)
+    if np.max(steps) > MAX_SUBSTEPS_PER_GAP:
+        k = int(np.argmax(steps))
+        raise DataError(
+            f"the gap from t = {starts[k]:g} to the next observation needs {steps[k]:.3g} "
+            f"integrator steps of model.dt = {model.dt:g}; at most {MAX_SUBSTEPS_PER_GAP:,} "
+            "are allowed per gap (check the time column, or raise model.dt)"
+        )
+    values = int(np.sum(obs.mask))
+    d = _dim(obs)
+    kind = observation_layout(obs).kind
+    num_params = math.comb(d + model.order, model.order) - 1 + num_noise_variances(
+        resolve_noise(model.noise, kind), kind, model.observation_noise, d
+    )
+    num_params += int(model.damping)  # γ
+    num_params += 2 * d if init.mode == "learned" else 0
+    if num_params > values:
+        warnings.warn(
+            f"{source}: the model has {num_params} parameters (order {model.order}) for "
+            f"{values} data values; the priors decide most of the posterior "
+            "(lower model.order, or give more data)",
+            UserWarning,
+            stacklevel=3,
+        )
+    if init.mode == "learned" and not init.x0 and not init.at_first_observation:
+        lead = first - float(init.t0)
+        if times.size > 1 and lead > float(np.max(np.diff(times))):
+            warnings.warn(
+                f"{source}: the learned initial state sits at t0 = {init.t0:g} but its prior "
+                f"is centred on the first observation at t = {first:g}; set "
+                'initial_state.t0 = "first" (--t0 first) to put the state there',
+                UserWarning,
+                stacklevel=3,
+            )
+
+
+def _dim(obs: Any) -> int:
+    """The configuration dimension d of the system the data observe."""
+    return observation_layout(obs).dim

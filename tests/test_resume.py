@@ -1,0 +1,153 @@
+"""Resuming an interrupted run: the interrupted draws plus the continued ones are the draws of
+the uninterrupted run with the same seed, bit for bit (sampler level and ``symplid fit
+--resume``); a finished run or changed settings are refused in one line.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sampler_targets import Gaussian2D
+from symplid.cli import main
+from symplid.inference.samplers import draws_array, sample
+from symplid.inference.samplers.resume import checkpoint_arrays, resume_sampling
+from symplid.inference.samplers.run import SamplingInterrupted
+from symplid.workflow.results import RunFolder
+
+BUDGET = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 90, "chunk_size": 40,
+          "progress": False}
+
+
+def _stop_at(iterations: int):
+    def callback(report):
+        if report.iterations_done == iterations:
+            raise KeyboardInterrupt
+
+    return callback
+
+
+def _stats(idata) -> dict[str, np.ndarray]:
+    return {k: np.asarray(v.values) for k, v in idata.sample_stats.data_vars.items()}
+
+
+@pytest.mark.parametrize(("method", "stop"), [("dram", 120), ("dram", 200), ("nuts", 160)])
+def test_a_resumed_run_equals_the_uninterrupted_run(method, stop, tmp_path):
+    target = Gaussian2D()
+    init = target.map_result()
+    full = sample(target, method, init=init, **BUDGET)
+    with pytest.warns(SamplingInterrupted):
+        part, checkpoint = sample(target, method, init=init, callback=_stop_at(stop),
+                                  return_state=True, **BUDGET)
+    assert part.attrs["interrupted"] == 1 and checkpoint.iterations_done == stop
+    assert part.posterior.sizes["draw"] == stop - BUDGET["burn_in"]
+    # Through a file, as a run folder stores it (the draws' file: the CLI test below).
+    np.savez(tmp_path / "state.npz", **checkpoint_arrays(checkpoint))
+    with np.load(tmp_path / "state.npz") as stored:
+        resumed = resume_sampling(target, part, dict(stored), progress=False)
+    assert resumed.attrs["interrupted"] == 0
+    assert resumed.attrs["iterations"] == BUDGET["burn_in"] + BUDGET["num_draws"]
+    np.testing.assert_array_equal(draws_array(resumed), draws_array(full))
+    for name, value in _stats(full).items():
+        np.testing.assert_array_equal(_stats(resumed)[name], value, err_msg=name)
+
+
+def test_resuming_a_finished_run_or_a_foreign_state_is_refused():
+    target = Gaussian2D()
+    full, checkpoint = sample(target, "dram", init=target.map_result(), return_state=True,
+                              **BUDGET)
+    with pytest.raises(ValueError, match="the run is finished"):
+        resume_sampling(target, full, checkpoint, progress=False)
+    stored = checkpoint_arrays(checkpoint)
+    stored["treedef"] = np.asarray("PyTreeDef(None)")
+    with pytest.raises(ValueError, match="does not fit this sampler"):
+        resume_sampling(target, full, stored, progress=False)
+
+
+# ----------------------------------------------------------------------------- symplid fit
+TINY = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
+        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1"]
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+def _chunks_of_100(monkeypatch, stop_at: int | None = None):
+    """workflow.fit's sampler in chunks of 100 iterations, stopped (Ctrl-C) after ``stop_at``."""
+    import symplid.workflow.fit as fit_module
+
+    extra = {"chunk_size": 100}
+    if stop_at is not None:
+        extra["callback"] = _stop_at(stop_at)
+    monkeypatch.setattr(fit_module, "sample", functools.partial(sample, **extra))
+
+
+@pytest.fixture(scope="module")
+def data_csv(tmp_path_factory) -> Path:
+    t = np.arange(1, 13.0)
+    rng = np.random.default_rng(0)
+    q, p = np.cos(t) + 0.02 * rng.normal(size=t.size), -np.sin(t) + 0.02 * rng.normal(size=t.size)
+    path = tmp_path_factory.mktemp("d") / "h.csv"
+    path.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
+                                         zip(t.tolist(), q.tolist(), p.tolist(), strict=True)))
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference_run(data_csv, tmp_path_factory) -> Path:
+    with pytest.MonkeyPatch.context() as mp:
+        _chunks_of_100(mp)
+        out = tmp_path_factory.mktemp("runs") / "whole"
+        result = run("fit", data_csv, "--out", out, *TINY)
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_fit_resume_finishes_the_run_with_the_uninterrupted_draws(data_csv, reference_run,
+                                                                  tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    _chunks_of_100(monkeypatch, stop_at=300)
+    stopped = run("fit", data_csv, "--out", out, *TINY)
+    assert stopped.exit_code == 130 and "continue with --resume" in stopped.output
+    assert (out / RunFolder.SAMPLER_STATE).exists()
+    monkeypatch.undo()
+    # The same command line again (the settings are checked, and equal).
+    resumed = run("fit", data_csv, "--out", out, "--resume", *TINY)
+    assert resumed.exit_code == 0, resumed.output
+    folder = RunFolder(out, "r")  # finished: readable without allow_incomplete
+    assert not (out / RunFolder.SAMPLER_STATE).exists()
+    whole = RunFolder(reference_run, "r").read_posterior()
+    mine = folder.read_posterior()
+    assert mine.posterior.sizes["draw"] == 200 and mine.attrs["iterations"] == 400
+    np.testing.assert_array_equal(draws_array(mine), draws_array(whole))
+    np.testing.assert_array_equal(mine.sample_stats["accepted"], whole.sample_stats["accepted"])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is False and summary["timings"]["resumed"] == 1
+    # Resuming again: the run is finished.
+    again = run("fit", "--out", out, "--resume", "--no-progress")
+    assert again.exit_code == 2 and "nothing to resume" in again.output
+    assert len(again.output.strip().splitlines()) == 1
+
+
+def test_resume_refuses_changed_settings_or_data_in_one_line(data_csv, tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    _chunks_of_100(monkeypatch, stop_at=300)
+    assert run("fit", data_csv, "--out", out, *TINY).exit_code == 130
+    monkeypatch.undo()
+    changed = run("fit", "--out", out, "--resume", "--iterations", "800", "--no-progress")
+    assert changed.exit_code == 2 and "sampler.num_iterations (400 in the run, 800 given)" in \
+        changed.output, changed.output
+    other = tmp_path / "other.csv"
+    other.write_text(data_csv.read_text().replace("1.0,", "1.5,", 1))
+    moved = run("fit", other, "--out", out, "--resume", "--no-progress")
+    assert moved.exit_code == 2 and "not the data of the run" in moved.output
+    for result in (changed, moved):
+        assert len(result.output.strip().splitlines()) == 1, result.output
+    # Still interrupted and resumable after the refusals.
+    assert RunFolder(out, "r", allow_incomplete=True).incomplete_reason.startswith("interrupted")
