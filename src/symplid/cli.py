@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 
+from symplid import __version__
 from symplid.workflow.commandline import (
     Interrupted,
     LazyChoice,
@@ -39,7 +40,7 @@ from symplid.workflow.commandline import (
     cls=OneLineErrors,
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
-@click.version_option(package_name="symplid")
+@click.version_option(version=__version__, prog_name="symplid")  # no importlib.metadata
 def main() -> None:
     """Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
 
