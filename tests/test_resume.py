@@ -149,5 +149,10 @@ def test_resume_refuses_changed_settings_or_data_in_one_line(data_csv, tmp_path,
     assert moved.exit_code == 2 and "not the data of the run" in moved.output
     for result in (changed, moved):
         assert len(result.output.strip().splitlines()) == 1, result.output
-    # Still interrupted and resumable after the refusals.
+    # Still interrupted and resumable after the refusals; the run's own settings file is
+    # the same settings (a file is merged onto the run's, not onto the defaults).
     assert RunFolder(out, "r", allow_incomplete=True).incomplete_reason.startswith("interrupted")
+    same = run("fit", "--out", out, "--resume", "--config", out / "settings.toml",
+               "--no-progress", "--no-report")
+    assert same.exit_code == 0, same.output
+    assert RunFolder(out, "r").read_posterior().posterior.sizes["draw"] == 200
