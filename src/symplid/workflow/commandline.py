@@ -72,8 +72,10 @@ def user_errors(fn: Callable) -> Callable:
                 raise UserError(str(err)) from None
             except (ValueError, NotADirectoryError) as err:  # the library's argument checks
                 raise UserError(str(err)) from None
-            except KeyboardInterrupt:
-                click.echo("symplid: interrupted", err=True)
+            except KeyboardInterrupt as err:
+                kept = ("; the chains' state is kept: continue with 'symplid fit --resume'"
+                        if hasattr(err, "checkpoint") else "")
+                click.echo(f"symplid: interrupted{kept}", err=True)
                 sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
             except Interrupted:  # the command said so in its result line
                 sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
