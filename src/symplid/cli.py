@@ -25,6 +25,7 @@ from symplid.workflow.commandline import (
     floats,
     integrator_registry,
     no_progress_option,
+    report_after_fit,
     rk2_variants,
     run_fit,
     sampler_registry,
@@ -276,9 +277,7 @@ def fit(data, out, config, order, integrator, dt, method, iterations, samples, b
     if outcome.interrupted:
         raise Interrupted
     if report:
-        from symplid.workflow.run_tools import report_run
-
-        click.echo(report_run(out))
+        click.echo(report_after_fit(out))
     if heldout is not None:
         from symplid.workflow.forecasting import score_holdout
 

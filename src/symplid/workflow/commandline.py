@@ -30,6 +30,7 @@ __all__ = [
     "floats",
     "integrator_registry",
     "no_progress_option",
+    "report_after_fit",
     "rk2_variants",
     "run_fit",
     "sampler_registry",
@@ -237,6 +238,18 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
         f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
         f"{s['log_evidence_laplace']:.2f}{extra}; {seconds:.0f} s"
     )
+
+
+def report_after_fit(out: Path) -> str:
+    """``symplid report`` at the end of a fit; the fit is finished whatever happens here, so
+    a failure is one warning line rather than an error."""
+    from symplid.workflow.run_tools import report_run
+
+    try:
+        return report_run(out)
+    except Exception as err:
+        return (f"{out}: the run is finished, but writing its report failed "
+                f"({type(err).__name__}: {err}); try 'symplid report {out}'")
 
 
 def _convergence_words(rhat: float, ess: float, chains: int) -> str:
