@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 
+from symplid import __version__
 from symplid.workflow.commandline import (
     Interrupted,
     LazyChoice,
@@ -25,6 +26,7 @@ from symplid.workflow.commandline import (
     integrator_registry,
     no_progress_option,
     noise_model_names,
+    report_after_fit,
     rk2_variants,
     run_fit,
     sampler_registry,
@@ -40,7 +42,7 @@ from symplid.workflow.commandline import (
     cls=OneLineErrors,
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
-@click.version_option(package_name="symplid")
+@click.version_option(version=__version__, prog_name="symplid")  # no importlib.metadata
 def main() -> None:
     """Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
 
@@ -284,9 +286,7 @@ def fit(data, out, config, order, integrator, dt, observation_noise, method, ite
     if outcome.interrupted:
         raise Interrupted
     if report:
-        from symplid.workflow.run_tools import report_run
-
-        click.echo(report_run(out))
+        click.echo(report_after_fit(out))
     if heldout is not None:
         from symplid.workflow.forecasting import score_holdout
 

@@ -24,7 +24,7 @@ import numpy as np
 from symplid.dynamics.families import build_family
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import find_map
-from symplid.inference.samplers import SAMPLERS, draws_array, sample
+from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
 from symplid.io import as_list, observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
@@ -208,8 +208,13 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     if folder is not None:
         folder.write_map(map_result)
     start = time.perf_counter()
-    idata, checkpoint = sample_for(settings, posterior, map_fit, progress, progress_label,
-                                   progress_position, return_state=True)
+    try:
+        idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
+                                       progress_label, progress_position, return_state=True)
+    except InterruptedInBurnIn as stop:
+        if folder is not None:
+            save_burn_in(folder, settings, stop)
+        raise
     timings["sampler_s"] = time.perf_counter() - start
     if scaling is not None:
         idata = scaling.inference_data(idata, groups, obs)
@@ -218,6 +223,19 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale)
     return save_run(folder, outcome, checkpoint, warn)
+
+
+def save_burn_in(folder: RunFolder, settings: Settings, stop: InterruptedInBurnIn) -> None:
+    """A run stopped in its burn-in keeps the chains' state and the draws' attributes, so
+    that ``fit --resume`` can continue it (there are no draws yet)."""
+    from symplid.inference.samplers.resume import checkpoint_arrays
+
+    with deferred_interrupts():
+        folder.write_npz(RunFolder.SAMPLER_STATE, **checkpoint_arrays(stop.checkpoint))
+        folder.write_json(RunFolder.SAMPLER_ATTRS, stop.attrs)
+        folder.mark_interrupted(
+            f"in the burn-in, after {stop.checkpoint.iterations_done:,} of "
+            f"{settings.sampler.num_iterations:,} iterations per chain (no draws kept yet)")
 
 
 def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = None,
