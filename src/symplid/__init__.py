@@ -32,7 +32,12 @@ from symplid.dynamics.potentials import (  # noqa: E402
 from symplid.dynamics.systems import SYSTEMS, System, get_system  # noqa: E402
 from symplid.inference import baselines, predict, samplers  # noqa: E402
 from symplid.inference.diagnostics import summary  # noqa: E402
-from symplid.inference.map import BoundWarning, MapResult, find_map  # noqa: E402
+from symplid.inference.map import (  # noqa: E402
+    BoundWarning,
+    MapResult,
+    MultipleOptimaWarning,
+    find_map,
+)
 from symplid.inference.samplers import sample  # noqa: E402
 from symplid.model.data import DataError, Observations  # noqa: E402
 from symplid.model.posterior import Posterior  # noqa: E402
@@ -55,6 +60,7 @@ __all__ = [
     "LogNormal",
     "MLPPotential",
     "MapResult",
+    "MultipleOptimaWarning",
     "Normal",
     "Observations",
     "Polynomial",
