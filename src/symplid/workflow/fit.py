@@ -106,7 +106,8 @@ def sample_for(
     # The [sampler] section's method-specific keys go to the samplers whose settings class
     # declares them (DRAM's γ and adaptation start); no branch on the method's name.
     accepted = {f.name for f in dataclasses.fields(SAMPLERS[s.method].settings_class)}
-    offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
+    offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start),
+               "variance_scale": s.variance_scale}
     options = {key: value for key, value in offered.items() if key in accepted}
     # The settings count every iteration (burn-in included, as the paper's 200,000 with
     # 100,000 discarded); the sampler counts the draws it keeps.
