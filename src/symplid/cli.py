@@ -379,9 +379,14 @@ def fit(
     if outcome.interrupted:
         total = outcome.settings.sampler.num_iterations
         head += f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws kept; "
+    if s.get("map_optima", 1) > 1:
+        extra += (f"; the {outcome.settings.map.num_starts} MAP starts ended in "
+                  f"{s['map_optima']} different optima (spread {s['map_optima_spread']:.2f} "
+                  "nats; the best is used)")
     click.echo(
-        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
-        f"{s['log_evidence_laplace']:.2f}{extra}; {time.perf_counter() - start:.0f} s"
+        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, log evidence "
+        f"{s['log_evidence']:.2f} ({s['evidence_method']}; Laplace "
+        f"{s['log_evidence_laplace']:.2f}){extra}; {time.perf_counter() - start:.0f} s"
     )
     if outcome.interrupted:
         raise Interrupted
@@ -486,7 +491,8 @@ def report(run) -> None:
 def compare(
     data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
 ) -> None:
-    """Rank polynomial orders (and propagators) for DATA by the Laplace log evidence."""
+    """Rank polynomial orders (and propagators) for DATA by the log evidence (Gaussian in the
+    coefficients, the noise variances integrated on their log scale)."""
     from symplid.io import read_observations
     from symplid.workflow.compare import compare_models, parse_orders
 

@@ -220,7 +220,12 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
         "param_names": names,
         "map": dict(zip(names, np.asarray(map_result.theta).tolist(), strict=True)),
         "map_log_posterior": float(map_result.log_posterior),
-        "log_evidence_laplace": float(map_result.log_evidence),
+        "log_evidence": float(map_result.log_evidence),
+        "log_evidence_laplace": float(getattr(map_result, "log_evidence_laplace",
+                                              map_result.log_evidence)),
+        "evidence_method": str(getattr(map_result, "evidence_method", "laplace")),
+        "map_optima": len(getattr(map_result, "optima", ())) or 1,
+        "map_optima_spread": float(getattr(map_result, "optima_spread", 0.0)),
     }
     if idata is None:
         return out
