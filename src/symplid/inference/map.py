@@ -343,7 +343,8 @@ def _warn_outcome(
         warnings.warn(
             "the MAP sits on a bound: " + "; ".join(desc) + ". The data do not pull these "
             "parameters away from the bound (e.g. no detectable process noise); their Laplace "
-            "variance and the Laplace evidence are unreliable.",
+            "variances are unreliable, and so is the Laplace evidence (the default evidence "
+            "integrates the noise variances on their log scale and is not affected by theirs).",
             BoundWarning,
             stacklevel=3,
         )
