@@ -382,7 +382,8 @@ def report(run) -> None:
 def compare(
     data, out, config, orders, integrators, x0, learn_initial_state, sets, no_progress
 ) -> None:
-    """Rank polynomial orders (and propagators) for DATA by the Laplace log evidence."""
+    """Rank polynomial orders (and propagators) for DATA by the log evidence (Gaussian in the
+    coefficients, the noise variances integrated on their log scale)."""
     from symplid.io import read_observations
     from symplid.workflow.compare import compare_models, parse_orders
 

@@ -241,9 +241,14 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
         total = outcome.settings.sampler.num_iterations
         head += (f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws "
                  "kept (continue with --resume); ")
+    if s.get("map_optima", 1) > 1:
+        extra += (f"; the {outcome.settings.map.num_starts} MAP starts ended in "
+                  f"{s['map_optima']} different optima (spread {s['map_optima_spread']:.2f} "
+                  "nats; the best is used)")
     return (
-        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
-        f"{s['log_evidence_laplace']:.2f}{extra}; {seconds:.0f} s"
+        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, log evidence "
+        f"{s['log_evidence']:.2f} ({s['evidence_method']}; Laplace "
+        f"{s['log_evidence_laplace']:.2f}){extra}; {seconds:.0f} s"
     )
 
 

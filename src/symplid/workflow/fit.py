@@ -121,7 +121,8 @@ def sample_for(
     # The [sampler] section's method-specific keys go to the samplers whose settings class
     # declares them (DRAM's γ and adaptation start); no branch on the method's name.
     accepted = {f.name for f in dataclasses.fields(SAMPLERS[s.method].settings_class)}
-    offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
+    offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start),
+               "variance_scale": s.variance_scale}
     options = {key: value for key, value in offered.items() if key in accepted}
     # The settings count every iteration (burn-in included, as the paper's 200,000 with
     # 100,000 discarded); the sampler counts the draws it keeps.
@@ -281,7 +282,12 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
         "param_names": names,
         "map": dict(zip(names, np.asarray(map_result.theta).tolist(), strict=True)),
         "map_log_posterior": float(map_result.log_posterior),
-        "log_evidence_laplace": float(map_result.log_evidence),
+        "log_evidence": float(map_result.log_evidence),
+        "log_evidence_laplace": float(getattr(map_result, "log_evidence_laplace",
+                                              map_result.log_evidence)),
+        "evidence_method": str(getattr(map_result, "evidence_method", "laplace")),
+        "map_optima": len(getattr(map_result, "optima", ())) or 1,
+        "map_optima_spread": float(getattr(map_result, "optima_spread", 0.0)),
     }
     if idata is None:
         return out

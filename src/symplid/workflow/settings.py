@@ -57,6 +57,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     num_chains = 4
     gamma = 0.01                  # DRAM second-stage scale
     adapt_start = 200
+    variance_scale = "natural"    # DRAM: "log" moves the variances as log(v), with the Jacobian
     thin = 1
     seed = 0
 

@@ -379,6 +379,8 @@ def _initial_states(posterior: Any, spec: SamplerSpec, kernel: SamplerKernel,
     """The chains' first states, from θ and the MAP covariance (pushed to z when the sampler
     moves in the unconstrained space), and the attributes that records."""
     if not spec.unconstrained:
+        if kernel.covariance_at is not None:  # e.g. DRAM with the variances on a log scale
+            cov_map = kernel.covariance_at(theta_map, cov_map)
         return kernel.init_states(jnp.asarray(starts), jnp.asarray(cov_map)), {}
     cov_z = pushforward_covariance(posterior.to_unconstrained, theta_map, cov_map)
     z_starts = np.asarray(jax.vmap(posterior.to_unconstrained)(jnp.asarray(starts)))
