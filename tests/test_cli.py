@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -136,8 +137,11 @@ def test_same_seed_same_fit(tmp_path, harmonic_csv):
             "--no-progress",
         )
         assert result.exit_code == 0, result.output
+        assert re.search(r"log evidence -?\d+\.\d\d \(quadrature; Laplace -?\d+\.\d\d\)",
+                         result.output), result.output
         outs.append(out)
     a, b = (json.loads((o / "summary.json").read_text()) for o in outs)
+    assert a["evidence_method"] == "quadrature" and a["map_optima"] >= 1
     a.pop("timings"), b.pop("timings")
     assert a == b
     maps = [_without_timings(json.loads((o / "map.json").read_text())) for o in outs]

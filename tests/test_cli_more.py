@@ -220,4 +220,17 @@ def test_one_initial_state_for_all_or_a_wrong_count(two_trajectories, two_runs, 
                 "--order", "2")
     assert wrong.exit_code == 2 and "(or 4: one state per trajectory)" in wrong.output
     summary = json.loads((two_runs[0] / "summary.json").read_text())
-    assert summary["param_names"] == ["c[q1]", "c[q1^2]", "process_var", "obs_var"]
+    assert summary["param_names"] == ["c[q1]", "c[q1^2]", "process_var", "obs_var[q]", "obs_var[p]"]
+
+
+def test_the_truth_of_a_named_system_by_the_models_coefficient_names(two_trajectories):
+    from symplid.workflow.run_figures import truth_values
+    from symplid.workflow.settings import Settings, merge_overrides
+
+    data = read_trajectories([two_trajectories["A"]])
+    settings = merge_overrides(Settings(), {"plots.truth": "harmonic", "model.order": 3})
+    system, values = truth_values(settings, build_model(settings, data))
+    assert system.name == "harmonic"
+    # U = q²/2: the model's other terms (q, q³) are truly zero.
+    assert values == {"c[q1]": 0.0, "c[q1^2]": 0.5, "c[q1^3]": 0.0}
+    assert truth_values(merge_overrides(settings, {"plots.truth": ""}), None) is None

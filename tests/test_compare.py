@@ -132,8 +132,17 @@ def test_true_order_wins_on_the_double_well(compared):
 def test_table_columns_probabilities_and_bic(compared, double_well):
     table, _ = compared
     _, data = double_well
-    assert tuple(table.columns) == COLUMNS
+    coefficient_names = ["c[q1]", "c[q1^2]", "c[q1^3]", "c[q1^4]", "c[q1^5]"]
+    assert tuple(table.columns) == (*COLUMNS, *coefficient_names)
     assert list(table["rank"]) == [1, 2, 3, 4]
+    # each candidate's MAP coefficients, NaN (blank in the CSV) where it has no such term
+    for row in table.itertuples(index=False):
+        values = table.loc[table["order"] == row.order, coefficient_names].to_numpy()[0]
+        assert np.all(np.isfinite(values[: row.order])) and np.all(np.isnan(values[row.order:]))
+    best = table.loc[0]
+    np.testing.assert_allclose(best[coefficient_names[:4]].to_numpy(float),
+                               [0.0, -0.5, 0.0, 0.25], atol=0.05)  # U = -q²/2 + q⁴/4
+    assert table["evidence_method"].eq("quadrature").all()
     assert np.all(np.diff(table["log_evidence"].to_numpy()) <= 0)
     assert table.loc[0, "delta_log_evidence"] == 0.0
     # probabilities: softmax of the evidences, recomputed independently
@@ -154,6 +163,9 @@ def test_table_columns_probabilities_and_bic(compared, double_well):
     # here it sits on its bound) and the observation variance is near the true 0.05²
     best = table.loc[0]
     assert best["process_var"] < 1e-5
+    # on its floor, but integrated by quadrature in the evidence: not flagged "on a bound"
+    assert "process_var" not in best["at_bounds"]
+    assert (best["process_var"] > 1e-13) or best["at_floor"] == "process_var"
     assert 0.5 * 0.05**2 < best["obs_var"] < 2 * 0.05**2
 
 
@@ -161,7 +173,8 @@ def test_table_columns_probabilities_and_bic(compared, double_well):
 def test_files_hold_the_table(compared):
     table, out = compared
     back = pd.read_csv(out / "compare.csv", keep_default_na=False)
-    assert tuple(back.columns) == COLUMNS
+    assert tuple(back.columns[: len(COLUMNS)]) == COLUMNS
+    assert (back.loc[table["order"].to_numpy() == 2, "c[q1^3]"] == "").all()  # blank
     for column in ("order", "num_params", "rank"):
         np.testing.assert_array_equal(back[column], table[column])
     for column in ("log_evidence", "log_likelihood", "bic", "probability"):
@@ -202,7 +215,48 @@ def test_table_ranks_nan_evidence_last():
     # n = 3 measured values (one NaN)
     np.testing.assert_allclose(table["bic"], 2.0 + 3 * math.log(3))
     assert table.loc[0, "process_var"] == 2.0 and table.loc[0, "obs_var"] == 3.0
-    assert "nan" in format_table(table).splitlines()[-5]
+    last_row = next(line for line in format_table(table).splitlines()
+                    if line.strip().startswith("3 "))
+    assert "nan" in last_row
+
+
+def test_bound_flag_and_coefficient_columns():
+    """A variance on its floor is flagged "on a bound" only when the evidence did not
+    integrate it; coefficient columns are the union of the candidates' names."""
+    from symplid.workflow.compare import CandidateFit
+
+    class _Posterior:
+        def __init__(self, names):
+            self.param_names = (*names, "process_var", "obs_var")
+            self.param_groups = ("coefficients",) * len(names) + ("process_var", "obs_var")
+            self.num_params = len(self.param_names)
+            self.datasets = (symplid.Observations([1.0, 2.0], [[0.0, 1.0], [1.0, 0.5]]),)
+
+    class _Map:
+        def __init__(self, theta, method, bounds):
+            self.theta, self.at_bounds, self.success = np.asarray(theta), bounds, True
+            self.log_evidence, self.log_posterior = -float(len(theta)), 0.0
+            self.evidence_method, self.log_evidence_laplace = method, -10.0
+            self.evidence = {"variances": ["process_var", "obs_var"]} if method != "laplace" \
+                else {}
+
+    fits = [
+        CandidateFit(1, "leapfrog", None, _Posterior(["q1"]),
+                     _Map([0.5, 1e-14, 0.1], "quadrature", ("process_var",)), -1.0, 0.1),
+        CandidateFit(2, "leapfrog", None, _Posterior(["q1", "q1^2"]),
+                     _Map([0.1, 0.2, 1e-14, 0.1], "laplace", ("process_var",)), -1.0, 0.1),
+        CandidateFit(3, "leapfrog", None, _Posterior(["q1", "order"]),
+                     _Map([0.3, 7.0, 1e-14, 0.1], "quadrature", ("order", "process_var")),
+                     -1.0, 0.1),
+    ]
+    table = comparison_table(fits).set_index("order")
+    assert tuple(table.columns[-3:]) == ("q1", "q1^2", "coef:order")
+    assert table.loc[1, "at_bounds"] == "" and table.loc[1, "at_floor"] == "process_var"
+    assert table.loc[2, "at_bounds"] == "process_var"  # the Laplace evidence: flagged
+    assert table.loc[3, "at_bounds"] == "order"  # a coefficient on a bound stays flagged
+    assert table.loc[1, "q1"] == 0.5 and np.isnan(table.loc[1, "q1^2"])
+    assert table.loc[3, "coef:order"] == 7.0 and table.loc[2, "evidence_method"] == "laplace"
+    np.testing.assert_allclose(table["log_evidence_laplace"], -10.0)
 
 
 def test_compare_models_checks_its_inputs(double_well, settings):

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from sampler_targets import Gaussian2D
 from symplid.cli import main
-from symplid.inference.samplers import draws_array, sample
+from symplid.inference.samplers import InterruptedInBurnIn, draws_array, sample
 from symplid.inference.samplers.resume import checkpoint_arrays, resume_sampling
 from symplid.inference.samplers.run import SamplingInterrupted
 from symplid.workflow.results import RunFolder
@@ -55,6 +55,20 @@ def test_a_resumed_run_equals_the_uninterrupted_run(method, stop, tmp_path):
     np.testing.assert_array_equal(draws_array(resumed), draws_array(full))
     for name, value in _stats(full).items():
         np.testing.assert_array_equal(_stats(resumed)[name], value, err_msg=name)
+
+
+def test_a_run_stopped_in_its_burn_in_resumes_from_its_state_and_attributes():
+    target = Gaussian2D()
+    init = target.map_result()
+    full = sample(target, "dram", init=init, **BUDGET)
+    with pytest.warns(SamplingInterrupted), pytest.raises(InterruptedInBurnIn) as info:
+        sample(target, "dram", init=init, callback=_stop_at(80), return_state=True, **BUDGET)
+    stop = info.value
+    assert isinstance(stop, KeyboardInterrupt) and stop.checkpoint.iterations_done == 80
+    assert stop.attrs["iterations"] == 80
+    resumed = resume_sampling(target, stop.attrs, checkpoint_arrays(stop.checkpoint),
+                              progress=False)
+    np.testing.assert_array_equal(draws_array(resumed), draws_array(full))
 
 
 def test_resuming_a_finished_run_or_a_foreign_state_is_refused():
@@ -135,6 +149,22 @@ def test_fit_resume_finishes_the_run_with_the_uninterrupted_draws(data_csv, refe
     assert len(again.output.strip().splitlines()) == 1
 
 
+def test_fit_stopped_in_the_burn_in_resumes_to_the_uninterrupted_draws(data_csv, reference_run,
+                                                                       tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    _chunks_of_100(monkeypatch, stop_at=100)  # burn-in: 200
+    stopped = run("fit", data_csv, "--out", out, *TINY)
+    assert stopped.exit_code == 130 and "continue with 'symplid fit --resume'" in stopped.output
+    reason = RunFolder(out, "r", allow_incomplete=True).incomplete_reason
+    assert reason.startswith("interrupted: in the burn-in, after 100 of 400")
+    monkeypatch.undo()
+    resumed = run("fit", "--out", out, "--resume", "--no-progress", "--no-report")
+    assert resumed.exit_code == 0, resumed.output
+    np.testing.assert_array_equal(draws_array(RunFolder(out, "r").read_posterior()),
+                                  draws_array(RunFolder(reference_run, "r").read_posterior()))
+    assert not (out / RunFolder.SAMPLER_ATTRS).exists()
+
+
 def test_resume_refuses_changed_settings_or_data_in_one_line(data_csv, tmp_path, monkeypatch):
     out = tmp_path / "run"
     _chunks_of_100(monkeypatch, stop_at=300)
@@ -149,5 +179,10 @@ def test_resume_refuses_changed_settings_or_data_in_one_line(data_csv, tmp_path,
     assert moved.exit_code == 2 and "not the data of the run" in moved.output
     for result in (changed, moved):
         assert len(result.output.strip().splitlines()) == 1, result.output
-    # Still interrupted and resumable after the refusals.
+    # Still interrupted and resumable after the refusals; the run's own settings file is
+    # the same settings (a file is merged onto the run's, not onto the defaults).
     assert RunFolder(out, "r", allow_incomplete=True).incomplete_reason.startswith("interrupted")
+    same = run("fit", "--out", out, "--resume", "--config", out / "settings.toml",
+               "--no-progress", "--no-report")
+    assert same.exit_code == 0, same.output
+    assert RunFolder(out, "r").read_posterior().posterior.sizes["draw"] == 200

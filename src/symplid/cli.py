@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 
+from symplid import __version__
 from symplid.workflow.commandline import (
     Interrupted,
     LazyChoice,
@@ -25,6 +26,7 @@ from symplid.workflow.commandline import (
     integrator_registry,
     no_progress_option,
     noise_model_names,
+    report_after_fit,
     rk2_variants,
     run_fit,
     sampler_registry,
@@ -40,7 +42,7 @@ from symplid.workflow.commandline import (
     cls=OneLineErrors,
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
-@click.version_option(package_name="symplid")
+@click.version_option(version=__version__, prog_name="symplid")  # no importlib.metadata
 def main() -> None:
     """Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
 
@@ -287,9 +289,7 @@ def fit(data, out, config, order, integrator, dt, damping, observation_noise, me
     if outcome.interrupted:
         raise Interrupted
     if report:
-        from symplid.workflow.run_tools import report_run
-
-        click.echo(report_run(out))
+        click.echo(report_after_fit(out))
     if heldout is not None:
         from symplid.workflow.forecasting import score_holdout
 
@@ -390,7 +390,8 @@ def report(run) -> None:
 def compare(
     data, out, config, orders, integrators, damping, x0, learn_initial_state, sets, no_progress
 ) -> None:
-    """Rank polynomial orders (propagators, damping) for DATA by the Laplace log evidence."""
+    """Rank polynomial orders (propagators, damping) for DATA by the log evidence (Gaussian in
+    the coefficients, the noise variances integrated on their log scale)."""
     from symplid.io import read_observations
     from symplid.workflow.compare import compare_models, parse_orders
 

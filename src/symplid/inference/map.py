@@ -45,7 +45,11 @@ value, so its line search backs off. A start counts as converged only when L-BFG
 and the Newton decrement ½ gᵀH⁻¹g there is below 1e-3 (see :class:`StartResult`); the best
 start (highest log posterior) gives the MAP whether or not the others converged.
 
-The Hessian, the covariance and the evidence are :mod:`symplid.inference.laplace`'s.
+The Hessian, the covariance and the Laplace evidence are :mod:`symplid.inference.laplace`'s;
+``MapResult.log_evidence`` integrates the variances on their log scale by quadrature
+(:mod:`symplid.inference.evidence`), the Laplace value is kept as ``log_evidence_laplace``.
+Starts that end in different optima are grouped (:func:`~.map_starts.distinct_optima`),
+recorded as ``MapResult.optima`` and reported in one line (:class:`MultipleOptimaWarning`).
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ import numpy as np
 import scipy.optimize
 
 from symplid.compiled import cached_or_built
+from symplid.inference.evidence import EvidenceSettings, quadrature_evidence
 from symplid.inference.laplace import (
     hessian_function,
     laplace_covariance,
@@ -73,12 +78,21 @@ from symplid.inference.map_result import (
     BoundWarning,
     MapConvergenceWarning,
     MapResult,
+    MultipleOptimaWarning,
     StartResult,
 )
-from symplid.inference.map_starts import as_theta, default_start, perturbed_start
+from symplid.inference.map_starts import (
+    as_theta,
+    default_start,
+    distinct_optima,
+    perturbed_start,
+    warn_optima,
+)
 from symplid.model.params import ParameterSpace, SearchSpace
 
 Array = jax.Array
+EVIDENCE_METHODS = ("quadrature", "laplace")
+"""Choices of ``find_map(evidence=...)``."""
 
 
 # ----------------------------------------------------------------------------- compiled
@@ -142,6 +156,7 @@ def find_map(
     gtol: float = 1e-8,
     maxcor: int = 30,
     compute_hessian: bool = True,
+    evidence: str = "quadrature",
     warn: bool = True,
 ) -> MapResult:
     """The maximum a posteriori point of ``posterior`` by L-BFGS-B from several starts.
@@ -167,6 +182,10 @@ def find_map(
         gradient, number of stored corrections).
     compute_hessian
         Compute the Hessian, covariance and evidence (one extra compilation).
+    evidence
+        ``"quadrature"`` (default): the variances integrated on their log scale, Gaussian
+        in the other parameters (:mod:`symplid.inference.evidence`); ``"laplace"``: the
+        Laplace evidence only (no extra fits). Both are recorded when computed.
     warn
         Warn (:class:`BoundWarning`) when the MAP is on a bound, and
         (:class:`MapConvergenceWarning`) when no start converged.
@@ -176,9 +195,10 @@ def find_map(
     MapResult
     """
     t_begin = time.perf_counter()
-    _check_options(num_starts, positive_floor, start_spread)
+    _check_options(num_starts, positive_floor, start_spread, evidence)
     names = tuple(str(n) for n in posterior.param_names)
-    space = ParameterSpace.of(posterior).search(positive_floor)
+    parameter_space = ParameterSpace.of(posterior)
+    space = parameter_space.search(positive_floor)
     fns = _compiled(posterior, space)
     objective = _Objective(space, fns["value_and_grad"])
     options = {"maxiter": int(maxiter), "ftol": float(ftol), "gtol": float(gtol),
@@ -207,8 +227,17 @@ def find_map(
             hessian = np.asarray(fns["hessian"](jnp.asarray(best.theta)), dtype=float)
         bound_idx = [names.index(n) for n in at_bounds]
         laplace = (hessian, *_laplace(hessian, best, bound_idx, objective, u_best, warn))
+    log_evidence, method, details = laplace[3], "laplace" if compute_hessian else "none", {}
+    if compute_hessian and evidence == "quadrature" and np.isfinite(best.log_posterior):
+        found = quadrature_evidence(fns["value_and_grad"], fns["hessian"], space,
+                                    parameter_space.groups, names, best.theta,
+                                    EvidenceSettings())
+        if found is not None and np.isfinite(found.log_evidence):
+            log_evidence, method, details = found.log_evidence, found.method, found.details
+    optima = distinct_optima(results, laplace[1], space)
     if warn:
         _warn_outcome(best, results, at_bounds, names, space, u_best)
+        warn_optima(optima, len(results))
     settings = {
         "num_starts": int(num_starts), "start_spread": float(start_spread),
         "positive_floor": float(positive_floor), **options, "init": init is not None,
@@ -217,12 +246,20 @@ def find_map(
         theta=best.theta, log_posterior=float(best.log_posterior), success=bool(best.success),
         message=best.message, num_starts=int(num_starts), starts=tuple(results),
         hessian=laplace[0], covariance=laplace[1], covariance_repaired=laplace[2],
-        log_evidence=laplace[3], param_names=names, at_bounds=at_bounds, seed=int(seed),
+        log_evidence=log_evidence, param_names=names, at_bounds=at_bounds, seed=int(seed),
         seconds=time.perf_counter() - t_begin, settings=settings,
+        log_evidence_laplace=laplace[3], evidence_method=method, evidence=details,
+        optima=optima,
     )
 
 
-def _check_options(num_starts: Any, positive_floor: float, start_spread: float) -> None:
+def _check_options(
+    num_starts: Any, positive_floor: float, start_spread: float, evidence: str
+) -> None:
+    if evidence not in EVIDENCE_METHODS:
+        raise ValueError(
+            f"evidence must be one of {', '.join(map(repr, EVIDENCE_METHODS))}, got {evidence!r}"
+        )
     if int(num_starts) != num_starts or num_starts < 1:
         raise ValueError(f"num_starts must be an integer ≥ 1, got {num_starts!r}")
     if not (positive_floor > 0 and math.isfinite(positive_floor)):
@@ -307,7 +344,8 @@ def _warn_outcome(
         warnings.warn(
             "the MAP sits on a bound: " + "; ".join(desc) + ". The data do not pull these "
             "parameters away from the bound (e.g. no detectable process noise); their Laplace "
-            "variance and the Laplace evidence are unreliable.",
+            "variances are unreliable, and so is the Laplace evidence (the default evidence "
+            "integrates the noise variances on their log scale and is not affected by theirs).",
             BoundWarning,
             stacklevel=3,
         )
@@ -447,9 +485,11 @@ def _projected_gradient(
 
 
 __all__ = [
+    "EVIDENCE_METHODS",
     "BoundWarning",
     "MapConvergenceWarning",
     "MapResult",
+    "MultipleOptimaWarning",
     "StartResult",
     "default_start",
     "find_map",

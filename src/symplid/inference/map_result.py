@@ -23,6 +23,30 @@ class MapConvergenceWarning(UserWarning):
     """No start of the MAP search reported convergence."""
 
 
+class MultipleOptimaWarning(UserWarning):
+    """The starts of the MAP search ended in different optima."""
+
+
+@dataclass(frozen=True)
+class Optimum:
+    """One distinct end point of the MAP starts: its log posterior, θ and which starts
+    (indices into ``MapResult.starts``) reached it."""
+
+    log_posterior: float
+    theta: np.ndarray
+    starts: tuple[int, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"log_posterior": _json_float(self.log_posterior),
+                "theta": _json_list(self.theta), "starts": list(self.starts)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Optimum:
+        return cls(float(_decode(d["log_posterior"])),
+                   np.asarray(_decode(d["theta"]), dtype=float),
+                   tuple(int(k) for k in d["starts"]))
+
+
 @dataclass(frozen=True)
 class StartResult:
     """One start of :func:`find_map`.
@@ -83,13 +107,24 @@ class MapResult:
     covariance_repaired
         Whether the Hessian was not positive definite and had eigenvalues replaced.
     log_evidence
-        Laplace approximation of log p(Y) (NaN when the Hessian was not computed).
+        log p(Y) by ``evidence_method`` (NaN when the Hessian was not computed):
+        ``"quadrature"`` / ``"axis-quadrature"`` integrate the variances on their log scale
+        (:mod:`symplid.inference.evidence`), ``"laplace"`` is the Laplace approximation.
     param_names
         Names of θ's entries.
     at_bounds
         Names of the parameters whose MAP value sits on a bound.
     seed, seconds
-        The seed of the starts, and the wall time of the whole search.
+        The seed of the starts, and the wall time of the whole search (evidence included).
+    log_evidence_laplace
+        The Laplace approximation of log p(Y) (:mod:`symplid.inference.laplace`), kept for
+        comparison; it is too low when a variance's posterior is skewed against zero.
+    evidence_method, evidence
+        How ``log_evidence`` was computed, and the details (nodes, timing, error estimate).
+    optima
+        The distinct optima the starts ended in, best first (:func:`~.map_starts.
+        distinct_optima`); more than one means the log posterior has several local maxima
+        within reach of the starts.
     """
 
     theta: np.ndarray
@@ -107,6 +142,18 @@ class MapResult:
     seed: int = 0
     seconds: float = 0.0
     settings: dict[str, Any] = field(default_factory=dict)
+    log_evidence_laplace: float = math.nan
+    evidence_method: str = "laplace"
+    evidence: dict[str, Any] = field(default_factory=dict)
+    optima: tuple[Optimum, ...] = ()
+
+    @property
+    def optima_spread(self) -> float:
+        """Best minus worst log posterior over the distinct optima (0 for one optimum)."""
+        if len(self.optima) < 2:
+            return 0.0
+        values = [o.log_posterior for o in self.optima]
+        return float(max(values) - min(values))
 
     @property
     def std(self) -> np.ndarray | None:
@@ -136,6 +183,10 @@ class MapResult:
             "covariance_repaired": bool(self.covariance_repaired),
             "std": None if self.std is None else _json_list(self.std),
             "log_evidence": _json_float(self.log_evidence),
+            "log_evidence_laplace": _json_float(self.log_evidence_laplace),
+            "evidence_method": str(self.evidence_method),
+            "evidence": dict(self.evidence),
+            "optima": [o.to_dict() for o in self.optima],
             "at_bounds": list(self.at_bounds),
             "seed": int(self.seed),
             "seconds": float(self.seconds),
@@ -180,6 +231,10 @@ class MapResult:
             seed=int(d.get("seed", 0)),
             seconds=float(d.get("seconds", 0.0)),
             settings=dict(d.get("settings", {})),
+            log_evidence_laplace=float(_decode(d.get("log_evidence_laplace", "nan"))),
+            evidence_method=str(d.get("evidence_method", "laplace")),
+            evidence=dict(d.get("evidence", {})),
+            optima=tuple(Optimum.from_dict(o) for o in d.get("optima", ())),
         )
 
     def __repr__(self) -> str:
@@ -195,4 +250,11 @@ class MapResult:
         return "\n".join(lines)
 
 
-__all__ = ["BoundWarning", "MapConvergenceWarning", "MapResult", "StartResult"]
+__all__ = [
+    "BoundWarning",
+    "MapConvergenceWarning",
+    "MapResult",
+    "MultipleOptimaWarning",
+    "Optimum",
+    "StartResult",
+]

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import warnings
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.inference.map_result import MultipleOptimaWarning, Optimum, StartResult
 from symplid.model.params import SearchSpace
 
 Array = jax.Array
@@ -131,4 +133,66 @@ def perturbed_start(
     return base.copy()
 
 
-__all__ = ["as_theta", "default_start", "perturbed_start"]
+OPTIMUM_LOG_POSTERIOR_TOL = 0.1
+"""Starts whose log posteriors differ by more than this (nats) ended in different optima."""
+OPTIMUM_SD_TOL = 1.0
+"""... as did starts whose θ differ by more than this many Laplace standard deviations."""
+
+
+def distinct_optima(
+    results: Sequence[StartResult], covariance: np.ndarray | None, space: SearchSpace
+) -> tuple[Optimum, ...]:
+    """The distinct end points of the starts, best first.
+
+    Only converged starts count (all starts with a finite log posterior when none
+    converged): a start that stopped short is no optimum. Going down the log posterior, a
+    start joins the first optimum that is within :data:`OPTIMUM_LOG_POSTERIOR_TOL` nats of it
+    and within :data:`OPTIMUM_SD_TOL` Laplace standard deviations in every coordinate
+    (``covariance``; without one, within 1e-2·max(1, |u|) in the search space u).
+    """
+    finite = [k for k, r in enumerate(results) if np.isfinite(r.log_posterior)]
+    chosen = [k for k in finite if results[k].success] or finite
+    chosen.sort(key=lambda k: -results[k].log_posterior)
+    scale = None
+    if covariance is not None:
+        scale = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    groups: list[list[int]] = []
+    for k in chosen:
+        for group in groups:
+            if _same_optimum(results[group[0]], results[k], scale, space):
+                group.append(k)
+                break
+        else:
+            groups.append([k])
+    return tuple(
+        Optimum(float(results[g[0]].log_posterior), np.asarray(results[g[0]].theta), tuple(g))
+        for g in groups
+    )
+
+
+def _same_optimum(a: StartResult, b: StartResult, scale: np.ndarray | None,
+                  space: SearchSpace) -> bool:
+    if abs(a.log_posterior - b.log_posterior) > OPTIMUM_LOG_POSTERIOR_TOL:
+        return False
+    if scale is not None and np.all(np.isfinite(scale)) and np.all(scale > 0):
+        return bool(np.all(np.abs(a.theta - b.theta) <= OPTIMUM_SD_TOL * scale))
+    ua, ub = space.to_u(a.theta), space.to_u(b.theta)
+    return bool(np.all(np.abs(ua - ub) <= 1e-2 * np.maximum(1.0, np.abs(ua))))
+
+
+def warn_optima(optima: Sequence[Optimum], num_starts: int) -> None:
+    """One line (:class:`MultipleOptimaWarning`) when the starts ended in several optima."""
+    if len(optima) < 2:
+        return
+    values = ", ".join(f"{o.log_posterior:.2f}" for o in optima[:5])
+    more = ", ..." if len(optima) > 5 else ""
+    spread = optima[0].log_posterior - optima[-1].log_posterior
+    warnings.warn(
+        f"the {num_starts} MAP starts ended in {len(optima)} different optima (log posterior "
+        f"{values}{more}; a spread of {spread:.2f} nats); the best is used",
+        MultipleOptimaWarning,
+        stacklevel=3,
+    )
+
+
+__all__ = ["as_theta", "default_start", "distinct_optima", "perturbed_start", "warn_optima"]

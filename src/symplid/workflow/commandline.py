@@ -30,6 +30,7 @@ __all__ = [
     "floats",
     "integrator_registry",
     "no_progress_option",
+    "report_after_fit",
     "rk2_variants",
     "run_fit",
     "sampler_registry",
@@ -72,8 +73,10 @@ def user_errors(fn: Callable) -> Callable:
                 raise UserError(str(err)) from None
             except (ValueError, NotADirectoryError) as err:  # the library's argument checks
                 raise UserError(str(err)) from None
-            except KeyboardInterrupt:
-                click.echo("symplid: interrupted", err=True)
+            except KeyboardInterrupt as err:
+                kept = ("; the chains' state is kept: continue with 'symplid fit --resume'"
+                        if hasattr(err, "checkpoint") else "")
+                click.echo(f"symplid: interrupted{kept}", err=True)
                 sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
             except Interrupted:  # the command said so in its result line
                 sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
@@ -238,10 +241,27 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
         total = outcome.settings.sampler.num_iterations
         head += (f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws "
                  "kept (continue with --resume); ")
+    if s.get("map_optima", 1) > 1:
+        extra += (f"; the {outcome.settings.map.num_starts} MAP starts ended in "
+                  f"{s['map_optima']} different optima (spread {s['map_optima_spread']:.2f} "
+                  "nats; the best is used)")
     return (
-        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, Laplace log evidence "
-        f"{s['log_evidence_laplace']:.2f}{extra}; {seconds:.0f} s"
+        f"{head}MAP log posterior {s['map_log_posterior']:.2f}, log evidence "
+        f"{s['log_evidence']:.2f} ({s['evidence_method']}; Laplace "
+        f"{s['log_evidence_laplace']:.2f}){extra}; {seconds:.0f} s"
     )
+
+
+def report_after_fit(out: Path) -> str:
+    """``symplid report`` at the end of a fit; the fit is finished whatever happens here, so
+    a failure is one warning line rather than an error."""
+    from symplid.workflow.run_tools import report_run
+
+    try:
+        return report_run(out)
+    except Exception as err:
+        return (f"{out}: the run is finished, but writing its report failed "
+                f"({type(err).__name__}: {err}); try 'symplid report {out}'")
 
 
 def _convergence_words(rhat: float, ess: float, chains: int) -> str:

@@ -7,12 +7,15 @@ data under each choice, p(Y | model) = ∫ L(θ; Y) π(θ) dθ (Section II-B.2, 
 them: it rewards fit and penalises parameters the data do not need (the Occam factor).
 
 :func:`compare_models` fits every (order, integrator, damping) candidate of a grid by MAP and
-Hessian
-(:func:`symplid.inference.map.find_map`; no sampling) and ranks them by the Laplace approximation
+Hessian (:func:`symplid.inference.map.find_map`; no sampling) and ranks them by its log
+evidence: Gaussian in the coefficients, the noise variances and a damped candidate's γ
+integrated by quadrature on their log scale (:mod:`symplid.inference.evidence`). Laplace's
 
     log p(Y | model) ≈ log π(θ*) + log L(θ*) + (d/2) log 2π − ½ log det H
 
-(with the 1-D treatment of parameters on a bound described in :mod:`symplid.inference.map`).
+is kept beside it (``log_evidence_laplace``): it is 1–2 nats too low whenever a variance's
+posterior is skewed against zero, which with leapfrog happens to the process variance in
+nearly every fit, so it cannot rank candidates that differ in that respect.
 Everything else in the settings (priors, dt, noise model, initial state, MAP starts and seed)
 is the same for every candidate (with ``model.standardise`` on, every candidate is fitted in
 the same standardised coordinates and reported in the data's units, so the evidences stay
@@ -30,7 +33,7 @@ The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
 ``num_params``            the size of θ (coefficients, variances, learned initial states)
 ``log_likelihood``        log L(θ*) at the MAP (Theorem 1, by the UKF)
 ``log_posterior``         log π(θ*) + log L(θ*), the unnormalised log posterior at the MAP
-``log_evidence``          the Laplace log evidence (NaN if the Hessian was not finite)
+``log_evidence``          the log evidence (NaN if the Hessian was not finite)
 ``delta_log_evidence``    log evidence minus the best one (0 for rank 1, negative below)
 ``probability``           posterior probability of the candidate among those compared,
                           with equal prior probabilities: softmax of the log evidences
@@ -39,10 +42,20 @@ The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
 ``process_var``           MAP process-noise variance (the mean when ``noise = "diagonal"``)
 ``obs_var``               MAP observation-noise variance (the same; NaN for purely
                           multiplicative noise, whose relative variances are in map.json)
-``at_bounds``             parameters whose MAP sits on a bound (comma separated; the
-                          evidence is rougher then, see :mod:`symplid.inference.map`)
+``at_bounds``             parameters whose MAP sits on a bound and whose integral in the
+                          evidence is rougher for it (comma separated; the "on a bound"
+                          flag): every parameter on a bound except the variances that
+                          the evidence integrated by quadrature, for which a MAP on the
+                          floor is no problem (all of them when the method is "laplace")
+``at_floor``              variances (and γ) whose MAP sits on their floor (information only)
+``evidence_method``       how the evidence was computed: ``quadrature`` (isotropic noise),
+                          ``axis-quadrature`` (more variances), ``laplace``
+``log_evidence_laplace``  the plain Laplace approximation, for comparison
 ``converged``             whether the best MAP start reported convergence
-``map_seconds``           wall time of the MAP search and Hessian (compilation included)
+``map_seconds``           wall time of the MAP search, Hessian and evidence (compilation
+                          included)
+``<coefficient>``         one column per coefficient name met among the candidates (``q1``,
+                          ``q1^2``, ...): the candidate's MAP value, blank where it lacks it
 ========================  ==================================================================
 
 With ``out``, the table is written to ``out/compare.csv`` and ``out/compare.txt`` (the
@@ -76,6 +89,7 @@ from symplid.dynamics.integrators import INTEGRATORS, get_integrator
 from symplid.inference.map import find_map
 from symplid.io import observation_layout
 from symplid.model.data import DataError, Observations
+from symplid.model.params import POSITIVE_GROUPS
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.scaling import resolve_standardise, scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
@@ -108,10 +122,14 @@ COLUMNS = (
     "process_var",
     "obs_var",
     "at_bounds",
+    "at_floor",
+    "evidence_method",
+    "log_evidence_laplace",
     "converged",
     "map_seconds",
 )
-"""The columns of the comparison table, in order."""
+"""The fixed columns of the comparison table, in order; the MAP coefficients follow, one
+column per coefficient name."""
 
 _RANGE = re.compile(r"^(\d+)\s*(?:\.\.|-|:)\s*(\d+)$")
 
@@ -288,9 +306,8 @@ def fit_candidates(
     try:
         for order, integrator, damping in grid:
             bar.set_postfix_str(f"order {order}, {integrator}" + (", damped" if damping else ""))
-            model_settings = dataclasses.replace(
-                base.model, order=order, integrator=integrator, damping=damping
-            )
+            model_settings = dataclasses.replace(base.model, order=order, integrator=integrator,
+                                                 damping=damping)
             s = dataclasses.replace(base, model=model_settings)
             start = time.perf_counter()
             # model.standardise: fit on q/a, p/a, report in the data's units (workflow.scaling)
@@ -358,15 +375,42 @@ def _group_mean(fit: CandidateFit, group: str) -> float:
     return float(np.mean(values)) if values.size else math.nan
 
 
+def _coefficients(fit: CandidateFit) -> dict[str, float]:
+    """``{coefficient name: MAP value}`` of a candidate."""
+    names = getattr(fit.posterior, "param_names", None)
+    if names is None:
+        return {}
+    groups = tuple(fit.posterior.param_groups)
+    theta = np.asarray(fit.map_result.theta, dtype=float)
+    return {str(n): float(v) for n, g, v in zip(names, groups, theta, strict=True)
+            if g == "coefficients"}
+
+
+def _bound_flags(fit: CandidateFit) -> tuple[str, str]:
+    """(the "on a bound" flag, the variances on their floor) of a candidate (module
+    docstring: a variance integrated by quadrature is not flagged)."""
+    r = fit.map_result
+    integrated = set(getattr(r, "evidence", {}).get("variances", ()))
+    groups = dict(zip(getattr(fit.posterior, "param_names", ()), fit.posterior.param_groups,
+                      strict=False))
+    floor = [n for n in r.at_bounds if groups.get(n) in POSITIVE_GROUPS]
+    flagged = [n for n in r.at_bounds if n not in integrated]
+    return ",".join(flagged), ",".join(floor)
+
+
 def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
-    """The ranked table of :data:`COLUMNS` (module docstring) from fitted candidates."""
+    """The ranked table of :data:`COLUMNS` and the MAP coefficients (module docstring)."""
     if not fits:
         raise ValueError("no candidates to compare")
-    rows = []
+    rows, coefficient_rows = [], []
+    coefficient_columns: list[str] = []
     for fit in fits:
         r = fit.map_result
         k = int(fit.posterior.num_params)
         n = _num_measured(fit)
+        coefficients = _coefficients(fit)
+        coefficient_columns += [c for c in coefficients if c not in coefficient_columns]
+        flagged, floor = _bound_flags(fit)
         rows.append(
             {
                 "order": int(fit.order),
@@ -380,12 +424,20 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
                 "bic": -2.0 * float(fit.log_likelihood) + k * math.log(max(n, 1)),
                 "process_var": _group_mean(fit, "process_var"),
                 "obs_var": _group_mean(fit, "obs_var"),
-                "at_bounds": ",".join(r.at_bounds),
+                "at_bounds": flagged,
+                "at_floor": floor,
+                "evidence_method": str(getattr(r, "evidence_method", "laplace")),
+                "log_evidence_laplace": float(getattr(r, "log_evidence_laplace",
+                                                      r.log_evidence)),
                 "converged": bool(r.success),
                 "map_seconds": float(fit.seconds),
             }
         )
-    df = pd.DataFrame(rows)
+        coefficient_rows.append(coefficients)
+    # a coefficient named like a fixed column gets "coef:" in front
+    extra = [f"coef:{c}" if c in COLUMNS else c for c in coefficient_columns]
+    coefs = pd.DataFrame(coefficient_rows, columns=coefficient_columns, dtype=float)
+    df = pd.concat([pd.DataFrame(rows), coefs.set_axis(extra, axis=1)], axis=1)
     evidence = df["log_evidence"].to_numpy(dtype=float)
     finite = np.isfinite(evidence)
     best = float(np.max(evidence[finite])) if finite.any() else math.nan
@@ -397,7 +449,7 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
     df["_key"] = np.where(finite, -evidence, np.inf)
     df = df.sort_values(["_key", "bic"], kind="stable").drop(columns="_key")
     df.insert(0, "rank", np.arange(1, len(df) + 1))
-    return df.reset_index(drop=True)[list(COLUMNS)]
+    return df.reset_index(drop=True)[[*COLUMNS, *extra]]
 
 
 def format_table(table: pd.DataFrame, title: str | None = None) -> str:
@@ -443,9 +495,12 @@ def format_table(table: pd.DataFrame, title: str | None = None) -> str:
     lines.extend(fmt(r) for r in lines_body)
     lines += [
         "",
-        "Ranked by the Laplace log evidence (higher is better); prob = posterior probability",
-        "among these candidates with equal prior weights; BIC = -2 log L + params·log n",
-        "(lower is better).",
+        "Ranked by the log evidence (higher is better; Gaussian in the coefficients, the noise",
+        "variances integrated on their log scale, see compare.csv's evidence_method); prob =",
+        "posterior probability among these candidates with equal prior weights; BIC = -2 log L",
+        "+ params·log n (lower is better). \"on a bound\": parameters on a bound other than the",
+        "variances the evidence integrated (compare.csv's at_floor lists those on their floor).",
+        "The MAP coefficients of each candidate are in compare.csv.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -495,7 +550,7 @@ def compare_models(
     source: str = "settings",
     dampings: Sequence[bool] | None = None,
 ) -> pd.DataFrame:
-    """Rank polynomial orders, propagators and damping by the Laplace log evidence (MAP only).
+    """Rank polynomial orders, propagators and damping by the log evidence (MAP only).
 
     Parameters
     ----------
@@ -527,7 +582,8 @@ def compare_models(
     Returns
     -------
     pandas.DataFrame
-        One row per candidate, best first, with the columns of :data:`COLUMNS`.
+        One row per candidate, best first, with the columns of :data:`COLUMNS` and then
+        one per coefficient name (NaN where a candidate lacks that coefficient).
     """
     fits = fit_candidates(obs, settings, orders, integrators, progress, source, dampings)
     table = comparison_table(fits)

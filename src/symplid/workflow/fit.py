@@ -24,7 +24,7 @@ import numpy as np
 from symplid.dynamics.families import build_family
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import find_map
-from symplid.inference.samplers import SAMPLERS, draws_array, sample
+from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
 from symplid.io import as_list, observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
@@ -122,7 +122,8 @@ def sample_for(
     # The [sampler] section's method-specific keys go to the samplers whose settings class
     # declares them (DRAM's γ and adaptation start); no branch on the method's name.
     accepted = {f.name for f in dataclasses.fields(SAMPLERS[s.method].settings_class)}
-    offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start)}
+    offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start),
+               "variance_scale": s.variance_scale}
     options = {key: value for key, value in offered.items() if key in accepted}
     # The settings count every iteration (burn-in included, as the paper's 200,000 with
     # 100,000 discarded); the sampler counts the draws it keeps.
@@ -209,8 +210,13 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     if folder is not None:
         folder.write_map(map_result)
     start = time.perf_counter()
-    idata, checkpoint = sample_for(settings, posterior, map_fit, progress, progress_label,
-                                   progress_position, return_state=True)
+    try:
+        idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
+                                       progress_label, progress_position, return_state=True)
+    except InterruptedInBurnIn as stop:
+        if folder is not None:
+            save_burn_in(folder, settings, stop)
+        raise
     timings["sampler_s"] = time.perf_counter() - start
     if scaling is not None:
         idata = scaling.inference_data(idata, groups, obs)
@@ -219,6 +225,19 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale)
     return save_run(folder, outcome, checkpoint, warn)
+
+
+def save_burn_in(folder: RunFolder, settings: Settings, stop: InterruptedInBurnIn) -> None:
+    """A run stopped in its burn-in keeps the chains' state and the draws' attributes, so
+    that ``fit --resume`` can continue it (there are no draws yet)."""
+    from symplid.inference.samplers.resume import checkpoint_arrays
+
+    with deferred_interrupts():
+        folder.write_npz(RunFolder.SAMPLER_STATE, **checkpoint_arrays(stop.checkpoint))
+        folder.write_json(RunFolder.SAMPLER_ATTRS, stop.attrs)
+        folder.mark_interrupted(
+            f"in the burn-in, after {stop.checkpoint.iterations_done:,} of "
+            f"{settings.sampler.num_iterations:,} iterations per chain (no draws kept yet)")
 
 
 def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = None,
@@ -264,7 +283,12 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
         "param_names": names,
         "map": dict(zip(names, np.asarray(map_result.theta).tolist(), strict=True)),
         "map_log_posterior": float(map_result.log_posterior),
-        "log_evidence_laplace": float(map_result.log_evidence),
+        "log_evidence": float(map_result.log_evidence),
+        "log_evidence_laplace": float(getattr(map_result, "log_evidence_laplace",
+                                              map_result.log_evidence)),
+        "evidence_method": str(getattr(map_result, "evidence_method", "laplace")),
+        "map_optima": len(getattr(map_result, "optima", ())) or 1,
+        "map_optima_spread": float(getattr(map_result, "optima_spread", 0.0)),
     }
     if idata is None:
         return out

@@ -102,7 +102,7 @@ def forecast_run(run: str | Path, t_end: float | None = None) -> str:
     times = t_last + gap * np.arange(1, count + 1)
     times[-1] = min(times[-1], t_end) if count > 1 else t_end
     fc = _forecast(r, times)
-    figure = plot_forecast(fc, r.data, r.model.state_dim)
+    figure = plot_forecast(fc, r.data, r.model.state_dim, time_unit=r.settings.plots.time_unit)
     _write(r.folder.path, "forecast", fc, figure)
     return (f"{r.folder.file('forecast.npz')}: forecast from t = {t_last:g} to {times[-1]:g} "
             f"with process noise ({fc.states.shape[0]} draws)")
@@ -167,7 +167,8 @@ def score_holdout(run: str | Path, heldout: Observations) -> dict[str, float]:
     r = _open(run)
     fc = _forecast(r, np.asarray(heldout.times, dtype=float))
     scores = holdout_scores(fc, heldout)
-    figure = plot_forecast(fc, r.data, r.model.state_dim, heldout=heldout)
+    figure = plot_forecast(fc, r.data, r.model.state_dim, heldout=heldout,
+                           time_unit=r.settings.plots.time_unit)
     summary = r.folder.read_summary()
     summary["holdout"] = scores
     _write(r.folder.path, "holdout", fc, figure)

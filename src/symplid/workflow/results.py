@@ -7,6 +7,7 @@ A run folder holds::
     map.json         the MAP point, its log posterior, the Hessian, ... (write_map)
     posterior.nc     the draws as ArviZ InferenceData (netCDF through h5netcdf)
     sampler_state.npz   only while interrupted: the chains' states, for ``fit --resume``
+    sampler_attrs.json  only while interrupted in the burn-in: the attributes of the draws
     summary.json     the run's numbers, and summary.txt, the same as a readable table
     figures/*.png
     report.md
@@ -122,8 +123,9 @@ class RunFolder:
     REPORT = "report.md"
     FIGURES = "figures"
     SAMPLER_STATE = "sampler_state.npz"
+    SAMPLER_ATTRS = "sampler_attrs.json"  # a run stopped in its burn-in: its draws' attributes
     RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES,
-                 SAMPLER_STATE)
+                 SAMPLER_STATE, SAMPLER_ATTRS)
     UPDATE = "update"
     INTERRUPTED = "interrupted:"
 
@@ -237,7 +239,8 @@ class RunFolder:
         missing = [name for name in required if not (self.path / name).exists()]
         if missing:
             raise RuntimeError(f"{self.path}: cannot finish the run, missing {', '.join(missing)}")
-        (self.path / self.SAMPLER_STATE).unlink(missing_ok=True)  # only an interrupted run's
+        for name in (self.SAMPLER_STATE, self.SAMPLER_ATTRS):  # only an interrupted run's
+            (self.path / name).unlink(missing_ok=True)
         (self.path / self.MARKER).unlink(missing_ok=True)
         self._finished = True
 

@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 
 from symplid.inference.map_result import MapResult
+from symplid.inference.samplers import InterruptedInBurnIn
 from symplid.inference.samplers.resume import resume_sampling
-from symplid.workflow.fit import FitOutcome, build_model, build_posterior, save_run
+from symplid.workflow.fit import FitOutcome, build_model, build_posterior, save_burn_in, save_run
 from symplid.workflow.results import RunFolder, RunFolderError
 from symplid.workflow.settings import Settings, SettingsError, settings_to_dict
 
@@ -79,24 +80,30 @@ def resume_fit(
         if asked is not None:
             check_same_settings(settings, asked, out)
     summary = folder.read_summary() if folder.file(RunFolder.SUMMARY).exists() else {}
-    if summary.get("standardised_scale") is not None:
+    if settings.model.standardise == "on":
         raise RunFolderError(
             f"{out}: this run was fitted in standardised coordinates (model.standardise), "
             "which --resume does not continue yet; fit again with --overwrite"
         )
-    done = summary.get("iterations_done", "?")
+    with np.load(folder.file(RunFolder.SAMPLER_STATE)) as stored:
+        arrays = {name: stored[name] for name in stored.files}
     if status is not None:
-        status(f"resuming {out} at iteration {done} of "
+        status(f"resuming {out} at iteration {int(arrays['iterations_done']):,} of "
                f"{settings.sampler.num_iterations:,} per chain (compiling first)...")
     model = build_model(settings, obs)
     posterior = build_posterior(settings, obs, model)
     map_result = MapResult.from_dict(folder.read_map())
-    idata = folder.read_posterior()
-    with np.load(folder.file(RunFolder.SAMPLER_STATE)) as stored:
-        arrays = {name: stored[name] for name in stored.files}
+    if folder.file(RunFolder.POSTERIOR).exists():
+        idata = folder.read_posterior()
+    else:  # stopped in the burn-in: no draws yet, their attributes only
+        idata = folder.read_json(RunFolder.SAMPLER_ATTRS)
     start = time.perf_counter()
-    idata, checkpoint = resume_sampling(posterior, idata, arrays, progress=progress,
-                                        return_state=True)
+    try:
+        idata, checkpoint = resume_sampling(posterior, idata, arrays, progress=progress,
+                                            return_state=True)
+    except InterruptedInBurnIn as stop:
+        save_burn_in(folder, settings, stop)
+        raise
     timings = dict(summary.get("timings", {}))
     timings["sampler_s"] = float(timings.get("sampler_s", 0.0)) + time.perf_counter() - start
     timings["resumed"] = int(timings.get("resumed", 0)) + 1

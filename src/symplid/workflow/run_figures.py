@@ -20,13 +20,13 @@ from symplid.io import as_list, observation_layout
 from symplid.plotting import PotentialSlice, plot_pair, plot_potential, plot_predictive, plot_traces
 from symplid.plotting.diagnostics import truncation_note
 
-__all__ = ["Figure", "report_figures", "trajectory_paths", "truth_values"]
+__all__ = ["ReportFigure", "report_figures", "trajectory_paths", "truth_values"]
 
 #: Draws used for the U(q) band (a seeded subset when there are more).
 POTENTIAL_DRAWS = 400
 
 
-class Figure(NamedTuple):
+class ReportFigure(NamedTuple):
     """One figure of the report: its title, file name (``figures/<name>.png``), the figure and
     a note (e.g. the parameters it leaves out) or ""."""
 
@@ -119,7 +119,7 @@ def trajectory_paths(settings: Any, model: Any, posterior: Any, theta_map: np.nd
 
 
 def fit_figures(settings: Any, data: Any, model: Any, posterior: Any, theta_map: np.ndarray,
-                flat: np.ndarray) -> list[Figure]:
+                flat: np.ndarray) -> list[ReportFigure]:
     """Per trajectory, the observed positions against the MAP path and the posterior band over
     the span of the data."""
     out = []
@@ -137,30 +137,30 @@ def fit_figures(settings: Any, data: Any, model: Any, posterior: Any, theta_map:
                                  t_data_end=None, time_unit=settings.plots.time_unit,
                                  title=f"data and fit{which}: positions")
         name = "fit" if len(trajectories) == 1 else f"fit_{k}"
-        out.append(Figure(f"Data and fit{which}", name, figure))
+        out.append(ReportFigure(f"Data and fit{which}", name, figure))
     return out
 
 
 def report_figures(settings: Any, data: Any, model: Any, posterior: Any, draws: np.ndarray,
-                   theta_map: np.ndarray) -> list[Figure]:
+                   theta_map: np.ndarray) -> list[ReportFigure]:
     """Traces, pairs (MAP and truth marked), U(q) with its band, and data against the fit."""
     plots = settings.plots
     names = list(posterior.param_names)
     truth = truth_values(settings, model)
     reference = truth[1] if truth is not None and truth[1] else None
+    n, most_traces, most_pairs = len(names), plots.max_trace_params, plots.max_pair_params
+    traces = plot_traces(draws, names, max_params=most_traces, option="plots.max_trace_params")
+    pairs = plot_pair(draws, names, max_params=most_pairs, reference=reference,
+                      map_values=dict(zip(names, theta_map, strict=True)),
+                      option="plots.max_pair_params")
     figures = [
-        Figure("Traces", "traces", plot_traces(draws, names, max_params=plots.max_trace_params,
-                                               option="plots.max_trace_params"),
-               truncation_note(min(len(names), plots.max_trace_params), len(names),
-                               "plots.max_trace_params") or ""),
-        Figure("Pairs", "pairs", plot_pair(draws, names, max_params=plots.max_pair_params,
-                                           map_values=dict(zip(names, theta_map, strict=True)),
-                                           reference=reference, option="plots.max_pair_params"),
-               truncation_note(min(len(names), plots.max_pair_params), len(names),
-                               "plots.max_pair_params") or ""),
+        ReportFigure("Traces", "traces", traces, truncation_note(
+            min(n, most_traces), n, "plots.max_trace_params") or ""),
+        ReportFigure("Pairs", "pairs", pairs, truncation_note(
+            min(n, most_pairs), n, "plots.max_pair_params") or ""),
     ]
     flat = draws.reshape(-1, draws.shape[-1])
     potential = potential_figure(settings, data, model, flat, theta_map)
     if potential is not None:
-        figures.append(Figure("Potential U(q)", "potential", potential))
+        figures.append(ReportFigure("Potential U(q)", "potential", potential))
     return figures + fit_figures(settings, data, model, posterior, theta_map, flat)

@@ -16,7 +16,7 @@ from symplid.io import as_list
 from symplid.plotting import plot_predictive, save_figure
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder, format_summary
-from symplid.workflow.run_figures import Figure, report_figures, trajectory_paths
+from symplid.workflow.run_figures import ReportFigure, report_figures, trajectory_paths
 
 #: The most integrator steps a prediction may take ((t_end − t0)/dt), so that a mistyped
 #: horizon (1e9) is a one-line error rather than hours of work or an exhausted memory.
@@ -140,7 +140,7 @@ def report_run(run: str | Path) -> str:
         idata = folder.read_posterior()
     else:
         _draws(folder, True, "the report has no posterior table or figures")
-    figures: list[Figure] = []
+    figures: list[ReportFigure] = []
     table = None
     if idata is not None:
         theta_map = np.asarray(folder.read_map()["theta"], dtype=float)

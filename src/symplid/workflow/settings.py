@@ -31,6 +31,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     [initial_state]
     mode = "known"                # "known": X_0 ~ N(x0, p0_var I); "learned": x0 joins θ
     x0 = [0.2, -0.25, 0.3, -0.25] # (q1..qd, p1..pd); empty = centre the learned prior on y_1
+                                  # several trajectories: one for all, or K·2d numbers
     p0_var = 1e-16
     t0 = 0.0                      # or "first": the state at the first observation time
 
@@ -60,6 +61,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     num_chains = 4
     gamma = 0.01                  # DRAM second-stage scale
     adapt_start = 200
+    variance_scale = "natural"    # DRAM: "log" moves the variances as log(v), with the Jacobian
     thin = 1
     seed = 0
 

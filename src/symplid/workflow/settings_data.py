@@ -77,6 +77,7 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
     for k, one in enumerate(trajectories):
         _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")
+    _warn_few_values(trajectories, settings, source)
     try:
         standardise = resolve_standardise(model, trajectories)
     except ValueError as err:
@@ -126,22 +127,6 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
             f"integrator steps of model.dt = {model.dt:g}; at most {MAX_SUBSTEPS_PER_GAP:,} "
             "are allowed per gap (check the time column, or raise model.dt)"
         )
-    values = int(np.sum(obs.mask))
-    d = _dim(obs)
-    kind = observation_layout(obs).kind
-    num_params = math.comb(d + model.order, model.order) - 1 + num_noise_variances(
-        resolve_noise(model.noise, kind), kind, model.observation_noise, d
-    )
-    num_params += int(model.damping)  # γ
-    num_params += 2 * d if init.mode == "learned" else 0
-    if num_params > values:
-        warnings.warn(
-            f"{source}: the model has {num_params} parameters (order {model.order}) for "
-            f"{values} data values; the priors decide most of the posterior "
-            "(lower model.order, or give more data)",
-            UserWarning,
-            stacklevel=3,
-        )
     if init.mode == "learned" and not init.x0 and not init.at_first_observation:
         lead = first - float(init.t0)
         if times.size > 1 and lead > float(np.max(np.diff(times))):
@@ -152,6 +137,27 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
                 UserWarning,
                 stacklevel=3,
             )
+
+
+def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -> None:
+    """One line when θ has more entries than the data have values (all trajectories)."""
+    model, init = settings.model, settings.initial_state
+    values = sum(int(np.sum(obs.mask)) for obs in trajectories)
+    d = _dim(trajectories[0])
+    kind = observation_layout(trajectories[0]).kind
+    num_params = math.comb(d + model.order, model.order) - 1 + num_noise_variances(
+        resolve_noise(model.noise, kind), kind, model.observation_noise, d
+    )
+    num_params += int(model.damping)  # γ
+    num_params += 2 * d * len(trajectories) if init.mode == "learned" else 0
+    if num_params > values:
+        warnings.warn(
+            f"{source}: the model has {num_params} parameters (order {model.order}) for "
+            f"{values} data values; the priors decide most of the posterior "
+            "(lower model.order, or give more data)",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _dim(obs: Any) -> int:

@@ -14,6 +14,7 @@ from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES
 from symplid.dynamics.integrators import INTEGRATORS
 from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.samplers import SAMPLERS
+from symplid.inference.samplers.dram import VARIANCE_SCALES
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
 from symplid.workflow.validate import Spec, setting
 
@@ -119,6 +120,8 @@ class SamplerSettings:
 
     ``num_iterations`` counts every iteration of a chain, ``burn_in`` included; the draws kept
     per chain are ``(num_iterations − burn_in) // thin`` (:attr:`num_draws`).
+    ``variance_scale`` is DRAM's: ``"natural"`` moves the variances as themselves (the
+    paper's), ``"log"`` as log(v) with the Jacobian (no wall at their floor).
     """
 
     method: str = setting("dram", choices=SAMPLERS)
@@ -127,6 +130,7 @@ class SamplerSettings:
     num_chains: int = setting(4, minimum=1)
     gamma: float = setting(0.01, minimum=0.0, strict=True)
     adapt_start: int = setting(200, minimum=0)
+    variance_scale: str = setting("natural", choices=VARIANCE_SCALES)
     thin: int = setting(1, minimum=1)
     seed: int = setting(0, minimum=0)
 

@@ -13,7 +13,13 @@ and the sweeps then offer it by name.
 """
 
 from symplid.inference.samplers import dram, nuts
-from symplid.inference.samplers.api import draws_array, overdispersed_starts, sample
+from symplid.inference.samplers.api import (
+    InterruptedInBurnIn,
+    SamplerCheckpoint,
+    draws_array,
+    overdispersed_starts,
+    sample,
+)
 from symplid.inference.samplers.dram import DRAMInfo, DRAMSettings, DRAMState
 from symplid.inference.samplers.nuts import NUTSSettings, NUTSState
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
@@ -26,8 +32,10 @@ __all__ = [
     "DRAMInfo",
     "DRAMSettings",
     "DRAMState",
+    "InterruptedInBurnIn",
     "NUTSSettings",
     "NUTSState",
+    "SamplerCheckpoint",
     "SamplerKernel",
     "SamplerSpec",
     "SamplingInterrupted",

@@ -51,7 +51,13 @@ from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, Sampler
 from symplid.inference.samplers.run import ChainRun, ChunkReport, run_chains
 from symplid.model.params import pushforward_covariance
 
-__all__ = ["SamplerCheckpoint", "draws_array", "overdispersed_starts", "sample"]
+__all__ = [
+    "InterruptedInBurnIn",
+    "SamplerCheckpoint",
+    "draws_array",
+    "overdispersed_starts",
+    "sample",
+]
 
 
 class SamplerCheckpoint(NamedTuple):
@@ -60,6 +66,16 @@ class SamplerCheckpoint(NamedTuple):
 
     states: Any
     iterations_done: int
+
+
+class InterruptedInBurnIn(KeyboardInterrupt):
+    """Sampling was interrupted before any draw was kept (during the burn-in). It carries the
+    chains' ``checkpoint`` and the run's ``attrs`` (the attributes its draws would have had),
+    from which :func:`~.resume.resume_sampling` can continue."""
+
+    def __init__(self, checkpoint: SamplerCheckpoint, attrs: dict[str, Any]) -> None:
+        super().__init__("sampling was interrupted before any draw was kept")
+        self.checkpoint, self.attrs = checkpoint, attrs
 
 
 _POSTERIOR_ATTRIBUTES = ("num_params", "param_names", "log_density")
@@ -172,8 +188,6 @@ def sample(
                      chain_method=chain_method, progress=progress, callback=callback,
                      desc=progress_label or method.upper(), position=progress_position)
     extra_attrs.update(kernel.final_attrs(run.states))
-    if not run.draws:
-        raise KeyboardInterrupt("sampling was interrupted before any draw was kept")
     record_settings = {
         "method": method, "num_draws": num_draws, "num_chains": int(num_chains),
         "seed": int(seed), "burn_in": burn_in, "thin": int(thin),
@@ -183,6 +197,8 @@ def sample(
     }
     attrs = _attrs(method, seed, record_settings, names, theta_map, cov_map, starts, run,
                    extra_attrs, init)
+    if not run.draws:
+        raise InterruptedInBurnIn(SamplerCheckpoint(run.states, int(run.iterations_done)), attrs)
     idata = _to_inference_data(run, names, attrs)
     if return_state:
         return idata, SamplerCheckpoint(run.states, int(run.iterations_done))
@@ -363,6 +379,8 @@ def _initial_states(posterior: Any, spec: SamplerSpec, kernel: SamplerKernel,
     """The chains' first states, from θ and the MAP covariance (pushed to z when the sampler
     moves in the unconstrained space), and the attributes that records."""
     if not spec.unconstrained:
+        if kernel.covariance_at is not None:  # e.g. DRAM with the variances on a log scale
+            cov_map = kernel.covariance_at(theta_map, cov_map)
         return kernel.init_states(jnp.asarray(starts), jnp.asarray(cov_map)), {}
     cov_z = pushforward_covariance(posterior.to_unconstrained, theta_map, cov_map)
     z_starts = np.asarray(jax.vmap(posterior.to_unconstrained)(jnp.asarray(starts)))

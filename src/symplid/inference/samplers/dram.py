@@ -61,8 +61,11 @@ from symplid.filters.linalg import MAX_UNROLLED_DIM, cholesky, matmul, solve_low
 
 Array = jax.Array
 LogDensityFn = Callable[[Array], Array]
+VARIANCE_SCALES = ("natural", "log")
+"""Choices of :attr:`DRAMSettings.variance_scale`."""
 
 __all__ = [
+    "VARIANCE_SCALES",
     "DRAMInfo",
     "DRAMSettings",
     "DRAMState",
@@ -95,6 +98,11 @@ class DRAMSettings:
         Covariance scale of the second-stage proposal (γ = 0.01 in the paper).
     delayed_rejection
         Whether to try the second stage at all (``False`` gives plain adaptive Metropolis).
+    variance_scale
+        ``"natural"``: the chain moves in θ (the paper's). ``"log"``: the variance parameters
+        (bounded below only) move as w = log(v − a), the target gaining the log-Jacobian
+        Σ w (:func:`~.registry.build_dram`), so a variance whose posterior is piled against
+        its floor is no longer a wall that rejects half the proposals.
     """
 
     adapt_start: int = 200
@@ -104,8 +112,14 @@ class DRAMSettings:
     nugget: float = 1e-10
     gamma: float = 0.01
     delayed_rejection: bool = True
+    variance_scale: str = "natural"
 
     def __post_init__(self) -> None:
+        if self.variance_scale not in VARIANCE_SCALES:
+            raise ValueError(
+                f"variance_scale must be one of {', '.join(map(repr, VARIANCE_SCALES))}, "
+                f"got {self.variance_scale!r}"
+            )
         if self.adapt_start < 1:
             raise ValueError(f"adapt_start must be >= 1, got {self.adapt_start}")
         if self.adapt_stop is not None and self.adapt_stop < 0:

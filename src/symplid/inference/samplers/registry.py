@@ -34,6 +34,7 @@ import numpy as np
 from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
+from symplid.model.params import POSITIVE_GROUPS, ParameterSpace, pushforward_covariance
 from symplid.registry import Registry
 
 Array = jax.Array
@@ -46,6 +47,9 @@ class SamplerKernel(NamedTuple):
     step: Callable[[Array, Any], tuple[Any, Any]]
     record: Callable[[Any, Any], dict[str, Array]]
     final_attrs: Callable[[Any], dict[str, Any]]
+    covariance_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    """For a sampler in θ that moves some coordinates on another scale: the MAP covariance
+    (θ̂, Σ) ↦ the covariance ``init_states`` gets (None: Σ itself)."""
 
 
 def half_the_run(num_draws: int, thin: int) -> int:
@@ -92,25 +96,60 @@ class SamplerSpec:
     description: str = ""
 
 
+class LogVariances:
+    """θ ↔ w with the variances (bounded below only) as w = log(v − a), the rest as is,
+    and the log density of w (log π(θ(w)) + Σ w over the variances: the log-Jacobian)."""
+
+    def __init__(self, posterior: Any) -> None:
+        space = ParameterSpace.of(posterior)
+        self.mask = np.array([g in POSITIVE_GROUPS for g in space.groups], dtype=bool)
+        self.mask &= np.isfinite(space.lower) & ~np.isfinite(space.upper)
+        self.lower = np.where(self.mask, space.lower, 0.0)
+        self._log_density = posterior.log_density
+
+    def to_theta(self, w: Array) -> Array:
+        return jnp.where(self.mask, self.lower + jnp.exp(jnp.where(self.mask, w, 0.0)), w)
+
+    def to_w(self, theta: Array) -> Array:
+        inside = jnp.where(self.mask, theta - self.lower, 1.0)
+        return jnp.where(self.mask, jnp.log(jnp.where(inside > 0, inside, jnp.nan)), theta)
+
+    def log_jacobian(self, w: Array) -> Array:
+        return jnp.sum(jnp.where(self.mask, w, 0.0), axis=-1)
+
+    def log_density(self, w: Array) -> Array:
+        return self._log_density(self.to_theta(w)) + self.log_jacobian(w)
+
+
 def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
                batch_logdensity: Callable) -> SamplerKernel:
-    """DRAM in θ, from the MAP covariance (the paper's sampler)."""
-    logdensity_fn = posterior.log_density
+    """DRAM in θ, from the MAP covariance (the paper's sampler); with
+    ``variance_scale = "log"`` the variances move as log(v − a) (:class:`LogVariances`)."""
+    scale = LogVariances(posterior) if settings.variance_scale == "log" else None
+    if scale is not None and not scale.mask.any():
+        scale = None
+    logdensity_fn = posterior.log_density if scale is None else scale.log_density
+    to_theta = (lambda w: w) if scale is None else scale.to_theta
 
     @jax.jit
-    def init_from_values(thetas, cov, values):
+    def init_from_values(positions, cov, values):
         return jax.vmap(
             lambda p, value: dram.init(p, logdensity_fn, cov, settings, logdensity=value)
-        )(thetas, values)
+        )(positions, values)
 
     def init_states(thetas, cov):
         # The log densities come from the batch function, already compiled for the starts.
-        return init_from_values(thetas, cov, batch_logdensity(thetas))
+        values = batch_logdensity(thetas)
+        if scale is None:
+            return init_from_values(thetas, cov, values)
+        ws = scale.to_w(thetas)
+        return init_from_values(ws, cov, values + scale.log_jacobian(ws))
 
     def record(state: dram.DRAMState, info: dram.DRAMInfo) -> dict[str, Array]:
+        jacobian = 0.0 if scale is None else scale.log_jacobian(state.position)
         return {
-            "theta": state.position,
-            "lp": state.logdensity,
+            "theta": to_theta(state.position),
+            "lp": state.logdensity - jacobian,
             "accepted": info.is_accepted,
             "stage1_accepted": info.stage1_accepted,
             "stage2_attempted": info.stage2_attempted,
@@ -118,10 +157,13 @@ def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
         }
 
     def final_attrs(states: dram.DRAMState) -> dict[str, Any]:
-        return {"dram_adapted_covariance": np.asarray(states.cov).tolist()}
+        return {"dram_adapted_covariance": np.asarray(states.cov).tolist(),
+                "dram_variance_scale": "natural" if scale is None else "log"}
 
+    covariance_at = None if scale is None else (
+        lambda theta, cov: pushforward_covariance(scale.to_w, theta, cov))
     return SamplerKernel(init_states, dram.build_kernel(logdensity_fn, settings), record,
-                         final_attrs)
+                         final_attrs, covariance_at)
 
 
 def build_nuts(posterior: Any, settings: NUTSSettings, num_warmup: int,
@@ -164,7 +206,7 @@ SAMPLERS: Registry[SamplerSpec] = Registry("sampler")
 SAMPLERS.register(
     "dram",
     SamplerSpec(DRAMSettings, build_dram, description="delayed-rejection adaptive Metropolis "
-                "(the paper's), in θ"),
+                "(the paper's), in θ (variances optionally on a log scale)"),
 )
 SAMPLERS.register(
     "nuts",
@@ -175,6 +217,7 @@ SAMPLERS.register(
 
 __all__ = [
     "SAMPLERS",
+    "LogVariances",
     "SamplerKernel",
     "SamplerSpec",
     "build_dram",

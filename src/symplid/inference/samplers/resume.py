@@ -30,6 +30,7 @@ import numpy as np
 
 from symplid.compiled import cached_or_built
 from symplid.inference.samplers.api import (
+    InterruptedInBurnIn,
     SamplerCheckpoint,
     _check_posterior,
     _make_settings,
@@ -105,7 +106,8 @@ def resume_sampling(
         The posterior the run sampled (same parameters, same log density).
     idata
         The interrupted run's draws (``attrs["interrupted"] = 1``), e.g. read back from
-        netCDF.
+        netCDF; or, for a run interrupted in its burn-in (no draws yet), the ``attrs`` of
+        its :class:`~.api.InterruptedInBurnIn`.
     checkpoint
         Its :class:`~.api.SamplerCheckpoint`, or the arrays of :func:`checkpoint_arrays`.
     progress, callback, progress_label, progress_position, return_state
@@ -118,7 +120,7 @@ def resume_sampling(
         iterations done in all, ``sampling_seconds`` summed. Interrupted again, it is marked
         interrupted again and can be resumed again.
     """
-    attrs = dict(idata.attrs)
+    attrs = dict(idata.attrs if hasattr(idata, "attrs") else idata)
     record = json.loads(attrs["settings"]) if isinstance(attrs["settings"], str) else dict(
         attrs["settings"])
     method = SAMPLERS.canonical(record["method"])
@@ -153,13 +155,15 @@ def resume_sampling(
                      chain_method=record["chain_method"], progress=progress,
                      callback=callback, desc=progress_label or method.upper(),
                      position=progress_position, start=checkpoint.iterations_done)
-    old = _old_draws(idata, names)
+    old = _old_draws(idata, names) if hasattr(idata, "posterior") else {}
     draws = {k: np.concatenate([old[k], v], axis=1) if k in old else v
              for k, v in run.draws.items()} if run.draws else old
     elapsed = float(attrs.get("sampling_seconds", 0.0)) + run.elapsed
-    whole = ChainRun(draws, run.states, run.iterations_done, run.interrupted, elapsed)
     attrs.update(iterations=int(run.iterations_done), interrupted=int(run.interrupted),
                  sampling_seconds=elapsed, **kernel.final_attrs(run.states))
+    if not draws:  # interrupted again, still in the burn-in
+        raise InterruptedInBurnIn(SamplerCheckpoint(run.states, int(run.iterations_done)), attrs)
+    whole = ChainRun(draws, run.states, run.iterations_done, run.interrupted, elapsed)
     result = _to_inference_data(whole, names, attrs)
     if return_state:
         return result, SamplerCheckpoint(run.states, int(run.iterations_done))
