@@ -132,7 +132,7 @@ def test_true_order_wins_on_the_double_well(compared):
 def test_table_columns_probabilities_and_bic(compared, double_well):
     table, _ = compared
     _, data = double_well
-    coefficient_names = ["q1", "q1^2", "q1^3", "q1^4", "q1^5"]
+    coefficient_names = ["c[q1]", "c[q1^2]", "c[q1^3]", "c[q1^4]", "c[q1^5]"]
     assert tuple(table.columns) == (*COLUMNS, *coefficient_names)
     assert list(table["rank"]) == [1, 2, 3, 4]
     # each candidate's MAP coefficients, NaN (blank in the CSV) where it has no such term
@@ -140,7 +140,7 @@ def test_table_columns_probabilities_and_bic(compared, double_well):
         values = table.loc[table["order"] == row.order, coefficient_names].to_numpy()[0]
         assert np.all(np.isfinite(values[: row.order])) and np.all(np.isnan(values[row.order:]))
     best = table.loc[0]
-    np.testing.assert_allclose(best[["q1", "q1^2", "q1^3", "q1^4"]].to_numpy(float),
+    np.testing.assert_allclose(best[["c[q1]", "c[q1^2]", "c[q1^3]", "c[q1^4]"]].to_numpy(float),
                                [0.0, -0.5, 0.0, 0.25], atol=0.05)  # U = -q²/2 + q⁴/4
     assert table["evidence_method"].eq("quadrature").all()
     assert np.all(np.diff(table["log_evidence"].to_numpy()) <= 0)
@@ -174,7 +174,7 @@ def test_files_hold_the_table(compared):
     table, out = compared
     back = pd.read_csv(out / "compare.csv", keep_default_na=False)
     assert tuple(back.columns[: len(COLUMNS)]) == COLUMNS
-    assert (back.loc[table["order"].to_numpy() == 2, "q1^3"] == "").all()  # blank
+    assert (back.loc[table["order"].to_numpy() == 2, "c[q1^3]"] == "").all()  # blank
     for column in ("order", "num_params", "rank"):
         np.testing.assert_array_equal(back[column], table[column])
     for column in ("log_evidence", "log_likelihood", "bic", "probability"):
