@@ -57,7 +57,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     num_chains = 4
     gamma = 0.01                  # DRAM second-stage scale
     adapt_start = 200
-    variance_scale = "natural"    # DRAM: "log" moves the variances as log(v), with the Jacobian
+    variance_scale = "log"        # DRAM moves the variances as log(v) ("natural": as v)
     thin = 1
     seed = 0
 

@@ -115,8 +115,8 @@ class SamplerSettings:
 
     ``num_iterations`` counts every iteration of a chain, ``burn_in`` included; the draws kept
     per chain are ``(num_iterations − burn_in) // thin`` (:attr:`num_draws`).
-    ``variance_scale`` is DRAM's: ``"natural"`` moves the variances as themselves (the
-    paper's), ``"log"`` as log(v) with the Jacobian (no wall at their floor).
+    ``variance_scale`` is DRAM's: ``"log"`` (default) moves the variances as log(v) with the
+    Jacobian (no wall at their floor), ``"natural"`` as themselves (the paper's).
     """
 
     method: str = setting("dram", choices=SAMPLERS)
@@ -125,7 +125,7 @@ class SamplerSettings:
     num_chains: int = setting(4, minimum=1)
     gamma: float = setting(0.01, minimum=0.0, strict=True)
     adapt_start: int = setting(200, minimum=0)
-    variance_scale: str = setting("natural", choices=VARIANCE_SCALES)
+    variance_scale: str = setting("log", choices=VARIANCE_SCALES)
     thin: int = setting(1, minimum=1)
     seed: int = setting(0, minimum=0)
 

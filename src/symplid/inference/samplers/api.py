@@ -21,8 +21,10 @@ Layout of the result
   chain), ``iterations`` (per chain, burn-in
   included), ``interrupted`` (0/1), ``sampling_seconds``, and the sampler's own (``final_attrs``):
   for DRAM ``dram_adapted_covariance`` (each chain's final running covariance, nested
-  lists); for NUTS ``unconstrained_map_covariance``, ``nuts_step_size`` and
-  ``nuts_inverse_mass_matrix``. All survive ``to_netcdf``.
+  lists, in the coordinates the chain moves in: log(v) for the variances when
+  ``dram_variance_scale`` is ``"log"``, the default); for NUTS
+  ``unconstrained_map_covariance``, ``nuts_step_size`` and ``nuts_inverse_mass_matrix``.
+  All survive ``to_netcdf``.
 
 Starting points
 ---------------
