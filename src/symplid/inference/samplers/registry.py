@@ -34,6 +34,7 @@ import numpy as np
 from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
+from symplid.inference.samplers.run import DataStep
 from symplid.registry import Registry
 
 Array = jax.Array
@@ -120,8 +121,24 @@ def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
     def final_attrs(states: dram.DRAMState) -> dict[str, Any]:
         return {"dram_adapted_covariance": np.asarray(states.cov).tolist()}
 
-    return SamplerKernel(init_states, dram.build_kernel(logdensity_fn, settings), record,
-                         final_attrs)
+    return SamplerKernel(init_states, _dram_step(posterior, settings), record, final_attrs)
+
+
+def _dram_step(posterior: Any, settings: DRAMSettings) -> Callable:
+    """DRAM's transition; one that takes the observations as an argument
+    (:class:`~.run.DataStep`) when the posterior offers ``log_density_with`` and ``data``, so
+    that the compiled chunk is the same program for every data set of the same shape."""
+    with_data = getattr(posterior, "log_density_with", None)
+    data = getattr(posterior, "data", None)
+    if with_data is None or data is None:
+        return dram.build_kernel(posterior.log_density, settings)
+    log_density = jax.jit(with_data)  # a nested program, as posterior.log_density is
+
+    def step(observations, rng_key, state):
+        kernel = dram.build_kernel(lambda theta: log_density(observations, theta), settings)
+        return kernel(rng_key, state)
+
+    return DataStep(step, data)
 
 
 def build_nuts(posterior: Any, settings: NUTSSettings, num_warmup: int,
