@@ -325,3 +325,22 @@ def test_report_and_calibration_answer(claims_json):
     report = format_claims_report(claims_json)
     assert "## Claim 3: valid predictions" in report and "## Calibration" in report
     assert "| paper | rk2-midpoint | 4 | 2 |" in report
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (["--variants", "dt=0.3"], "unknown variant 'dt=0.3'"),
+        (["--budget", "lots"], "budget must be 'paper', 'quick' or a number of iterations"),
+    ],
+)
+def test_cli_mistakes_are_one_line(tmp_path, option, message):
+    from click.testing import CliRunner
+
+    from symplid.cli import main
+
+    args = ["study", "paper-claims", "--out", str(tmp_path / "s"), "--seeds", "2", *option]
+    result = CliRunner().invoke(main, args, catch_exceptions=False)
+    assert result.exit_code == 2, result.output
+    assert message in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "s").exists()  # nothing run, nothing written

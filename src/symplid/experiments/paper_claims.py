@@ -139,30 +139,35 @@ def evaluate_claims(
         "calibration": [],
     }
     for i, v in enumerate(variants):
-        setting = v.setting()
-        sym = _unique(_match(ok, setting, symplectic), v.name, symplectic)
-        ref = _unique(_match(ok, setting, v.reference), v.name, v.reference)
-        seeds_all = set(_match(table, setting, symplectic)["seed"])
-        seeds_all |= set(_match(table, setting, v.reference)["seed"])
-        paired = sorted(set(sym.index) & set(ref.index))
-        result["variants"].append(
-            {"name": v.name, "reference": v.reference, "seeds": len(seeds_all),
-             "pairs": len(paired), "unpaired": len(seeds_all) - len(paired)}
-        )
-        for j, (name, spec) in enumerate(CLAIMS.items()):
-            a = _numbers(sym.loc[paired, spec["metric"]])
-            b = _numbers(ref.loc[paired, spec["metric"]])
-            entry = _judge(name, a, b, np.asarray(paired), seed + 97 * i + j)
-            result["claims"][name]["per_variant"].append(
-                {"variant": v.name, "reference": v.reference,
-                 "unpaired": len(seeds_all) - len(paired), **entry}
-            )
-        for integ in v.propagators():
-            rows = _match(ok, setting, integ)
-            if len(rows):
-                cal = evaluate_calibration(rows, f"{v.name}, {integ}")
-                result["calibration"].append({"variant": v.name, "integrator": integ, **cal})
+        _evaluate_variant(result, table, ok, v, symplectic, seed + 97 * i)
     return result
+
+
+def _evaluate_variant(result: dict[str, Any], table: Any, ok: Any, v: Any, symplectic: str,
+                      seed: int) -> None:
+    """Add one variant's pairs, claims and calibration to ``result``."""
+    setting = v.setting()
+    sym = _unique(_match(ok, setting, symplectic), v.name, symplectic)
+    ref = _unique(_match(ok, setting, v.reference), v.name, v.reference)
+    seeds_all = set(_match(table, setting, symplectic)["seed"])
+    seeds_all |= set(_match(table, setting, v.reference)["seed"])
+    paired = sorted(set(sym.index) & set(ref.index))
+    unpaired = len(seeds_all) - len(paired)
+    result["variants"].append({"name": v.name, "reference": v.reference,
+                               "seeds": len(seeds_all), "pairs": len(paired),
+                               "unpaired": unpaired})
+    for j, (name, spec) in enumerate(CLAIMS.items()):
+        a = _numbers(sym.loc[paired, spec["metric"]])
+        b = _numbers(ref.loc[paired, spec["metric"]])
+        entry = _judge(name, a, b, np.asarray(paired), seed + j)
+        result["claims"][name]["per_variant"].append(
+            {"variant": v.name, "reference": v.reference, "unpaired": unpaired, **entry}
+        )
+    for integ in v.propagators():
+        rows = _match(ok, setting, integ)
+        if len(rows):
+            cal = evaluate_calibration(rows, f"{v.name}, {integ}")
+            result["calibration"].append({"variant": v.name, "integrator": integ, **cal})
 
 
 def _unique(rows: Any, variant: str, integrator: str) -> Any:

@@ -270,8 +270,24 @@ def run_paper_claims(
                       figures=False)
     wall = time.perf_counter() - t0
     claims = evaluate_claims(table, chosen, symplectic=SYMPLECTIC)
+    claims["study"] = _study_record(table, seeds, label, keys, chosen, wall, workers, scheduler)
+    out = Path(out_dir)
+    figures = plot_claims(claims, out / "figures")
+    claims["study"]["figures"] = {k: str(p.relative_to(out)) for k, p in figures.items()}
+    write_json(claims, out / "claims.json")
+    tmp = out / ".report.md.tmp"
+    tmp.write_text(format_claims_report(claims), encoding="utf-8")
+    os.replace(tmp, out / "report.md")
+    return claims
+
+
+def _study_record(table: Any, seeds: int, label: str, keys: dict[str, Any],
+                  chosen: Sequence[Variant], wall: float, workers: int | None,
+                  scheduler: Any) -> dict[str, Any]:
+    """``claims.json``'s ``study``: what was run, how long it took, with which versions."""
     counts = dict(table.attrs.get("sweep", {}))
-    claims["study"] = {
+    names = [v.name for v in chosen]
+    return {
         "seeds": int(seeds),
         "budget_name": label,
         "budget": keys,
@@ -287,20 +303,11 @@ def run_paper_claims(
         "workers": workers,
         "scheduler": None if scheduler is None else str(scheduler),
         "estimate_paper_budget": {
-            f"{w}_workers": estimate_cost(paper_claims_spec(seeds, "paper", [v.name for v in
-                                                                         chosen]), w)
+            f"{w}_workers": estimate_cost(paper_claims_spec(seeds, "paper", names), w)
             for w in (1, 2)
         },
         "versions": _versions(),
     }
-    out = Path(out_dir)
-    figures = plot_claims(claims, out / "figures")
-    claims["study"]["figures"] = {k: str(p.relative_to(out)) for k, p in figures.items()}
-    write_json(claims, out / "claims.json")
-    tmp = out / ".report.md.tmp"
-    tmp.write_text(format_claims_report(claims), encoding="utf-8")
-    os.replace(tmp, out / "report.md")
-    return claims
 
 
 def _describe(v: Variant) -> dict[str, Any]:

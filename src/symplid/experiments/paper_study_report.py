@@ -154,9 +154,9 @@ def _plot_ranks(groups: list, folder: Path) -> Path:
 def calibration_answer(claims: Mapping[str, Any]) -> dict[str, Any]:
     """Does yoshida4, or leapfrog at a smaller dt, restore nominal coverage? From the data.
 
-    Returns ``{"baseline", "yoshida4", "smaller_dt"}``, each the calibration entry (or
-    ``None`` when not run) of leapfrog at the paper's setting, yoshida4 at the paper's setting
-    and leapfrog at dt = 0.1.
+    Returns ``{"baseline", "reference", "yoshida4", "smaller_dt"}``, each the calibration
+    entry (or ``None`` when not run) of leapfrog, the reference (RK2) and yoshida4 at the
+    paper's setting, and of leapfrog at dt = 0.1.
     """
     def find(variant: str, integrator: str) -> Mapping[str, Any] | None:
         for g in claims.get("calibration", []):
@@ -164,7 +164,9 @@ def calibration_answer(claims: Mapping[str, Any]) -> dict[str, Any]:
                 return g
         return None
 
+    reference = claims["claims"]["hamiltonian"]["per_variant"][0]["reference"]
     return {"baseline": find("paper", claims["symplectic"]),
+            "reference": find("paper", reference),
             "yoshida4": find("paper", "yoshida4"),
             "smaller_dt": find("dt=0.1", claims["symplectic"])}
 
@@ -271,6 +273,7 @@ def _answer_lines(claims: Mapping[str, Any]) -> list[str]:
     ans = calibration_answer(claims)
     out = []
     for key, what in (("baseline", "Leapfrog at the paper's setting"),
+                      ("reference", "RK2 at the paper's setting"),
                       ("yoshida4", "yoshida4 at the paper's setting"),
                       ("smaller_dt", "Leapfrog at dt = 0.1")):
         g = ans[key]
