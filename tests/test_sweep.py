@@ -335,8 +335,8 @@ def test_paper_claims_study_end_to_end(shared_cluster, tmp_path):
     assert stored["study"]["cells"] == 6 and stored["study"]["cells_failed"] == 0
     assert claims["variants"][0]["name"] == "paper"
     # the stand-in makes RK2's horizon 130 s shorter and its H error twice leapfrog's
-    assert claims["claims"]["prediction"]["per_setting"][0]["fraction"] == 1.0
-    assert claims["claims"]["hamiltonian"]["per_setting"][0]["fraction"] == 1.0
+    assert claims["claims"]["prediction"]["per_variant"][0]["fraction"] == 1.0
+    assert claims["claims"]["hamiltonian"]["per_variant"][0]["fraction"] == 1.0
     report = (out / "report.md").read_text()
     for name in ("claim_hamiltonian", "claim_process_noise", "claim_prediction"):
         png = out / "figures" / f"{name}.png"

@@ -144,6 +144,9 @@ BUDGETS = {"paper": FULL_BUDGET, "quick": QUICK_BUDGET}
 SECONDS_PER_KILO_ITER = {"leapfrog": 0.047, "rk2-midpoint": 0.080, "rk2-heun": 0.080,
                          "yoshida4": 0.10}
 CELL_OVERHEAD_S = 9.0  # MAP, diagnostics, predictions
+#: Cost of process noise per integration step relative to per gap (a sigma-point Cholesky
+#: at every step; measured 3–7× on a loaded machine, so a rough factor).
+PER_STEP_FACTOR = 4.0
 
 
 def parse_budget(budget: str | int) -> tuple[str, dict[str, Any]]:
@@ -193,6 +196,8 @@ def _entries(variants: Sequence[Variant]) -> list[dict[str, Any]]:
 def _relative_cost(entry: Mapping[str, Any]) -> float:
     s = {**PAPER_SETTING, **entry}
     rate = SECONDS_PER_KILO_ITER.get(str(s["integrator"]), 0.08)
+    if s.get("model.process_noise_per") == "step":
+        rate *= PER_STEP_FACTOR
     return rate * (PAPER_SETTING["dt"] / s["dt"]) * (s["num_obs"] / PAPER_SETTING["num_obs"])
 
 
