@@ -236,6 +236,8 @@ def test_variants_one_setting_at_a_time():
         assert cell["num_iterations"] == 3000
     found = {(c.settings["integrator"], c.settings["dt"]) for c in spec.cells}
     assert ("yoshida4", 0.25) in found and ("yoshida4", 0.1) not in found
+    # a run with the variants reuses every cell of a run without them (same settings, same id)
+    assert set(paper_claims_spec(2, "quick", "none").ids) <= set(spec.ids)
     none = paper_claims_spec(seeds=3, budget=500, variants="none")
     assert len(none.cells) == 9 and {c.settings["burn_in"] for c in none.cells} == {250}
     some = select_variants("dt=0.1,rk2-heun")
@@ -344,3 +346,41 @@ def test_cli_mistakes_are_one_line(tmp_path, option, message):
     assert result.exit_code == 2, result.output
     assert message in result.output and "Traceback" not in result.output
     assert not (tmp_path / "s").exists()  # nothing run, nothing written
+
+
+# ----------------------------------------------------------------------------- one program
+def test_dram_chunk_takes_the_data_as_an_argument():
+    """A DataStep gives the closure step's draws bit for bit, and its compiled chunk is the
+    same program for other data (so the next seed of a sweep loads it from the cache)."""
+    import jax
+    import jax.numpy as jnp
+
+    from symplid.inference.samplers import dram
+    from symplid.inference.samplers.run import DataStep, _compile_chunk, run_chains
+
+    settings = dram.DRAMSettings()
+
+    def log_density(data, theta):
+        return -0.5 * jnp.sum((theta - data) ** 2)
+
+    def step_fn(data, key, state):
+        return dram.build_kernel(lambda t: log_density(data, t), settings)(key, state)
+
+    def record(state, info):
+        return {"theta": state.position}
+
+    a, b = jnp.array([0.5, -1.0]), jnp.array([3.0, 2.0])
+    init = jax.vmap(lambda p: dram.init(p, lambda t: log_density(a, t), jnp.eye(2), settings))
+    states = init(jnp.array([[0.0, 0.0], [1.0, 1.0]]))
+    key = jax.random.key(4)
+    closure = dram.build_kernel(lambda t: log_density(a, t), settings)
+    run_a = run_chains(DataStep(step_fn, a), states, key, 60, record=record, progress=False)
+    run_c = run_chains(closure, states, key, 60, record=record, progress=False)
+    np.testing.assert_array_equal(run_a.draws["theta"], run_c.draws["theta"])
+
+    def program(data):
+        chunk = _compile_chunk(DataStep(step_fn, data), record, 10, True)
+        return chunk.func.lower(states, jax.random.split(key, 2), jnp.int64(0), jnp.int64(10),
+                                data=chunk.keywords["data"]).as_text()
+
+    assert program(a) == program(b)

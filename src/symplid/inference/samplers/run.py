@@ -21,6 +21,7 @@ A single chain runs unbatched.
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from collections.abc import Callable
@@ -162,10 +163,7 @@ def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool
 
         return lax.scan(body, states, jnp.arange(chunk_len))
 
-    compiled = jax.jit(chunk)
-    return lambda states, chain_keys, start, num_active: compiled(
-        states, chain_keys, start, num_active, data
-    )
+    return functools.partial(jax.jit(chunk), data=data)
 
 
 def _chunk_runner(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,
