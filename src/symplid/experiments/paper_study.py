@@ -311,6 +311,8 @@ def _study_record(table: Any, seeds: int, label: str, keys: dict[str, Any],
             f"{w}_workers": estimate_cost(paper_claims_spec(seeds, "paper", names), w)
             for w in (1, 2)
         },
+        "cost_model": {"seconds_per_kilo_iteration": SECONDS_PER_KILO_ITER,
+                       "cell_overhead_s": CELL_OVERHEAD_S, "per_step_factor": PER_STEP_FACTOR},
         "versions": _versions(),
     }
 

@@ -212,7 +212,7 @@ def _study_lines(study: Mapping[str, Any]) -> list[str]:
         f"already done, {study['cells_failed']} failed). Wall time of this call: "
         f"{study['wall_time_s']:.0f} s; the cells' own times sum to "
         f"{study['cell_seconds_total']:.0f} s"
-        + (f" (speed-up {speed:.2f}× on {study['workers'] or 'all'} workers)." if speed
+        + (f" (speed-up {speed:.2f}× on {study['workers'] or 'all'} worker(s))." if speed
            else "."),
         "",
     ]
