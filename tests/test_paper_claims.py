@@ -269,7 +269,9 @@ def claims_json(claims_table):
         "budget": {"num_iterations": 3000, "burn_in": 1500, "num_chains": 2, "num_starts": 2},
         "variants": [{"name": n} for n in ("paper", "dt=0.1", "rk2-heun")],
         "cells": 15, "cells_run": 15, "cells_skipped": 0, "cells_failed": 1, "failures": [],
-        "wall_time_s": 123.4, "cell_seconds_total": 230.2, "speedup": 1.87, "workers": 2,
+        "wall_time_s": 123.4, "cell_seconds_total": 230.2, "workers": 2,
+        "runs": [{"started": "x", "wall_time_s": 123.4, "cells_run": 15, "cell_seconds": 230.2,
+                  "speedup": 1.87, "workers": 2, "scheduler": None}],
         "figures": {"hamiltonian": "figures/claim_hamiltonian.png"},
     }
     return json.loads(json.dumps(claims))  # as read back from claims.json
@@ -303,7 +305,7 @@ def test_readme_block_numbers_come_from_the_json(claims_json, tmp_path):
     assert found and set(found) <= allowed, set(found) - allowed
     assert "Where a claim does not hold" in block and "mixed" in block
     changed = json.loads(json.dumps(claims_json))
-    changed["study"]["wall_time_s"] = 4567.0
+    changed["study"]["runs"][-1]["wall_time_s"] = 4567.0
     assert "4,567 s" in readme_block(changed) and "4,567" not in block
 
     readme = tmp_path / "README.md"

@@ -105,19 +105,30 @@ def _hi(ci: Any) -> float | None:
 def _setup(study: Mapping[str, Any]) -> list[str]:
     b = study["budget"]
     names = ", ".join(v["name"] for v in study["variants"])
-    workers = study.get("workers")
     return [
         f"**Measured** with budget *{study['budget_name']}* ({whole(b['num_chains'])} DRAM "
         f"chains × {whole(b['num_iterations'])} iterations, {whole(b['burn_in'])} burn-in, "
         f"{whole(b['num_starts'])} MAP starts per cell) over {whole(study['seeds'])} data "
         f"seeds; variants: {names}. {whole(study['cells'])} cells, "
-        f"{whole(study['cells_failed'])} failed; the last call took "
-        f"{whole(study['wall_time_s'])} s"
-        + (f" on {whole(workers)} worker(s)" if workers else "")
-        + f", the cells {whole(study['cell_seconds_total'])} s of compute."
+        f"{whole(study['cells_failed'])} failed, {whole(study['cell_seconds_total'])} s of "
+        "compute in all."
+        + _last_run(study)
         + _estimate(study)
         + _caveat(study)
     ]
+
+
+def _last_run(study: Mapping[str, Any]) -> str:
+    runs = study.get("runs") or []
+    if not runs:
+        return ""
+    r = runs[-1]
+    where = f" on {whole(r['workers'])} worker(s)" if r.get("workers") else (
+        " on a Dask cluster" if r.get("scheduler") else " on a local cluster")
+    speed = f", a speed-up of {num(r['speedup'])}×" if r.get("speedup") else ""
+    return (f" The last call that ran cells ran {whole(r['cells_run'])} in "
+            f"{whole(r['wall_time_s'])} s{where} ({whole(r['cell_seconds'])} s of cell time"
+            f"{speed}).")
 
 
 def _estimate(study: Mapping[str, Any]) -> str:

@@ -37,6 +37,7 @@ paper's leapfrog) are run once.
 
 from __future__ import annotations
 
+import datetime
 import os
 import platform
 import time
@@ -50,7 +51,7 @@ import numpy as np
 from symplid.experiments.paper import PaperConfig
 from symplid.experiments.paper_claims import CLAIMS, evaluate_claims
 from symplid.experiments.paper_study_report import format_claims_report, plot_claims
-from symplid.workflow.results import write_json
+from symplid.workflow.results import read_json, write_json
 from symplid.workflow.sweep import SweepSpec, run_sweep, sweep_spec_from_dict
 
 __all__ = [
@@ -270,13 +271,16 @@ def run_paper_claims(
     chosen = select_variants(variants)
     label, keys = parse_budget(budget)
     spec = paper_claims_spec(seeds, budget, [v.name for v in chosen], cell_fn=None)
+    out = Path(out_dir)
+    started = datetime.datetime.now(datetime.UTC).isoformat(timespec="microseconds")
     t0 = time.perf_counter()
     table = run_sweep(spec, out_dir, scheduler, workers, cell_fn, progress=progress,
                       figures=False)
     wall = time.perf_counter() - t0
     claims = evaluate_claims(table, chosen, symplectic=SYMPLECTIC)
     claims["study"] = _study_record(table, seeds, label, keys, chosen, wall, workers, scheduler)
-    out = Path(out_dir)
+    claims["study"]["runs"] = _runs(out / "claims.json", table, started, wall, workers,
+                                    scheduler)
     figures = plot_claims(claims, out / "figures")
     claims["study"]["figures"] = {k: str(p.relative_to(out)) for k, p in figures.items()}
     write_json(claims, out / "claims.json")
@@ -304,7 +308,7 @@ def _study_record(table: Any, seeds: int, label: str, keys: dict[str, Any],
         "cells_failed": int((table["status"] != "ok").sum()),
         "failures": _failures(table),
         "wall_time_s": wall,
-        **_cell_times(table, counts.get("ran") or 0, wall),
+        **_cell_times(table),
         "workers": workers,
         "scheduler": None if scheduler is None else str(scheduler),
         "estimate_paper_budget": {
@@ -322,21 +326,37 @@ def _describe(v: Variant) -> dict[str, Any]:
             "extra": list(v.extra), "description": v.description}
 
 
-def _cell_times(table: Any, ran: int, wall: float) -> dict[str, Any]:
-    """Seconds per cell by propagator (median of ``elapsed_s``), their sum, and this call's
-    parallel speed-up (sum of the cells run now over the wall time) when every cell ran now."""
+def _cell_times(table: Any) -> dict[str, Any]:
+    """Seconds per cell by propagator (median of ``elapsed_s``) and their sum."""
     ok = table[table["status"] == "ok"]
-    elapsed = ok["elapsed_s"].astype(float)
     per = {
         str(k): float(np.median(g["elapsed_s"].astype(float)))
         for k, g in ok.groupby("integrator")
     }
-    total = float(elapsed.sum())
-    return {
-        "cell_seconds_total": total,
-        "cell_seconds_median": per,
-        "speedup": total / wall if ran == len(table) and wall > 0 else None,
-    }
+    return {"cell_seconds_total": float(ok["elapsed_s"].astype(float).sum()),
+            "cell_seconds_median": per}
+
+
+def _runs(path: Path, table: Any, started: str, wall: float, workers: int | None,
+          scheduler: Any) -> list[dict[str, Any]]:
+    """The calls that ran cells, oldest first: the earlier ones from ``claims.json``, then
+    this one (when it ran any) with its wall time, the seconds of the cells it ran, and the
+    parallel speed-up (those seconds over the wall time)."""
+    runs: list[dict[str, Any]] = []
+    if path.exists():
+        try:
+            runs = list(read_json(path).get("study", {}).get("runs") or [])
+        except Exception:  # an unreadable old file: start the history again
+            runs = []
+    now = table[table["started"].fillna("") >= started] if "started" in table else table[:0]
+    if len(now):
+        seconds = float(now["elapsed_s"].astype(float).sum())
+        runs.append({
+            "started": started, "wall_time_s": wall, "cells_run": len(now),
+            "cell_seconds": seconds, "speedup": seconds / wall if wall > 0 else None,
+            "workers": workers, "scheduler": None if scheduler is None else str(scheduler),
+        })
+    return runs
 
 
 def _versions() -> dict[str, str]:

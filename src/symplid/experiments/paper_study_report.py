@@ -202,7 +202,9 @@ def format_claims_report(claims: Mapping[str, Any]) -> str:
 def _study_lines(study: Mapping[str, Any]) -> list[str]:
     b = study["budget"]
     names = ", ".join(v["name"] for v in study["variants"])
-    speed = study.get("speedup")
+    runs = study.get("runs") or []
+    last = runs[-1] if runs else {}
+    speed = last.get("speedup")
     return [
         f"Hénon–Heiles; {study['seeds']} data seeds; variants: {names}.",
         f"Sampler budget per cell ({study['budget_name']}): {b['num_chains']} DRAM chains of "
@@ -212,8 +214,9 @@ def _study_lines(study: Mapping[str, Any]) -> list[str]:
         f"already done, {study['cells_failed']} failed). Wall time of this call: "
         f"{study['wall_time_s']:.0f} s; the cells' own times sum to "
         f"{study['cell_seconds_total']:.0f} s"
-        + (f" (speed-up {speed:.2f}× on {study['workers'] or 'all'} worker(s))." if speed
-           else "."),
+        + (f". The last call that ran cells ran {last['cells_run']} in "
+           f"{last['wall_time_s']:.0f} s: speed-up {speed:.2f}× on "
+           f"{last['workers'] or 'all'} worker(s)." if speed else "."),
         "",
     ]
 
