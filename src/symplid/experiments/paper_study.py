@@ -345,9 +345,15 @@ def _runs(path: Path, table: Any, started: str, wall: float, workers: int | None
     runs: list[dict[str, Any]] = []
     if path.exists():
         try:
-            runs = list(read_json(path).get("study", {}).get("runs") or [])
+            old = read_json(path).get("study", {})
         except Exception:  # an unreadable old file: start the history again
-            runs = []
+            old = {}
+        runs = list(old.get("runs") or [])
+        if not runs and old.get("cells_run"):  # a claims.json from before the history
+            runs = [{"started": None, "wall_time_s": old.get("wall_time_s"),
+                     "cells_run": old["cells_run"], "cell_seconds": old.get("cell_seconds_total"),
+                     "speedup": old.get("speedup"), "workers": old.get("workers"),
+                     "scheduler": old.get("scheduler")}]
     now = table[table["started"].fillna("") >= started] if "started" in table else table[:0]
     if len(now):
         seconds = float(now["elapsed_s"].astype(float).sum())
