@@ -453,28 +453,43 @@ def study() -> None:
 
 
 @study.command("paper-claims")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Study folder (a rerun skips the finished cells).")
 @click.option("--seeds", type=click.IntRange(min=1), default=20, show_default=True)
-@click.option("--quick", is_flag=True, help="A small sampler budget per cell.")
-@click.option("--no-variants", is_flag=True, help="Only the paper's setting (no dt, σ variants).")
-@click.option("--scheduler", type=str, default=None)
-@click.option("--workers", type=click.IntRange(min=1), default=None)
+@click.option("--budget", default="paper", show_default=True,
+              help="Sampler budget per cell: paper (4 × 200,000 DRAM), quick, or iterations.")
+@click.option("--variants", default="all", show_default=True,
+              help="all, none (the paper's setting), or variant names separated by commas.")
+@click.option("--quick", is_flag=True, hidden=True, help="Same as --budget quick.")
+@click.option("--no-variants", is_flag=True, hidden=True, help="Same as --variants none.")
+@click.option("--scheduler", type=str, default=None,
+              help="A Dask scheduler address (tcp://host:8786) [default: a local cluster].")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local worker processes [default: one per core].")
+@click.option("--update-readme", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Rewrite the claims block of this README from claims.json.")
 @no_progress_option
 @user_errors
-def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
-    """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""
+def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, workers,
+                 update_readme, no_progress) -> None:
+    """How often the paper's claims hold over many data seeds, per variant; calibration."""
     from symplid.experiments.paper_study import run_paper_claims
 
-    run_paper_claims(
+    claims = run_paper_claims(
         out,
         seeds=seeds,
-        quick=quick,
+        budget="quick" if quick else budget,
         scheduler=scheduler,
         workers=workers,
-        variants=not no_variants,
+        variants="none" if no_variants else variants,
         progress=not no_progress,
     )
     click.echo(f"{out}: claims.json, report.md and figures/")
+    if update_readme is not None:
+        from symplid.experiments.claims_readme import update_readme as write_block
+
+        write_block(update_readme, claims, Path(out))
+        click.echo(f"{update_readme}: claims block rewritten from {out}/claims.json")
 
 
 if __name__ == "__main__":  # pragma: no cover
