@@ -89,14 +89,17 @@ import typing
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import tomli_w
 
+from symplid.dynamics.families import build_family, family_of
 from symplid.io import observation_layout
 from symplid.model.data import DataError
-from symplid.model.priors import PRIOR_FAMILIES, Prior
+from symplid.model.priors import PRIOR_FAMILIES, Prior, as_prior
+from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.settings_schema import (
     PRIOR_DEFAULTS,
     PRIOR_SPECS,
@@ -230,9 +233,36 @@ def settings_from_dict(data: Mapping[str, Any], source: str = "settings") -> Set
             table = data.get(section, {})
             if isinstance(table, Mapping) and "seed" not in table:
                 data[section] = {**table, "seed": data["seed"]}
+    data = _with_family_prior(data)
     settings = _build(Settings, data, "", source)
     _check_cross(settings, source)
     return settings
+
+
+def family_prior(model: Any) -> Prior:
+    """The default coefficient prior of the family that model settings name.
+
+    The family's :attr:`~symplid.dynamics.families.Family.coefficient_prior` (``"mlp"``:
+    Normal(0, 1) on every weight), else the paper's Laplace(0, 10). A settings file or
+    ``--set`` that gives ``priors.coefficients`` overrides it.
+    """
+    prior = family_of(model).coefficient_prior
+    return as_prior(prior, "coefficient prior") if prior else PriorSettings().coefficients
+
+
+def _with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
+    """``priors.coefficients`` left out: the model family's default prior."""
+    priors = data.get("priors", {})
+    model = data.get("model", {})
+    if not isinstance(priors, Mapping) or "coefficients" in priors or not isinstance(
+            model, Mapping):
+        return data
+    names = {k: model[k] for k in ("potential", "hamiltonian") if isinstance(model.get(k), str)}
+    try:
+        prior = family_prior(SimpleNamespace(**names))
+    except (KeyError, ValueError):  # an unknown family: the validator says so, with a suggestion
+        return data
+    return {**data, "priors": {**priors, "coefficients": prior.to_dict()}}
 
 
 def _build(cls: type, data: Mapping[str, Any], prefix: str, source: str) -> Any:
@@ -300,6 +330,14 @@ def _build_prior(data: Mapping[str, Any], prefix: str, source: str) -> Prior:
 def _check_cross(s: Settings, source: str) -> None:
     """Checks that involve more than one key."""
     _check_sampler(s.sampler, source)
+    family = family_of(s.model)
+    if family.neural and s.sampler.method == "dram":
+        raise SettingsError(
+            source,
+            "sampler.method",
+            f'"dram" cannot explore the weights of the {family.name!r} family (random-walk '
+            'proposals in hundreds of dimensions); use sampler.method = "nuts" (--method nuts)',
+        )
     if any(m <= 0 for m in s.model.mass):
         raise SettingsError(
             source, "model.mass", f"must hold positive numbers, got {list(s.model.mass)}"
@@ -421,6 +459,10 @@ def merge_overrides(
     if "seed" in overrides:
         for section in _SEEDED_SECTIONS:
             overrides.setdefault(f"{section}.seed", overrides["seed"])
+    new_family = {"model.potential", "model.hamiltonian"} & set(overrides)
+    if (new_family and not any(k.startswith("priors.coefficients") for k in overrides)
+            and settings.priors.coefficients == family_prior(settings.model)):
+        del data["priors"]["coefficients"]  # the old family's default: take the new one's
     for key, value in overrides.items():
         parts = key.split(".")
         table = data
@@ -547,13 +589,15 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
         )
     values = int(np.sum(obs.mask))
     d = _dim(obs)
-    num_params = math.comb(d + model.order, model.order) - 1 + 2
-    num_params += 2 * d if init.mode == "learned" else 0
+    built = HamiltonianModel(build_family(d, model), noise=model.noise)
+    num_params = built.num_params + (2 * d if init.mode == "learned" else 0)
     if num_params > values:
+        family = family_of(model)
+        what = f"order {model.order}" if family.name == "polynomial" else f"{family.name!r}"
         warnings.warn(
-            f"{source}: the model has {num_params} parameters (order {model.order}) for "
+            f"{source}: the model has {num_params} parameters ({what}) for "
             f"{values} data values; the priors decide most of the posterior "
-            "(lower model.order, or give more data)",
+            "(a smaller model, or more data)",
             UserWarning,
             stacklevel=3,
         )

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES
 from symplid.dynamics.integrators import INTEGRATORS
+from symplid.dynamics.neural import ACTIVATIONS
 from symplid.inference.samplers import SAMPLERS
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
 from symplid.workflow.validate import Spec, setting
@@ -31,11 +32,20 @@ __all__ = [
 # ----------------------------------------------------------------------------- sections
 @dataclass(frozen=True)
 class ModelSettings:
-    """The state-space model of eq. (7) and its unscented filter (Theorem 1)."""
+    """The state-space model of eq. (7) and its unscented filter (Theorem 1).
+
+    ``order`` is read by the polynomial family; ``width``, ``depth``, ``activation`` and
+    ``network_seed`` (the seed of the initial weights) by the ``"mlp"`` family
+    (:class:`~symplid.dynamics.neural.MLPPotential`). A family ignores the others.
+    """
 
     potential: str = setting("polynomial", choices=POTENTIAL_FAMILIES)
     hamiltonian: str = setting("separable", choices=HAMILTONIAN_FAMILIES)
     order: int = setting(3, minimum=1)
+    width: int = setting(32, minimum=1)
+    depth: int = setting(2, minimum=0)
+    activation: str = setting("tanh", choices=ACTIVATIONS)
+    network_seed: int = setting(0, minimum=0)
     integrator: str = setting("leapfrog", choices=INTEGRATORS)
     dt: float = setting(0.25, minimum=0.0, strict=True)
     process_noise_per: str = setting("gap", choices=("gap", "step"))
@@ -96,10 +106,19 @@ class PriorSettings:
 
 @dataclass(frozen=True)
 class MapSettings:
-    """The MAP search: bounded quasi-Newton from several seeded starts."""
+    """The MAP search: bounded quasi-Newton from several seeded starts.
+
+    A neural family (``model.potential = "mlp"``) takes the scalable path instead
+    (:func:`~symplid.inference.neural_fit.find_map_neural`): ``adam_steps`` of Adam with step
+    ``learning_rate``, then ``lbfgs_steps`` of L-BFGS, and the Gauss–Newton Laplace covariance;
+    ``num_starts`` is not used there.
+    """
 
     num_starts: int = setting(4, minimum=1)
     seed: int = setting(0, minimum=0)
+    adam_steps: int = setting(2000, minimum=0)
+    learning_rate: float = setting(0.01, minimum=0.0, strict=True)
+    lbfgs_steps: int = setting(200, minimum=0)
 
 
 @dataclass(frozen=True)
