@@ -580,5 +580,32 @@ def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress
     click.echo(f"{out}: claims.json, report.md and figures/")
 
 
+@study.command("baselines")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--seeds", type=click.IntRange(min=1), default=10, show_default=True)
+@click.option("--sizes", type=str, default="20,50,200,1000", show_default=True,
+              help="Data sizes (comma-separated).")
+@click.option("--potentials", type=str, default="polynomial,mlp", show_default=True)
+@click.option("--mlp-seeds", type=click.IntRange(min=1), default=None,
+              help="Seeds of the MLP cells [default: --seeds].")
+@click.option("--quick", is_flag=True, help="Tiny solver budgets (a smoke test).")
+@click.option("--scheduler", type=str, default=None)
+@click.option("--workers", type=click.IntRange(min=1), default=None)
+@click.option("--no-progress", is_flag=True)
+@user_errors
+def baselines_study(out, seeds, sizes, potentials, mlp_seeds, quick, scheduler, workers,
+                    no_progress) -> None:
+    """The UKF posterior against HNN and one-step least squares over data sizes (a sweep)."""
+    from symplid.experiments.baselines_study import run_baselines_study
+
+    run_baselines_study(
+        out, scheduler=scheduler, workers=workers, progress=not no_progress, seeds=seeds,
+        sizes=tuple(int(n) for n in floats(sizes, "--sizes")),
+        potentials=tuple(p.strip() for p in potentials.split(",") if p.strip()),
+        mlp_seeds=mlp_seeds, quick=quick,
+    )
+    click.echo(f"{out}: report.md, decision.json, results.csv and figures/")
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -1,0 +1,375 @@
+"""The baselines study: the UKF posterior against the least-squares objectives, on equal data.
+
+The paper argues (Section I) that treating noisy observations as exact states, as HNN's loss
+(eq. 1) and least squares through one integrator step (its refs 13–14) do, needs much more data
+than its marginal-likelihood posterior (Theorem 1). This experiment measures it on Hénon–Heiles
+(eq. 15): ``num_obs`` full-state observations spread evenly over ``t_span`` = 100 s (so more
+points are denser; 20 is the paper's schedule), noise σ = 0.05, for every data ``seed``, fitted
+by every ``method`` with every ``potential`` family:
+
+* ``ukf-leapfrog``, ``ukf-rk2``: the UKF posterior (eq. 8) with the leapfrog or RK2 (midpoint)
+  propagator at the learning step ``dt`` (eq. 14), the run settings' priors (the family's
+  default: Laplace(0, 10) on the polynomial's coefficients, Normal(0, 1) on an MLP's weights),
+  known initial state. **Budget**: MAP and Laplace only, no MCMC: the polynomial by multistart
+  L-BFGS-B (``num_starts``) and the exact Hessian, the MLP by Adam then L-BFGS and the
+  Gauss–Newton covariance (:func:`symplid.workflow.fit.find_map_for`). The interval coverage
+  is that of the Laplace approximation (draws from N(θ*, Σ)).
+* ``hnn``, ``euler``, ``rk4``, ``leapfrog-ls``: the point estimates of
+  :func:`symplid.inference.baselines.fit`, one integrator step per gap as their authors use
+  them (``leapfrog-ls`` is the objective ``"leapfrog"``).
+
+The potential families are ``"polynomial"`` (the cubic of eq. 13, which holds the truth) and
+``"mlp"`` (:class:`~symplid.dynamics.neural.MLPPotential`, ``width`` × ``depth``).
+
+Metrics of a cell (:func:`score`):
+
+* ``hamiltonian_rel_error``: |H_θ(x0) − H(x0)| / H(x0) at the true initial state, with the
+  learned U shifted so that U(0) = 0 (an MLP's U has an arbitrary constant; the polynomial and
+  the truth have none, so for them nothing changes);
+* ``coefficient_error``: the largest absolute error of the nine coefficients (polynomial only);
+* ``potential_rmse``: the RMS error of U_θ(q) − U_θ(0) against the true U along the true path
+  over the data's time span (both families);
+* ``prediction_horizon_s``: the first time |q1 − q1_true| > ``horizon_tol`` of the learned
+  model integrated by leapfrog at ``prediction_dt`` from the true initial state (the paper's
+  measure, Fig. 3), up to ``t_end``;
+* for the Bayesian methods, ``h_covered`` (1 when the true H(x0) is inside the central 95 %
+  interval of H_θ(x0) over Laplace draws) and ``coefficient_coverage`` (the fraction of true
+  coefficients inside their 95 % Laplace intervals; polynomial only).
+
+The table, the figure and the numbers that decide the comparison are in
+:mod:`.baselines_report`; :func:`run_baselines_study` runs the sweep and writes them.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from symplid.dynamics.families import build_family
+from symplid.dynamics.potentials import Polynomial
+from symplid.dynamics.systems import get_system
+from symplid.experiments.paper import truth_path
+from symplid.inference import baselines
+from symplid.inference.measures import prediction_horizon
+from symplid.inference.predict import predict_trajectory
+from symplid.model.data import Observations
+from symplid.model.simulate import simulate
+from symplid.registry import Registry
+from symplid.workflow.experiment import EXPERIMENTS, Experiment
+from symplid.workflow.fit import build_model, build_posterior, find_map_for
+from symplid.workflow.sweep import cell_settings
+from symplid.workflow.validate import Spec
+
+__all__ = [
+    "BUDGETS",
+    "CELL_KEYS",
+    "METHODS",
+    "METRICS",
+    "Method",
+    "baselines_spec",
+    "cell_data",
+    "fit_method",
+    "run_baselines_study",
+    "run_cell",
+    "score",
+]
+
+SYSTEM = "henon-heiles"
+NUM_LAPLACE_DRAWS = 400
+
+
+@dataclass(frozen=True)
+class Method:
+    """A way to learn the potential: the UKF posterior with ``integrator``, or a baseline
+    ``objective`` of :data:`symplid.inference.baselines.OBJECTIVES`."""
+
+    name: str
+    integrator: str | None = None
+    objective: str | None = None
+    label: str = ""
+
+    @property
+    def bayesian(self) -> bool:
+        """Whether the method gives a posterior (the UKF ones)."""
+        return self.integrator is not None
+
+
+METHODS: Registry[Method] = Registry("study method")
+"""The methods of the study by name; the table lists them in this order."""
+METHODS.register("ukf-leapfrog", Method("ukf-leapfrog", integrator="leapfrog",
+                                        label="UKF posterior, leapfrog"))
+METHODS.register("ukf-rk2", Method("ukf-rk2", integrator="rk2-midpoint",
+                                   label="UKF posterior, RK2"))
+METHODS.register("hnn", Method("hnn", objective="hnn", label="HNN loss, eq. 1"))
+METHODS.register("euler", Method("euler", objective="euler", label="LS through one Euler step"))
+METHODS.register("rk4", Method("rk4", objective="rk4", label="LS through one RK4 step"))
+METHODS.register("leapfrog-ls", Method("leapfrog-ls", objective="leapfrog",
+                                       label="LS through one leapfrog step"))
+
+#: The reference method of the deciding numbers.
+REFERENCE = "ukf-leapfrog"
+POTENTIALS = ("polynomial", "mlp")
+
+#: The keys of a cell (table-column order). ``budget`` ``"quick"`` shrinks every iterative
+#: solver for smoke tests (:data:`BUDGETS`).
+CELL_KEYS: dict[str, Spec] = {
+    "seed": Spec(int, 0, "seed of the data noise (and of the MAP starts)", minimum=0,
+                 setting="seed"),
+    "num_obs": Spec(int, 20, "observations, evenly spread over t_span", minimum=2),
+    "method": Spec(str, REFERENCE, "how the potential is learned", choices=METHODS),
+    "potential": Spec(str, "polynomial", "potential family", choices=POTENTIALS,
+                      setting="model.potential"),
+    "width": Spec(int, 16, "MLP units per hidden layer", minimum=1, setting="model.width"),
+    "depth": Spec(int, 2, "MLP hidden layers", minimum=0, setting="model.depth"),
+    "noise_std": Spec(float, 0.05, "observation-noise standard deviation", minimum=0.0,
+                      strict=True),
+    "t_span": Spec(float, 100.0, "the observations cover (0, t_span]", minimum=0.0, strict=True),
+    "dt": Spec(float, 0.25, "UKF learning step (eq. 14)", minimum=0.0, strict=True,
+               setting="model.dt"),
+    "budget": Spec(str, "full", "solver budget", choices=("full", "quick")),
+    "horizon_tol": Spec(float, 0.1, "a prediction is valid while |q1 − q1_true| ≤ this",
+                        minimum=0.0, strict=True),
+    "t_end": Spec(float, 200.0, "end of the predictions", minimum=0.0, strict=True),
+    "prediction_dt": Spec(float, 0.01, "step of the predictions", minimum=0.0, strict=True),
+}
+#: Solver budgets: UKF MAP starts (polynomial), Adam and L-BFGS steps (MLP posterior), L-BFGS
+#: iterations of the baselines with an MLP (the polynomial's baselines run to convergence).
+BUDGETS: dict[str, dict[str, int]] = {
+    "full": {"num_starts": 2, "adam_steps": 800, "lbfgs_steps": 200, "baseline_maxiter": 1000},
+    "quick": {"num_starts": 1, "adam_steps": 60, "lbfgs_steps": 20, "baseline_maxiter": 60},
+}
+#: The metrics drawn by the generic sweep figures.
+METRICS = (
+    "hamiltonian_rel_error",
+    "coefficient_error",
+    "potential_rmse",
+    "prediction_horizon_s",
+    "h_covered",
+    "coefficient_coverage",
+)
+
+
+def _base_settings(cell: Mapping[str, Any]) -> dict[str, Any]:
+    """Known initial state (the system's), the method's propagator, the budget's MAP search;
+    NUTS named for the neural family only so that the settings validate (no MCMC is run)."""
+    system = get_system(SYSTEM)
+    budget = BUDGETS[cell.get("budget", "full")]
+    method = METHODS.get_entry(cell.get("method", REFERENCE))
+    out: dict[str, Any] = {
+        "initial_state": {"mode": "known", "x0": [float(v) for v in system.initial_state]},
+        "map": {k: budget[k] for k in ("num_starts", "adam_steps", "lbfgs_steps")},
+        "model": {"integrator": method.integrator or "leapfrog"},
+    }
+    if cell.get("potential") == "mlp":
+        out["sampler"] = {"method": "nuts"}
+    return out
+
+
+def cell_data(cell: Mapping[str, Any]) -> Observations:
+    """``num_obs`` full-state observations at t_span/n, 2·t_span/n, …, t_span, seeded."""
+    n = int(cell.get("num_obs", 20))
+    span = float(cell.get("t_span", 100.0))
+    times = np.linspace(span / n, span, n)
+    return simulate(get_system(SYSTEM), times=times, noise_std=float(cell.get("noise_std", 0.05)),
+                    seed=int(cell.get("seed", 0)))
+
+
+def fit_method(cell: Mapping[str, Any], data: Observations) -> tuple[Any, np.ndarray,
+                                                                      np.ndarray | None]:
+    """Fit one cell: ``(potential, coefficients, Laplace draws of the coefficients or None)``."""
+    settings = cell_settings(cell, experiment=EXPERIMENT)
+    method = METHODS.get_entry(cell["method"])
+    potential = build_family(get_system(SYSTEM).dim, settings.model)
+    if not method.bayesian:
+        budget = BUDGETS[cell.get("budget", "full")]
+        maxiter = 10_000 if isinstance(potential, Polynomial) else budget["baseline_maxiter"]
+        return potential, baselines.fit(potential, data, method.objective, maxiter=maxiter), None
+    model = build_model(settings, data)
+    posterior = build_posterior(settings, data, model)
+    result = find_map_for(settings, posterior)
+    nc = potential.num_params
+    coef = np.asarray(result.theta[:nc], dtype=float)
+    if result.covariance is None:
+        return model.potential, coef, None
+    cov = np.asarray(result.covariance)[:nc, :nc]
+    rng = np.random.default_rng(int(cell.get("seed", 0)))
+    draws = rng.multivariate_normal(coef, 0.5 * (cov + cov.T), NUM_LAPLACE_DRAWS,
+                                    method="eigh")
+    return model.potential, coef, draws
+
+
+def _energy(potential: Any, coefficients: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """H(x0) with U shifted to U(0) = 0, for one coefficient vector or a stack of them."""
+    import jax
+    import jax.numpy as jnp
+
+    d = potential.dim
+    q0, p0 = jnp.asarray(x0[:d]), jnp.asarray(x0[d:])
+
+    def one(c):
+        return 0.5 * jnp.sum(p0**2) + potential.value(q0, c) - potential.value(jnp.zeros(d), c)
+
+    return np.asarray(jax.vmap(one)(jnp.atleast_2d(jnp.asarray(coefficients))))
+
+
+@functools.lru_cache(maxsize=4)
+def _truth(t_end: float, prediction_dt: float) -> tuple[np.ndarray, np.ndarray]:
+    return truth_path(get_system(SYSTEM), t_end, prediction_dt)
+
+
+def score(cell: Mapping[str, Any], potential: Any, coef: np.ndarray,
+          draws: np.ndarray | None) -> dict[str, Any]:
+    """The metrics of a fitted cell (module docstring)."""
+    system = get_system(SYSTEM)
+    x0 = np.asarray(system.initial_state, dtype=float)
+    h_true = float(_energy(system.potential, system.coefficients, x0)[0])
+    h = float(_energy(potential, coef, x0)[0])
+    t_end, pdt = float(cell.get("t_end", 200.0)), float(cell.get("prediction_dt", 0.01))
+    truth_times, truth = _truth(t_end, pdt)
+    out: dict[str, Any] = {
+        "learned_hamiltonian": h,
+        "hamiltonian_rel_error": abs(h - h_true) / h_true,
+        "coefficient_error": np.nan,
+        "potential_rmse": _potential_rmse(potential, coef, system, truth_times, truth,
+                                          float(cell.get("t_span", 100.0))),
+        "h_covered": np.nan,
+        "coefficient_coverage": np.nan,
+    }
+    polynomial = isinstance(potential, Polynomial) and potential.num_params == len(
+        system.coefficients)
+    if polynomial:
+        out["coefficient_error"] = float(np.max(np.abs(coef - system.coefficients)))
+    times, path = predict_trajectory(potential, coef, x0, t_end, dt=pdt)
+    on_grid = np.stack([np.interp(times, truth_times, col) for col in truth.T], axis=1)
+    out["prediction_horizon_s"] = float(
+        prediction_horizon(times, path, on_grid, float(cell.get("horizon_tol", 0.1)), 0))
+    if draws is not None:
+        energies = _energy(potential, draws, x0)
+        low, high = np.nanquantile(energies, [0.025, 0.975])
+        out["h_covered"] = float(low <= h_true <= high)
+        if polynomial:
+            sd = np.std(draws, axis=0)
+            inside = np.abs(coef - system.coefficients) <= 1.96 * sd
+            out["coefficient_coverage"] = float(np.mean(inside))
+    return out
+
+
+def _potential_rmse(potential, coef, system, truth_times, truth, span: float) -> float:
+    """RMS of (U_θ(q) − U_θ(0)) − U(q) over the true path on (0, span]."""
+    import jax.numpy as jnp
+
+    d = system.dim
+    keep = truth_times <= span
+    q = jnp.asarray(truth[keep, :d].T)
+    zero = potential.value(jnp.zeros(d), jnp.asarray(coef))
+    learned = np.asarray(potential.value(q, jnp.asarray(coef)) - zero)
+    true = np.asarray(system.potential.value(q, jnp.asarray(system.coefficients)))
+    return float(np.sqrt(np.mean((learned - true) ** 2)))
+
+
+def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
+    """One cell: simulate, fit by the cell's method and potential, score (flat metrics)."""
+    start = time.perf_counter()
+    data = cell_data(cell)
+    try:
+        potential, coef, draws = fit_method(cell, data)
+    except FloatingPointError as err:  # a diverged baseline: a result, not a failed cell
+        return {"diverged": 1.0, "error_message": str(err)[:200],
+                "hamiltonian_rel_error": np.inf, "prediction_horizon_s": 0.0,
+                "wall_time_s": time.perf_counter() - start}
+    metrics = score(cell, potential, coef, draws)
+    metrics["diverged"] = 0.0
+    metrics["num_coefficients"] = int(potential.num_params)
+    metrics["wall_time_s"] = time.perf_counter() - start
+    return metrics
+
+
+def baselines_spec(
+    seeds: int = 10,
+    sizes: tuple[int, ...] = (20, 50, 200, 1000),
+    potentials: tuple[str, ...] = POTENTIALS,
+    methods: tuple[str, ...] | None = None,
+    *,
+    mlp_seeds: int | None = None,
+    quick: bool = False,
+) -> Any:
+    """The study's sweep: seeds × sizes × methods for each potential family.
+
+    ``mlp_seeds`` (default ``seeds``) gives the MLP cells fewer seeds, the costly part;
+    ``quick`` uses the ``"quick"`` solver budget (:data:`BUDGETS`) and predicts to 50 s.
+    """
+    from symplid.workflow.sweep import sweep_spec_from_dict
+
+    for name, value in (("seeds", seeds), ("mlp_seeds", mlp_seeds)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)
+                                  or value < 1):
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    methods = tuple(methods) if methods else tuple(METHODS.names())
+    cells = []
+    for potential in potentials:
+        n_seeds = seeds if potential != "mlp" or mlp_seeds is None else mlp_seeds
+        cells += [{"potential": potential, "seed": s, "num_obs": int(n), "method": m}
+                  for s in range(n_seeds) for n in sizes for m in methods]
+    base: dict[str, Any] = {"budget": "quick" if quick else "full"}
+    if quick:
+        base["t_end"] = 50.0
+    name = "baselines" + (" (quick)" if quick else "")
+    return sweep_spec_from_dict({"base": base, "sweep": {"name": name, "experiment": "baselines",
+                                                         "cells": cells}},
+                                source="baselines study")
+
+
+def run_baselines_study(out_dir: Any, *, scheduler: Any = None, workers: int | None = None,
+                        progress: bool = True, **spec_options: Any) -> dict[str, Any]:
+    """Run the study (resumable) into ``out_dir``; write ``report.md``, ``decision.json`` and
+    the figures (:mod:`.baselines_report`). ``spec_options`` go to :func:`baselines_spec`.
+    Returns the deciding numbers with the study's counts and wall time."""
+    import os
+    from pathlib import Path
+
+    from symplid.experiments.baselines_report import deciding_numbers, format_report
+    from symplid.workflow.results import write_json
+    from symplid.workflow.sweep import run_sweep
+
+    spec = baselines_spec(**spec_options)
+    start = time.perf_counter()
+    table = run_sweep(spec, out_dir, scheduler, workers, progress=progress)
+    wall = time.perf_counter() - start
+    budget = dict(BUDGETS["quick" if spec_options.get("quick") else "full"])
+    budget["posterior"] = "MAP + Laplace (no MCMC)"
+    decision = {"deciding": deciding_numbers(table), "budget": budget,
+                "cells": len(table), "failed": int((table["status"] != "ok").sum()),
+                "wall_time_s": wall, "options": {k: list(v) if isinstance(v, tuple) else v
+                                                 for k, v in spec_options.items()}}
+    out = Path(out_dir)
+    write_json(decision, out / "decision.json")
+    tmp = out / ".report.md.tmp"
+    tmp.write_text(format_report(table, budget), encoding="utf-8")
+    os.replace(tmp, out / "report.md")
+    return decision
+
+
+def _figures(table: Any, folder: Any, settings: list[str]) -> Mapping[str, Any]:
+    from symplid.experiments.baselines_report import plot_error_vs_size
+
+    return plot_error_vs_size(table, folder)
+
+
+EXPERIMENT = EXPERIMENTS.register(
+    "baselines",
+    Experiment(
+        "baselines",
+        CELL_KEYS,
+        run_cell,
+        metrics=METRICS,
+        figures=_figures,
+        description="Hénon–Heiles: the UKF posterior against HNN and one-step least squares, "
+        "over data sizes, seeds and potential families",
+        base_settings=_base_settings,
+    ),
+)
