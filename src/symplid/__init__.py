@@ -22,7 +22,7 @@ import jax  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 from symplid.dynamics.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
-from symplid.dynamics.neural import MLPPotential  # noqa: E402
+from symplid.dynamics.neural import MLPHamiltonian, MLPPotential  # noqa: E402
 from symplid.dynamics.potentials import (  # noqa: E402
     FunctionPotential,
     Polynomial,
@@ -53,6 +53,7 @@ __all__ = [
     "Integrator",
     "Laplace",
     "LogNormal",
+    "MLPHamiltonian",
     "MLPPotential",
     "MapResult",
     "Normal",

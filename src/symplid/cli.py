@@ -22,6 +22,7 @@ from symplid.workflow.commandline import (
     converged,
     floats,
     integrator_registry,
+    potential_registry,
     rk2_variants,
     sampler_registry,
     settings_from_options,
@@ -240,6 +241,15 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
 )
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option(
+    "--potential",
+    cls=RegistryOption,
+    registry=potential_registry,
+    default=None,
+    help="Family of U: {choices} [default: polynomial].",
+)
+@click.option("--width", type=click.IntRange(min=1), default=None, help="MLP units per layer.")
+@click.option("--depth", type=click.IntRange(min=0), default=None, help="MLP hidden layers.")
+@click.option(
     "--integrator",
     cls=RegistryOption,
     registry=integrator_registry,
@@ -308,6 +318,9 @@ def fit(
     out,
     config,
     order,
+    potential,
+    width,
+    depth,
     integrator,
     dt,
     method,
@@ -346,6 +359,9 @@ def fit(
         obs, heldout = split_holdout(obs, holdout, holdout_after)
     overrides = {
         "model.order": order,
+        "model.potential": potential,
+        "model.width": width,
+        "model.depth": depth,
         "model.integrator": integrator,
         "model.dt": dt,
         "sampler.method": method,

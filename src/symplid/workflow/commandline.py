@@ -26,6 +26,7 @@ __all__ = [
     "converged",
     "floats",
     "integrator_registry",
+    "potential_registry",
     "rk2_variants",
     "sampler_registry",
     "settings_from_options",
@@ -103,6 +104,12 @@ def integrator_registry() -> Any:
     from symplid.dynamics.integrators import INTEGRATORS
 
     return INTEGRATORS
+
+
+def potential_registry() -> Any:
+    from symplid.dynamics.families import POTENTIAL_FAMILIES
+
+    return POTENTIAL_FAMILIES
 
 
 def sampler_registry() -> Any:

@@ -1,0 +1,135 @@
+"""Neural models from settings and the command line: the "mlp" family, its prior, its MAP path."""
+
+from __future__ import annotations
+
+import warnings
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import symplid
+from symplid.cli import main
+from symplid.dynamics.families import POTENTIAL_FAMILIES, build_family, family_of
+from symplid.dynamics.neural import MLPPotential
+from symplid.io import write_observations
+from symplid.model.priors import Laplace, Normal
+from symplid.workflow.fit import build_model, build_posterior, find_map_for
+from symplid.workflow.settings import (
+    Settings,
+    SettingsError,
+    merge_overrides,
+    resolve_for_data,
+    settings_from_dict,
+)
+
+X0 = [0.2, -0.25, 0.3, -0.25]
+
+
+def mlp_settings(**model) -> Settings:
+    return settings_from_dict({
+        "model": {"potential": "mlp", **model},
+        "sampler": {"method": "nuts"},
+        "initial_state": {"x0": X0},
+    })
+
+
+def test_mlp_family_builds_the_network_the_settings_describe():
+    s = mlp_settings(width=5, depth=1, activation="softplus", network_seed=4)
+    U = build_family(2, s.model)
+    assert isinstance(U, MLPPotential)
+    assert (U.width, U.depth, U.activation, U.seed) == (5, 1, "softplus", 4)
+    assert U.num_params == 2 * 5 + 5 + 5  # w0, b0, w1 (no final bias)
+    np.testing.assert_array_equal(
+        U.initial_coefficients(), MLPPotential(2, 5, 1, seed=4).initial_coefficients()
+    )
+    assert POTENTIAL_FAMILIES.canonical("neural") == "mlp"
+    with pytest.raises(SettingsError, match="model.width"):
+        mlp_settings(width=0)
+    with pytest.raises(SettingsError, match="did you mean 'mlp'"):
+        settings_from_dict({"model": {"potential": "mpl"}})
+
+
+def test_weight_prior_is_the_family_default_unless_given():
+    assert mlp_settings().priors.coefficients == Normal(0.0, 1.0)
+    assert Settings().priors.coefficients == Laplace(0.0, 10.0)  # the paper's, unchanged
+    given = settings_from_dict({
+        "model": {"potential": "mlp"}, "sampler": {"method": "nuts"},
+        "priors": {"coefficients": {"family": "normal", "scale": 0.3}},
+    })
+    assert given.priors.coefficients == Normal(0.0, 0.3)
+    # switching the family on the command line switches an untouched default prior ...
+    s = merge_overrides(Settings(), {"model.potential": "mlp", "sampler.method": "nuts"})
+    assert s.priors.coefficients == Normal(0.0, 1.0)
+    back = merge_overrides(s, {"model.potential": "polynomial"})
+    assert back.priors.coefficients == Laplace(0.0, 10.0)
+    # ... but not one the user chose
+    kept = merge_overrides(given, {"model.potential": "polynomial"})
+    assert kept.priors.coefficients == Normal(0.0, 0.3)
+    both = merge_overrides(Settings(), {"model.potential": "mlp", "sampler.method": "nuts",
+                                        "priors.coefficients.scale": 2.0})
+    assert both.priors.coefficients == Laplace(0.0, 2.0)
+
+
+def test_dram_is_refused_for_network_weights_in_one_line():
+    with pytest.raises(SettingsError, match='use sampler.method = "nuts"') as err:
+        settings_from_dict({"model": {"potential": "mlp"}})
+    assert "\n" not in str(err.value)
+
+
+def test_parameter_count_warning_counts_the_built_model(hh_data):
+    def count_warning(settings):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            resolve_for_data(settings, hh_data)
+        return [str(w.message) for w in caught if "parameters" in str(w.message)]
+
+    values = int(np.sum(hh_data.mask))  # 20 times × 4 components
+    small = mlp_settings(width=8, depth=1)  # 8·2 + 8 + 8 weights + 2 variances = 34
+    assert 34 < values and count_warning(small) == []
+    big = mlp_settings(width=32, depth=1)  # 32·2 + 32 + 32 + 2 = 130
+    assert 130 > values
+    (message,) = count_warning(big)
+    assert f"130 parameters ('mlp') for {values} data values" in message
+    assert count_warning(Settings(initial_state=small.initial_state)) == []  # 9 + 2
+
+
+def test_fit_path_for_a_network_is_the_scalable_one(hh_data):
+    s = merge_overrides(mlp_settings(width=4, depth=1),
+                        {"map.adam_steps": 150, "map.lbfgs_steps": 100})
+    assert family_of(s.model).neural and not family_of(Settings().model).neural
+    model = build_model(s, hh_data)
+    posterior = build_posterior(s, hh_data, model)
+    assert model.likelihood_backend == "jax"  # the compiled kernel is for polynomials
+    result = find_map_for(s, posterior)
+    assert isinstance(result, symplid.MapResult) and result.param_names == posterior.param_names
+    # a maximum: higher than the start, and no ascent direction left along the gradient
+    start = posterior.log_density(jnp.asarray(result.starts[0].start))
+    assert result.log_posterior >= float(start)
+    z = posterior.to_unconstrained(result.theta)
+    value, grad = posterior.value_and_grad(unconstrained=True)(jnp.asarray(z))
+    step = 1e-4 * np.asarray(grad) / max(np.linalg.norm(grad), 1e-300)
+    assert float(posterior.log_density_unconstrained(jnp.asarray(z + step))) <= float(value) + 1e-6
+    # its Laplace covariance is the inverse of the Gauss–Newton precision, and the evidence
+    # is log π(θ*) + ½ log det(2πΣ)
+    from symplid.inference.neural_fit import ggn_precision
+
+    np.testing.assert_allclose(
+        np.linalg.inv(ggn_precision(posterior, result.theta)), result.covariance,
+        rtol=1e-6, atol=1e-12,
+    )
+    _, logdet = np.linalg.slogdet(2 * np.pi * result.covariance)
+    assert result.log_evidence == pytest.approx(result.log_posterior + 0.5 * logdet)
+
+
+def test_cli_refuses_dram_and_names_the_option(tmp_path):
+    write_observations(symplid.simulate("henon-heiles"), tmp_path / "hh.csv")
+    out = CliRunner().invoke(main, ["fit", str(tmp_path / "hh.csv"), "--out",
+                                    str(tmp_path / "run"), "--potential", "mlp", "--x0",
+                                    ",".join(map(str, X0))])
+    assert out.exit_code == 2
+    assert "--method nuts" in out.output and "Traceback" not in out.output
+    bad = CliRunner().invoke(main, ["fit", str(tmp_path / "hh.csv"), "--out",
+                                    str(tmp_path / "run"), "--potential", "mpl"])
+    assert bad.exit_code == 2 and "mlp" in bad.output
