@@ -111,7 +111,7 @@ def main() -> None:
     for name, pot, coef in (("polynomial (9 coefficients)", system.potential, poly),
                             (f"MLP {args.width}×{args.depth} ({U.num_params} weights)", U, w)):
         h = energy(pot, coef, x0)
-        hz, times, path = horizon(pot, coef, x0, grid, truth)
+        hz, _, path = horizon(pot, coef, x0, grid, truth)
         rows[name] = (h, abs(h - h_true) / h_true, hz)
         paths[name] = path
 

@@ -109,7 +109,8 @@ def test_deciding_numbers_from_the_medians():
     med = medians(table, "hamiltonian_rel_error")
     assert med[("polynomial", "ukf-leapfrog", 20)] == (pytest.approx(0.02), 3)  # failed row out
     assert med[("polynomial", "euler", 20)][0] == pytest.approx(0.3)  # ∞ is a large value
-    assert medians(table, "h_covered")[("polynomial", "ukf-leapfrog", 20)][0] == pytest.approx(2 / 3)
+    coverage = medians(table, "h_covered")[("polynomial", "ukf-leapfrog", 20)][0]
+    assert coverage == pytest.approx(2 / 3)
     d = deciding_numbers(table)["polynomial"]
     assert d["n0"] == 20 and d["reference_error"] == pytest.approx(0.02)
     assert d["methods"]["hnn"] == {"ratio": pytest.approx(20.0), "reached_at": None}
