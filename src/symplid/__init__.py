@@ -21,6 +21,14 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
+from symplid.dynamics.hamiltonians import (  # noqa: E402
+    DoublePendulum,
+    FunctionHamiltonian,
+    Hamiltonian,
+    PolynomialHamiltonian,
+    PositionDependentMass,
+    SeparableHamiltonian,
+)
 from symplid.dynamics.integrators import INTEGRATORS, Integrator, get_integrator  # noqa: E402
 from symplid.dynamics.neural import MLPHamiltonian, MLPPotential  # noqa: E402
 from symplid.dynamics.potentials import (  # noqa: E402
@@ -47,8 +55,11 @@ __all__ = [
     "SYSTEMS",
     "BoundWarning",
     "DataError",
+    "DoublePendulum",
+    "FunctionHamiltonian",
     "FunctionPotential",
     "HalfNormal",
+    "Hamiltonian",
     "HamiltonianModel",
     "Integrator",
     "Laplace",
@@ -59,8 +70,11 @@ __all__ = [
     "Normal",
     "Observations",
     "Polynomial",
+    "PolynomialHamiltonian",
+    "PositionDependentMass",
     "Posterior",
     "Potential",
+    "SeparableHamiltonian",
     "System",
     "Uniform",
     "__version__",
