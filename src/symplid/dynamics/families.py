@@ -93,10 +93,24 @@ HAMILTONIAN_FAMILIES.register(
 )
 
 
-def _mlp(dim: int, options: Any) -> Any:
-    from symplid.dynamics.neural import MLPPotential  # Equinox only when an MLP is built
+HAMILTONIAN_FAMILIES.register(
+    "mlp",
+    Family(
+        "mlp",
+        lambda dim, options: _mlp(dim, options, hamiltonian=True),
+        "H(q, p; w) an MLP on (q, p), non-separable (dynamics.neural.MLPHamiltonian); "
+        "model.width, model.depth",
+        coefficient_prior="normal(0, 1)",
+        neural=True,
+    ),
+    aliases=("neural",),
+)
 
-    return MLPPotential(
+
+def _mlp(dim: int, options: Any, hamiltonian: bool = False) -> Any:
+    from symplid.dynamics.neural import MLPHamiltonian, MLPPotential  # Equinox only now
+
+    return (MLPHamiltonian if hamiltonian else MLPPotential)(
         dim,
         width=int(getattr(options, "width", 32)),
         depth=int(getattr(options, "depth", 2)),
