@@ -109,13 +109,13 @@ def test_fit_path_for_a_network_is_the_scalable_one(hh_data):
     assert model.likelihood_backend == "jax"  # the compiled kernel is for polynomials
     result = find_map_for(s, posterior)
     assert isinstance(result, symplid.MapResult) and result.param_names == posterior.param_names
-    # a maximum: higher than the start, and no ascent direction left along the gradient
-    start = posterior.log_density(jnp.asarray(result.starts[0].start))
-    assert result.log_posterior >= float(start)
-    z = posterior.to_unconstrained(result.theta)
-    value, grad = posterior.value_and_grad(unconstrained=True)(jnp.asarray(z))
-    step = 1e-4 * np.asarray(grad) / max(np.linalg.norm(grad), 1e-300)
-    assert float(posterior.log_density_unconstrained(jnp.asarray(z + step))) <= float(value) + 1e-6
+    # a climb to near a maximum: far higher than the start, the gradient mostly gone
+    vg = posterior.value_and_grad(unconstrained=True)
+    z0 = jnp.asarray(posterior.to_unconstrained(result.starts[0].start))
+    z1 = jnp.asarray(posterior.to_unconstrained(result.theta))
+    (v0, g0), (v1, g1) = vg(z0), vg(z1)
+    assert float(v1) > float(v0) + 10.0
+    assert np.linalg.norm(g1) < 0.05 * np.linalg.norm(g0)
     # its Laplace covariance is the inverse of the Gauss–Newton precision, and the evidence
     # is log π(θ*) + ½ log det(2πΣ)
     from symplid.inference.neural_fit import ggn_precision

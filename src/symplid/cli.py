@@ -605,15 +605,21 @@ def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress
 @click.option("--mlp-seeds", type=click.IntRange(min=1), default=None,
               help="Seeds of the MLP cells [default: --seeds].")
 @click.option("--quick", is_flag=True, help="Tiny solver budgets (a smoke test).")
+@click.option("--report-only", is_flag=True,
+              help="Only write the report of the cells OUT holds (e.g. an interrupted study).")
 @click.option("--scheduler", type=str, default=None)
 @click.option("--workers", type=click.IntRange(min=1), default=None)
 @click.option("--no-progress", is_flag=True)
 @user_errors
-def baselines_study(out, seeds, sizes, potentials, mlp_seeds, quick, scheduler, workers,
-                    no_progress) -> None:
+def baselines_study(out, seeds, sizes, potentials, mlp_seeds, quick, report_only, scheduler,
+                    workers, no_progress) -> None:
     """The UKF posterior against HNN and one-step least squares over data sizes (a sweep)."""
-    from symplid.experiments.baselines_study import run_baselines_study
+    from symplid.experiments.baselines_study import run_baselines_study, write_study_report
 
+    if report_only:
+        d = write_study_report(out, quick=quick)
+        click.echo(f"{out}: report.md from {d['ok']} finished cells ({d['pending']} pending)")
+        return
     run_baselines_study(
         out, scheduler=scheduler, workers=workers, progress=not no_progress, seeds=seeds,
         sizes=tuple(int(n) for n in floats(sizes, "--sizes")),

@@ -77,6 +77,7 @@ __all__ = [
     "run_baselines_study",
     "run_cell",
     "score",
+    "write_study_report",
 ]
 
 SYSTEM = "henon-heiles"
@@ -326,28 +327,46 @@ def baselines_spec(
 
 def run_baselines_study(out_dir: Any, *, scheduler: Any = None, workers: int | None = None,
                         progress: bool = True, **spec_options: Any) -> dict[str, Any]:
-    """Run the study (resumable) into ``out_dir``; write ``report.md``, ``decision.json`` and
-    the figures (:mod:`.baselines_report`). ``spec_options`` go to :func:`baselines_spec`.
-    Returns the deciding numbers with the study's counts and wall time."""
-    import os
-    from pathlib import Path
+    """Run the study (resumable) into ``out_dir``, then :func:`write_study_report`.
 
-    from symplid.experiments.baselines_report import deciding_numbers, format_report
-    from symplid.workflow.results import write_json
+    ``spec_options`` go to :func:`baselines_spec`. Returns the content of ``decision.json``.
+    """
     from symplid.workflow.sweep import run_sweep
 
     spec = baselines_spec(**spec_options)
     start = time.perf_counter()
-    table = run_sweep(spec, out_dir, scheduler, workers, progress=progress)
-    wall = time.perf_counter() - start
-    budget = dict(BUDGETS["quick" if spec_options.get("quick") else "full"])
+    table = run_sweep(spec, out_dir, scheduler, workers, progress=progress, figures=False)
+    return write_study_report(out_dir, table, wall_time_s=time.perf_counter() - start,
+                              quick=bool(spec_options.get("quick")))
+
+
+def write_study_report(out_dir: Any, table: Any = None, *, wall_time_s: float | None = None,
+                       quick: bool = False) -> dict[str, Any]:
+    """``report.md``, ``decision.json`` and ``figures/`` of a study folder from its finished
+    cells (``table``: default, the folder's results, pending cells left out), so an
+    interrupted study can be reported on what it has."""
+    import os
+    from pathlib import Path
+
+    from symplid.experiments.baselines_report import (
+        deciding_numbers,
+        format_report,
+        plot_error_vs_size,
+    )
+    from symplid.workflow.results import write_json
+    from symplid.workflow.sweep import load_results
+
+    out = Path(out_dir)
+    table = load_results(out) if table is None else table
+    budget: dict[str, Any] = dict(BUDGETS["quick" if quick else "full"])
     budget["posterior"] = "MAP + Laplace (no MCMC)"
     decision = {"deciding": deciding_numbers(table), "budget": budget,
-                "cells": len(table), "failed": int((table["status"] != "ok").sum()),
-                "wall_time_s": wall, "options": {k: list(v) if isinstance(v, tuple) else v
-                                                 for k, v in spec_options.items()}}
-    out = Path(out_dir)
+                "cells": len(table), "ok": int((table["status"] == "ok").sum()),
+                "failed": int((table["status"] == "failed").sum()),
+                "pending": int((table["status"] == "pending").sum()),
+                "wall_time_s": wall_time_s}
     write_json(decision, out / "decision.json")
+    plot_error_vs_size(table, out / "figures")
     tmp = out / ".report.md.tmp"
     tmp.write_text(format_report(table, budget), encoding="utf-8")
     os.replace(tmp, out / "report.md")
