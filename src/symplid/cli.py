@@ -19,6 +19,7 @@ from symplid.workflow.commandline import (
     OneLineErrors,
     RegistryOption,
     UserError,
+    baselines_study_options,
     converged,
     floats,
     integrator_registry,
@@ -240,15 +241,8 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, x
     help="Settings file (TOML); command-line options override it.",
 )
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
-@click.option(
-    "--potential",
-    cls=RegistryOption,
-    registry=potential_registry,
-    default=None,
-    help="Family of U: {choices} [default: polynomial].",
-)
-@click.option("--width", type=click.IntRange(min=1), default=None, help="MLP units per layer.")
-@click.option("--depth", type=click.IntRange(min=0), default=None, help="MLP hidden layers.")
+@click.option("--potential", cls=RegistryOption, registry=potential_registry, default=None,
+              help="Family of U: {choices} (model.width, model.depth for mlp).")
 @click.option(
     "--integrator",
     cls=RegistryOption,
@@ -319,8 +313,6 @@ def fit(
     config,
     order,
     potential,
-    width,
-    depth,
     integrator,
     dt,
     method,
@@ -360,8 +352,6 @@ def fit(
     overrides = {
         "model.order": order,
         "model.potential": potential,
-        "model.width": width,
-        "model.depth": depth,
         "model.integrator": integrator,
         "model.dt": dt,
         "sampler.method": method,
@@ -597,37 +587,13 @@ def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress
 
 
 @study.command("baselines")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True)
-@click.option("--seeds", type=click.IntRange(min=1), default=10, show_default=True)
-@click.option("--sizes", type=str, default="20,50,200,1000", show_default=True,
-              help="Data sizes (comma-separated).")
-@click.option("--potentials", type=str, default="polynomial,mlp", show_default=True)
-@click.option("--mlp-seeds", type=click.IntRange(min=1), default=None,
-              help="Seeds of the MLP cells [default: --seeds].")
-@click.option("--quick", is_flag=True, help="Tiny solver budgets (a smoke test).")
-@click.option("--report-only", is_flag=True,
-              help="Only write the report of the cells OUT holds (e.g. an interrupted study).")
-@click.option("--scheduler", type=str, default=None)
-@click.option("--workers", type=click.IntRange(min=1), default=None)
-@click.option("--no-progress", is_flag=True)
+@baselines_study_options
 @user_errors
-def baselines_study(out, seeds, sizes, potentials, mlp_seeds, quick, report_only, scheduler,
-                    workers, no_progress) -> None:
+def baselines_study(out, no_progress, **options) -> None:
     """The UKF posterior against HNN and one-step least squares over data sizes (a sweep)."""
-    from symplid.experiments.baselines_study import run_baselines_study, write_study_report
+    from symplid.experiments.baselines_study import study_from_options
 
-    if report_only:
-        d = write_study_report(out, quick=quick)
-        click.echo(f"{out}: report.md from {d['ok']} finished cells ({d['pending']} pending)")
-        return
-    run_baselines_study(
-        out, scheduler=scheduler, workers=workers, progress=not no_progress, seeds=seeds,
-        sizes=tuple(int(n) for n in floats(sizes, "--sizes")),
-        potentials=tuple(p.strip() for p in potentials.split(",") if p.strip()),
-        mlp_seeds=mlp_seeds, quick=quick,
-    )
-    click.echo(f"{out}: report.md, decision.json, results.csv and figures/")
-
+    click.echo(study_from_options(out, progress=not no_progress, **options))
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from symplid.experiments.baselines_study import METHODS, REFERENCE
+from symplid.experiments.baselines_methods import METHODS, REFERENCE
 from symplid.plotting.sweep import PALETTE
 
 __all__ = ["deciding_numbers", "format_report", "medians", "plot_error_vs_size"]

@@ -45,7 +45,6 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -53,13 +52,18 @@ import numpy as np
 from symplid.dynamics.families import build_family
 from symplid.dynamics.potentials import Polynomial
 from symplid.dynamics.systems import get_system
+from symplid.experiments.baselines_methods import METHODS, REFERENCE, Method
+from symplid.experiments.baselines_report import (
+    deciding_numbers,
+    format_report,
+    plot_error_vs_size,
+)
 from symplid.experiments.paper import truth_path
 from symplid.inference import baselines
 from symplid.inference.measures import prediction_horizon
 from symplid.inference.predict import predict_trajectory
 from symplid.model.data import Observations
 from symplid.model.simulate import simulate
-from symplid.registry import Registry
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 from symplid.workflow.fit import build_model, build_posterior, find_map_for
 from symplid.workflow.sweep import cell_settings
@@ -77,6 +81,7 @@ __all__ = [
     "run_baselines_study",
     "run_cell",
     "score",
+    "study_from_options",
     "write_study_report",
 ]
 
@@ -84,36 +89,6 @@ SYSTEM = "henon-heiles"
 NUM_LAPLACE_DRAWS = 400
 
 
-@dataclass(frozen=True)
-class Method:
-    """A way to learn the potential: the UKF posterior with ``integrator``, or a baseline
-    ``objective`` of :data:`symplid.inference.baselines.OBJECTIVES`."""
-
-    name: str
-    integrator: str | None = None
-    objective: str | None = None
-    label: str = ""
-
-    @property
-    def bayesian(self) -> bool:
-        """Whether the method gives a posterior (the UKF ones)."""
-        return self.integrator is not None
-
-
-METHODS: Registry[Method] = Registry("study method")
-"""The methods of the study by name; the table lists them in this order."""
-METHODS.register("ukf-leapfrog", Method("ukf-leapfrog", integrator="leapfrog",
-                                        label="UKF posterior, leapfrog"))
-METHODS.register("ukf-rk2", Method("ukf-rk2", integrator="rk2-midpoint",
-                                   label="UKF posterior, RK2"))
-METHODS.register("hnn", Method("hnn", objective="hnn", label="HNN loss, eq. 1"))
-METHODS.register("euler", Method("euler", objective="euler", label="LS through one Euler step"))
-METHODS.register("rk4", Method("rk4", objective="rk4", label="LS through one RK4 step"))
-METHODS.register("leapfrog-ls", Method("leapfrog-ls", objective="leapfrog",
-                                       label="LS through one leapfrog step"))
-
-#: The reference method of the deciding numbers.
-REFERENCE = "ukf-leapfrog"
 POTENTIALS = ("polynomial", "mlp")
 
 #: The keys of a cell (table-column order). ``budget`` ``"quick"`` shrinks every iterative
@@ -348,11 +323,6 @@ def write_study_report(out_dir: Any, table: Any = None, *, wall_time_s: float | 
     import os
     from pathlib import Path
 
-    from symplid.experiments.baselines_report import (
-        deciding_numbers,
-        format_report,
-        plot_error_vs_size,
-    )
     from symplid.workflow.results import write_json
     from symplid.workflow.sweep import load_results
 
@@ -373,9 +343,24 @@ def write_study_report(out_dir: Any, table: Any = None, *, wall_time_s: float | 
     return decision
 
 
-def _figures(table: Any, folder: Any, settings: list[str]) -> Mapping[str, Any]:
-    from symplid.experiments.baselines_report import plot_error_vs_size
+def study_from_options(out: Any, *, seeds: int, mlp_seeds: int | None, sizes: str,
+                       potentials: str, quick: bool, report_only: bool, workers: int | None,
+                       progress: bool) -> str:
+    """``symplid study baselines``: run (or only report) the study; returns the line to print."""
+    from symplid.workflow.commandline import floats
 
+    if report_only:
+        d = write_study_report(out, quick=quick)
+        return f"{out}: report.md from {d['ok']} finished cells ({d['pending']} pending)"
+    run_baselines_study(
+        out, workers=workers, progress=progress, seeds=seeds, mlp_seeds=mlp_seeds, quick=quick,
+        sizes=tuple(int(n) for n in floats(sizes, "--sizes") or ()),
+        potentials=tuple(p.strip() for p in potentials.split(",") if p.strip()),
+    )
+    return f"{out}: report.md, decision.json, results.csv and figures/"
+
+
+def _figures(table: Any, folder: Any, settings: list[str]) -> Mapping[str, Any]:
     return plot_error_vs_size(table, folder)
 
 

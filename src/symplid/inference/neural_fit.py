@@ -74,6 +74,8 @@ class NeuralMapResult:
         ``"ggn"`` or ``"hessian"`` (how the covariance was computed), or None.
     history
         −log posterior after each optimiser step (Adam, then L-BFGS).
+    start
+        Where the search started (θ), when known.
     """
 
     theta: np.ndarray
@@ -82,6 +84,7 @@ class NeuralMapResult:
     param_names: tuple[str, ...]
     laplace: str | None = None
     history: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    start: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray | None:
@@ -105,7 +108,8 @@ class NeuralMapResult:
         """The same point as a :class:`~symplid.inference.map_result.MapResult` (one "start"),
         so run folders, samplers and summaries take it like the polynomial MAP."""
         start = StartResult(
-            self.theta, self.theta, self.log_posterior, bool(np.isfinite(self.log_posterior)),
+            self.theta if self.start is None else self.start, self.theta, self.log_posterior,
+            bool(np.isfinite(self.log_posterior)),
             f"Adam then L-BFGS, {self.history.size} steps", int(self.history.size),
             int(self.history.size), float(seconds),
         )
@@ -197,7 +201,7 @@ def find_map_neural(
         covariance = 0.5 * (covariance + covariance.T)
     return NeuralMapResult(
         theta, covariance, float(posterior.log_density(jnp.asarray(theta))),
-        tuple(posterior.param_names), laplace, np.asarray(history),
+        tuple(posterior.param_names), laplace, np.asarray(history), np.asarray(theta0),
     )
 
 

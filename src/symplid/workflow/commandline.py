@@ -23,6 +23,7 @@ __all__ = [
     "OneLineErrors",
     "RegistryOption",
     "UserError",
+    "baselines_study_options",
     "converged",
     "floats",
     "integrator_registry",
@@ -151,6 +152,26 @@ class LazyChoice(click.Choice):
 def rk2_variants() -> tuple[str, ...]:
     """The registered RK2 integrators, by variant (``rk2-midpoint`` → ``midpoint``)."""
     return tuple(n[4:] for n in integrator_registry().names() if n.startswith("rk2-"))
+
+
+def baselines_study_options(fn: Any) -> Any:
+    """The options of ``symplid study baselines`` (listed as ``--help`` shows them)."""
+    options = [
+        click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True),
+        click.option("--seeds", type=click.IntRange(min=1), default=10, show_default=True),
+        click.option("--mlp-seeds", type=click.IntRange(min=1), default=None,
+                     help="Seeds of the MLP cells [default: --seeds]."),
+        click.option("--sizes", default="20,50,200,1000", show_default=True),
+        click.option("--potentials", default="polynomial,mlp", show_default=True),
+        click.option("--quick", is_flag=True, help="Tiny solver budgets (a smoke test)."),
+        click.option("--report-only", is_flag=True,
+                     help="Write the report of the cells OUT holds (an interrupted study)."),
+        click.option("--workers", type=click.IntRange(min=1), default=None),
+        click.option("--no-progress", is_flag=True),
+    ]
+    for option in reversed(options):
+        fn = option(fn)
+    return fn
 
 
 def floats(text: str | None, name: str) -> list[float] | None:

@@ -11,6 +11,10 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES
     hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES
     order = 3                     # polynomial potential of total degree ≤ 3 (eqs 17–18)
+    width = 32                    # potential = "mlp" (or hamiltonian = "mlp"): units per layer,
+    depth = 2                     #   hidden layers,
+    activation = "tanh"           #   activation,
+    network_seed = 0              #   seed of the initial weights
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
     process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep)
@@ -28,8 +32,8 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     p0_var = 1e-16
     t0 = 0.0                      # or "first": the state at the first observation time
 
-    [priors.coefficients]         # one prior per group of θ
-    family = "laplace"
+    [priors.coefficients]         # one prior per group of θ; left out: the model family's
+    family = "laplace"            #   default (polynomial: this one; mlp: normal(0, 1))
     loc = 0.0
     scale = 10.0
     [priors.variances]
@@ -43,6 +47,9 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     [map]
     num_starts = 4
     seed = 0
+    adam_steps = 2000             # a neural family's MAP: Adam, then L-BFGS (no multistart)
+    learning_rate = 0.01
+    lbfgs_steps = 200
 
     [sampler]
     method = "dram"               # any name in symplid.inference.samplers.SAMPLERS
@@ -89,7 +96,6 @@ import typing
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -98,7 +104,7 @@ import tomli_w
 from symplid.dynamics.families import build_family, family_of
 from symplid.io import observation_layout
 from symplid.model.data import DataError
-from symplid.model.priors import PRIOR_FAMILIES, Prior, as_prior
+from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.settings_schema import (
     PRIOR_DEFAULTS,
@@ -112,6 +118,8 @@ from symplid.workflow.settings_schema import (
     PriorSettings,
     SamplerSettings,
     Settings,
+    family_prior,
+    with_family_prior,
 )
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
@@ -233,36 +241,10 @@ def settings_from_dict(data: Mapping[str, Any], source: str = "settings") -> Set
             table = data.get(section, {})
             if isinstance(table, Mapping) and "seed" not in table:
                 data[section] = {**table, "seed": data["seed"]}
-    data = _with_family_prior(data)
+    data = with_family_prior(data)
     settings = _build(Settings, data, "", source)
     _check_cross(settings, source)
     return settings
-
-
-def family_prior(model: Any) -> Prior:
-    """The default coefficient prior of the family that model settings name.
-
-    The family's :attr:`~symplid.dynamics.families.Family.coefficient_prior` (``"mlp"``:
-    Normal(0, 1) on every weight), else the paper's Laplace(0, 10). A settings file or
-    ``--set`` that gives ``priors.coefficients`` overrides it.
-    """
-    prior = family_of(model).coefficient_prior
-    return as_prior(prior, "coefficient prior") if prior else PriorSettings().coefficients
-
-
-def _with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
-    """``priors.coefficients`` left out: the model family's default prior."""
-    priors = data.get("priors", {})
-    model = data.get("model", {})
-    if not isinstance(priors, Mapping) or "coefficients" in priors or not isinstance(
-            model, Mapping):
-        return data
-    names = {k: model[k] for k in ("potential", "hamiltonian") if isinstance(model.get(k), str)}
-    try:
-        prior = family_prior(SimpleNamespace(**names))
-    except (KeyError, ValueError):  # an unknown family: the validator says so, with a suggestion
-        return data
-    return {**data, "priors": {**priors, "coefficients": prior.to_dict()}}
 
 
 def _build(cls: type, data: Mapping[str, Any], prefix: str, source: str) -> Any:

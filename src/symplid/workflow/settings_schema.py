@@ -8,13 +8,16 @@ loading and the overrides are in :mod:`symplid.workflow.settings`.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Any
 
-from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES
+from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES, family_of
 from symplid.dynamics.integrators import INTEGRATORS
 from symplid.dynamics.neural import ACTIVATIONS
 from symplid.inference.samplers import SAMPLERS
-from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
+from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec, as_prior
 from symplid.workflow.validate import Spec, setting
 
 __all__ = [
@@ -26,6 +29,8 @@ __all__ = [
     "PriorSettings",
     "SamplerSettings",
     "Settings",
+    "family_prior",
+    "with_family_prior",
 ]
 
 
@@ -165,6 +170,32 @@ class Settings:
     map: MapSettings = field(default_factory=MapSettings)
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     prediction: PredictionSettings = field(default_factory=PredictionSettings)
+
+
+def family_prior(model: Any) -> Prior:
+    """The default coefficient prior of the family that model settings name.
+
+    The family's :attr:`~symplid.dynamics.families.Family.coefficient_prior` (``"mlp"``:
+    Normal(0, 1) on every weight), else the paper's Laplace(0, 10). A settings file or
+    ``--set`` that gives ``priors.coefficients`` overrides it.
+    """
+    prior = family_of(model).coefficient_prior
+    return as_prior(prior, "coefficient prior") if prior else PriorSettings().coefficients
+
+
+def with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
+    """``priors.coefficients`` left out: the model family's default prior."""
+    priors = data.get("priors", {})
+    model = data.get("model", {})
+    if not isinstance(priors, Mapping) or "coefficients" in priors or not isinstance(
+            model, Mapping):
+        return data
+    names = {k: model[k] for k in ("potential", "hamiltonian") if isinstance(model.get(k), str)}
+    try:
+        prior = family_prior(SimpleNamespace(**names))
+    except (KeyError, ValueError):  # an unknown family: the validator says so, with a suggestion
+        return data
+    return {**data, "priors": {**priors, "coefficients": prior.to_dict()}}
 
 
 #: Renamed keys: old dotted key → new dotted key (the old one is read with a FutureWarning).
