@@ -102,7 +102,7 @@ def test_parameter_count_warning_counts_the_built_model(hh_data):
 
 def test_fit_path_for_a_network_is_the_scalable_one(hh_data):
     s = merge_overrides(mlp_settings(width=4, depth=1),
-                        {"map.adam_steps": 150, "map.lbfgs_steps": 500})
+                        {"map.adam_steps": 150, "map.lbfgs_steps": 3000})
     assert family_of(s.model).neural and not family_of(Settings().model).neural
     model = build_model(s, hh_data)
     posterior = build_posterior(s, hh_data, model)
@@ -115,7 +115,7 @@ def test_fit_path_for_a_network_is_the_scalable_one(hh_data):
     z1 = jnp.asarray(posterior.to_unconstrained(result.theta))
     (v0, g0), (v1, g1) = vg(z0), vg(z1)
     assert float(v1) > float(v0) + 10.0
-    assert np.linalg.norm(g1) < 0.1 * np.linalg.norm(g0)
+    assert np.linalg.norm(g1) < 1e-3 * np.linalg.norm(g0)
     # its Laplace covariance is the inverse of the Gauss–Newton precision, and the evidence
     # is log π(θ*) + ½ log det(2πΣ)
     from symplid.inference.neural_fit import ggn_precision

@@ -290,7 +290,13 @@ def baselines_spec(
     for potential in potentials:
         n_seeds = seeds if potential != "mlp" or mlp_seeds is None else mlp_seeds
         cells += [{"potential": potential, "seed": s, "num_obs": int(n), "method": m}
-                  for s in range(n_seeds) for n in sizes for m in methods]
+                  for n in sizes for s in range(n_seeds) for m in methods]
+    # The deciding numbers need every baseline cell but the posterior at the smallest size
+    # only: those run first, so that an interrupted study (a long one on a busy machine) can
+    # be reported on them (--report-only); the other posterior cells follow, size by size.
+    first = min(int(n) for n in sizes)
+    cells.sort(key=lambda c: (c["potential"] != potentials[0],
+                              METHODS.get_entry(c["method"]).bayesian and c["num_obs"] > first))
     base: dict[str, Any] = {"budget": "quick" if quick else "full"}
     if quick:
         base["t_end"] = 50.0

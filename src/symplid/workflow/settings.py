@@ -49,7 +49,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     seed = 0
     adam_steps = 2000             # a neural family's MAP: Adam, then L-BFGS (no multistart)
     learning_rate = 0.01
-    lbfgs_steps = 200
+    lbfgs_steps = 1000
 
     [sampler]
     method = "dram"               # any name in symplid.inference.samplers.SAMPLERS

@@ -123,7 +123,7 @@ class MapSettings:
     seed: int = setting(0, minimum=0)
     adam_steps: int = setting(2000, minimum=0)
     learning_rate: float = setting(0.01, minimum=0.0, strict=True)
-    lbfgs_steps: int = setting(200, minimum=0)
+    lbfgs_steps: int = setting(1000, minimum=0)
 
 
 @dataclass(frozen=True)
