@@ -100,6 +100,17 @@ def test_parameter_count_warning_counts_the_built_model(hh_data):
     assert count_warning(Settings(initial_state=small.initial_state)) == []  # 9 + 2
 
 
+def test_a_non_separable_network_needs_a_non_separable_propagator(hh_data):
+    def settings(integrator):
+        return settings_from_dict({
+            "model": {"hamiltonian": "mlp", "width": 3, "depth": 1, "integrator": integrator},
+            "sampler": {"method": "nuts"}, "initial_state": {"x0": X0}})
+
+    with pytest.raises(SettingsError, match=r"model\.integrator \('leapfrog'\).*implicit-midpoint"):
+        resolve_for_data(settings("leapfrog"), hh_data)
+    assert resolve_for_data(settings("implicit-midpoint"), hh_data).model.hamiltonian == "mlp"
+
+
 def test_fit_path_for_a_network_is_the_scalable_one(hh_data):
     s = merge_overrides(mlp_settings(width=4, depth=1),
                         {"map.adam_steps": 150, "map.lbfgs_steps": 3000})

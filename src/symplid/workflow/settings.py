@@ -571,18 +571,17 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
         )
     values = int(np.sum(obs.mask))
     d = _dim(obs)
-    built = HamiltonianModel(build_family(d, model), noise=model.noise)
+    try:  # the model itself: its size, and whether the integrator can take its H
+        built = HamiltonianModel(build_family(d, model), model.integrator, noise=model.noise)
+    except ValueError as err:
+        raise SettingsError(source, "model.integrator", f"({model.integrator!r}): {err}") from None
     num_params = built.num_params + (2 * d if init.mode == "learned" else 0)
     if num_params > values:
-        family = family_of(model)
-        what = f"order {model.order}" if family.name == "polynomial" else f"{family.name!r}"
-        warnings.warn(
-            f"{source}: the model has {num_params} parameters ({what}) for "
-            f"{values} data values; the priors decide most of the posterior "
-            "(a smaller model, or more data)",
-            UserWarning,
-            stacklevel=3,
-        )
+        name = family_of(model).name
+        what = f"order {model.order}" if name == "polynomial" else f"{name!r}"
+        warnings.warn(f"{source}: the model has {num_params} parameters ({what}) for {values} "
+                      "data values; the priors decide most of the posterior (a smaller model, "
+                      "or more data)", UserWarning, stacklevel=3)
     if init.mode == "learned" and not init.x0 and not init.at_first_observation:
         lead = first - float(init.t0)
         if times.size > 1 and lead > float(np.max(np.diff(times))):
