@@ -113,8 +113,10 @@ def test_deciding_numbers_from_the_medians():
     assert coverage == pytest.approx(2 / 3)
     d = deciding_numbers(table)["polynomial"]
     assert d["n0"] == 20 and d["reference_error"] == pytest.approx(0.02)
-    assert d["methods"]["hnn"] == {"ratio": pytest.approx(20.0), "reached_at": None}
-    assert d["methods"]["rk4"] == {"ratio": pytest.approx(5.0), "reached_at": 50}
+    assert d["methods"]["hnn"] == {"ratio": pytest.approx(20.0), "reached_at": None,
+                                   "largest_size": 50}
+    assert d["methods"]["rk4"] == {"ratio": pytest.approx(5.0), "reached_at": 50,
+                                   "largest_size": 50}
     text = format_report(table, {"posterior": "MAP + Laplace"})
     assert "ratio 20 at n = 20; does not reach it by n = 50" in text
     assert "ratio 5 at n = 20; reaches it at n = 50" in text

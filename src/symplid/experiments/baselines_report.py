@@ -82,8 +82,9 @@ def deciding_numbers(table: Any) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``{potential: {"n0", "reference_error", "methods": {method: {"ratio", "reached_at"}}}}``;
-        ``reached_at`` is None when the method does not reach the reference error.
+        ``{potential: {"n0", "reference_error", "methods": {method: {"ratio", "reached_at",
+        "largest_size"}}}}``; ``reached_at`` is None when the method does not reach the
+        reference error within the sizes it has results for (the largest: ``largest_size``).
     """
     potentials, methods, sizes = _order(table)
     med = medians(table, "hamiltonian_rel_error")
@@ -96,10 +97,11 @@ def deciding_numbers(table: Any) -> dict[str, Any]:
             if method == REFERENCE or (potential, method, n0) not in med:
                 continue
             ratio = med[(potential, method, n0)][0] / ref if ref > 0 else math.nan
-            reached = [n for n in sizes if (potential, method, n) in med
-                       and med[(potential, method, n)][0] <= ref]
+            have = [n for n in sizes if (potential, method, n) in med]
+            reached = [n for n in have if med[(potential, method, n)][0] <= ref]
             entry["methods"][method] = {"ratio": ratio,
-                                        "reached_at": reached[0] if reached else None}
+                                        "reached_at": reached[0] if reached else None,
+                                        "largest_size": have[-1]}
         out[potential] = entry
     return out
 
@@ -142,7 +144,7 @@ def format_report(table: Any, budget: Mapping[str, Any] | None = None) -> str:
                      f"{entry['reference_error']:.3g}")
         for m, d in entry["methods"].items():
             where = (f"reaches it at n = {d['reached_at']}" if d["reached_at"] is not None
-                     else f"does not reach it by n = {sizes[-1]}")
+                     else f"does not reach it by n = {d['largest_size']}")
             lines.append(f"  - {METHODS.get_entry(m).label}: ratio {d['ratio']:.3g} at "
                          f"n = {entry['n0']}; {where}")
     return "\n".join(lines) + "\n"
