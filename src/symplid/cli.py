@@ -20,12 +20,14 @@ from symplid.workflow.commandline import (
     OneLineErrors,
     RegistryOption,
     UserError,
+    baselines_study_options,
     config_option,
     fit_result_line,
     floats,
     integrator_registry,
     no_progress_option,
     noise_model_names,
+    potential_registry,
     report_after_fit,
     rk2_variants,
     run_fit,
@@ -211,6 +213,8 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               help="Run folder to write (must not exist, or be empty)  [required]")
 @config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
+@click.option("--potential", cls=RegistryOption, registry=potential_registry, default=None,
+              help="Family of U: {choices} (model.width, model.depth for mlp).")
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
               help="Learning propagator: {choices}.")
 @click.option("--dt", type=float, default=None, help="Learning step.")
@@ -248,7 +252,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               help="Write report.md and the figures when the fit finishes (as symplid report).")
 @no_progress_option
 @user_errors
-def fit(data, out, config, order, integrator, dt, observation_noise, method, iterations,
+def fit(data, out, config, order, potential, integrator, dt, observation_noise, method, iterations,
         samples, burn_in, chains, seed, x0, learn_initial_state, t0, time_unit, holdout,
         holdout_after, sets, overwrite, resume, report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
@@ -266,6 +270,7 @@ def fit(data, out, config, order, integrator, dt, observation_noise, method, ite
         iterations = samples
     overrides = {
         "model.order": order,
+        "model.potential": potential,
         "model.integrator": integrator,
         "model.dt": dt,
         "model.observation_noise": observation_noise,
@@ -490,6 +495,16 @@ def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, wo
 
         write_block(update_readme, claims, Path(out))
         click.echo(f"{update_readme}: claims block rewritten from {out}/claims.json")
+
+
+@study.command("baselines")
+@baselines_study_options
+@user_errors
+def baselines_study(out, no_progress, **options) -> None:
+    """The UKF posterior against HNN and one-step least squares over data sizes (a sweep)."""
+    from symplid.experiments.baselines_study import study_from_options
+
+    click.echo(study_from_options(out, progress=not no_progress, **options))
 
 
 if __name__ == "__main__":  # pragma: no cover
