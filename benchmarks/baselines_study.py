@@ -12,7 +12,8 @@ the comparison. Not a test: run it by hand, e.g.::
     python benchmarks/baselines_study.py --sizes 20 50 200 1000 --seeds 5
 
 (about 15 minutes on one core, most of it the UKF MAPs at n = 1000; ``--sizes 20 50 200`` takes
-about 8). The MLP potential and the non-separable MLP Hamiltonian are not in it yet.
+about 8). The study with more seeds, an MLP potential, prediction horizons and interval
+coverage is the sweep experiment ``"baselines"`` (``symplid study baselines``).
 """
 
 from __future__ import annotations

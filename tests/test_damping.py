@@ -271,6 +271,24 @@ def test_forecast_from_the_filter_of_a_damped_model_continues_the_damped_flow():
     assert band.integrator == "damped-leapfrog"
 
 
+def test_damping_needs_a_separable_h_and_a_scheme():
+    """A non-separable H(q, p; θ) has no −γM⁻¹p; Tao's and the implicit midpoint's steps have
+    no scheme to damp. Each is a one-line error, from the model and from the settings."""
+    from symplid.dynamics.hamiltonians import PolynomialHamiltonian
+    from symplid.workflow.settings import resolve_for_data
+
+    with pytest.raises(ValueError, match="needs a separable H"):
+        symplid.HamiltonianModel(PolynomialHamiltonian(1, 2), integrator="rk4", damping=True)
+    for name in ("tao", "implicit-midpoint"):
+        with pytest.raises(ValueError, match=f"'{name}' cannot be damped"):
+            symplid.HamiltonianModel(symplid.Polynomial(1, 2), integrator=name, damping=True)
+    obs = simulate("damped-pendulum", times=np.arange(0.5, 10.0, 0.5))
+    s = settings_from_dict({"model": {"damping": True, "hamiltonian": "mlp"},
+                            "sampler": {"method": "nuts"}, "initial_state": {"x0": [1.0, 0.0]}})
+    with pytest.raises(SettingsError, match=r"model\.damping"):
+        resolve_for_data(s, obs)
+
+
 def test_settings_key_and_prior_of_damping():
     s = settings_from_dict(
         {"model": {"damping": True}, "priors": {"damping": {"family": "half-normal", "scale": 0.3}}}

@@ -10,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import math
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,12 +21,10 @@ import sweep_cells
 import symplid
 from symplid.experiments.paper import CELL_KEYS, cell_data
 from symplid.experiments.paper_study import (
-    FULL_BUDGET,
-    PAPER_SETTING,
-    QUICK_BUDGET,
     evaluate_claims,
     paper_claims_spec,
     run_paper_claims,
+    select_variants,
 )
 from symplid.workflow.results import read_json
 from symplid.workflow.sweep import (
@@ -318,132 +315,34 @@ def test_missing_spec_file(tmp_path):
         load_sweep_spec(tmp_path / "nope.toml")
 
 
-# ----------------------------------------------------------------------------- claims
-def _row(dt, seed, integrator, h_err, noise, horizon, status="ok"):
-    return {
-        "cell_id": f"{dt}-{seed}-{integrator}",
-        "seed": seed,
-        "integrator": integrator,
-        "dt": dt,
-        "noise_std": 0.05,
-        "status": status,
-        "hamiltonian_rel_error": h_err,
-        "process_noise_median": noise,
-        "prediction_horizon_s": horizon,
-    }
-
-
-@pytest.fixture(scope="module")
-def claims_table():
-    """Two settings; every answer below is counted by hand."""
-    lf, rk = "leapfrog", "rk2-midpoint"
-    nan = math.nan
-    rows = [
-        # dt = 0.25: H errors (lf < rk2 for seeds 0, 2; seed 3 undecided), noise ratios
-        # 10, 2, 50, 5, horizons: lf longer for 0 and 3, a tie for 1, shorter for 2
-        _row(0.25, 0, lf, 0.01, 1e-6, 150.0),
-        _row(0.25, 0, rk, 0.02, 1e-5, 20.0),
-        _row(0.25, 1, lf, 0.02, 1e-6, 200.0),
-        _row(0.25, 1, rk, 0.01, 2e-6, 200.0),
-        _row(0.25, 2, lf, 0.05, 2e-6, 30.0),
-        _row(0.25, 2, rk, 0.06, 1e-4, 40.0),
-        _row(0.25, 3, lf, 0.01, 1e-6, 200.0),
-        _row(0.25, 3, rk, nan, 5e-6, 25.0),
-        _row(0.25, 3, "rk4", 0.0, 1.0, 0.0),  # another propagator: ignored
-        # dt = 0.1: seed 1's RK2 cell failed, so only seed 0 is paired
-        _row(0.1, 0, lf, 0.03, 1e-6, 100.0),
-        _row(0.1, 0, rk, 0.04, 1e-4, 10.0),
-        _row(0.1, 1, lf, 0.01, 1e-6, 100.0),
-        _row(0.1, 1, rk, nan, nan, nan, status="failed"),
-    ]
-    return pd.DataFrame(rows)
-
-
-def test_claims_on_a_hand_made_table(claims_table):
-    result = evaluate_claims(claims_table, baseline={"dt": 0.25, "noise_std": 0.05})
-    assert [s["label"] for s in result["settings"]] == ["baseline", "dt=0.1"]
-    assert [s["pairs"] for s in result["settings"]] == [4, 1]
-    assert [s["unpaired"] for s in result["settings"]] == [0, 1]
-    h, pn, pr = (result["claims"][k]["per_setting"] for k in CLAIMS_ORDER)
-
-    assert (h[0]["n"], h[0]["holds"], h[0]["undecided"]) == (3, 2, 1)
-    assert h[0]["fraction"] == pytest.approx(2 / 3)
-    assert h[0]["median_symplectic"] == pytest.approx(0.02)  # of 0.01, 0.02, 0.05
-    assert (h[1]["n"], h[1]["holds"], h[1]["fraction"], h[1]["unpaired"]) == (1, 1, 1.0, 1)
-
-    assert (pn[0]["n"], pn[0]["holds"]) == (4, 3)  # ratios 10, 2, 50, 5: three ≥ √10
-    assert pn[0]["fraction"] == 0.75 and pn[0]["fraction_smaller"] == 1.0
-    ratio = pn[0]["ratio"]
-    assert ratio["median"] == pytest.approx(7.5)
-    assert ratio["geometric_mean"] == pytest.approx(5000.0**0.25)
-    assert (ratio["min"], ratio["max"]) == pytest.approx((2.0, 50.0))
-    assert ratio["q25"] == pytest.approx(np.quantile([10, 2, 50, 5], 0.25))
-    assert pn[1]["ratio"]["median"] == pytest.approx(100.0) and pn[1]["holds"] == 1
-
-    assert (pr[0]["n"], pr[0]["holds"], pr[0]["ties"], pr[0]["fraction"]) == (4, 2, 1, 0.5)
-    assert pr[0]["median_reference"] == pytest.approx(32.5)  # of 20, 200, 40, 25
-
-
-CLAIMS_ORDER = ("hamiltonian", "process_noise", "prediction")
-
-
-def test_claims_labels_errors_and_purity(claims_table):
-    copy = claims_table.copy()
-    result = evaluate_claims(claims_table)
-    pd.testing.assert_frame_equal(claims_table, copy)  # the table is not modified
-    assert [s["label"] for s in result["settings"]] == ["dt=0.25", "dt=0.1"]
-    assert evaluate_claims(claims_table) == result
-    swapped = evaluate_claims(claims_table, symplectic="rk2-midpoint", reference="leapfrog")
-    assert swapped["claims"]["process_noise"]["per_setting"][0]["fraction_smaller"] == 0.0
-    with pytest.raises(ValueError, match="more than one ok row for seed 0"):
-        evaluate_claims(pd.concat([claims_table, claims_table.iloc[:1]]))
-    with pytest.raises(ValueError, match="no metric column 'prediction_horizon_s'"):
-        evaluate_claims(claims_table.drop(columns="prediction_horizon_s"))
-
-
 # ----------------------------------------------------------------------------- the study
-def test_paper_claims_spec_varies_one_setting_at_a_time():
-    spec = paper_claims_spec(seeds=3)
-    assert len(spec.cells) == 3 * 2 * 5 and len(set(spec.ids)) == 30
-    for cell in (c.settings for c in spec.cells):
-        changed = {k for k, v in PAPER_SETTING.items() if cell[k] != v}
-        assert changed in (set(), {"dt"}, {"noise_std"})
-        assert cell["num_iterations"] == FULL_BUDGET["num_iterations"]
-    assert sorted({c.settings["dt"] for c in spec.cells}) == [0.1, 0.25, 0.5]
-    assert sorted({c.settings["noise_std"] for c in spec.cells}) == [0.01, 0.05, 0.1]
-    quick = paper_claims_spec(seeds=2, quick=True, variants=False)
-    assert len(quick.cells) == 4
-    assert all(c.settings["num_iterations"] == QUICK_BUDGET["num_iterations"] for c in quick.cells)
-    with pytest.raises(ValueError, match="seeds must be a positive integer"):
-        paper_claims_spec(seeds=0)
-
-
 def test_paper_claims_study_end_to_end(shared_cluster, tmp_path):
     out = tmp_path / "study"
     claims = run_paper_claims(
         out,
         seeds=2,
-        quick=True,
+        budget="quick",
         scheduler=shared_cluster.address,
-        variants=False,
+        variants="none",
         cell_fn="sweep_cells:claims_cell",
         progress=False,
     )
     stored = read_json(out / "claims.json")
     table = load_results(out)
-    again = evaluate_claims(table, baseline=PAPER_SETTING, baseline_label="paper setting")
+    again = evaluate_claims(table, select_variants("none"))
     assert stored["claims"] == json.loads(json.dumps(again["claims"]))
-    assert stored["study"]["cells"] == 4 and stored["study"]["cells_failed"] == 0
-    assert claims["settings"][0]["label"] == "paper setting"
+    # two seeds × leapfrog, RK2 and yoshida4 (the calibration's third propagator)
+    assert stored["study"]["cells"] == 6 and stored["study"]["cells_failed"] == 0
+    assert claims["variants"][0]["name"] == "paper"
     # the stand-in makes RK2's horizon 130 s shorter and its H error twice leapfrog's
-    assert claims["claims"]["prediction"]["per_setting"][0]["fraction"] == 1.0
-    assert claims["claims"]["hamiltonian"]["per_setting"][0]["fraction"] == 1.0
+    assert claims["claims"]["prediction"]["per_variant"][0]["fraction"] == 1.0
+    assert claims["claims"]["hamiltonian"]["per_variant"][0]["fraction"] == 1.0
     report = (out / "report.md").read_text()
     for name in ("claim_hamiltonian", "claim_process_noise", "claim_prediction"):
         png = out / "figures" / f"{name}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"(figures/{name}.png)" in report
-    assert "| paper setting | 2 |" in report
+    assert "| paper | rk2-midpoint | 2 | 2 |" in report
 
 
 # ----------------------------------------------------------------------------- the real cell
@@ -477,11 +376,11 @@ def _has_run_cell() -> bool:
 )
 def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     """The real cell function (quick budget): seed 0, leapfrog and RK2, on 2 local workers."""
-    spec = paper_claims_spec(seeds=1, quick=True, variants=False)
+    spec = paper_claims_spec(seeds=1, budget="quick", variants="none")
     table = run_sweep(
         spec, tmp_path, workers=2, progress=False, figures=False, worker_env=_test_cache_env()
     )
-    assert list(table["status"]) == ["ok", "ok"], list(table["error"])
+    assert list(table["status"]) == ["ok"] * 3, list(table["error"])
     for metric in PAPER_METRICS:
         assert metric in table.columns
     system = symplid.get_system("henon-heiles")
@@ -492,8 +391,14 @@ def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     q = table[["process_noise_q025", "process_noise_median", "process_noise_q975"]].to_numpy()
     assert (q[:, 0] <= q[:, 1]).all() and (q[:, 1] <= q[:, 2]).all()
     assert ((table["prediction_horizon_s"] > 0) & (table["prediction_horizon_s"] <= 200)).all()
-    claims = evaluate_claims(table, baseline=PAPER_SETTING)
-    assert all(c["per_setting"][0]["n"] == 1 for c in claims["claims"].values())
+    claims = evaluate_claims(table, select_variants("none"))
+    assert all(c["per_variant"][0]["n"] == 1 for c in claims["claims"].values())
+    # calibration: the truth's rank among 99 thinned draws, σ² as the true noise variance
+    assert table["calibration.q1^2.rank"].between(0, 99).all()
+    np.testing.assert_allclose(table["calibration.obs_var.truth"], 0.05**2)
+    inside = (table["calibration.q2^3.q025"] <= -1 / 3) & (table[
+        "calibration.q2^3.q975"] >= -1 / 3)
+    assert (inside == table["calibration.q2^3.covered"].astype(bool)).all()
 
 
 # ----------------------------------------------------------------------------- experiments

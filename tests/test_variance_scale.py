@@ -96,5 +96,6 @@ def test_log_scale_mixes_better_at_the_floor(runs):
 def test_settings_reach_the_sampler():
     with pytest.raises(ValueError, match="variance_scale must be one of 'natural', 'log'"):
         DRAMSettings(variance_scale="logarithmic")
-    settings = merge_overrides(Settings(), {"sampler.variance_scale": "log"})
-    assert settings.sampler.variance_scale == "log"
+    assert DRAMSettings().variance_scale == Settings().sampler.variance_scale == "log"
+    settings = merge_overrides(Settings(), {"sampler.variance_scale": "natural"})
+    assert settings.sampler.variance_scale == "natural"

@@ -20,12 +20,14 @@ from symplid.workflow.commandline import (
     OneLineErrors,
     RegistryOption,
     UserError,
+    baselines_study_options,
     config_option,
     fit_result_line,
     floats,
     integrator_registry,
     no_progress_option,
     noise_model_names,
+    potential_registry,
     report_after_fit,
     rk2_variants,
     run_fit,
@@ -211,6 +213,8 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               help="Run folder to write (must not exist, or be empty)  [required]")
 @config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
+@click.option("--potential", cls=RegistryOption, registry=potential_registry, default=None,
+              help="Family of U: {choices} (model.width, model.depth for mlp).")
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
               help="Learning propagator: {choices}.")
 @click.option("--dt", type=float, default=None, help="Learning step.")
@@ -250,7 +254,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               help="Write report.md and the figures when the fit finishes (as symplid report).")
 @no_progress_option
 @user_errors
-def fit(data, out, config, order, integrator, dt, damping, observation_noise, method,
+def fit(data, out, config, order, potential, integrator, dt, damping, observation_noise, method,
         iterations, samples, burn_in, chains, seed, x0, learn_initial_state, t0, time_unit,
         holdout, holdout_after, sets, overwrite, resume, report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
@@ -268,6 +272,7 @@ def fit(data, out, config, order, integrator, dt, damping, observation_noise, me
         iterations = samples
     overrides = {
         "model.order": order,
+        "model.potential": potential,
         "model.integrator": integrator,
         "model.dt": dt,
         "model.damping": True if damping else None,
@@ -463,28 +468,53 @@ def study() -> None:
 
 
 @study.command("paper-claims")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Study folder (a rerun skips the finished cells).")
 @click.option("--seeds", type=click.IntRange(min=1), default=20, show_default=True)
-@click.option("--quick", is_flag=True, help="A small sampler budget per cell.")
-@click.option("--no-variants", is_flag=True, help="Only the paper's setting (no dt, σ variants).")
-@click.option("--scheduler", type=str, default=None)
-@click.option("--workers", type=click.IntRange(min=1), default=None)
+@click.option("--budget", default="paper", show_default=True,
+              help="Sampler budget per cell: paper (4 × 200,000 DRAM), quick, or iterations.")
+@click.option("--variants", default="all", show_default=True,
+              help="all, none (the paper's setting), or variant names separated by commas.")
+@click.option("--quick", is_flag=True, hidden=True, help="Same as --budget quick.")
+@click.option("--no-variants", is_flag=True, hidden=True, help="Same as --variants none.")
+@click.option("--scheduler", type=str, default=None,
+              help="A Dask scheduler address (tcp://host:8786) [default: a local cluster].")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local worker processes [default: one per core].")
+@click.option("--update-readme", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Rewrite the claims block of this README from claims.json.")
 @no_progress_option
 @user_errors
-def paper_claims(out, seeds, quick, no_variants, scheduler, workers, no_progress) -> None:
-    """How often the paper's three claims hold over many data seeds (and dt, σ variants)."""
+def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, workers,
+                 update_readme, no_progress) -> None:
+    """How often the paper's claims hold over many data seeds, per variant; calibration."""
     from symplid.experiments.paper_study import run_paper_claims
 
-    run_paper_claims(
+    claims = run_paper_claims(
         out,
         seeds=seeds,
-        quick=quick,
+        budget="quick" if quick else budget,
         scheduler=scheduler,
         workers=workers,
-        variants=not no_variants,
+        variants="none" if no_variants else variants,
         progress=not no_progress,
     )
     click.echo(f"{out}: claims.json, report.md and figures/")
+    if update_readme is not None:
+        from symplid.experiments.claims_readme import update_readme as write_block
+
+        write_block(update_readme, claims, Path(out))
+        click.echo(f"{update_readme}: claims block rewritten from {out}/claims.json")
+
+
+@study.command("baselines")
+@baselines_study_options
+@user_errors
+def baselines_study(out, no_progress, **options) -> None:
+    """The UKF posterior against HNN and one-step least squares over data sizes (a sweep)."""
+    from symplid.experiments.baselines_study import study_from_options
+
+    click.echo(study_from_options(out, progress=not no_progress, **options))
 
 
 if __name__ == "__main__":  # pragma: no cover

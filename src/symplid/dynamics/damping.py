@@ -203,14 +203,13 @@ def _build(base: Integrator) -> DampedIntegrator:
     if kind == "composition":
         step, force_step = conformal_composition(numbers[0])
         text = f"conformally symplectic {base.name}: exact damping half-flows around each sub-step"
-        return DampedIntegrator(
-            f"damped-{base.name}", base.order, False, step, text, force_step, None, base, True
-        )
+        return DampedIntegrator(f"damped-{base.name}", base.order, False, step, text,
+                                force_step=force_step, base=base, conformal=True)
     if kind == "runge-kutta":
         step = damped_runge_kutta(numbers[0], numbers[1])
         text = f"{base.name} applied to the damped vector field (not structure preserving)"
-        return DampedIntegrator(f"damped-{base.name}", base.order, False, step, text, None, None,
-                                base, False)
+        return DampedIntegrator(f"damped-{base.name}", base.order, False, step, text,
+                                base=base, conformal=False)
     raise ValueError(f"the integrator {base.name!r} has a scheme of unknown kind {kind!r}")
 
 

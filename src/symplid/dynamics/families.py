@@ -28,7 +28,10 @@ from typing import Any
 from symplid.dynamics.potentials import Polynomial
 from symplid.registry import Registry
 
-__all__ = ["HAMILTONIAN_FAMILIES", "POTENTIAL_FAMILIES", "SEPARABLE", "Family", "build_family"]
+__all__ = [
+    "HAMILTONIAN_FAMILIES", "POTENTIAL_FAMILIES", "SEPARABLE", "Family", "build_family",
+    "family_of",
+]
 
 BuildFn = Callable[[int, Any], Any]
 
@@ -38,11 +41,28 @@ SEPARABLE = "separable"
 
 @dataclass(frozen=True)
 class Family:
-    """A named family: ``build(dim, options)`` returns a potential (or a Hamiltonian)."""
+    """A named family: ``build(dim, options)`` returns a potential (or a Hamiltonian).
+
+    Attributes
+    ----------
+    name, build, description
+        The registry name, the builder and one line for help texts.
+    coefficient_prior
+        The default prior of the family's coefficients, as text that
+        :func:`symplid.model.priors.as_prior` reads (``"normal(0, 1)"``); ``None``: the
+        settings' own default, the paper's Laplace(0, 10). This is the one place a family's
+        default prior is decided; ``priors.coefficients`` in the settings overrides it.
+    neural
+        The coefficients are many network weights: the run's MAP takes the scalable path
+        (:mod:`symplid.inference.neural_fit`: Adam then L-BFGS, Gauss–Newton Laplace) instead
+        of multistart L-BFGS-B with the exact Hessian, and random-walk DRAM is refused.
+    """
 
     name: str
     build: BuildFn
     description: str = ""
+    coefficient_prior: str | None = None
+    neural: bool = False
 
 
 POTENTIAL_FAMILIES: Registry[Family] = Registry("potential family")
@@ -56,10 +76,56 @@ POTENTIAL_FAMILIES.register(
         "U(q) = Σ c_α q^α over the monomials of degree 2..order (eq. 13)",
     ),
 )
+POTENTIAL_FAMILIES.register(
+    "mlp",
+    Family(
+        "mlp",
+        lambda dim, options: _mlp(dim, options),
+        "U(q; w) an MLP of model.width units × model.depth hidden layers (dynamics.neural)",
+        coefficient_prior="normal(0, 1)",
+        neural=True,
+    ),
+    aliases=("neural",),
+)
 HAMILTONIAN_FAMILIES.register(
     SEPARABLE,
     Family(SEPARABLE, lambda dim, options: None, "H = ½pᵀM⁻¹p + U(q), U from model.potential"),
 )
+
+
+HAMILTONIAN_FAMILIES.register(
+    "mlp",
+    Family(
+        "mlp",
+        lambda dim, options: _mlp(dim, options, hamiltonian=True),
+        "H(q, p; w) an MLP on (q, p), non-separable (dynamics.neural.MLPHamiltonian); "
+        "model.width, model.depth",
+        coefficient_prior="normal(0, 1)",
+        neural=True,
+    ),
+    aliases=("neural",),
+)
+
+
+def _mlp(dim: int, options: Any, hamiltonian: bool = False) -> Any:
+    from symplid.dynamics.neural import MLPHamiltonian, MLPPotential  # Equinox only now
+
+    return (MLPHamiltonian if hamiltonian else MLPPotential)(
+        dim,
+        width=int(getattr(options, "width", 32)),
+        depth=int(getattr(options, "depth", 2)),
+        seed=int(getattr(options, "network_seed", 0)),
+        activation=getattr(options, "activation", "tanh"),
+    )
+
+
+def family_of(options: Any) -> Family:
+    """The family entry that ``options`` (model settings) build: a Hamiltonian family other
+    than ``"separable"``, else the potential family."""
+    entry = HAMILTONIAN_FAMILIES.get_entry(getattr(options, "hamiltonian", SEPARABLE))
+    if entry.name != SEPARABLE:
+        return entry
+    return POTENTIAL_FAMILIES.get_entry(getattr(options, "potential", "polynomial"))
 
 
 def build_family(dim: int, options: Any) -> Any:
@@ -68,10 +134,4 @@ def build_family(dim: int, options: Any) -> Any:
     ``options.hamiltonian`` other than ``"separable"`` wins; otherwise the potential family
     ``options.potential`` (``"polynomial"`` when the attribute is absent) is built.
     """
-    hamiltonian = getattr(options, "hamiltonian", SEPARABLE)
-    entry = HAMILTONIAN_FAMILIES.get_entry(hamiltonian)
-    if entry.name != SEPARABLE:
-        return entry.build(dim, options)
-    return POTENTIAL_FAMILIES.get_entry(getattr(options, "potential", "polynomial")).build(
-        dim, options
-    )
+    return family_of(options).build(dim, options)

@@ -12,6 +12,13 @@ data, each with its order and whether it is symplectic:
   form of eqs (5)–(6);
 * explicit Runge–Kutta methods: a Butcher tableau (forward Euler, RK2 midpoint and Heun, RK4).
 
+A non-separable H(q, p; θ) (:mod:`symplid.dynamics.hamiltonians`) arrives as
+:class:`GeneralDynamics` (∂H/∂q and ∂H/∂p of the whole state). The Runge–Kutta methods accept it
+(the natural non-structure-preserving baseline); the leapfrog compositions need the split of
+eq. (4) and refuse it with a clear error; Tao's extended-phase-space methods and the implicit
+midpoint rule (:mod:`symplid.dynamics.nonseparable`, ``"tao"``, ``"tao4"``,
+``"implicit-midpoint"``) are the structure-preserving choices for it.
+
 To add an integrator, register it in :data:`INTEGRATORS` (``INTEGRATORS.register(name,
 Integrator(...))``), from this module or any other: settings, the command line and sweeps
 read the registry.
@@ -43,8 +50,43 @@ class Dynamics(NamedTuple):
     velocity: Callable[[Array], Array]
 
 
-def make_dynamics(potential, coefficients: Array, inv_mass: Array | None = None) -> Dynamics:
-    """Bind a potential's coefficients and the inverse mass matrix into :class:`Dynamics`."""
+class GeneralDynamics(NamedTuple):
+    """Hamilton's equations (3) for any H(q, p): q̇ = ∂H/∂p, ṗ = −∂H/∂q.
+
+    ``grad_q(q, p)`` is ∂H/∂q and ``grad_p(q, p)`` is ∂H/∂p, for one point ``(d,)`` or a batch
+    ``(d, ...)``. What a non-separable Hamiltonian gives the integrators.
+    """
+
+    grad_q: Callable[[Array, Array], Array]
+    grad_p: Callable[[Array, Array], Array]
+
+
+def as_general(dynamics: Dynamics | GeneralDynamics) -> GeneralDynamics:
+    """``dynamics`` as :class:`GeneralDynamics` (a separable one is a special case)."""
+    if isinstance(dynamics, GeneralDynamics):
+        return dynamics
+    return GeneralDynamics(
+        lambda q, p: dynamics.grad_potential(q), lambda q, p: dynamics.velocity(p)
+    )
+
+
+def make_dynamics(
+    potential, coefficients: Array, inv_mass: Array | None = None
+) -> Dynamics | GeneralDynamics:
+    """Bind a potential's coefficients and the inverse mass matrix into :class:`Dynamics`.
+
+    For a whole Hamiltonian H(q, p; θ) (an object with ``grad_q`` and ``grad_p``, see
+    :mod:`symplid.dynamics.hamiltonians`) the result is :class:`GeneralDynamics`; a constant
+    mass matrix does not apply to it (M belongs inside H).
+    """
+    if hasattr(potential, "grad_q") and hasattr(potential, "grad_p"):
+        if inv_mass is not None:
+            raise ValueError("a constant mass matrix applies to a separable H only; "
+                             "write the mass into the Hamiltonian")
+        return GeneralDynamics(
+            lambda q, p: potential.grad_q(q, p, coefficients),
+            lambda q, p: potential.grad_p(q, p, coefficients),
+        )
     if inv_mass is None:
         velocity = _identity
     else:
@@ -80,6 +122,11 @@ class Integrator:
     """The method as data, for compiled backends: ``("composition", weights)`` (leapfrog
     sub-steps of ``w·Δt``) or ``("runge-kutta", a, b)`` (a Butcher tableau); None when the
     step is only a function."""
+    nonseparable: bool = False
+    """Whether ``step`` also accepts :class:`GeneralDynamics` (a non-separable H)."""
+    start: Callable[[GeneralDynamics, Array, Array], Array] | None = None
+    """Optional ``(dynamics, q, p) -> aux``: what ``force_step`` carries in its third slot at
+    the start of a run, when that is not the force ∂U(q) (Tao's copies of the state)."""
 
 
 def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
@@ -113,11 +160,13 @@ def symplectic_composition(weights: tuple[float, ...]) -> tuple[StepFn, ForceSte
     def force_step(
         dynamics: Dynamics, q: Array, p: Array, force: Array, dt: Array
     ) -> tuple[Array, Array, Array]:
+        require_separable(dynamics, "a leapfrog composition")
         for w in weights:
             q, p, force = leapfrog_force_step(dynamics, q, p, force, w * dt)
         return q, p, force
 
     def step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
+        require_separable(dynamics, "a leapfrog composition")
         q, p, _ = force_step(dynamics, q, p, dynamics.grad_potential(q), dt)
         return q, p
 
@@ -142,7 +191,9 @@ def runge_kutta_integrator(
     """An explicit Runge–Kutta integrator from its Butcher tableau (not symplectic)."""
     scheme = ("runge-kutta", tuple(tuple(float(x) for x in row) for row in a),
               tuple(float(x) for x in b))
-    return Integrator(name, order, False, runge_kutta(a, b), description, scheme=scheme)
+    return Integrator(
+        name, order, False, runge_kutta(a, b), description, scheme=scheme, nonseparable=True
+    )
 
 
 def runge_kutta(a: tuple[tuple[float, ...], ...], b: tuple[float, ...]) -> StepFn:
@@ -162,6 +213,10 @@ def runge_kutta(a: tuple[tuple[float, ...], ...], b: tuple[float, ...]) -> StepF
                 if a_np[i, j] != 0.0:
                     qi = qi + dt * a_np[i, j] * kq[j]
                     pi = pi + dt * a_np[i, j] * kp[j]
+            if isinstance(dynamics, GeneralDynamics):  # a non-separable H
+                kq.append(dynamics.grad_p(qi, pi))
+                kp.append(-dynamics.grad_q(qi, pi))
+                continue
             kq.append(dynamics.velocity(pi))
             kp.append(-dynamics.grad_potential(qi))
         for i in range(stages):
@@ -177,8 +232,11 @@ _CBRT2 = 2.0 ** (1.0 / 3.0)
 _YOSHIDA_W1 = 1.0 / (2.0 - _CBRT2)
 _YOSHIDA_W0 = -_CBRT2 / (2.0 - _CBRT2)
 
-INTEGRATORS: Registry[Integrator] = Registry("integrator")
-"""Every one-step method by name; ``INTEGRATORS.register(name, Integrator(...))`` adds one."""
+INTEGRATORS: Registry[Integrator] = Registry("integrator", load=("symplid.dynamics.nonseparable",))
+"""Every one-step method by name; ``INTEGRATORS.register(name, Integrator(...))`` adds one.
+
+Tao's methods and the implicit midpoint rule register from :mod:`symplid.dynamics.nonseparable`
+(loaded on the first lookup)."""
 
 INTEGRATORS.register(
     "leapfrog",
@@ -229,6 +287,21 @@ INTEGRATORS.register(
         "classical Runge–Kutta",
     ),
 )
+
+
+def separable_only_error(method: str) -> ValueError:
+    """The error for a separable-only ``method`` given a non-separable H, naming the choices."""
+    general = [n for n, entry in INTEGRATORS.items() if entry.nonseparable]
+    return ValueError(
+        f"{method} needs a separable H = ½pᵀM⁻¹p + U(q); for a non-separable Hamiltonian "
+        f"choose one of {', '.join(general)}"
+    )
+
+
+def require_separable(dynamics: Dynamics | GeneralDynamics, method: str) -> None:
+    """Raise :func:`separable_only_error` when ``dynamics`` is of a non-separable H."""
+    if isinstance(dynamics, GeneralDynamics):
+        raise separable_only_error(method)
 
 
 def get_integrator(name: str | Integrator) -> Integrator:

@@ -296,9 +296,19 @@ def kinetic_energy(p: Array, inv_mass: Array | None = None) -> Array:
 def hamiltonian(
     potential: Potential, coefficients: Array, state: Array, inv_mass: Array | None = None
 ) -> Array:
-    """H(q, p) = ½pᵀM⁻¹p + U(q) (eq. 2) for ``state = (q, p)`` of shape ``(..., 2·dim)``."""
+    """H(q, p) = ½pᵀM⁻¹p + U(q) (eq. 2) for ``state = (q, p)`` of shape ``(..., 2·dim)``.
+
+    ``potential`` may also be a whole (non-separable) Hamiltonian with ``value(q, p, params)``
+    (:mod:`symplid.dynamics.hamiltonians`); ``inv_mass`` must then be None.
+    """
     state = jnp.asarray(state)
     d = potential.dim
     q, p = state[..., :d], state[..., d:]
+    if hasattr(potential, "grad_p"):
+        if inv_mass is not None:
+            raise ValueError("a constant mass matrix applies to a separable H only")
+        return jnp.vectorize(
+            lambda qq, pp: potential.value(qq, pp, coefficients), signature="(d),(d)->()"
+        )(q, p)
     u = jnp.vectorize(lambda qq: potential.value(qq, coefficients), signature="(d)->()")(q)
     return kinetic_energy(p, inv_mass) + u

@@ -18,11 +18,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.dynamics.integrators import Dynamics, Integrator, get_integrator
+from symplid.dynamics.integrators import (
+    Dynamics,
+    Integrator,
+    get_integrator,
+    require_separable,
+)
 
 Array = jax.Array
 Carry = tuple[Array, ...]
-"""``(q, p)``, or ``(q, p, ∂U(q))`` for an integrator with a first-same-as-last step."""
+"""``(q, p)``, or ``(q, p, ∂U(q))`` for an integrator with a first-same-as-last step (or
+``(q, p, aux)`` for one with its own ``start``, e.g. Tao's extended phase space)."""
 
 __all__ = ["integrate", "propagate", "solve", "solve_gaps", "substeps"]
 
@@ -44,8 +50,17 @@ def substeps(gaps: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 # ---------------------------------------------------------------------------- the one loop
 def _start(integrator: Integrator, dynamics: Dynamics, q: Array, p: Array) -> Carry:
-    """The loop's carry at ``(q, p)``: with the force ∂U(q) when the integrator reuses it."""
+    """The loop's carry at ``(q, p)``: with the force ∂U(q) when the integrator reuses it.
+
+    An integrator with its own ``start`` carries what that returns instead (Tao's copies of
+    the state); a separable-only integrator given a non-separable H stops here with a clear
+    error.
+    """
+    if not integrator.nonseparable:
+        require_separable(dynamics, f"the integrator {integrator.name!r}")
     if integrator.force_step is not None:
+        if integrator.start is not None:
+            return (q, p, integrator.start(dynamics, q, p))
         return (q, p, dynamics.grad_potential(q))
     return (q, p)
 

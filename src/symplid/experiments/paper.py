@@ -12,6 +12,7 @@ Conventions: the paper's θ1..θ9 are the coefficients of −U; this library rep
 from __future__ import annotations
 
 import dataclasses
+import functools
 import multiprocessing
 import os
 import time
@@ -26,9 +27,11 @@ from symplid import runtime
 from symplid.dynamics.damping import with_damping
 from symplid.dynamics.potentials import hamiltonian
 from symplid.dynamics.systems import get_system
+from symplid.experiments.paper_calibration import cell_calibration, true_values
 from symplid.experiments.paper_cells import (
     CELL_KEYS,
     PAPER_MODEL,
+    PAPER_SAMPLER,
     SWEEP_METRICS,
     cell_data,
     known_initial_state,
@@ -122,6 +125,7 @@ def paper_settings(config: PaperConfig, approach: str) -> Settings:
             "model.integrator": config.integrator(approach),
             "model.dt": config.dt,
             **{f"model.{key}": value for key, value in PAPER_MODEL.items()},
+            **{f"sampler.{key}": value for key, value in PAPER_SAMPLER.items()},
             "initial_state.x0": [float(v) for v in system.initial_state],
             "map.num_starts": config.num_starts,
             "sampler.num_iterations": config.iterations,
@@ -414,7 +418,7 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
         outcome.summary,
     )
     p = settings.prediction
-    truth_times, truth = truth_path(system, p.t_end, p.dt)
+    truth_times, truth = _cached_truth_path(cell.get("system", "henon-heiles"), p.t_end, p.dt)
     metrics = analyse_approach(
         result,
         system,
@@ -428,8 +432,27 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
     metrics["true_hamiltonian"] = float(
         hamiltonian(system.potential, system.coefficients, system.initial_state)
     )
+    truth_theta = true_values(system, outcome.model, float(cell_data_noise(cell, system)))
+    metrics["calibration"] = cell_calibration(result.param_names, result.draws, truth_theta)
+    metrics["map_s"] = outcome.timings.get("map_s")
+    metrics["sampler_s"] = outcome.timings.get("sampler_s")
     metrics["wall_time_s"] = time.perf_counter() - start
     return metrics
+
+
+def cell_data_noise(cell: dict[str, Any], system: Any) -> float:
+    """The observation-noise σ of a cell (the system's when the cell leaves it out)."""
+    return float(cell.get("noise_std", system.noise_std))
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_truth_path(name: str, t_end: float, prediction_dt: float):
+    """:func:`truth_path` once per system and grid in a worker process (every seed of a sweep
+    shares the truth: only the data's noise differs)."""
+    times, states = truth_path(get_system(name), t_end, prediction_dt)
+    times.setflags(write=False)
+    states.setflags(write=False)
+    return times, states
 
 
 EXPERIMENT = EXPERIMENTS.register(

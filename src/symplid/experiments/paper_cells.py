@@ -24,6 +24,7 @@ from symplid.workflow.validate import Spec
 __all__ = [
     "CELL_KEYS",
     "PAPER_MODEL",
+    "PAPER_SAMPLER",
     "SWEEP_METRICS",
     "cell_data",
     "known_initial_state",
@@ -33,6 +34,8 @@ __all__ = [
 _DEFAULTS = settings_to_dict(Settings())
 #: The paper's model settings that differ from the library's "auto" defaults.
 PAPER_MODEL = {"noise": "isotropic", "standardise": "off"}
+#: The paper's DRAM moves θ itself (the library's default moves the variances as log v).
+PAPER_SAMPLER = {"variance_scale": "natural"}
 
 
 def _mapped(tp: type, dotted: str, doc: str, **kw: Any) -> Spec:
@@ -92,11 +95,12 @@ def system_defaults(given: Mapping[str, Any]) -> dict[str, Any]:
 def known_initial_state(cell: Mapping[str, Any]) -> dict[str, Any]:
     """The paper's experiment: the initial state is the system's, known; one isotropic
     observation variance for q and p and no standardisation, as in the paper (the defaults
-    "auto" would pick per-kind variances for full-state data)."""
+    "auto" would pick per-kind variances for full-state data), and DRAM in θ."""
     system = get_system(cell.get("system", CELL_KEYS["system"].default))
     return {
         "initial_state": {"mode": "known", "x0": list(system.initial_state)},
         "model": dict(PAPER_MODEL),
+        "sampler": dict(PAPER_SAMPLER),
     }
 
 

@@ -1,70 +1,77 @@
-"""The paper-claims study: the seed paper's three claims, checked over many data seeds.
+"""The paper-claims study: the seed paper's three claims and its calibration over many seeds.
 
 The paper draws its conclusions from one realisation of the observation noise. This study
-repeats its Hénon–Heiles experiment (Section IV) for N data seeds with both propagators,
-leapfrog and RK2 (midpoint), pairs the two fits of each seed (same data), and reports for each
-claim the fraction of seeds where it holds:
+repeats its Hénon–Heiles experiment (Section IV) for N data seeds with leapfrog and RK2
+(midpoint), pairs the two fits of each seed (same data), and reports per claim and setting the
+fraction of seeds where it holds, with a Wilson 95 % interval, and the paired median effect
+with a bootstrap 95 % interval (:mod:`.paper_claims`):
 
-1. **hamiltonian**: the MAP model's energy H(x0) is closer to the truth with leapfrog
-   (``hamiltonian_rel_error`` smaller). Paper: 0.1219 against 0.1211 for a true 0.1227.
-2. **process_noise**: the process-noise variance is about ten times smaller with leapfrog. The
-   ratio RK2 / leapfrog of the posterior medians is reported as a distribution; the claim
-   counts as holding for a seed when the ratio is ≥ √10, i.e. nearer to ten than to one on a
-   log scale. The fraction with ratio > 1 (smaller at all) is given beside it.
-3. **prediction**: the leapfrog MAP model predicts validly for longer
-   (``prediction_horizon_s``, the first time |q1 − q1_true| > 0.1 when integrated by leapfrog
-   at dt 0.01 from the true initial state; paper: about 150 s against 20 s). A tie (for example
-   both models valid over the whole window) does not count as holding.
+1. **hamiltonian**: the MAP model's H(x0) is closer to the truth with leapfrog (paper: 0.1219
+   against 0.1211 for a true 0.1227). Effect: the difference of relative errors, leapfrog −
+   RK2 (negative favours leapfrog).
+2. **process_noise**: the process-noise variance (posterior median) is at least
+   :data:`~.paper_claims.RATIO_THRESHOLD` (5) times smaller with leapfrog (paper: about ten
+   times). Effect: the ratio RK2 / leapfrog.
+3. **prediction**: the leapfrog MAP model predicts validly for longer (the first time
+   |q1 − q1_true| > 0.1, leapfrog at dt 0.01 from the true initial state; paper: about 150 s
+   against 20 s). A tie does not count. Effect: the ratio leapfrog / RK2.
 
-A seed whose leapfrog or RK2 cell failed, or whose metric is not finite, is left out of that
-claim's fraction and counted as ``undecided`` / ``unpaired``.
+**Calibration** (:mod:`.paper_calibration`): every fit records, for each coefficient and the
+observation-noise variance, whether its central 95 % interval contains the truth and the rank
+of the truth among 99 thinned draws. yoshida4 is fitted at the paper's setting besides the two
+propagators, and the dt = 0.1 variant gives leapfrog at a smaller step: together they say
+whether a more accurate propagator restores nominal coverage.
 
-Settings, one at a time
------------------------
-Besides the paper's setting (dt = 0.25, σ = 0.05), the learning step takes the values 0.1 and
-0.5 with σ at 0.05, and the noise σ takes 0.01 and 0.1 with dt at 0.25: five settings, each
-with every seed and both propagators (10·N cells). Varying one setting at a time around the
-paper's answers "does the claim survive a change of this setting?" directly and costs 5/9 of the
-full 3 × 3 grid; interactions between dt and σ are not explored. ``variants=False`` runs the
-paper's setting alone (2·N cells).
+Variants, one setting at a time
+-------------------------------
+:data:`VARIANTS` is the list: the paper's setting (dt 0.25, σ 0.05, 20 observations, process
+noise per gap, RK2 midpoint), then one change each: dt ∈ {0.1, 0.5}, σ ∈ {0.01, 0.1},
+observations ∈ {10, 40}, process noise per integration step, RK2 Heun as the reference. A
+variant is data: the cell keys it changes, the reference propagator, and the extra propagators
+fitted for calibration alone. Cells shared by two variants (leapfrog under "RK2 Heun" is the
+paper's leapfrog) are run once.
 
-:func:`evaluate_claims` is a pure function of the results table (tested on a hand-made table);
-:func:`run_paper_claims` runs the sweep and writes ``claims.json``, ``report.md`` and one figure
-per claim into the sweep folder.
+:func:`run_paper_claims` runs the sweep (resumable: a rerun skips finished cells) and writes
+``claims.json``, ``report.md`` and the figures into the sweep folder.
 """
 
 from __future__ import annotations
 
+import datetime
 import os
+import platform
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from symplid.experiments.paper import CELL_KEYS, PaperConfig
-from symplid.experiments.paper_study_report import (
-    RATIO_THRESHOLD,
-    format_claims_report,
-    plot_claims,
-)
-from symplid.plotting.sweep import format_value, plain, rows_matching, same_value, setting_groups
-from symplid.workflow.results import write_json
+from symplid.experiments.paper import PaperConfig
+from symplid.experiments.paper_claims import CLAIMS, evaluate_claims
+from symplid.experiments.paper_study_report import format_claims_report, plot_claims
+from symplid.workflow.results import read_json, write_json
 from symplid.workflow.sweep import SweepSpec, run_sweep, sweep_spec_from_dict
 
 __all__ = [
+    "BUDGETS",
     "CLAIMS",
     "FULL_BUDGET",
     "PAPER_SETTING",
     "QUICK_BUDGET",
     "VARIANTS",
+    "Variant",
+    "estimate_cost",
     "evaluate_claims",
-    "format_claims_report",
     "paper_claims_spec",
-    "plot_claims",
+    "parse_budget",
     "run_paper_claims",
+    "select_variants",
 ]
+
+SYMPLECTIC = "leapfrog"
+REFERENCE = PaperConfig.rk2
 
 #: The paper's Hénon–Heiles setting (Section IV), in sweep keys.
 PAPER_SETTING: dict[str, Any] = {
@@ -74,16 +81,49 @@ PAPER_SETTING: dict[str, Any] = {
     "obs_interval": 5.0,
     "dt": 0.25,
     "order": 3,
+    "model.process_noise_per": "gap",
 }
-#: The settings of the study: the paper's, then one setting changed at a time.
-VARIANTS: tuple[dict[str, Any], ...] = (
-    {},
-    {"dt": 0.1},
-    {"dt": 0.5},
-    {"noise_std": 0.01},
-    {"noise_std": 0.1},
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One setting of the study: what changes from :data:`PAPER_SETTING`, and who is fitted.
+
+    ``keys`` are cell keys (short or dotted); ``reference`` is the propagator leapfrog is
+    compared with; ``extra`` are propagators fitted for the calibration alone.
+    """
+
+    name: str
+    keys: Mapping[str, Any] = field(default_factory=dict)
+    reference: str = REFERENCE
+    extra: tuple[str, ...] = ()
+    description: str = ""
+
+    def setting(self) -> dict[str, Any]:
+        """The variant's full setting (without the propagator)."""
+        return {**PAPER_SETTING, **self.keys}
+
+    def propagators(self) -> tuple[str, ...]:
+        return (SYMPLECTIC, self.reference, *self.extra)
+
+
+#: The paper's setting first, then one setting changed at a time.
+VARIANTS: tuple[Variant, ...] = (
+    Variant("paper", extra=("yoshida4",), description="the paper's setting"),
+    Variant("dt=0.1", {"dt": 0.1}, description="learning step 0.1"),
+    Variant("dt=0.5", {"dt": 0.5}, description="learning step 0.5"),
+    Variant("noise=0.01", {"noise_std": 0.01}, description="noise σ 0.01"),
+    Variant("noise=0.1", {"noise_std": 0.1}, description="noise σ 0.1"),
+    Variant("obs=10", {"num_obs": 10}, description="10 observations"),
+    Variant("obs=40", {"num_obs": 40}, description="40 observations"),
+    Variant(
+        "noise-per-step",
+        {"model.process_noise_per": "step"},
+        description="process noise per integration step",
+    ),
+    Variant("rk2-heun", reference="rk2-heun", description="RK2 Heun as the reference"),
 )
-PROPAGATORS = ("leapfrog", PaperConfig.rk2)
+
 #: The paper's sampler budget per cell: DRAM, 4 chains of 200,000 iterations (100,000 burn-in).
 FULL_BUDGET: dict[str, Any] = {
     "num_iterations": 200_000,
@@ -91,80 +131,121 @@ FULL_BUDGET: dict[str, Any] = {
     "num_chains": 4,
     "num_starts": 4,
 }
-#: A small budget to try the study out (that of ``symplid reproduce --quick``): minutes, not
-#: the paper's posterior quality.
+#: A small budget to try the study out (that of ``symplid reproduce --quick``).
 QUICK_BUDGET: dict[str, Any] = {
     "num_iterations": 3_000,
     "burn_in": 1_500,
     "num_chains": 2,
     "num_starts": 2,
 }
-
-#: The three claims: the metric compared per seed and how the claim reads.
-CLAIMS: dict[str, dict[str, str]] = {
-    "hamiltonian": {
-        "metric": "hamiltonian_rel_error",
-        "statement": "the learned H is closer to the true H with leapfrog than with RK2",
-        "paper": "true H 0.1227; MAP H 0.1219 (0.7 %) with leapfrog, 0.1211 (1.3 %) with RK2",
-    },
-    "process_noise": {
-        "metric": "process_noise_median",
-        "statement": "the process noise is about ten times smaller with leapfrog "
-        "(ratio RK2/leapfrog ≥ √10)",
-        "paper": "about an order of magnitude smaller with leapfrog",
-    },
-    "prediction": {
-        "metric": "prediction_horizon_s",
-        "statement": "the leapfrog MAP model predicts validly for longer than the RK2 one",
-        "paper": "about 150 s with leapfrog against about 20 s with RK2",
-    },
-}
-_NOT_SETTINGS = ("seed", "integrator")
+BUDGETS = {"paper": FULL_BUDGET, "quick": QUICK_BUDGET}
+#: Sampler seconds per 1,000 iterations of one chain at the paper's setting, one core (the
+#: compiled kernel; measured on one seed at the paper's budget), for the cost estimate and the
+#: order of the cells (the longest first, so that workers finish together).
+SECONDS_PER_KILO_ITER = {"leapfrog": 0.047, "rk2-midpoint": 0.080, "rk2-heun": 0.080,
+                         "yoshida4": 0.10}
+CELL_OVERHEAD_S = 9.0  # MAP, diagnostics, predictions
+#: Cost of process noise per integration step relative to per gap (a sigma-point Cholesky
+#: at every step; measured 3–7× on a loaded machine, so a rough factor).
+PER_STEP_FACTOR = 4.0
 
 
-# ----------------------------------------------------------------------------- the sweep
+def parse_budget(budget: str | int) -> tuple[str, dict[str, Any]]:
+    """``"paper"``, ``"quick"`` or a number of iterations per chain (half burn-in, the paper's
+    chains and starts). Returns the label and the sweep keys."""
+    if isinstance(budget, str) and budget in BUDGETS:
+        return budget, dict(BUDGETS[budget])
+    try:
+        n = int(str(budget).replace("_", "").replace(",", ""))
+    except ValueError:
+        n = 0
+    if n < 2:
+        raise ValueError(
+            f"budget must be 'paper', 'quick' or a number of iterations ≥ 2, got {budget!r}"
+        )
+    return str(n), {**FULL_BUDGET, "num_iterations": n, "burn_in": n // 2}
+
+
+def select_variants(names: str | Sequence[str] | bool | None = "all") -> tuple[Variant, ...]:
+    """``"all"``, ``"none"`` (the paper's setting alone) or variant names (comma-separated or
+    a list); the paper's setting is always included, first."""
+    if names is True or names is None or names == "all":
+        return VARIANTS
+    if names is False or names == "none":
+        return VARIANTS[:1]
+    wanted = [n.strip() for n in (names.split(",") if isinstance(names, str) else names)]
+    known = {v.name: v for v in VARIANTS}
+    unknown = [n for n in wanted if n and n not in known]
+    if unknown:
+        raise ValueError(
+            f"unknown variant {', '.join(map(repr, unknown))}; the variants are "
+            f"{', '.join(known)} (or 'all', 'none')"
+        )
+    return tuple(v for v in VARIANTS if v.name == "paper" or v.name in wanted)
+
+
+def _entries(variants: Sequence[Variant]) -> list[dict[str, Any]]:
+    """The distinct (setting, propagator) entries of the variants, the costliest first."""
+    seen: dict[str, dict[str, Any]] = {}
+    for v in variants:
+        for integ in v.propagators():
+            entry = {**v.keys, "integrator": integ}
+            seen.setdefault(repr(sorted(entry.items())), entry)
+    return sorted(seen.values(), key=lambda e: -_relative_cost(e))
+
+
+def _relative_cost(entry: Mapping[str, Any]) -> float:
+    s = {**PAPER_SETTING, **entry}
+    rate = SECONDS_PER_KILO_ITER.get(str(s["integrator"]), 0.08)
+    if s.get("model.process_noise_per") == "step":
+        rate *= PER_STEP_FACTOR
+    return rate * (PAPER_SETTING["dt"] / s["dt"]) * (s["num_obs"] / PAPER_SETTING["num_obs"])
+
+
 def paper_claims_spec(
     seeds: int = 20,
-    quick: bool = False,
-    variants: bool = True,
+    budget: str | int = "paper",
+    variants: str | Sequence[str] | bool | None = "all",
     cell_fn: str | None = None,
 ) -> SweepSpec:
-    """The study's sweep: seeds 0..N−1 × both propagators × the settings of :data:`VARIANTS`.
-
-    Parameters
-    ----------
-    seeds
-        Number of data seeds (0, 1, …, seeds − 1).
-    quick
-        Use :data:`QUICK_BUDGET` instead of the paper's :data:`FULL_BUDGET`.
-    variants
-        Include the one-at-a-time variants of dt and σ (else the paper's setting only).
-    cell_fn
-        The cell function (default: the paper experiment's ``run_cell``).
-    """
+    """The study's sweep: seeds 0..N−1 × the (setting, propagator) entries of the variants."""
     if isinstance(seeds, bool) or not isinstance(seeds, int | np.integer) or seeds < 1:
         raise ValueError(f"seeds must be a positive integer, got {seeds!r}")
-    budget = QUICK_BUDGET if quick else FULL_BUDGET
+    label, keys = parse_budget(budget)
     sweep: dict[str, Any] = {
-        "name": "paper-claims" + (" (quick)" if quick else ""),
-        "grid": {"seed": list(range(int(seeds))), "integrator": list(PROPAGATORS)},
-        "cells": [dict(v) for v in (VARIANTS if variants else VARIANTS[:1])],
+        "name": "paper-claims" + ("" if label == "paper" else f" ({label})"),
+        "grid": {"seed": list(range(int(seeds)))},
+        "cells": _entries(select_variants(variants)),
     }
     if cell_fn is not None:
         sweep["cell_fn"] = cell_fn
     return sweep_spec_from_dict(
-        {"base": {**PAPER_SETTING, **budget}, "sweep": sweep}, source="paper-claims study"
+        {"base": {**PAPER_SETTING, **keys}, "sweep": sweep}, source="paper-claims study"
     )
+
+
+def estimate_cost(spec: SweepSpec, workers: int = 1) -> dict[str, float]:
+    """Estimated seconds of the study: the sum over cells of one core's time, and the wall
+    time on ``workers`` cores (longest cells first, greedy)."""
+    times = []
+    for c in spec.cells:
+        s = c.settings
+        chains_kilo = s["num_chains"] * s["num_iterations"] / 1000.0
+        times.append(CELL_OVERHEAD_S + chains_kilo * _relative_cost(s))
+    loads = [0.0] * max(1, int(workers))
+    for t in sorted(times, reverse=True):
+        loads[loads.index(min(loads))] += t
+    return {"cells": len(times), "core_s": float(sum(times)), "wall_s": float(max(loads))}
 
 
 def run_paper_claims(
     out_dir: str | os.PathLike,
     seeds: int = 20,
-    quick: bool = False,
+    budget: str | int = "paper",
     scheduler: str | Any | None = None,
     workers: int | None = None,
     *,
-    variants: bool = True,
+    variants: str | Sequence[str] | bool | None = "all",
     cell_fn: str | Callable[[dict], Mapping[str, Any]] | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -173,9 +254,9 @@ def run_paper_claims(
     Parameters
     ----------
     out_dir
-        The study folder: the sweep's files (``cells/``, ``results.csv``, ``results.parquet``,
-        ``sweep.json``), plus ``claims.json``, ``report.md`` and ``figures/claim_*.png``.
-    seeds, quick, variants
+        The study folder: the sweep's files (``cells/``, ``results.csv``, ...), plus
+        ``claims.json``, ``report.md`` and ``figures/claim_*.png``, ``figures/calibration_*``.
+    seeds, budget, variants
         See :func:`paper_claims_spec`.
     scheduler, workers, cell_fn, progress
         See :func:`symplid.workflow.sweep.run_sweep`.
@@ -183,39 +264,115 @@ def run_paper_claims(
     Returns
     -------
     dict
-        The content of ``claims.json``: :func:`evaluate_claims`'s result plus ``study`` (seeds,
-        budget, cells run / skipped / failed, wall time).
+        The content of ``claims.json``: :func:`~.paper_claims.evaluate_claims`'s result plus
+        ``study`` (seeds, budget, variants, cells run / skipped / failed, wall and cell times,
+        versions).
     """
-    spec = paper_claims_spec(seeds, quick, variants)
+    chosen = select_variants(variants)
+    label, keys = parse_budget(budget)
+    spec = paper_claims_spec(seeds, budget, [v.name for v in chosen], cell_fn=None)
+    out = Path(out_dir)
+    started = datetime.datetime.now(datetime.UTC).isoformat(timespec="microseconds")
     t0 = time.perf_counter()
-    table = run_sweep(spec, out_dir, scheduler, workers, cell_fn, progress=progress)
+    table = run_sweep(spec, out_dir, scheduler, workers, cell_fn, progress=progress,
+                      figures=False)
     wall = time.perf_counter() - t0
-    claims = evaluate_claims(table, baseline=PAPER_SETTING, baseline_label="paper setting")
+    claims = evaluate_claims(table, chosen, symplectic=SYMPLECTIC)
+    claims["study"] = _study_record(table, seeds, label, keys, chosen, wall, workers, scheduler)
+    claims["study"]["runs"] = _runs(out / "claims.json", table, started, wall, workers,
+                                    scheduler)
+    figures = plot_claims(claims, out / "figures")
+    claims["study"]["figures"] = {k: str(p.relative_to(out)) for k, p in figures.items()}
+    write_json(claims, out / "claims.json")
+    tmp = out / ".report.md.tmp"
+    tmp.write_text(format_claims_report(claims), encoding="utf-8")
+    os.replace(tmp, out / "report.md")
+    return claims
+
+
+def _study_record(table: Any, seeds: int, label: str, keys: dict[str, Any],
+                  chosen: Sequence[Variant], wall: float, workers: int | None,
+                  scheduler: Any) -> dict[str, Any]:
+    """``claims.json``'s ``study``: what was run, how long it took, with which versions."""
     counts = dict(table.attrs.get("sweep", {}))
-    claims["study"] = {
+    names = [v.name for v in chosen]
+    return {
         "seeds": int(seeds),
-        "quick": bool(quick),
-        "variants": bool(variants),
-        "budget": QUICK_BUDGET if quick else FULL_BUDGET,
+        "budget_name": label,
+        "budget": keys,
         "paper_setting": PAPER_SETTING,
+        "variants": [_describe(v) for v in chosen],
         "cells": counts.get("cells", len(table)),
         "cells_run": counts.get("ran"),
         "cells_skipped": counts.get("skipped"),
         "cells_failed": int((table["status"] != "ok").sum()),
         "failures": _failures(table),
         "wall_time_s": wall,
+        **_cell_times(table),
         "workers": workers,
         "scheduler": None if scheduler is None else str(scheduler),
+        "estimate_paper_budget": {
+            f"{w}_workers": estimate_cost(paper_claims_spec(seeds, "paper", names), w)
+            for w in (1, 2)
+        },
+        "cost_model": {"seconds_per_kilo_iteration": SECONDS_PER_KILO_ITER,
+                       "cell_overhead_s": CELL_OVERHEAD_S, "per_step_factor": PER_STEP_FACTOR},
+        "versions": _versions(),
     }
-    out = Path(out_dir)
-    figures = plot_claims(claims, table, out / "figures")
-    claims["study"]["figures"] = {k: str(p.relative_to(out)) for k, p in figures.items()}
-    write_json(claims, out / "claims.json")
-    text = format_claims_report(claims)
-    tmp = out / ".report.md.tmp"
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, out / "report.md")
-    return claims
+
+
+def _describe(v: Variant) -> dict[str, Any]:
+    return {"name": v.name, "keys": dict(v.keys), "reference": v.reference,
+            "extra": list(v.extra), "description": v.description}
+
+
+def _cell_times(table: Any) -> dict[str, Any]:
+    """Seconds per cell by propagator (median of ``elapsed_s``) and their sum."""
+    ok = table[table["status"] == "ok"]
+    per = {
+        str(k): float(np.median(g["elapsed_s"].astype(float)))
+        for k, g in ok.groupby("integrator")
+    }
+    return {"cell_seconds_total": float(ok["elapsed_s"].astype(float).sum()),
+            "cell_seconds_median": per}
+
+
+def _runs(path: Path, table: Any, started: str, wall: float, workers: int | None,
+          scheduler: Any) -> list[dict[str, Any]]:
+    """The calls that ran cells, oldest first: the earlier ones from ``claims.json``, then
+    this one (when it ran any) with its wall time, the seconds of the cells it ran, and the
+    parallel speed-up (those seconds over the wall time)."""
+    runs: list[dict[str, Any]] = []
+    if path.exists():
+        try:
+            old = read_json(path).get("study", {})
+        except Exception:  # an unreadable old file: start the history again
+            old = {}
+        runs = list(old.get("runs") or [])
+        if not runs and old.get("cells_run"):  # a claims.json from before the history
+            runs = [{"started": None, "wall_time_s": old.get("wall_time_s"),
+                     "cells_run": old["cells_run"], "cell_seconds": old.get("cell_seconds_total"),
+                     "speedup": old.get("speedup"), "workers": old.get("workers"),
+                     "scheduler": old.get("scheduler")}]
+    now = table[table["started"].fillna("") >= started] if "started" in table else table[:0]
+    if len(now):
+        seconds = float(now["elapsed_s"].astype(float).sum())
+        runs.append({
+            "started": started, "wall_time_s": wall, "cells_run": len(now),
+            "cell_seconds": seconds, "speedup": seconds / wall if wall > 0 else None,
+            "workers": workers, "scheduler": None if scheduler is None else str(scheduler),
+        })
+    return runs
+
+
+def _versions() -> dict[str, str]:
+    import jax
+    import scipy
+
+    import symplid
+
+    return {"symplid": symplid.__version__, "jax": jax.__version__, "numpy": np.__version__,
+            "scipy": scipy.__version__, "python": platform.python_version()}
 
 
 def _failures(table: Any) -> list[dict[str, Any]]:
@@ -224,169 +381,3 @@ def _failures(table: Any) -> list[dict[str, Any]]:
         {"cell_id": r.cell_id, "seed": int(r.seed), "integrator": r.integrator, "error": r.error}
         for r in bad.itertuples()
     ]
-
-
-# ----------------------------------------------------------------------------- aggregation
-def evaluate_claims(
-    table: Any,
-    *,
-    symplectic: str = "leapfrog",
-    reference: str = PROPAGATORS[1],
-    by: Sequence[str] | None = None,
-    baseline: Mapping[str, Any] | None = None,
-    baseline_label: str = "baseline",
-) -> dict[str, Any]:
-    """For each claim and each setting, the fraction of data seeds where the claim holds.
-
-    A pure function of the results table (no files, no randomness).
-
-    Parameters
-    ----------
-    table
-        A pandas DataFrame with one row per cell: ``seed``, ``integrator``, ``status``, the
-        setting columns and the metrics ``hamiltonian_rel_error``, ``process_noise_median``,
-        ``prediction_horizon_s`` (see :data:`CLAIMS`). Only rows with status ``"ok"`` count.
-    symplectic, reference
-        The two propagators compared (``integrator`` values).
-    by
-        The columns that define a setting (default: every sweep setting column in the table
-        other than ``seed`` and ``integrator``). Rows are paired by seed within a setting.
-    baseline
-        A reference setting; settings are then labelled by what differs from it
-        (``"dt=0.1"``), and the baseline itself ``baseline_label``. Without it, labels list the
-        columns that vary in the table.
-
-    Returns
-    -------
-    dict
-        ``{"symplectic", "reference", "settings": [...], "claims": {name: {"statement",
-        "metric", "paper", "per_setting": [...]}}}``. Each ``per_setting`` entry has ``label``,
-        ``n`` (seeds judged), ``holds``, ``fraction`` (holds / n; None when n = 0), ``undecided``
-        (seeds with a missing or non-finite value), the medians of the metric for each
-        propagator, and for ``process_noise`` the distribution of the ratio (``ratio``:
-        median, quartiles, 10 % and 90 % quantiles, geometric mean, min, max) and
-        ``fraction_smaller`` (ratio > 1); for ``prediction`` the ``ties``.
-
-    Raises
-    ------
-    ValueError
-        A missing column, or two ok rows for the same setting, seed and propagator.
-    """
-    import pandas as pd
-
-    need = {"seed", "integrator", "status"}
-    missing = sorted(need - set(table.columns))
-    if missing:
-        raise ValueError(f"the results table has no column {', '.join(missing)}")
-    if by is None:
-        by = [c for c in table.columns if (c in CELL_KEYS or "." in c) and c not in _NOT_SETTINGS]
-    by = list(by)
-    for col in by:
-        if col not in table.columns:
-            raise ValueError(f"the results table has no setting column {col!r}")
-    for spec in CLAIMS.values():
-        if spec["metric"] not in table.columns:
-            raise ValueError(f"the results table has no metric column {spec['metric']!r}")
-
-    ok = table[(table["status"] == "ok") & table["integrator"].isin([symplectic, reference])]
-    groups = setting_groups(table, by)
-    varying = [c for c in by if table[c].nunique(dropna=False) > 1]
-    result: dict[str, Any] = {
-        "symplectic": symplectic,
-        "reference": reference,
-        "ratio_threshold": RATIO_THRESHOLD,
-        "settings": [],
-        "claims": {name: {**spec, "per_setting": []} for name, spec in CLAIMS.items()},
-    }
-    for values in groups:
-        label = _label(values, varying, baseline, baseline_label)
-        rows = rows_matching(ok, values)
-        seeds_all = rows_matching(table, values)["seed"].unique()
-        dup = rows.duplicated(["seed", "integrator"])
-        if dup.any():
-            first = rows[dup].iloc[0]
-            raise ValueError(
-                f"setting {label}: more than one ok row for seed {first['seed']} and "
-                f"integrator {first['integrator']!r}"
-            )
-        sym = rows[rows["integrator"] == symplectic].set_index("seed")
-        ref = rows[rows["integrator"] == reference].set_index("seed")
-        paired = sorted(set(sym.index) & set(ref.index))
-        result["settings"].append(
-            {
-                "label": label,
-                "values": {k: plain(v) for k, v in values.items()},
-                "seeds": len(seeds_all),
-                "pairs": len(paired),
-                "unpaired": len(seeds_all) - len(paired),
-            }
-        )
-        for name, spec in CLAIMS.items():
-            metric = spec["metric"]
-            a = pd.to_numeric(sym.loc[paired, metric], errors="coerce").to_numpy(float)
-            b = pd.to_numeric(ref.loc[paired, metric], errors="coerce").to_numpy(float)
-            entry = _judge(name, a, b)
-            entry = {"label": label, "unpaired": len(seeds_all) - len(paired), **entry}
-            result["claims"][name]["per_setting"].append(entry)
-    return result
-
-
-def _judge(name: str, sym: np.ndarray, ref: np.ndarray) -> dict[str, Any]:
-    """One claim over paired seeds: symplectic values ``sym``, reference values ``ref``."""
-    finite = np.isfinite(sym) & np.isfinite(ref)
-    if name == "process_noise":
-        finite &= (sym > 0) & (ref > 0)
-    s, r = sym[finite], ref[finite]
-    n = int(finite.sum())
-    out: dict[str, Any] = {"n": n, "undecided": int((~finite).sum())}
-    if name == "hamiltonian":
-        holds = s < r
-    elif name == "process_noise":
-        ratio = r / s
-        holds = ratio >= RATIO_THRESHOLD
-        out["fraction_smaller"] = _fraction(int((ratio > 1).sum()), n)
-        out["ratio"] = _distribution(ratio)
-    else:
-        holds = s > r
-        out["ties"] = int((s == r).sum())
-    out["holds"] = int(holds.sum())
-    out["fraction"] = _fraction(out["holds"], n)
-    out["median_symplectic"] = float(np.median(s)) if n else None
-    out["median_reference"] = float(np.median(r)) if n else None
-    return out
-
-
-def _fraction(k: int, n: int) -> float | None:
-    return k / n if n else None
-
-
-def _distribution(x: np.ndarray) -> dict[str, float | None]:
-    if x.size == 0:
-        return dict.fromkeys(("median", "q10", "q25", "q75", "q90", "geometric_mean", "min", "max"))
-    q = np.quantile(x, [0.1, 0.25, 0.5, 0.75, 0.9])
-    return {
-        "median": float(q[2]),
-        "q10": float(q[0]),
-        "q25": float(q[1]),
-        "q75": float(q[3]),
-        "q90": float(q[4]),
-        "geometric_mean": float(np.exp(np.mean(np.log(x)))),
-        "min": float(x.min()),
-        "max": float(x.max()),
-    }
-
-
-def _label(
-    values: Mapping[str, Any],
-    varying: list[str],
-    baseline: Mapping[str, Any] | None,
-    baseline_label: str,
-) -> str:
-    if baseline is not None:
-        diff = [
-            c for c in values if c in baseline and not same_value(plain(values[c]), baseline[c])
-        ]
-        diff += [c for c in varying if c not in baseline and c not in diff]
-        return ", ".join(f"{c}={format_value(values[c])}" for c in diff) or baseline_label
-    return ", ".join(f"{c}={format_value(values[c])}" for c in varying) or "all cells"
-

@@ -1,4 +1,7 @@
-"""Figures and ``report.md`` of the paper-claims study (:mod:`.paper_study`)."""
+"""Figures and ``report.md`` of the paper-claims study (:mod:`.paper_study`).
+
+Both read ``claims.json``'s content alone (no results table), so they can be redrawn from it.
+"""
 
 from __future__ import annotations
 
@@ -11,150 +14,184 @@ from typing import Any
 import numpy as np
 
 from symplid.plotting import COLORS, save_figure
-from symplid.plotting.sweep import rows_matching, strip_plot
+from symplid.plotting.sweep import strip_plot
 
-__all__ = ["format_claims_report", "plot_claims"]
+__all__ = [
+    "CALIBRATION_VARIANTS",
+    "calibration_answer",
+    "format_claims_report",
+    "plot_claims",
+]
 
-RATIO_THRESHOLD = math.sqrt(10.0)
+#: The variants whose calibration is drawn and tabulated (all are in ``claims.json``).
+CALIBRATION_VARIANTS = ("paper", "dt=0.1", "dt=0.5")
+_TITLES = {
+    "hamiltonian": "Claim 1: the learned Hamiltonian",
+    "process_noise": "Claim 2: the process noise",
+    "prediction": "Claim 3: valid predictions",
+}
+_PALETTE = ("#1f5fa8", "#c0392b", "#7b3fa0", "#d98a00", "#16867f", "#6b6b6b", "#2ca02c")
 
 
 # ----------------------------------------------------------------------------- figures
-def plot_claims(
-    claims: Mapping[str, Any], table: Any, folder: str | os.PathLike
-) -> dict[str, Path]:
-    """One PNG per claim in ``folder``: the per-seed values for each setting, with the
-    fraction of seeds where the claim holds under each setting. Returns the paths by claim."""
-    from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
-
+def plot_claims(claims: Mapping[str, Any], folder: str | os.PathLike) -> dict[str, Path]:
+    """One PNG per claim (fractions with Wilson intervals; per-seed effects with the bootstrap
+    interval of their median, per variant) and two calibration PNGs (coverage per parameter,
+    rank histograms). Returns the paths by name."""
     folder = Path(folder)
-    sym, ref = claims["symplectic"], claims["reference"]
-    settings = claims["settings"]
-    labels = [s["label"] for s in settings]
-    ok = table[table["status"] == "ok"]
-    paths = {}
-    for name, claim in claims["claims"].items():
-        metric = claim["metric"]
-        fig = Figure(figsize=(max(6.0, 1.6 * len(settings) + 2), 4.2), layout="constrained")
-        ax = fig.add_subplot()
-        rng = np.random.default_rng(0)  # jitter of the points only
-        for i, s in enumerate(settings):
-            rows = rows_matching(ok, s["values"])
-            if name == "process_noise":
-                a = rows[rows["integrator"] == sym].set_index("seed")[metric]
-                b = rows[rows["integrator"] == ref].set_index("seed")[metric]
-                common = sorted(set(a.index) & set(b.index))
-                ratio = (b.loc[common] / a.loc[common]).to_numpy(float)
-                ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
-                strip_plot(ax, i, ratio, "#555555", rng)
-            else:
-                for j, (integ, color) in enumerate(
-                    ((sym, COLORS["leapfrog"]), (ref, COLORS["rk2"]))
-                ):
-                    v = rows[rows["integrator"] == integ][metric].to_numpy(float)
-                    strip_plot(ax, i + (j - 0.5) * 0.36, v[np.isfinite(v)], color, rng, width=0.3)
-        entries = claim["per_setting"]
-        ax.set_xticks(
-            range(len(settings)),
-            [
-                f"{lab}\n{e['holds']}/{e['n']} hold" if e["n"] else f"{lab}\nno pairs"
-                for lab, e in zip(labels, entries, strict=True)
-            ],
-            fontsize=8,
-        )
-        if name == "process_noise":
-            ax.set_yscale("log")
-            ax.axhline(1.0, color="black", lw=0.8, ls=":", label="equal")
-            ax.axhline(RATIO_THRESHOLD, color="#888888", lw=0.8, ls="-.", label="√10 (threshold)")
-            ax.axhline(10.0, color="black", lw=0.8, ls="--", label="paper: about 10×")
-            ax.set_ylabel(f"process-noise ratio {ref} / {sym}")
-            ax.legend(fontsize=8, loc="best")
-        else:
-            if name == "hamiltonian":
-                ax.set_yscale("log")
-                ax.set_ylabel("relative error of the MAP H(x0)")
-            else:
-                ax.set_ylabel("valid prediction horizon (s)")
-            handles = [
-                Line2D([], [], marker="o", ls="", color=COLORS["leapfrog"], label=sym),
-                Line2D([], [], marker="o", ls="", color=COLORS["rk2"], label=ref),
-            ]
-            ax.legend(handles=handles, fontsize=8, loc="best")
-        ax.set_title(claim["statement"], fontsize=9)
-        ax.grid(axis="y", alpha=0.3)
-        paths[name] = save_figure(fig, folder / f"claim_{name}.png")
+    paths = {name: _plot_claim(name, claim, claims, folder)
+             for name, claim in claims["claims"].items()}
+    groups = _calibration_groups(claims)
+    if groups:
+        paths["calibration_coverage"] = _plot_coverage(groups, claims["level"], folder)
+        paths["calibration_ranks"] = _plot_ranks(groups, folder)
     return paths
 
 
+def _plot_claim(name: str, claim: Mapping[str, Any], claims: Mapping[str, Any],
+                folder: Path) -> Path:
+    from matplotlib.figure import Figure
+
+    entries = claim["per_variant"]
+    x = np.arange(len(entries))
+    labels = [e["variant"] for e in entries]
+    fig = Figure(figsize=(max(8.0, 1.1 * len(entries) + 4), 4.2), layout="constrained")
+    left, right = fig.subplots(1, 2, width_ratios=(1, 1.4))
+    for i, e in enumerate(entries):
+        if e["fraction_ci"] is None:
+            continue
+        lo, hi = e["fraction_ci"]
+        left.errorbar(i, e["fraction"], [[e["fraction"] - lo], [hi - e["fraction"]]],
+                      fmt="o", color=COLORS["leapfrog"], capsize=3)
+        left.annotate(f"{e['holds']}/{e['n']}", (i, hi), textcoords="offset points",
+                      xytext=(0, 4), ha="center", fontsize=7)
+    left.axhline(claims["verdict_split"], color="#888888", lw=0.8, ls=":")
+    left.set_ylim(0, 1.1)
+    left.set_ylabel(f"fraction of seeds where it holds ({100 * claims['level']:.0f} % Wilson)")
+    rng = np.random.default_rng(0)  # jitter of the points only
+    for i, e in enumerate(entries):
+        values = np.asarray(e["per_seed"]["effect"], float)
+        strip_plot(right, i, values, "#555555", rng)
+        eff = e["effect"]
+        if eff["lo"] is not None:
+            right.errorbar(i + 0.3, eff["median"], [[eff["median"] - eff["lo"]],
+                                                     [eff["hi"] - eff["median"]]],
+                           fmt="s", color="black", ms=4, capsize=3)
+    if claim["effect"] == "ratio":
+        right.set_yscale("log")
+        right.axhline(1.0, color="black", lw=0.8, ls=":")
+        if name == "process_noise":
+            right.axhline(claims["ratio_threshold"], color="#888888", lw=0.8, ls="-.")
+    else:
+        right.axhline(0.0, color="black", lw=0.8, ls=":")
+    right.set_ylabel(claim["effect_label"])
+    for ax in (left, right):
+        ax.set_xticks(x, labels, fontsize=7, rotation=30, ha="right")
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(claim["statement"], fontsize=9)
+    return save_figure(fig, folder / f"claim_{name}.png")
+
+
+def _calibration_groups(claims: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    return [g for g in claims.get("calibration", [])
+            if g["variant"] in CALIBRATION_VARIANTS and g["params"]]
+
+
+def _plot_coverage(groups: list, level: float, folder: Path) -> Path:
+    from matplotlib.figure import Figure
+
+    names = list(groups[0]["params"])
+    fig = Figure(figsize=(max(7.0, 0.9 * len(names) + 2), 4.0), layout="constrained")
+    ax = fig.add_subplot()
+    width = 0.8 / len(groups)
+    for k, g in enumerate(groups):
+        for i, name in enumerate(names):
+            p = g["params"].get(name)
+            if not p or p["coverage_ci"] is None:
+                continue
+            lo, hi = p["coverage_ci"]
+            xi = i - 0.4 + width * (k + 0.5)
+            ax.errorbar(xi, p["coverage"], [[p["coverage"] - lo], [hi - p["coverage"]]],
+                        fmt="o", ms=3, capsize=2, color=_PALETTE[k % len(_PALETTE)],
+                        label=g["label"] if i == 0 else None)
+    ax.axhline(level, color="black", lw=0.8, ls="--")
+    ax.set_xticks(range(len(names)), names, fontsize=8, rotation=30, ha="right")
+    ax.set_ylabel(f"coverage of the central {100 * level:.0f} % interval")
+    ax.set_ylim(0, 1.05)
+    ax.legend(fontsize=7, loc="lower left")
+    ax.grid(axis="y", alpha=0.3)
+    return save_figure(fig, folder / "calibration_coverage.png")
+
+
+def _plot_ranks(groups: list, folder: Path) -> Path:
+    from matplotlib.figure import Figure
+
+    names = list(groups[0]["params"])
+    fig = Figure(figsize=(1.5 * len(names) + 1, 1.3 * len(groups) + 0.8), layout="constrained")
+    axes = fig.subplots(len(groups), len(names), squeeze=False, sharey=True)
+    for k, g in enumerate(groups):
+        for i, name in enumerate(names):
+            ax = axes[k, i]
+            p = g["params"].get(name)
+            if p and p["n"]:
+                counts = np.asarray(p["rank_counts"], float)
+                ax.bar(np.arange(counts.size), counts, width=0.9,
+                       color=_PALETTE[k % len(_PALETTE)])
+                ax.axhline(p["n"] / counts.size, color="black", lw=0.8, ls="--")
+                pv = p["rank_p_value"]
+                ax.set_title(f"p={pv:.2g}" if pv is not None else "", fontsize=7)
+            ax.set_xticks([])
+            if k == len(groups) - 1:
+                ax.set_xlabel(name, fontsize=7)
+            if i == 0:
+                ax.set_ylabel(g["label"], fontsize=7)
+    fig.suptitle("rank of the truth among the thinned draws (uniform when calibrated)",
+                 fontsize=9)
+    return save_figure(fig, folder / "calibration_ranks.png")
+
+
 # ----------------------------------------------------------------------------- report
+def calibration_answer(claims: Mapping[str, Any]) -> dict[str, Any]:
+    """Does yoshida4, or leapfrog at a smaller dt, restore nominal coverage? From the data.
+
+    Returns ``{"baseline", "reference", "yoshida4", "smaller_dt"}``, each the calibration
+    entry (or ``None`` when not run) of leapfrog, the reference (RK2) and yoshida4 at the
+    paper's setting, and of leapfrog at dt = 0.1.
+    """
+    def find(variant: str, integrator: str) -> Mapping[str, Any] | None:
+        for g in claims.get("calibration", []):
+            if g["variant"] == variant and g["integrator"] == integrator and g["params"]:
+                return g
+        return None
+
+    reference = claims["claims"]["hamiltonian"]["per_variant"][0]["reference"]
+    return {"baseline": find("paper", claims["symplectic"]),
+            "reference": find("paper", reference),
+            "yoshida4": find("paper", "yoshida4"),
+            "smaller_dt": find("dt=0.1", claims["symplectic"])}
+
+
 def format_claims_report(claims: Mapping[str, Any]) -> str:
-    """``report.md``: what was run, one table per claim, the figures, and the failures."""
+    """``report.md``: what was run, one table per claim, the calibration, the figures."""
     study = claims.get("study", {})
-    sym, ref = claims["symplectic"], claims["reference"]
     lines = ["# The paper's claims over many data seeds", ""]
     if study:
-        budget = study["budget"]
-        lines += [
-            f"Hénon–Heiles, the paper's setting and one setting changed at a time; "
-            f"{study['seeds']} data seeds; {sym} against {ref}, paired by seed (same data).",
-            f"Sampler budget per cell: {budget['num_chains']} DRAM chains of "
-            f"{budget['num_iterations']:,} iterations ({budget['burn_in']:,} burn-in), "
-            f"{budget['num_starts']} MAP starts" + (" (quick)." if study["quick"] else "."),
-            f"Cells: {study['cells']} ({study['cells_run']} run now, {study['cells_skipped']} "
-            f"already done, {study['cells_failed']} failed). Wall time of this call: "
-            f"{study['wall_time_s']:.0f} s.",
-            "",
-        ]
+        lines += _study_lines(study)
     lines += [
-        "A claim holds for a seed when the leapfrog fit beats the RK2 fit of the same data. "
-        "Fractions are over the seeds where both fits finished with finite values.",
+        "A claim holds for a seed when the leapfrog fit beats the reference fit of the same "
+        f"data. Intervals: Wilson {100 * claims['level']:.0f} % for fractions, percentile "
+        f"bootstrap {100 * claims['level']:.0f} % for the median paired effect. Verdict: "
+        f"*holds* / *fails* when the fraction's interval lies above / below "
+        f"{claims['verdict_split']:g}, else *mixed*.",
         "",
     ]
     for name, claim in claims["claims"].items():
-        lines += [f"## {_TITLES[name]}", "", f"Claim: {claim['statement']}.  ", ""]
-        lines += [f"Paper (one data set): {claim['paper']}.", ""]
-        if name == "process_noise":
-            lines += [
-                "| setting | seeds | ratio ≥ √10 | fraction | ratio > 1 | median ratio "
-                "| 10–90 % of ratio | geometric mean |",
-                "|---|---|---|---|---|---|---|---|",
-            ]
-            for e in claim["per_setting"]:
-                r = e["ratio"]
-                lines.append(
-                    f"| {e['label']} | {e['n']} | {e['holds']} | {_pct(e['fraction'])} | "
-                    f"{_pct(e['fraction_smaller'])} | {_num(r['median'])} | "
-                    f"{_num(r['q10'])} – {_num(r['q90'])} | {_num(r['geometric_mean'])} |"
-                )
-        else:
-            unit = " (s)" if name == "prediction" else ""
-            extra = " ties |" if name == "prediction" else ""
-            lines += [
-                f"| setting | seeds | holds | fraction | median {sym}{unit} | "
-                f"median {ref}{unit} |{extra}",
-                "|---|---|---|---|---|---|" + ("---|" if extra else ""),
-            ]
-            for e in claim["per_setting"]:
-                tail = f" {e['ties']} |" if extra else ""
-                lines.append(
-                    f"| {e['label']} | {e['n']} | {e['holds']} | {_pct(e['fraction'])} | "
-                    f"{_num(e['median_symplectic'])} | {_num(e['median_reference'])} |{tail}"
-                )
-        undecided = sum(e["undecided"] + e["unpaired"] for e in claim["per_setting"])
-        if undecided:
-            lines += ["", f"{undecided} seed(s) left out (a failed cell or a non-finite value)."]
-        figure = study.get("figures", {}).get(name)
-        if figure:
-            lines += ["", f"![{_TITLES[name]}]({figure})"]
-        lines.append("")
+        lines += _claim_lines(name, claim, study)
+    lines += _calibration_lines(claims, study)
     failures = study.get("failures") or []
     if failures:
-        lines += [
-            "## Failed cells",
-            "",
-            "| cell | seed | integrator | error |",
-            "|---|---|---|---|",
-        ]
+        lines += ["## Failed cells", "", "| cell | seed | integrator | error |",
+                  "|---|---|---|---|"]
         for f in failures:
             error = str(f["error"] or "").splitlines()[0][:120] if f["error"] else "pending"
             lines.append(f"| {f['cell_id']} | {f['seed']} | {f['integrator']} | {error} |")
@@ -162,15 +199,104 @@ def format_claims_report(claims: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-_TITLES = {
-    "hamiltonian": "Claim 1: the learned Hamiltonian",
-    "process_noise": "Claim 2: the process noise",
-    "prediction": "Claim 3: valid predictions",
-}
+def _study_lines(study: Mapping[str, Any]) -> list[str]:
+    b = study["budget"]
+    names = ", ".join(v["name"] for v in study["variants"])
+    runs = study.get("runs") or []
+    last = runs[-1] if runs else {}
+    speed = last.get("speedup")
+    return [
+        f"Hénon–Heiles; {study['seeds']} data seeds; variants: {names}.",
+        f"Sampler budget per cell ({study['budget_name']}): {b['num_chains']} DRAM chains of "
+        f"{b['num_iterations']:,} iterations ({b['burn_in']:,} burn-in), {b['num_starts']} "
+        "MAP starts.",
+        f"Cells: {study['cells']} ({study['cells_run']} run now, {study['cells_skipped']} "
+        f"already done, {study['cells_failed']} failed). Wall time of this call: "
+        f"{study['wall_time_s']:.0f} s; the cells' own times sum to "
+        f"{study['cell_seconds_total']:.0f} s"
+        + (f". The last call that ran cells ran {last['cells_run']} in "
+           f"{last['wall_time_s']:.0f} s: speed-up {speed:.2f}× on "
+           f"{last['workers'] or 'all'} worker(s)." if speed else "."),
+        "",
+    ]
+
+
+def _claim_lines(name: str, claim: Mapping[str, Any], study: Mapping[str, Any]) -> list[str]:
+    lines = [f"## {_TITLES[name]}", "", f"Claim: {claim['statement']}.  ",
+             f"Paper (one data set): {claim['paper']}.  ",
+             f"Paired effect per seed: {claim['effect_label']} ({claim['effect']}).", "",
+             "| variant | reference | seeds | holds | fraction (95 % CI) | verdict "
+             "| median effect (95 % CI) | median leapfrog | median reference |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for e in claim["per_variant"]:
+        eff = e["effect"]
+        lines.append(
+            f"| {e['variant']} | {e['reference']} | {e['n']} | {e['holds']} | "
+            f"{_pct(e['fraction'])} ({_range(e['fraction_ci'], _pct)}) | {e['verdict']} | "
+            f"{_num(eff['median'])} ({_num(eff['lo'])} – {_num(eff['hi'])}) | "
+            f"{_num(e['median_symplectic'])} | {_num(e['median_reference'])} |"
+        )
+    left_out = sum(e["undecided"] + e["unpaired"] for e in claim["per_variant"])
+    if left_out:
+        lines += ["", f"{left_out} seed(s) left out (a failed cell or a non-finite value)."]
+    figure = study.get("figures", {}).get(name)
+    if figure:
+        lines += ["", f"![{_TITLES[name]}]({figure})"]
+    return [*lines, ""]
+
+
+def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> list[str]:
+    groups = _calibration_groups(claims)
+    if not groups:
+        return []
+    names = list(groups[0]["params"])
+    lines = ["## Calibration", "",
+             "Coverage of each parameter's central 95 % posterior interval over the seeds "
+             "(Wilson 95 % interval), and the χ² p-value of the truth's rank among the thinned "
+             "draws being uniform. The process-noise variance is left out: its true value, 0, "
+             "is on the boundary of its support.", "",
+             "| parameter | " + " | ".join(g["label"] for g in groups) + " |",
+             "|---|" + "---|" * len(groups)]
+    for name in names:
+        cells = []
+        for g in groups:
+            p = g["params"].get(name)
+            cells.append("–" if not p or not p["n"] else
+                         f"{_pct(p['coverage'])} ({_range(p['coverage_ci'], _pct)}), "
+                         f"p={_num(p['rank_p_value'])}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", *_answer_lines(claims), ""]
+    for key in ("calibration_coverage", "calibration_ranks"):
+        if key in study.get("figures", {}):
+            lines += [f"![{key}]({study['figures'][key]})", ""]
+    return lines
+
+
+def _answer_lines(claims: Mapping[str, Any]) -> list[str]:
+    ans = calibration_answer(claims)
+    out = []
+    for key, what in (("baseline", "Leapfrog at the paper's setting"),
+                      ("reference", "RK2 at the paper's setting"),
+                      ("yoshida4", "yoshida4 at the paper's setting"),
+                      ("smaller_dt", "Leapfrog at dt = 0.1")):
+        g = ans[key]
+        if g is None:
+            out.append(f"{what}: not run.  ")
+            continue
+        below = ", ".join(g["below_nominal"]) or "none"
+        state = ("nominal coverage" if g["nominal"] else
+                 "below nominal coverage" if g["below_nominal"] else "above nominal coverage")
+        out.append(f"{what}: {state} (lowest coverage {_pct(g['min_coverage'])}; parameters "
+                   f"whose interval lies below 95 %: {below}).  ")
+    return out
 
 
 def _pct(x: float | None) -> str:
     return "–" if x is None else f"{100 * x:.0f} %"
+
+
+def _range(ci: Any, fmt: Any) -> str:
+    return "–" if ci is None else f"{fmt(ci[0])} – {fmt(ci[1])}"
 
 
 def _num(x: float | None) -> str:

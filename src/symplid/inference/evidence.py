@@ -49,7 +49,12 @@ The rule
    ``g(s̄) + log|det A| + Σ_j log(h Σ_k exp(g(s̄ + h A_j k) − g(s̄)))``: exact when g is a sum
    of functions of the whitened coordinates (in particular for a Gaussian g, where it is
    the Laplace approximation in log-variance coordinates), and it still corrects each
-   axis's skewness. About 10 fits per axis. ``method`` says which rule was used.
+   axis's skewness. About 10 fits per axis. ``method`` says which rule was used. On the
+   oscillator of ``tests/test_evidence.py`` (forced to this rule with two variances) it was
+   0.15 nats from the product grid, where the Laplace evidence was 0.7–1.3 nats off.
+
+A new variance group (e.g. further noise parameters) is integrated as soon as its name is in
+:data:`~symplid.model.params.POSITIVE_GROUPS`: the variances are found by group, not position.
 """
 
 from __future__ import annotations

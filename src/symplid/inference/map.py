@@ -229,11 +229,8 @@ def find_map(
         laplace = (hessian, *_laplace(hessian, best, bound_idx, objective, u_best, warn))
     log_evidence, method, details = laplace[3], "laplace" if compute_hessian else "none", {}
     if compute_hessian and evidence == "quadrature" and np.isfinite(best.log_posterior):
-        found = quadrature_evidence(fns["value_and_grad"], fns["hessian"], space,
-                                    parameter_space.groups, names, best.theta,
-                                    EvidenceSettings())
-        if found is not None and np.isfinite(found.log_evidence):
-            log_evidence, method, details = found.log_evidence, found.method, found.details
+        log_evidence, method, details = _quadrature(
+            fns, space, parameter_space.groups, names, best.theta, laplace[3])
     optima = distinct_optima(results, laplace[1], space)
     if warn:
         _warn_outcome(best, results, at_bounds, names, space, u_best)
@@ -251,6 +248,18 @@ def find_map(
         log_evidence_laplace=laplace[3], evidence_method=method, evidence=details,
         optima=optima,
     )
+
+
+def _quadrature(fns: dict[str, Callable], space: SearchSpace, groups: tuple[str, ...],
+                names: tuple[str, ...], theta: np.ndarray,
+                laplace: float) -> tuple[float, str, dict[str, Any]]:
+    """(log evidence, method, details) by :func:`~.evidence.quadrature_evidence`; the Laplace
+    value when θ has no variance to integrate or the quadrature fails."""
+    found = quadrature_evidence(fns["value_and_grad"], fns["hessian"], space, groups, names,
+                                theta, EvidenceSettings())
+    if found is None or not np.isfinite(found.log_evidence):
+        return laplace, "laplace", {}
+    return found.log_evidence, found.method, found.details
 
 
 def _check_options(

@@ -40,6 +40,7 @@ first observation time); the exact Hessian has no such restriction.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,6 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.inference.map import default_start
+from symplid.inference.map_result import MapResult, StartResult
 from symplid.model.posterior import Posterior
 from symplid.model.priors import Normal
 
@@ -72,6 +74,8 @@ class NeuralMapResult:
         ``"ggn"`` or ``"hessian"`` (how the covariance was computed), or None.
     history
         −log posterior after each optimiser step (Adam, then L-BFGS).
+    start
+        Where the search started (θ), when known.
     """
 
     theta: np.ndarray
@@ -80,6 +84,7 @@ class NeuralMapResult:
     param_names: tuple[str, ...]
     laplace: str | None = None
     history: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    start: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray | None:
@@ -89,6 +94,33 @@ class NeuralMapResult:
             return None
         diag = np.diag(self.covariance)
         return np.sqrt(np.where(diag > 0, diag, np.nan))
+
+    @property
+    def log_evidence(self) -> float:
+        """Laplace approximation of log p(Y): log π(θ*) + log L(θ*) + ½ log det(2πΣ) (NaN
+        without a covariance, or when Σ is not positive definite)."""
+        if self.covariance is None:
+            return math.nan
+        sign, logdet = np.linalg.slogdet(2.0 * np.pi * self.covariance)
+        return self.log_posterior + 0.5 * logdet if sign > 0 else math.nan
+
+    def to_map_result(self, seconds: float = 0.0, seed: int = 0) -> MapResult:
+        """The same point as a :class:`~symplid.inference.map_result.MapResult` (one "start"),
+        so run folders, samplers and summaries take it like the polynomial MAP."""
+        start = StartResult(
+            self.theta if self.start is None else self.start, self.theta, self.log_posterior,
+            bool(np.isfinite(self.log_posterior)),
+            f"Adam then L-BFGS, {self.history.size} steps", int(self.history.size),
+            int(self.history.size), float(seconds),
+        )
+        precision = None if self.covariance is None else np.linalg.inv(self.covariance)
+        return MapResult(
+            theta=self.theta, log_posterior=self.log_posterior, success=start.success,
+            message=start.message, num_starts=1, starts=(start,), hessian=precision,
+            covariance=self.covariance, covariance_repaired=False,
+            log_evidence=self.log_evidence, param_names=self.param_names, seed=int(seed),
+            seconds=float(seconds), settings={"laplace": self.laplace or "none"},
+        )
 
 
 def neural_posterior(
@@ -169,7 +201,7 @@ def find_map_neural(
         covariance = 0.5 * (covariance + covariance.T)
     return NeuralMapResult(
         theta, covariance, float(posterior.log_density(jnp.asarray(theta))),
-        tuple(posterior.param_names), laplace, np.asarray(history),
+        tuple(posterior.param_names), laplace, np.asarray(history), np.asarray(theta0),
     )
 
 

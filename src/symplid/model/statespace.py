@@ -11,6 +11,7 @@ the model holds the settings, the layout of θ and the data preparation, and del
 
     θ = [coefficients of U ..., process-noise variance(s) ..., observation-noise variance(s) ...]
 
+(for a whole, non-separable H(q, p; θ), H's parameters take the place of U's coefficients),
 with one variance each (``noise="isotropic"``: Σ = θ_Σ I, Γ = θ_Γ I, the paper's choice),
 one per component (``noise="diagonal"``), or one Σ variance and one Γ variance per kind of
 observed component (``noise="per-kind"``: positions and momenta; for data whose columns are
@@ -40,7 +41,9 @@ import numpy as np
 
 from symplid.compiled import cached
 from symplid.dynamics.damping import is_damped, with_damping
-from symplid.dynamics.integrators import Integrator, get_integrator
+from symplid.dynamics.hamiltonians import is_hamiltonian
+from symplid.dynamics.integrators import Integrator, get_integrator, separable_only_error
+from symplid.dynamics.nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, with_binding
 from symplid.dynamics.potentials import (
     Potential,
     coefficient_name,
@@ -70,10 +73,15 @@ class HamiltonianModel:
     ----------
     potential
         A :class:`~symplid.dynamics.potentials.Polynomial`, a
-        :class:`~.potentials.FunctionPotential`, or anything with the same interface.
+        :class:`~.potentials.FunctionPotential`, or anything with the same interface; or a
+        whole, possibly non-separable Hamiltonian H(q, p; θ)
+        (:class:`~symplid.dynamics.hamiltonians.Hamiltonian`: ``FunctionHamiltonian``,
+        ``DoublePendulum``, ...), whose parameters then lead θ in place of U's coefficients.
     integrator
         Name from :data:`~.integrators.INTEGRATORS` (``"leapfrog"``, ``"rk2-midpoint"``,
-        ``"rk2-heun"``, ``"rk4"``, ``"euler"``, ``"yoshida4"``) or an ``Integrator``.
+        ``"rk2-heun"``, ``"rk4"``, ``"euler"``, ``"yoshida4"``; for a non-separable H
+        ``"tao"``, ``"tao4"``, ``"implicit-midpoint"`` or a Runge–Kutta method) or an
+        ``Integrator``.
     dt
         Largest learning step; each gap is split into ⌈gap/dt⌉ equal substeps.
     observation
@@ -109,7 +117,10 @@ class HamiltonianModel:
         gets the entry ``gamma`` after the coefficients; a symplectic composition (leapfrog,
         yoshida4) becomes the conformally symplectic splitting, a Runge–Kutta method the
         damped Runge–Kutta step (:attr:`integrator` is then the damped one, its ``base`` the
-        named one).
+        named one). A separable H only.
+    binding
+        Tao's binding constant ω for ``"tao"``/``"tao4"`` (:mod:`symplid.dynamics.nonseparable`);
+        None: ω = 1/dt. An error with any other integrator.
     """
 
     potential: Potential
@@ -127,15 +138,20 @@ class HamiltonianModel:
     backend: str = "auto"
     damping: bool = False
     observation_noise: str = "additive"
+    binding: float | None = None
 
     def __post_init__(self) -> None:
         integrator = get_integrator(self.integrator)
         if is_damped(integrator) and not self.damping:
             raise ValueError(f"the integrator {integrator.name!r} is damped: pass damping=True")
         object.__setattr__(self, "damping", bool(self.damping))
-        object.__setattr__(
-            self, "integrator", with_damping(integrator) if self.damping else integrator
-        )
+        object.__setattr__(self, "integrator", integrator)
+        self._check_hamiltonian()
+        if self.damping:
+            if not self.separable:
+                raise ValueError("damping=True needs a separable H = ½pᵀM⁻¹p + U(q) (the "
+                                 "friction is −γM⁻¹p); a non-separable H cannot be damped")
+            object.__setattr__(self, "integrator", with_damping(self.integrator))
         if not np.isfinite(self.dt) or self.dt <= 0:
             raise ValueError(f"dt must be a positive number, got {self.dt}")
         if self.process_noise_per not in ("gap", "step"):
@@ -174,6 +190,26 @@ class HamiltonianModel:
         object.__setattr__(self, "backend", check_backend_name(self.backend))
         if self.backend != "auto":
             select_backend(self.backend, self)  # a forced backend must support the model
+
+    def _check_hamiltonian(self) -> None:
+        """A non-separable H needs a method that accepts it, and no constant mass; ω for Tao."""
+        integrator = self.integrator
+        if isinstance(integrator, TaoIntegrator):
+            binding = DEFAULT_BINDING_STEPS / self.dt if self.binding is None else self.binding
+            object.__setattr__(self, "integrator", with_binding(integrator, binding))
+        elif self.binding is not None:
+            with_binding(integrator, self.binding)  # raises: ω is Tao's
+        if not self.separable:
+            if not integrator.nonseparable:
+                raise separable_only_error(f"the integrator {integrator.name!r}")
+            if self.mass is not None:
+                raise ValueError("mass applies to a separable H only; write the mass into the "
+                                 "Hamiltonian (e.g. symplid.PositionDependentMass)")
+
+    @property
+    def separable(self) -> bool:
+        """Whether H = ½pᵀM⁻¹p + U(q) (a potential), not a whole H(q, p; θ)."""
+        return not is_hamiltonian(self.potential)
 
     # ------------------------------------------------------------------ layout of θ
     @property
@@ -471,7 +507,8 @@ class HamiltonianModel:
         return partial(_bound_loglik, fn, prepared, x0, P0)
 
     def hamiltonian(self, theta_or_coefficients: Array, state: Array) -> Array:
-        """H(q, p) under the model's potential and mass, for θ or bare coefficients."""
+        """H(q, p) under the model's potential and mass (or its whole H), for θ or bare
+        coefficients."""
         c = jnp.asarray(theta_or_coefficients)[..., : self.num_coefficients]
         return hamiltonian(self.potential, c, state, inverse_mass(self.mass, self.potential.dim))
 

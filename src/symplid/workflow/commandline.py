@@ -24,12 +24,14 @@ __all__ = [
     "OneLineErrors",
     "RegistryOption",
     "UserError",
+    "baselines_study_options",
     "config_option",
     "converged",
     "fit_result_line",
     "floats",
     "integrator_registry",
     "no_progress_option",
+    "potential_registry",
     "report_after_fit",
     "rk2_variants",
     "run_fit",
@@ -115,6 +117,12 @@ def integrator_registry() -> Any:
     return INTEGRATORS
 
 
+def potential_registry() -> Any:
+    from symplid.dynamics.families import POTENTIAL_FAMILIES
+
+    return POTENTIAL_FAMILIES
+
+
 def sampler_registry() -> Any:
     from symplid.inference.samplers import SAMPLERS
 
@@ -161,6 +169,26 @@ class LazyChoice(click.Choice):
 def rk2_variants() -> tuple[str, ...]:
     """The registered RK2 integrators, by variant (``rk2-midpoint`` → ``midpoint``)."""
     return tuple(n[4:] for n in integrator_registry().names() if n.startswith("rk2-"))
+
+
+def baselines_study_options(fn: Any) -> Any:
+    """The options of ``symplid study baselines`` (listed as ``--help`` shows them)."""
+    options = [
+        click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True),
+        click.option("--seeds", type=click.IntRange(min=1), default=10, show_default=True),
+        click.option("--mlp-seeds", type=click.IntRange(min=1), default=None,
+                     help="Seeds of the MLP cells [default: --seeds]."),
+        click.option("--sizes", default="20,50,200,1000", show_default=True),
+        click.option("--potentials", default="polynomial,mlp", show_default=True),
+        click.option("--quick", is_flag=True, help="Tiny solver budgets (a smoke test)."),
+        click.option("--report-only", is_flag=True,
+                     help="Write the report of the cells OUT holds (an interrupted study)."),
+        click.option("--workers", type=click.IntRange(min=1), default=None),
+        click.option("--no-progress", is_flag=True),
+    ]
+    for option in reversed(options):
+        fn = option(fn)
+    return fn
 
 
 def floats(text: str | None, name: str) -> list[float] | None:

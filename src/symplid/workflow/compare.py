@@ -54,8 +54,8 @@ The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
 ``converged``             whether the best MAP start reported convergence
 ``map_seconds``           wall time of the MAP search, Hessian and evidence (compilation
                           included)
-``<coefficient>``         one column per coefficient name met among the candidates (``q1``,
-                          ``q1^2``, ...): the candidate's MAP value, blank where it lacks it
+``<coefficient>``         one column per coefficient name met among the candidates (``c[q1]``,
+                          ``c[q1^2]``, ...): the candidate's MAP value, blank where it lacks it
 ========================  ==================================================================
 
 With ``out``, the table is written to ``out/compare.csv`` and ``out/compare.txt`` (the

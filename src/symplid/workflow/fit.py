@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from symplid.dynamics.families import build_family
+from symplid.dynamics.families import build_family, family_of
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import find_map
 from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
@@ -101,9 +101,28 @@ class FitOutcome:
 
 
 def find_map_for(settings: Settings, posterior) -> Any:
-    """MAP by bounded quasi-Newton from ``settings.map.num_starts`` seeded starts."""
+    """The MAP and its Laplace covariance, by the path the model's family calls for.
 
-    return find_map(posterior, seed=settings.map.seed, num_starts=settings.map.num_starts)
+    A polynomial (or any family with few coefficients): bounded quasi-Newton from
+    ``settings.map.num_starts`` seeded starts and the exact Hessian. A neural family
+    (:attr:`~symplid.dynamics.families.Family.neural`, e.g. ``"mlp"``): Adam then L-BFGS and
+    the Gauss–Newton covariance (:func:`~symplid.inference.neural_fit.find_map_neural`),
+    returned as a :class:`~symplid.inference.map_result.MapResult`.
+    """
+
+    m = settings.map
+    if not family_of(settings.model).neural:
+        return find_map(posterior, seed=m.seed, num_starts=m.num_starts)
+    from symplid.inference.neural_fit import find_map_neural
+
+    start = time.perf_counter()
+    ggn = (posterior.model.observation_matrix is not None and not posterior.learn_initial_state
+           and all(t is not None for t in posterior.t0))
+    result = find_map_neural(
+        posterior, adam_steps=m.adam_steps, learning_rate=m.learning_rate,
+        lbfgs_steps=m.lbfgs_steps, polish="scipy", laplace="ggn" if ggn else "hessian",
+    )
+    return result.to_map_result(time.perf_counter() - start, m.seed)
 
 
 def sample_for(

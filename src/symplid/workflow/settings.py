@@ -11,6 +11,10 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES
     hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES
     order = 3                     # polynomial potential of total degree ≤ 3 (eqs 17–18)
+    width = 32                    # potential = "mlp" (or hamiltonian = "mlp"): units per layer,
+    depth = 2                     #   hidden layers,
+    activation = "tanh"           #   activation,
+    network_seed = 0              #   seed of the initial weights
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
     process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep)
@@ -35,8 +39,8 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     p0_var = 1e-16
     t0 = 0.0                      # or "first": the state at the first observation time
 
-    [priors.coefficients]         # one prior per group of θ
-    family = "laplace"
+    [priors.coefficients]         # one prior per group of θ; left out: the model family's
+    family = "laplace"            #   default (polynomial: this one; mlp: normal(0, 1))
     loc = 0.0
     scale = 10.0
     [priors.variances]
@@ -53,6 +57,9 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     [map]
     num_starts = 4
     seed = 0
+    adam_steps = 2000             # a neural family's MAP: Adam, then L-BFGS (no multistart)
+    learning_rate = 0.01
+    lbfgs_steps = 1000
 
     [sampler]
     method = "dram"               # any name in symplid.inference.samplers.SAMPLERS
@@ -61,7 +68,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     num_chains = 4
     gamma = 0.01                  # DRAM second-stage scale
     adapt_start = 200
-    variance_scale = "natural"    # DRAM: "log" moves the variances as log(v), with the Jacobian
+    variance_scale = "log"        # DRAM moves the variances as log(v) ("natural": as v)
     thin = 1
     seed = 0
 
@@ -110,6 +117,7 @@ from typing import Any
 
 import tomli_w
 
+from symplid.dynamics.families import family_of
 from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
 from symplid.workflow.settings_schema import (
@@ -125,6 +133,8 @@ from symplid.workflow.settings_schema import (
     PriorSettings,
     SamplerSettings,
     Settings,
+    family_prior,
+    with_family_prior,
 )
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
@@ -247,6 +257,7 @@ def settings_from_dict(data: Mapping[str, Any], source: str = "settings") -> Set
             table = data.get(section, {})
             if isinstance(table, Mapping) and "seed" not in table:
                 data[section] = {**table, "seed": data["seed"]}
+    data = with_family_prior(data)
     settings = _build(Settings, data, "", source)
     _check_cross(settings, source)
     return settings
@@ -317,6 +328,14 @@ def _build_prior(data: Mapping[str, Any], prefix: str, source: str) -> Prior:
 def _check_cross(s: Settings, source: str) -> None:
     """Checks that involve more than one key."""
     _check_sampler(s.sampler, source)
+    family = family_of(s.model)
+    if family.neural and s.sampler.method == "dram":
+        raise SettingsError(
+            source,
+            "sampler.method",
+            f'"dram" cannot explore the weights of the {family.name!r} family (random-walk '
+            'proposals in hundreds of dimensions); use sampler.method = "nuts" (--method nuts)',
+        )
     if any(m <= 0 for m in s.model.mass):
         raise SettingsError(
             source, "model.mass", f"must hold positive numbers, got {list(s.model.mass)}"
@@ -438,6 +457,10 @@ def merge_overrides(
     if "seed" in overrides:
         for section in _SEEDED_SECTIONS:
             overrides.setdefault(f"{section}.seed", overrides["seed"])
+    new_family = {"model.potential", "model.hamiltonian"} & set(overrides)
+    if (new_family and not any(k.startswith("priors.coefficients") for k in overrides)
+            and settings.priors.coefficients == family_prior(settings.model)):
+        del data["priors"]["coefficients"]  # the old family's default: take the new one's
     for key, value in overrides.items():
         parts = key.split(".")
         table = data

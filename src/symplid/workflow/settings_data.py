@@ -8,15 +8,16 @@ offer the model (two times, no empty column, gaps the integrator can cross).
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from typing import Any
 
 import numpy as np
 
+from symplid.dynamics.families import build_family, family_of
 from symplid.io import observation_layout
 from symplid.model.data import DataError
-from symplid.workflow.auto import num_noise_variances, resolve_noise
+from symplid.model.statespace import HamiltonianModel
+from symplid.workflow.auto import resolve_noise
 from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.settings_schema import Settings
 from symplid.workflow.validate import SettingsError
@@ -140,24 +141,30 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
 
 
 def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -> None:
-    """One line when θ has more entries than the data have values (all trajectories)."""
+    """One line when θ has more entries than the data have values (all trajectories); a
+    model the integrator cannot take (a non-separable H with leapfrog) is refused here."""
     model, init = settings.model, settings.initial_state
     values = sum(int(np.sum(obs.mask)) for obs in trajectories)
-    d = _dim(trajectories[0])
-    kind = observation_layout(trajectories[0]).kind
-    num_params = math.comb(d + model.order, model.order) - 1 + num_noise_variances(
-        resolve_noise(model.noise, kind), kind, model.observation_noise, d
-    )
-    num_params += int(model.damping)  # γ
-    num_params += 2 * d * len(trajectories) if init.mode == "learned" else 0
+    layout = observation_layout(trajectories[0])
+    d = layout.dim
+    if model.damping and model.hamiltonian != "separable":
+        raise SettingsError(source, "model.damping", f"is true but model.hamiltonian is "
+                            f"{model.hamiltonian!r}: the friction −γM⁻¹p needs a separable H")
+    try:  # the model itself: its size, and whether the integrator can take its H
+        built = HamiltonianModel(build_family(d, model), model.integrator,
+                                 observation=layout.kind,
+                                 noise=resolve_noise(model.noise, layout.kind),
+                                 observation_noise=model.observation_noise,
+                                 damping=model.damping)
+    except ValueError as err:
+        raise SettingsError(source, "model.integrator", f"({model.integrator!r}): {err}") from None
+    num_params = built.num_params + (2 * d * len(trajectories) if init.mode == "learned" else 0)
     if num_params > values:
-        warnings.warn(
-            f"{source}: the model has {num_params} parameters (order {model.order}) for "
-            f"{values} data values; the priors decide most of the posterior "
-            "(lower model.order, or give more data)",
-            UserWarning,
-            stacklevel=3,
-        )
+        name = family_of(model).name
+        what = f"order {model.order}" if name == "polynomial" else f"{name!r}"
+        warnings.warn(f"{source}: the model has {num_params} parameters ({what}) for {values} "
+                      "data values; the priors decide most of the posterior (a smaller model, "
+                      "or more data)", UserWarning, stacklevel=3)
 
 
 def _dim(obs: Any) -> int:

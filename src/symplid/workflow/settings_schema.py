@@ -8,14 +8,18 @@ loading and the overrides are in :mod:`symplid.workflow.settings`.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Any
 
-from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES
+from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES, family_of
 from symplid.dynamics.integrators import INTEGRATORS
+from symplid.dynamics.neural import ACTIVATIONS
 from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
-from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
+from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec, as_prior
 from symplid.workflow.validate import Spec, setting
 
 __all__ = [
@@ -28,17 +32,28 @@ __all__ = [
     "PriorSettings",
     "SamplerSettings",
     "Settings",
+    "family_prior",
+    "with_family_prior",
 ]
 
 
 # ----------------------------------------------------------------------------- sections
 @dataclass(frozen=True)
 class ModelSettings:
-    """The state-space model of eq. (7) and its unscented filter (Theorem 1)."""
+    """The state-space model of eq. (7) and its unscented filter (Theorem 1).
+
+    ``order`` is read by the polynomial family; ``width``, ``depth``, ``activation`` and
+    ``network_seed`` (the seed of the initial weights) by the ``"mlp"`` family
+    (:class:`~symplid.dynamics.neural.MLPPotential`). A family ignores the others.
+    """
 
     potential: str = setting("polynomial", choices=POTENTIAL_FAMILIES)
     hamiltonian: str = setting("separable", choices=HAMILTONIAN_FAMILIES)
     order: int = setting(3, minimum=1)
+    width: int = setting(32, minimum=1)
+    depth: int = setting(2, minimum=0)
+    activation: str = setting("tanh", choices=ACTIVATIONS)
+    network_seed: int = setting(0, minimum=0)
     integrator: str = setting("leapfrog", choices=INTEGRATORS)
     dt: float = setting(0.25, minimum=0.0, strict=True)
     process_noise_per: str = setting("gap", choices=("gap", "step"))
@@ -108,10 +123,19 @@ class PriorSettings:
 
 @dataclass(frozen=True)
 class MapSettings:
-    """The MAP search: bounded quasi-Newton from several seeded starts."""
+    """The MAP search: bounded quasi-Newton from several seeded starts.
+
+    A neural family (``model.potential = "mlp"``) takes the scalable path instead
+    (:func:`~symplid.inference.neural_fit.find_map_neural`): ``adam_steps`` of Adam with step
+    ``learning_rate``, then ``lbfgs_steps`` of L-BFGS, and the Gauss–Newton Laplace covariance;
+    ``num_starts`` is not used there.
+    """
 
     num_starts: int = setting(4, minimum=1)
     seed: int = setting(0, minimum=0)
+    adam_steps: int = setting(2000, minimum=0)
+    learning_rate: float = setting(0.01, minimum=0.0, strict=True)
+    lbfgs_steps: int = setting(1000, minimum=0)
 
 
 @dataclass(frozen=True)
@@ -120,8 +144,8 @@ class SamplerSettings:
 
     ``num_iterations`` counts every iteration of a chain, ``burn_in`` included; the draws kept
     per chain are ``(num_iterations − burn_in) // thin`` (:attr:`num_draws`).
-    ``variance_scale`` is DRAM's: ``"natural"`` moves the variances as themselves (the
-    paper's), ``"log"`` as log(v) with the Jacobian (no wall at their floor).
+    ``variance_scale`` is DRAM's: ``"log"`` (default) moves the variances as log(v) with the
+    Jacobian (no wall at their floor), ``"natural"`` as themselves (the paper's).
     """
 
     method: str = setting("dram", choices=SAMPLERS)
@@ -130,7 +154,7 @@ class SamplerSettings:
     num_chains: int = setting(4, minimum=1)
     gamma: float = setting(0.01, minimum=0.0, strict=True)
     adapt_start: int = setting(200, minimum=0)
-    variance_scale: str = setting("natural", choices=VARIANCE_SCALES)
+    variance_scale: str = setting("log", choices=VARIANCE_SCALES)
     thin: int = setting(1, minimum=1)
     seed: int = setting(0, minimum=0)
 
@@ -176,6 +200,32 @@ class Settings:
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     prediction: PredictionSettings = field(default_factory=PredictionSettings)
     plots: PlotSettings = field(default_factory=PlotSettings)
+
+
+def family_prior(model: Any) -> Prior:
+    """The default coefficient prior of the family that model settings name.
+
+    The family's :attr:`~symplid.dynamics.families.Family.coefficient_prior` (``"mlp"``:
+    Normal(0, 1) on every weight), else the paper's Laplace(0, 10). A settings file or
+    ``--set`` that gives ``priors.coefficients`` overrides it.
+    """
+    prior = family_of(model).coefficient_prior
+    return as_prior(prior, "coefficient prior") if prior else PriorSettings().coefficients
+
+
+def with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
+    """``priors.coefficients`` left out: the model family's default prior."""
+    priors = data.get("priors", {})
+    model = data.get("model", {})
+    if not isinstance(priors, Mapping) or "coefficients" in priors or not isinstance(
+            model, Mapping):
+        return data
+    names = {k: model[k] for k in ("potential", "hamiltonian") if isinstance(model.get(k), str)}
+    try:
+        prior = family_prior(SimpleNamespace(**names))
+    except (KeyError, ValueError):  # an unknown family: the validator says so, with a suggestion
+        return data
+    return {**data, "priors": {**priors, "coefficients": prior.to_dict()}}
 
 
 #: Renamed keys: old dotted key → new dotted key (the old one is read with a FutureWarning).

@@ -21,8 +21,10 @@ Layout of the result
   chain), ``iterations`` (per chain, burn-in
   included), ``interrupted`` (0/1), ``sampling_seconds``, and the sampler's own (``final_attrs``):
   for DRAM ``dram_adapted_covariance`` (each chain's final running covariance, nested
-  lists); for NUTS ``unconstrained_map_covariance``, ``nuts_step_size`` and
-  ``nuts_inverse_mass_matrix``. All survive ``to_netcdf``.
+  lists, in the coordinates the chain moves in: log(v) for the variances when
+  ``dram_variance_scale`` is ``"log"``, the default); for NUTS
+  ``unconstrained_map_covariance``, ``nuts_step_size`` and ``nuts_inverse_mass_matrix``.
+  All survive ``to_netcdf``.
 
 Starting points
 ---------------
@@ -166,7 +168,7 @@ def sample(
     kernel_settings = _make_settings(method, spec.settings_class, settings)
     chain_method = spec.default_chain_method if chain_method is None else chain_method
     batch_logdensity = cached_or_built(
-        posterior, "batch-log-density", lambda: jax.jit(jax.vmap(posterior.log_density))
+        posterior, "batch-log-density", lambda: _batch_log_density(posterior)
     )
     num_warmup = burn_in if spec.adapts_during_burn_in else 0
     kernel: SamplerKernel = cached_or_built(
@@ -275,6 +277,18 @@ def _make_settings(method: str, cls: type, settings: Any) -> Any:
     raise TypeError(
         f"settings must be None, a dict or a {cls.__name__}, got {type(settings).__name__}"
     )
+
+
+def _batch_log_density(posterior: Any) -> Callable[[jax.Array], jax.Array]:
+    """``θ[n] ↦ log density[n]``, compiled; with the observations as an argument of the
+    program when the posterior offers ``log_density_with`` and ``data`` (the same program for
+    every data set of the same shape, so the persistent compilation cache serves it)."""
+    with_data = getattr(posterior, "log_density_with", None)
+    data = getattr(posterior, "data", None)
+    if with_data is None or data is None:
+        return jax.jit(jax.vmap(posterior.log_density))
+    batched = jax.jit(jax.vmap(with_data, in_axes=(None, 0)))
+    return lambda thetas: batched(data, thetas)
 
 
 def _check_map(init: Any, num_params: int, batch_logdensity: Callable,

@@ -99,10 +99,13 @@ class DRAMSettings:
     delayed_rejection
         Whether to try the second stage at all (``False`` gives plain adaptive Metropolis).
     variance_scale
-        ``"natural"``: the chain moves in θ (the paper's). ``"log"``: the variance parameters
-        (bounded below only) move as w = log(v − a), the target gaining the log-Jacobian
-        Σ w (:func:`~.registry.build_dram`), so a variance whose posterior is piled against
-        its floor is no longer a wall that rejects half the proposals.
+        ``"log"`` (default): the variance parameters (bounded below only) move as
+        w = log(v − a), the target gaining the log-Jacobian Σ w
+        (:func:`~.registry.build_dram`), so a variance whose posterior is piled against its
+        floor is no longer a wall that rejects half the proposals. ``"natural"``: the chain
+        moves in θ itself (the paper's). On the paper's data (4 chains × 12,000 iterations)
+        the log scale raised the smallest ESS from 121 to 263 (leapfrog) and 341 to 468
+        (RK2), R-hat 1.056 → 1.034 and 1.020 → 1.011, with the same process-noise medians.
     """
 
     adapt_start: int = 200
@@ -112,7 +115,7 @@ class DRAMSettings:
     nugget: float = 1e-10
     gamma: float = 0.01
     delayed_rejection: bool = True
-    variance_scale: str = "natural"
+    variance_scale: str = "log"
 
     def __post_init__(self) -> None:
         if self.variance_scale not in VARIANCE_SCALES:

@@ -34,6 +34,7 @@ import numpy as np
 from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
+from symplid.inference.samplers.run import DataStep
 from symplid.model.params import POSITIVE_GROUPS, ParameterSpace, pushforward_covariance
 from symplid.registry import Registry
 
@@ -162,8 +163,32 @@ def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
 
     covariance_at = None if scale is None else (
         lambda theta, cov: pushforward_covariance(scale.to_w, theta, cov))
-    return SamplerKernel(init_states, dram.build_kernel(logdensity_fn, settings), record,
+    return SamplerKernel(init_states, _dram_step(posterior, settings, scale), record,
                          final_attrs, covariance_at)
+
+
+def _dram_step(posterior: Any, settings: DRAMSettings, scale: LogVariances | None) -> Callable:
+    """DRAM's transition (in θ, or in w with the variances on a log scale); one that takes
+    the observations as an argument (:class:`~.run.DataStep`) when the posterior offers
+    ``log_density_with`` and ``data``, so that the compiled chunk is the same program for
+    every data set of the same shape."""
+    with_data = getattr(posterior, "log_density_with", None)
+    data = getattr(posterior, "data", None)
+    if with_data is None or data is None:
+        return dram.build_kernel(
+            posterior.log_density if scale is None else scale.log_density, settings)
+    log_density = jax.jit(with_data)  # a nested program, as posterior.log_density is
+
+    def density(observations, x):
+        if scale is None:
+            return log_density(observations, x)
+        return log_density(observations, scale.to_theta(x)) + scale.log_jacobian(x)
+
+    def step(observations, rng_key, state):
+        kernel = dram.build_kernel(lambda x: density(observations, x), settings)
+        return kernel(rng_key, state)
+
+    return DataStep(step, data)
 
 
 def build_nuts(posterior: Any, settings: NUTSSettings, num_warmup: int,

@@ -21,6 +21,7 @@ A single chain runs unbatched.
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from collections.abc import Callable
@@ -33,7 +34,7 @@ from jax import lax
 
 from symplid.compiled import cached_or_built
 
-__all__ = ["ChainRun", "ChunkReport", "SamplingInterrupted", "run_chains"]
+__all__ = ["ChainRun", "ChunkReport", "DataStep", "SamplingInterrupted", "run_chains"]
 
 StepFn = Callable[[jax.Array, Any], tuple[Any, Any]]
 RecordFn = Callable[[Any, Any], dict[str, jax.Array]]
@@ -92,6 +93,23 @@ class ChainRun(NamedTuple):
     elapsed: float
 
 
+class DataStep:
+    """A step that reads data: ``fn(data, rng_key, state) -> (state, info)``, called as
+    ``step(rng_key, state)``.
+
+    :func:`run_chains` passes ``data`` to the compiled chunk as an argument, so that the
+    chunk's program does not hold the data as constants: the same kernel on another data set
+    of the same shape (another seed of a sweep) is then the same program, which JAX's
+    persistent compilation cache serves instead of compiling again.
+    """
+
+    def __init__(self, fn: Callable[[Any, jax.Array, Any], tuple[Any, Any]], data: Any):
+        self.fn, self.data = fn, data
+
+    def __call__(self, rng_key: jax.Array, state: Any) -> tuple[Any, Any]:
+        return self.fn(self.data, rng_key, state)
+
+
 def _over_chains(fn: Callable, batched: bool) -> Callable:
     """Apply a one-chain function to chains stacked on a leading axis.
 
@@ -122,13 +140,17 @@ def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool
     of length 1).
     """
 
-    def one_chain(key, state, t):
-        new_state, info = step(jax.random.fold_in(key, t), state)
-        return new_state, record(new_state, info)
+    reads = isinstance(step, DataStep)
+    data = step.data if reads else None
 
-    advance = _over_chains(one_chain, batched)
+    def chunk(states, chain_keys, start, num_active, data):
+        def one_chain(key, state, t):
+            key = jax.random.fold_in(key, t)
+            new_state, info = step.fn(data, key, state) if reads else step(key, state)
+            return new_state, record(new_state, info)
 
-    def chunk(states, chain_keys, start, num_active):
+        advance = _over_chains(one_chain, batched)
+
         def body(carry, i):
             t = jnp.broadcast_to(start + i, chain_keys.shape[:1])
             new, records = advance(chain_keys, carry, t)
@@ -141,7 +163,7 @@ def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool
 
         return lax.scan(body, states, jnp.arange(chunk_len))
 
-    return jax.jit(chunk)
+    return functools.partial(jax.jit(chunk), data=data)
 
 
 def _chunk_runner(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,

@@ -1,0 +1,258 @@
+"""The README's paper-claims section, generated from ``claims.json`` (no number typed by hand).
+
+:func:`readme_block` turns the study's ``claims.json`` content into Markdown; every number in
+it is a value of that content passed through one of the formatters below (tested).
+:func:`update_readme` replaces the text between :data:`BEGIN` and :data:`END` in a README
+(the markers stay) and copies the study's figures beside it, so the block's images resolve::
+
+    symplid study paper-claims --out runs/claims --update-readme README.md
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from symplid.experiments.paper_study_report import calibration_answer
+
+__all__ = ["BEGIN", "END", "FIGURES_DIR", "readme_block", "update_readme"]
+
+BEGIN = "<!-- claims:begin -->"
+END = "<!-- claims:end -->"
+#: Where the figures go, relative to the README.
+FIGURES_DIR = "docs/figures/claims"
+_FIGURE_TITLES = {
+    "hamiltonian": "H error: fractions and paired differences",
+    "process_noise": "Process-noise ratio",
+    "prediction": "Prediction-horizon ratio",
+    "calibration_coverage": "Coverage of the posterior intervals",
+    "calibration_ranks": "Rank histograms of the truth",
+}
+
+
+# ----------------------------------------------------------------------------- formatters
+def pct(x: float | None) -> str:
+    """A fraction as a whole percentage."""
+    return "–" if x is None else f"{100 * x:.0f} %"
+
+
+def num(x: float | None) -> str:
+    """Three significant digits."""
+    if x is None or not math.isfinite(x):
+        return "–"
+    return f"{x:.3g}"
+
+
+def whole(x: float | None) -> str:
+    """A count or a duration in whole units, with thousands separators."""
+    return "–" if x is None else f"{x:,.0f}"
+
+
+FORMATTERS = (pct, num, whole)
+
+
+# ----------------------------------------------------------------------------- the block
+def readme_block(claims: Mapping[str, Any], figures: str | None = FIGURES_DIR) -> str:
+    """The Markdown between the markers, from ``claims.json``'s content."""
+    study = claims["study"]
+    level = pct(claims["level"])
+    lines = [
+        "<!-- generated from claims.json by `symplid study paper-claims --update-readme`; "
+        "edits here are overwritten -->",
+        "",
+        *_setup(study),
+        "",
+        f"| claim | variant | holds in | {level} interval | verdict | median paired effect "
+        f"({level} interval) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, claim in claims["claims"].items():
+        for e in claim["per_variant"]:
+            eff = e["effect"]
+            lines.append(
+                f"| {_SHORT[name]} | {e['variant']} | {e['holds']} / {e['n']} | "
+                f"{pct(_lo(e['fraction_ci']))} – {pct(_hi(e['fraction_ci']))} | "
+                f"{e['verdict']} | {num(eff['median'])} ({num(eff['lo'])} – {num(eff['hi'])}) |"
+            )
+    lines += ["", *_effects(claims), "", *_not_holding(claims), "", *_calibration(claims)]
+    if figures and study.get("figures"):
+        lines += [""] + [
+            f"![{_FIGURE_TITLES.get(k, k)}]({figures}/{Path(p).name})"
+            for k, p in study["figures"].items()
+        ]
+    return "\n".join(lines)
+
+
+_SHORT = {
+    "hamiltonian": "H closer to the truth",
+    "process_noise": "process noise smaller",
+    "prediction": "longer valid prediction",
+}
+
+
+def _lo(ci: Any) -> float | None:
+    return None if ci is None else ci[0]
+
+
+def _hi(ci: Any) -> float | None:
+    return None if ci is None else ci[1]
+
+
+def _setup(study: Mapping[str, Any]) -> list[str]:
+    b = study["budget"]
+    names = ", ".join(v["name"] for v in study["variants"])
+    return [
+        f"**Measured** with budget *{study['budget_name']}* ({whole(b['num_chains'])} DRAM "
+        f"chains × {whole(b['num_iterations'])} iterations, {whole(b['burn_in'])} burn-in, "
+        f"{whole(b['num_starts'])} MAP starts per cell) over {whole(study['seeds'])} data "
+        f"seeds; variants: {names}. {whole(study['cells'])} cells, "
+        f"{whole(study['cells_failed'])} failed, {whole(study['cell_seconds_total'])} s of "
+        "compute in all."
+        + _last_run(study)
+        + _estimate(study)
+        + _caveat(study)
+    ]
+
+
+def _last_run(study: Mapping[str, Any]) -> str:
+    runs = study.get("runs") or []
+    if not runs:
+        return ""
+    r = runs[-1]
+    where = f" on {whole(r['workers'])} worker(s)" if r.get("workers") else (
+        " on a Dask cluster" if r.get("scheduler") else " on a local cluster")
+    speed = f", a speed-up of {num(r['speedup'])}×" if r.get("speedup") else ""
+    return (f" The last call that ran cells ran {whole(r['cells_run'])} in "
+            f"{whole(r['wall_time_s'])} s{where} ({whole(r['cell_seconds'])} s of cell time"
+            f"{speed}).")
+
+
+def _estimate(study: Mapping[str, Any]) -> str:
+    est = study.get("estimate_paper_budget") or {}
+    one, two = est.get("1_workers"), est.get("2_workers")
+    if not one or not two:
+        return ""
+    return (f" At the paper's budget these cells are estimated at {whole(one['core_s'])} s "
+            f"on one core: {whole(one['wall_s'])} s with one worker, {whole(two['wall_s'])} s "
+            "with two (from the measured seconds per iteration of each propagator).")
+
+
+def _caveat(study: Mapping[str, Any]) -> str:
+    if study["budget_name"] == "paper":
+        return ""
+    return (" **This budget is smaller than the paper's**: the chains are short, so the "
+            "posterior quantities (process noise, intervals, ranks) are rough; the numbers "
+            "exercise the study, they do not replace the run at the paper's budget.")
+
+
+def _effects(claims: Mapping[str, Any]) -> list[str]:
+    out = ["Paired effects (one number per seed, from the two fits of the same data): "]
+    parts = [f"*{_SHORT[n]}*: {c['effect_label']}" for n, c in claims["claims"].items()]
+    out[0] += "; ".join(parts) + (
+        f". The process-noise claim holds for a seed at a ratio ≥ "
+        f"{num(claims['ratio_threshold'])}; a verdict is *holds* (*fails*) when the Wilson "
+        f"interval of the fraction lies above (below) {pct(claims['verdict_split'])}."
+    )
+    return out
+
+
+def _not_holding(claims: Mapping[str, Any]) -> list[str]:
+    bad = [
+        (name, e) for name, c in claims["claims"].items() for e in c["per_variant"]
+        if e["verdict"] != "holds"
+    ]
+    if not bad:
+        return ["Every claim holds in every variant measured."]
+    out = ["**Where a claim does not hold** (verdict *mixed* or *fails*):", ""]
+    for name, e in bad:
+        out.append(
+            f"- {_SHORT[name]}, {e['variant']}: {e['holds']} / {e['n']} seeds "
+            f"({pct(e['fraction'])}), {e['verdict']}."
+        )
+    return out
+
+
+def _calibration(claims: Mapping[str, Any]) -> list[str]:
+    ans = calibration_answer(claims)
+    level = pct(claims["level"])
+    groups = [(k, g) for k, g in ans.items() if g is not None]
+    if not groups:
+        return []
+    names = list(groups[0][1]["params"])
+    out = [
+        f"**Calibration**: how often each parameter's central {level} posterior interval "
+        f"contains the truth (Wilson {level} interval), per propagator.",
+        "",
+        "| parameter | " + " | ".join(g["label"] for _, g in groups) + " |",
+        "|---|" + "---|" * len(groups),
+    ]
+    for name in names:
+        row = []
+        for _, g in groups:
+            p = g["params"].get(name)
+            row.append("–" if not p or not p["n"] else
+                       f"{pct(p['coverage'])} ({pct(_lo(p['coverage_ci']))} – "
+                       f"{pct(_hi(p['coverage_ci']))})")
+        out.append(f"| {name} | " + " | ".join(row) + " |")
+    out.append("")
+    for _, g in groups:
+        state = ("nominal coverage" if g["nominal"] else "below nominal coverage"
+                 if g["below_nominal"] else "above nominal coverage")
+        below = ", ".join(g["below_nominal"]) or "none"
+        out.append(f"- {g['label']}: {state}; lowest coverage {pct(g['min_coverage'])}; "
+                   f"intervals entirely below {level}: {below}.")
+    out += ["", _restores(ans)]
+    return out
+
+
+def _restores(ans: Mapping[str, Any]) -> str:
+    """The answer to "does yoshida4 or a smaller dt restore nominal coverage?"."""
+    def said(key: str, what: str) -> str:
+        g = ans[key]
+        if g is None:
+            return f"{what} was not run"
+        return f"{what} {'gives' if g['nominal'] else 'does not give'} nominal coverage"
+
+    base = ans["baseline"]
+    head = ("Leapfrog at the paper's setting " + ("is" if base and base["nominal"] else
+            "is not") + " nominally calibrated; ") if base else ""
+    return (f"{head}{said('yoshida4', 'yoshida4')} and {said('smaller_dt', 'leapfrog at dt=0.1')}"
+            " (nominal: every parameter's Wilson interval of the coverage contains the level).")
+
+
+# ----------------------------------------------------------------------------- the README
+def update_readme(
+    readme: str | os.PathLike,
+    claims: Mapping[str, Any],
+    study_dir: str | os.PathLike | None = None,
+) -> str:
+    """Rewrite the block between :data:`BEGIN` and :data:`END` of ``readme``; returns it.
+
+    With ``study_dir``, the figures named in ``claims["study"]["figures"]`` are copied from it
+    into :data:`FIGURES_DIR` beside the README.
+
+    Raises
+    ------
+    ValueError
+        The README lacks the markers (or has them out of order).
+    """
+    path = Path(readme)
+    text = path.read_text(encoding="utf-8")
+    start, end = text.find(BEGIN), text.find(END)
+    if start < 0 or end < start:
+        raise ValueError(f"{path}: no '{BEGIN}' ... '{END}' block to rewrite")
+    block = readme_block(claims)
+    new = text[: start + len(BEGIN)] + "\n" + block + "\n" + text[end:]
+    if study_dir is not None:
+        target = path.parent / FIGURES_DIR
+        target.mkdir(parents=True, exist_ok=True)
+        for rel in claims["study"].get("figures", {}).values():
+            shutil.copyfile(Path(study_dir) / rel, target / Path(rel).name)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(new, encoding="utf-8")
+    os.replace(tmp, path)
+    return block

@@ -1,0 +1,157 @@
+"""Calibration of the paper's posterior: does its 95 % interval contain the truth as often?
+
+Cell side (:func:`cell_calibration`, called by the paper's ``run_cell``): for every parameter
+with a known true value, the posterior's central 95 % interval (2.5 % and 97.5 % quantiles of
+all kept draws), whether it contains the truth, and the rank of the truth among
+:data:`~.claims_stats.RANK_DRAWS` evenly thinned draws.
+
+Table side (:func:`evaluate_calibration`): over the seeds of one setting and propagator, the
+coverage of each parameter's interval with a Wilson interval, and a χ² test that the ranks are
+uniform (they are, whatever the data, when the posterior is calibrated — simulation-based
+calibration). A setting *restores nominal coverage* when 95 % lies inside every parameter's
+Wilson interval.
+
+True values. The coefficients are the system's (Hénon–Heiles, eq. 20 of the paper, in this
+library's sign convention: those of U). The observation-noise variance is σ². The data are
+simulated without process noise, so the true process-noise variance, 0, is on the boundary of
+its support: no central interval can contain it, and it is left out (``process_var``'s
+quantiles are kept in the cell records for reference).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from symplid.experiments.claims_stats import (
+    LEVEL,
+    RANK_DRAWS,
+    rank_uniformity,
+    truth_rank,
+    wilson_interval,
+)
+
+__all__ = ["BOUNDARY_PARAMS", "cell_calibration", "evaluate_calibration", "true_values"]
+
+#: Parameters whose true value (0) lies on the boundary of their support: not calibrated.
+BOUNDARY_PARAMS = ("process_var",)
+_PREFIX = "calibration."
+
+
+def cell_calibration(
+    param_names: Sequence[str],
+    draws: np.ndarray,
+    truth: Mapping[str, float],
+    num_draws: int = RANK_DRAWS,
+) -> dict[str, Any]:
+    """The calibration record of one fit.
+
+    Parameters
+    ----------
+    param_names
+        The posterior's parameter names, in the order of the last axis of ``draws``.
+    draws
+        The kept draws, ``(chain, draw, param)``.
+    truth
+        The true value of each parameter that has one (others are skipped).
+    num_draws
+        How many evenly thinned draws the truth is ranked among.
+
+    Returns
+    -------
+    dict
+        ``{name: {"truth", "q025", "q975", "covered", "rank"}}`` for the named parameters, plus
+        ``{"process_var": {"q025", "q975"}}`` when present, and ``"rank_draws": num_draws``.
+    """
+    d = np.asarray(draws, dtype=float)
+    out: dict[str, Any] = {}
+    for i, name in enumerate(param_names):
+        values = d[..., i]
+        lo, hi = np.quantile(values, [(1 - LEVEL) / 2, (1 + LEVEL) / 2])
+        if name in truth:
+            t = float(truth[name])
+            out[name] = {
+                "truth": t,
+                "q025": float(lo),
+                "q975": float(hi),
+                "covered": bool(lo <= t <= hi),
+                "rank": truth_rank(values, t, num_draws),
+            }
+        elif name in BOUNDARY_PARAMS:
+            out[name] = {"q025": float(lo), "q975": float(hi)}
+    out["rank_draws"] = int(num_draws)
+    return out
+
+
+def true_values(system: Any, model: Any, noise_std: float) -> dict[str, float]:
+    """The true value of each parameter of ``model`` that has one, for data of ``system``.
+
+    The coefficients are the system's, mapped by term onto the model's potential (a term the
+    system lacks is 0); the observation-noise variance is ``noise_std``² (isotropic noise).
+    """
+    terms = dict(zip(system.potential.param_names, system.coefficients, strict=True))
+    coefficients = model.potential.coefficients_from(terms)
+    truth = dict(zip(model.potential.param_names, map(float, coefficients), strict=True))
+    if "obs_var" in model.param_names:
+        truth["obs_var"] = float(noise_std) ** 2
+    return truth
+
+
+def calibrated_params(table: Any) -> list[str]:
+    """The parameters with calibration columns in a results table, in column order."""
+    names = []
+    for col in table.columns:
+        if col.startswith(_PREFIX) and col.endswith(".rank"):
+            names.append(col[len(_PREFIX) : -len(".rank")])
+    return names
+
+
+def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
+    """Coverage and rank uniformity over the ok rows of one setting and propagator.
+
+    ``rows``: a results table with the ``calibration.<param>.covered`` and ``.rank`` columns
+    of :func:`cell_calibration` (flattened by the sweep). Rows without them (cells run before
+    calibration was recorded) are counted as ``missing``.
+    """
+    import pandas as pd
+
+    ok = rows[rows["status"] == "ok"] if "status" in rows else rows
+    num_draws = RANK_DRAWS
+    if f"{_PREFIX}rank_draws" in ok and ok[f"{_PREFIX}rank_draws"].notna().any():
+        num_draws = int(ok[f"{_PREFIX}rank_draws"].dropna().iloc[0])
+    params: dict[str, Any] = {}
+    for name in calibrated_params(ok):
+        covered = ok[f"{_PREFIX}{name}.covered"]
+        have = covered.notna().to_numpy()
+        k = int(sum(bool(v) for v in covered[have]))
+        n = int(have.sum())
+        ci = wilson_interval(k, n)
+        ranks = pd.to_numeric(ok[f"{_PREFIX}{name}.rank"], errors="coerce").dropna()
+        uniform = rank_uniformity(ranks.to_numpy(), num_draws)
+        params[name] = {
+            "n": n,
+            "covered": k,
+            "coverage": k / n if n else None,
+            "coverage_ci": list(ci) if ci else None,
+            "nominal_inside": None if ci is None else bool(ci[0] <= LEVEL <= ci[1]),
+            "below_nominal": ci is not None and ci[1] < LEVEL,
+            "rank_counts": uniform["counts"],
+            "rank_bins": uniform["bins"],
+            "rank_chi2": uniform["chi2"],
+            "rank_p_value": uniform["p_value"],
+            "ranks": [int(r) for r in ranks],
+        }
+    judged = [p for p in params.values() if p["nominal_inside"] is not None]
+    return {
+        "label": label,
+        "cells": len(ok),
+        "missing": len(ok) - min((p["n"] for p in params.values()), default=0),
+        "rank_draws": num_draws,
+        "level": LEVEL,
+        "params": params,
+        "below_nominal": [n for n, p in params.items() if p["below_nominal"]],
+        "nominal": bool(judged) and all(p["nominal_inside"] for p in judged),
+        "min_coverage": min((p["coverage"] for p in judged), default=None),
+    }
