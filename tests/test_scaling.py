@@ -150,7 +150,7 @@ def test_fit_writes_the_run_in_the_data_units(well, tmp_path):
     assert theta["c[q1^2]"] == pytest.approx(-0.5, abs=0.06)
     assert theta["c[q1^4]"] * SCALE**2 == pytest.approx(0.25, abs=0.03)
     assert 0.2 < theta["obs_var[q]"] / (0.05 * SCALE) ** 2 < 5
-    draws = outcome.idata.posterior["q1^4"].values * SCALE**2
+    draws = outcome.idata.posterior["c[q1^4]"].values * SCALE**2
     assert np.median(draws) == pytest.approx(0.25, abs=0.04)
     scale = outcome.summary["standardised_scale"]
     assert scale == pytest.approx(position_scale(big)) == outcome.idata.attrs["standardised_scale"]
