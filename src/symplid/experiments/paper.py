@@ -29,6 +29,7 @@ from symplid.dynamics.systems import get_system
 from symplid.experiments.paper_calibration import cell_calibration, true_values
 from symplid.experiments.paper_cells import (
     CELL_KEYS,
+    PAPER_MAP,
     PAPER_MODEL,
     PAPER_SAMPLER,
     SWEEP_METRICS,
@@ -125,6 +126,7 @@ def paper_settings(config: PaperConfig, approach: str) -> Settings:
             "model.dt": config.dt,
             **{f"model.{key}": value for key, value in PAPER_MODEL.items()},
             **{f"sampler.{key}": value for key, value in PAPER_SAMPLER.items()},
+            **{f"map.{key}": value for key, value in PAPER_MAP.items()},
             "initial_state.x0": [float(v) for v in system.initial_state],
             "map.num_starts": config.num_starts,
             "sampler.num_iterations": config.iterations,

@@ -111,7 +111,7 @@ def find_map_for(settings: Settings, posterior) -> Any:
 
     m = settings.map
     if not family_of(settings.model).neural:
-        return find_map(posterior, seed=m.seed, num_starts=m.num_starts)
+        return find_map(posterior, seed=m.seed, num_starts=m.num_starts, evidence=m.evidence)
     from symplid.inference.neural_fit import find_map_neural
 
     start = time.perf_counter()
