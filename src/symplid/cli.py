@@ -172,9 +172,9 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
 @click.option(
     "--observation",
     type=click.Choice(["full", "positions"]),
-    default="full",
-    show_default=True,
-    help="Observe the full state, or the positions only.",
+    default=None,
+    help="Observe the full state, or the positions only [default: the system's; the "
+    "double pendulum's angles, the full state otherwise].",
 )
 @click.option("--x0", type=str, default=None, help="Initial state q1..qd,p1..pd (comma-separated).")
 @click.option(

@@ -65,8 +65,8 @@ def simulate(
     seed: int = 0,
     x0=None,
     dt: float = 1e-3,
-    observation: str = "full",
-    integrator: str = "leapfrog",
+    observation: str | None = None,
+    integrator: str | None = None,
 ) -> Observations:
     """Noisy observations of a named system.
 
@@ -85,7 +85,10 @@ def simulate(
     dt
         Step of the fine "truth" integration.
     observation
-        ``"full"`` or ``"positions"``.
+        ``"full"`` or ``"positions"`` (default: the system's; ``"positions"`` for the double
+        pendulum, ``"full"`` otherwise).
+    integrator
+        The truth's integrator (default: the system's; leapfrog for a separable H).
     """
     if isinstance(system, str):
         system = get_system(system)
@@ -95,8 +98,10 @@ def simulate(
     if noise_std < 0:
         raise ValueError("noise_std must be ≥ 0")
     x0 = system.initial_state if x0 is None else np.asarray(x0, dtype=float)
+    observation = system.observation if observation is None else observation
     if observation not in ("full", "positions"):
         raise ValueError("observation must be 'full' or 'positions'")
+    integrator = system.truth_integrator if integrator is None else integrator
     states = true_trajectory(system.potential, system.coefficients, x0, times, dt, integrator)
     clean = states if observation == "full" else states[:, : system.dim]
     noise = np.asarray(jax.random.normal(jax.random.key(seed), clean.shape, dtype=jnp.float64))

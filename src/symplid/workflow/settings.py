@@ -12,6 +12,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES
     order = 3                     # polynomial potential of total degree ≤ 3 (eqs 17–18)
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
+    binding = 0.0                 # Tao's ω for "tao"/"tao4" (non-separable H); 0: ω = 1/dt
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
     process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep)
     noise = "isotropic"           # Σ = θ_Σ I, Γ = θ_Γ I ("diagonal": one variance per component)
@@ -109,6 +110,7 @@ from symplid.workflow.settings_schema import (
     PriorSettings,
     SamplerSettings,
     Settings,
+    check_model_family,
 )
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
@@ -505,11 +507,12 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         )
     if model.mass and len(model.mass) != d:
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
-    _check_data(obs, settings, source)
+    num_coefficients = check_model_family(settings, d, source)
+    _check_data(obs, settings, source, num_coefficients)
     return dataclasses.replace(settings, model=dataclasses.replace(model, observation=observation))
 
 
-def _check_data(obs: Any, settings: Settings, source: str) -> None:
+def _check_data(obs: Any, settings: Settings, source: str, num_coefficients: int) -> None:
     """What a data set must offer the model of ``settings`` (see :func:`resolve_for_data`)."""
     init, model = settings.initial_state, settings.model
     times = np.asarray(obs.times, dtype=float)
@@ -547,7 +550,7 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
         )
     values = int(np.sum(obs.mask))
     d = _dim(obs)
-    num_params = math.comb(d + model.order, model.order) - 1 + 2
+    num_params = num_coefficients + 2
     num_params += 2 * d if init.mode == "learned" else 0
     if num_params > values:
         warnings.warn(
