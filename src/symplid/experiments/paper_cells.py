@@ -112,8 +112,9 @@ def known_initial_state(cell: Mapping[str, Any]) -> dict[str, Any]:
 def cell_data(cell: Mapping[str, Any]) -> tuple[System, Observations]:
     """The system and the simulated data of a cell.
 
-    Full-state observations at ``obs_interval``, 2·``obs_interval``, …, ``num_obs``·
-    ``obs_interval`` with noise ``noise_std``, drawn with ``seed`` (see :func:`~.simulate`).
+    Observations of the system's kind (the full state; the angles of the double pendulum) at
+    ``obs_interval``, 2·``obs_interval``, …, ``num_obs``·``obs_interval`` with noise
+    ``noise_std``, drawn with ``seed`` (see :func:`~.simulate`).
     """
     system = get_system(cell.get("system", CELL_KEYS["system"].default))
     interval = float(cell.get("obs_interval", system.obs_interval))

@@ -46,6 +46,7 @@ def build_model(settings: Settings, obs: Observations | list[Observations]) -> H
     return HamiltonianModel(
         build_family(layout.dim, m),
         integrator=m.integrator,
+        binding=m.binding or None,
         dt=m.dt,
         observation=observation,
         process_noise_per=m.process_noise_per,
