@@ -91,13 +91,14 @@ def test_parameter_count_warning_counts_the_built_model(hh_data):
         return [str(w.message) for w in caught if "parameters" in str(w.message)]
 
     values = int(np.sum(hh_data.mask))  # 20 times × 4 components
-    small = mlp_settings(width=8, depth=1)  # 8·2 + 8 + 8 weights + 2 variances = 34
-    assert values > 34 and count_warning(small) == []
-    big = mlp_settings(width=32, depth=1)  # 32·2 + 32 + 32 + 2 = 130
-    assert values < 130
+    # q and p columns: model.noise = "auto" gives one process and two observation variances
+    small = mlp_settings(width=8, depth=1)  # 8·2 + 8 + 8 weights + 3 variances = 35
+    assert values > 35 and count_warning(small) == []
+    big = mlp_settings(width=32, depth=1)  # 32·2 + 32 + 32 + 3 = 131
+    assert values < 131
     (message,) = count_warning(big)
-    assert f"130 parameters ('mlp') for {values} data values" in message
-    assert count_warning(Settings(initial_state=small.initial_state)) == []  # 9 + 2
+    assert f"131 parameters ('mlp') for {values} data values" in message
+    assert count_warning(Settings(initial_state=small.initial_state)) == []  # 9 + 3
 
 
 def test_a_non_separable_network_needs_a_non_separable_propagator(hh_data):

@@ -394,7 +394,7 @@ def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     claims = evaluate_claims(table, select_variants("none"))
     assert all(c["per_variant"][0]["n"] == 1 for c in claims["claims"].values())
     # calibration: the truth's rank among 99 thinned draws, σ² as the true noise variance
-    assert table["calibration.q1^2.rank"].between(0, 99).all()
+    assert table["calibration.c[q1^2].rank"].between(0, 99).all()
     np.testing.assert_allclose(table["calibration.obs_var.truth"], 0.05**2)
     inside = (table["calibration.q2^3.q025"] <= -1 / 3) & (table[
         "calibration.q2^3.q975"] >= -1 / 3)

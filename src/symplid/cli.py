@@ -182,9 +182,9 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
 @click.option(
     "--observation",
     type=click.Choice(["full", "positions"]),
-    default="full",
-    show_default=True,
-    help="Observe the full state, or the positions only.",
+    default=None,
+    help="Observe the full state, or the positions only [default: the system's; the "
+    "double pendulum's angles, the full state otherwise].",
 )
 @click.option("--observation-noise", type=LazyChoice(noise_model_names), default="additive",
               show_default=True, help="Observation noise (multiplicative: y = h(x)(1 + ε)).")

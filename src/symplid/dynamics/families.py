@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from symplid.dynamics.hamiltonians import DoublePendulum, PolynomialHamiltonian
 from symplid.dynamics.potentials import Polynomial
 from symplid.registry import Registry
 
@@ -90,6 +91,32 @@ POTENTIAL_FAMILIES.register(
 HAMILTONIAN_FAMILIES.register(
     SEPARABLE,
     Family(SEPARABLE, lambda dim, options: None, "H = ½pᵀM⁻¹p + U(q), U from model.potential"),
+)
+
+
+
+def _double_pendulum(dim: int, options: Any) -> DoublePendulum:
+    if dim != 2:
+        raise ValueError(f"the double pendulum has 2 angles; the data's system has {dim} "
+                         "coordinates")
+    return DoublePendulum()
+
+
+HAMILTONIAN_FAMILIES.register(
+    "double-pendulum",
+    Family(
+        "double-pendulum",
+        _double_pendulum,
+        "planar double pendulum, θ = (log m1/m2, log l1/l2, log (g/l2)/9.81): what angles identify",
+    ),
+)
+HAMILTONIAN_FAMILIES.register(
+    "polynomial-qp",
+    Family(
+        "polynomial-qp",
+        lambda dim, options: PolynomialHamiltonian(dim, options.order),
+        "H(q, p) = Σ c_α (q, p)^α over the monomials of degree 1..order in q and p together",
+    ),
 )
 
 

@@ -288,6 +288,10 @@ class PositionDependentMass(_Autodiff):
         return 0.5 * jnp.sum(w * w) + jnp.asarray(self.potential_fn(q, params)).reshape(())
 
 
+#: Standard gravity (m/s²): the reference of the double pendulum's third parameter.
+STANDARD_GRAVITY = 9.81
+
+
 @dataclass(frozen=True, eq=False)
 class DoublePendulum(_Autodiff):
     """The planar double pendulum, angles q = (φ1, φ2) from the downward vertical.
@@ -305,8 +309,11 @@ class DoublePendulum(_Autodiff):
             − (1+μ)γλ cos φ1 − γ cos φ2,     Δ = φ1 − φ2,
 
     the position-dependent mass H = ½pᵀM(q)⁻¹p + U(q) with M = [[(1+μ)λ², λ cos Δ],
-    [λ cos Δ, 1]]. The parameters are the logarithms ``(log μ, log λ, log γ)`` so that every
-    real θ is a physical pendulum and the default coefficient prior applies unchanged.
+    [λ cos Δ, 1]]. The parameters are logarithms, θ = (log μ, log λ, log(γ/g₀)) with
+    g₀ = 9.81 m/s² (:data:`STANDARD_GRAVITY`): every real θ is a physical pendulum, and θ = 0
+    is the reference one (equal masses, equal rods of 1 m, standard gravity), so the default
+    coefficient prior (centred on 0) and the MAP's default start apply unchanged. Gradients are
+    in closed form (the generic :class:`PositionDependentMass` gives the same H by autodiff).
     """
 
     dim: int = field(default=2, init=False)
@@ -314,33 +321,58 @@ class DoublePendulum(_Autodiff):
 
     @property
     def param_names(self) -> tuple[str, ...]:
-        return ("log_mass_ratio", "log_length_ratio", "log_gravity")
+        return ("log_mass_ratio", "log_length_ratio", "log_gravity_per_length")
 
     @staticmethod
     def params_from(m1: float, m2: float, l1: float, l2: float, g: float) -> np.ndarray:
-        """θ = (log m1/m2, log l1/l2, log g/l2) of a physical pendulum."""
+        """θ = (log m1/m2, log l1/l2, log (g/l2)/g₀) of a physical pendulum."""
         values = (m1, m2, l1, l2, g)
         if not all(math.isfinite(v) and v > 0 for v in values):
             raise ValueError(f"masses, lengths and g must be positive, got {values}")
-        return np.log([m1 / m2, l1 / l2, g / l2])
+        return np.log([m1 / m2, l1 / l2, g / l2 / STANDARD_GRAVITY])
 
     @staticmethod
-    def momenta(q: Array, velocity: Array, params: Array) -> Array:
+    def ratios(params: Array) -> tuple[Array, Array, Array]:
+        """(μ, λ, γ) = (m1/m2, l1/l2, g/l2) from θ."""
+        params = jnp.asarray(params, dtype=float)
+        return (jnp.exp(params[0]), jnp.exp(params[1]),
+                STANDARD_GRAVITY * jnp.exp(params[2]))
+
+    @classmethod
+    def momenta(cls, q: Array, velocity: Array, params: Array) -> Array:
         """p = M(q)φ̇: the momenta (in the units of H) of the angular velocities φ̇."""
-        mu, lam, _ = jnp.exp(jnp.asarray(params, dtype=float))
+        mu, lam, _ = cls.ratios(params)
         c = jnp.cos(q[0] - q[1])
         return jnp.stack([(1 + mu) * lam**2 * velocity[0] + lam * c * velocity[1],
                           lam * c * velocity[0] + velocity[1]])
 
     def _point(self, q: Array, p: Array, params: Array) -> Array:
-        mu, lam, gamma = jnp.exp(params[0]), jnp.exp(params[1]), jnp.exp(params[2])
-        delta = q[0] - q[1]
-        c = jnp.cos(delta)
-        s = jnp.sin(delta)
+        mu, lam, gamma = self.ratios(params)
+        c, s = jnp.cos(q[0] - q[1]), jnp.sin(q[0] - q[1])
         kinetic = (p[0] ** 2 - 2 * lam * c * p[0] * p[1] + (1 + mu) * lam**2 * p[1] ** 2) / (
             2 * lam**2 * (mu + s * s)
         )
         return kinetic - (1 + mu) * gamma * lam * jnp.cos(q[0]) - gamma * jnp.cos(q[1])
+
+    def grad_q(self, q: Array, p: Array, params: Array) -> Array:
+        """∂H/∂q in closed form; ``q``, ``p`` of shape ``(2,)`` or ``(2, ...)``."""
+        q, p, params = self._checked(q, p, params)
+        mu, lam, gamma = self.ratios(params)
+        c, s = jnp.cos(q[0] - q[1]), jnp.sin(q[0] - q[1])
+        den = mu + s * s
+        num = p[0] ** 2 - 2 * lam * c * p[0] * p[1] + (1 + mu) * lam**2 * p[1] ** 2
+        dk = s * (lam * p[0] * p[1] * den - num * c) / (lam**2 * den * den)  # ∂K/∂Δ
+        return jnp.stack([dk + (1 + mu) * gamma * lam * jnp.sin(q[0]),
+                          -dk + gamma * jnp.sin(q[1])])
+
+    def grad_p(self, q: Array, p: Array, params: Array) -> Array:
+        """∂H/∂p = M(q)⁻¹p in closed form."""
+        q, p, params = self._checked(q, p, params)
+        mu, lam, _ = self.ratios(params)
+        c, s = jnp.cos(q[0] - q[1]), jnp.sin(q[0] - q[1])
+        den = mu + s * s
+        return jnp.stack([(p[0] - lam * c * p[1]) / (lam**2 * den),
+                          ((1 + mu) * lam * p[1] - c * p[0]) / (lam * den)])
 
 
 @dataclass(frozen=True, eq=False)

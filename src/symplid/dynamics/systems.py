@@ -4,7 +4,9 @@ Each :class:`System` carries a potential (a :class:`~symplid.dynamics.potentials
 or a :class:`~.potentials.FunctionPotential` for a system that no polynomial describes exactly)
 and its true coefficients in the library's convention (coefficients of **U**, basis order of
 DESIGN.md), a true damping rate γ (0 for a conservative system), plus a default initial state
-and observation schedule.
+and observation schedule. A non-separable system carries a whole Hamiltonian
+(:mod:`symplid.dynamics.hamiltonians`) and its true parameters instead, with an integrator for
+its fine "truth" that accepts it.
 
 To add a system, register a factory in :data:`SYSTEMS` (``SYSTEMS.register(name, factory)``).
 """
@@ -19,17 +21,24 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.dynamics.hamiltonians import DoublePendulum, Hamiltonian
 from symplid.dynamics.potentials import FunctionPotential, Polynomial, Potential
 from symplid.registry import Registry
 
 
 @dataclass(frozen=True)
 class System:
-    """A reference Hamiltonian system H = ½|p|² + U(q), damped by −γp when ``damping`` > 0
-    (:mod:`symplid.dynamics.damping`)."""
+    """A reference Hamiltonian system: H = ½|p|² + U(q), or a whole H.
+
+    ``potential`` is the U (a polynomial, or a function that no polynomial describes exactly)
+    or the Hamiltonian, and ``coefficients`` its true parameters; ``damping`` is a true damping
+    rate γ of the friction −γp (:mod:`symplid.dynamics.damping`; 0 for a conservative system);
+    ``truth_integrator`` integrates the fine truth (leapfrog for a separable H), and
+    ``observation`` is what :func:`~symplid.model.simulate.simulate` observes by default.
+    """
 
     name: str
-    potential: Potential
+    potential: Potential | Hamiltonian
     coefficients: np.ndarray
     initial_state: np.ndarray
     description: str
@@ -37,6 +46,8 @@ class System:
     num_obs: int = 20
     noise_std: float = 0.05
     damping: float = 0.0
+    truth_integrator: str = "leapfrog"
+    observation: str = "full"
 
     @property
     def dim(self) -> int:
@@ -164,6 +175,34 @@ def damped_pendulum(omega2: float = 1.0, gamma: float = 0.1) -> System:
     )
 
 
+def double_pendulum(
+    m1: float = 1.5, m2: float = 1.0, l1: float = 1.2, l2: float = 0.9, g: float = 9.81
+) -> System:
+    """The planar double pendulum (:class:`~.hamiltonians.DoublePendulum`), non-separable.
+
+    Masses ``m1``, ``m2`` (kg), rod lengths ``l1``, ``l2`` (m) and gravity ``g`` (m/s²); the
+    angles identify θ = (log m1/m2, log l1/l2, log (g/l2)/9.81), the system's true parameters
+    (0.405, 0.288, 0.105 for the defaults). Started from rest at
+    φ = (1.0, 0.5) rad (below the chaotic regime), observed in the angles alone every 0.25 s,
+    40 times, with noise 0.02 rad; the truth is RK4 at the fine step (no leapfrog for a
+    non-separable H).
+    """
+    ham = DoublePendulum()
+    params = ham.params_from(m1, m2, l1, l2, g)
+    return System(
+        "double-pendulum",
+        ham,
+        params,
+        np.array([1.0, 0.5, 0.0, 0.0]),
+        f"double pendulum: m1 = {m1:g}, m2 = {m2:g}, l1 = {l1:g}, l2 = {l2:g}, g = {g:g}",
+        obs_interval=0.25,
+        num_obs=40,
+        noise_std=0.02,
+        truth_integrator="rk4",
+        observation="positions",
+    )
+
+
 SYSTEMS: Registry[Callable[[], System]] = Registry("system")
 """Named reference systems: name → a function that builds the :class:`System`."""
 SYSTEMS.register("henon-heiles", henon_heiles)
@@ -171,6 +210,7 @@ SYSTEMS.register("harmonic", harmonic)
 SYSTEMS.register("double-well", double_well)
 SYSTEMS.register("fpu-chain", fpu_chain)
 SYSTEMS.register("damped-pendulum", damped_pendulum)
+SYSTEMS.register("double-pendulum", double_pendulum)
 
 
 def get_system(name: str) -> System:

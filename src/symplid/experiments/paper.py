@@ -30,6 +30,7 @@ from symplid.dynamics.systems import get_system
 from symplid.experiments.paper_calibration import cell_calibration, true_values
 from symplid.experiments.paper_cells import (
     CELL_KEYS,
+    PAPER_MAP,
     PAPER_MODEL,
     PAPER_SAMPLER,
     SWEEP_METRICS,
@@ -126,6 +127,7 @@ def paper_settings(config: PaperConfig, approach: str) -> Settings:
             "model.dt": config.dt,
             **{f"model.{key}": value for key, value in PAPER_MODEL.items()},
             **{f"sampler.{key}": value for key, value in PAPER_SAMPLER.items()},
+            **{f"map.{key}": value for key, value in PAPER_MAP.items()},
             "initial_state.x0": [float(v) for v in system.initial_state],
             "map.num_starts": config.num_starts,
             "sampler.num_iterations": config.iterations,
@@ -236,20 +238,23 @@ def analyse_approach(
     t_end: float,
     prediction_dt: float,
     threshold: float = HORIZON_THRESHOLD,
+    prediction_integrator: str = "leapfrog",
 ) -> dict[str, Any]:
     """The summary numbers of one approach (the keys of ``summary.json``).
 
     H is evaluated at the true initial state under the learned potential (the learned model's
     energy along its own leapfrog path from there); the horizon is the first time the MAP
-    path, integrated by leapfrog at ``prediction_dt``, leaves the truth by ``threshold`` in q1.
+    path, integrated by leapfrog (or ``prediction_integrator``: a non-separable system needs
+    another) at ``prediction_dt``, leaves the truth by ``threshold`` in q1.
     """
 
     x0 = system.initial_state
     h_true = float(hamiltonian(system.potential, system.coefficients, x0))
     h_map = float(hamiltonian(system.potential, result.coefficients_map, x0))
-    params, integrator = result.coefficients_map, "leapfrog"
+    params, integrator = result.coefficients_map, prediction_integrator
     if result.gamma_map is not None:  # a damped fit predicts with its γ
-        params, integrator = np.append(params, result.gamma_map), with_damping("leapfrog")
+        params = np.append(params, result.gamma_map)
+        integrator = with_damping(prediction_integrator)
     times, path = predict_trajectory(
         system.potential, params, x0, t_end, dt=prediction_dt, integrator=integrator
     )
@@ -276,14 +281,15 @@ def analyse_approach(
 
 
 def truth_path(system, t_end: float, prediction_dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV; its
-    damped form for a damped system)."""
+    """The true trajectory on the prediction grid (leapfrog at dt = 1e-3, Section IV; the
+    system's own truth integrator for a non-separable one, its damped form for a damped
+    system)."""
 
     n = round(t_end / prediction_dt)
     times = prediction_dt * np.arange(1, n + 1)
     states = true_trajectory(
         system.potential, system.coefficients, system.initial_state, times, TRUTH_DT,
-        damping=system.damping,
+        system.truth_integrator, damping=system.damping,
     )
     return np.concatenate([[0.0], times]), np.concatenate([system.initial_state[None], states])
 
@@ -427,6 +433,7 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
         p.t_end,
         p.dt,
         float(cell.get("horizon_tol", HORIZON_THRESHOLD)),
+        p.integrator,
     )
     metrics.pop("map")
     metrics["true_hamiltonian"] = float(

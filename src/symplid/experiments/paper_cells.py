@@ -23,6 +23,7 @@ from symplid.workflow.validate import Spec
 
 __all__ = [
     "CELL_KEYS",
+    "PAPER_MAP",
     "PAPER_MODEL",
     "PAPER_SAMPLER",
     "SWEEP_METRICS",
@@ -36,6 +37,8 @@ _DEFAULTS = settings_to_dict(Settings())
 PAPER_MODEL = {"noise": "isotropic", "standardise": "off"}
 #: The paper's DRAM moves θ itself (the library's default moves the variances as log v).
 PAPER_SAMPLER = {"variance_scale": "natural"}
+#: The paper reports no evidence: the Laplace value (no extra fits) is recorded.
+PAPER_MAP = {"evidence": "laplace"}
 
 
 def _mapped(tp: type, dotted: str, doc: str, **kw: Any) -> Spec:
@@ -95,20 +98,23 @@ def system_defaults(given: Mapping[str, Any]) -> dict[str, Any]:
 def known_initial_state(cell: Mapping[str, Any]) -> dict[str, Any]:
     """The paper's experiment: the initial state is the system's, known; one isotropic
     observation variance for q and p and no standardisation, as in the paper (the defaults
-    "auto" would pick per-kind variances for full-state data), and DRAM in θ."""
+    "auto" would pick per-kind variances for full-state data), DRAM in θ and the Laplace
+    evidence."""
     system = get_system(cell.get("system", CELL_KEYS["system"].default))
     return {
         "initial_state": {"mode": "known", "x0": list(system.initial_state)},
         "model": dict(PAPER_MODEL),
         "sampler": dict(PAPER_SAMPLER),
+        "map": dict(PAPER_MAP),
     }
 
 
 def cell_data(cell: Mapping[str, Any]) -> tuple[System, Observations]:
     """The system and the simulated data of a cell.
 
-    Full-state observations at ``obs_interval``, 2·``obs_interval``, …, ``num_obs``·
-    ``obs_interval`` with noise ``noise_std``, drawn with ``seed`` (see :func:`~.simulate`).
+    Observations of the system's kind (the full state; the angles of the double pendulum) at
+    ``obs_interval``, 2·``obs_interval``, …, ``num_obs``·``obs_interval`` with noise
+    ``noise_std``, drawn with ``seed`` (see :func:`~.simulate`).
     """
     system = get_system(cell.get("system", CELL_KEYS["system"].default))
     interval = float(cell.get("obs_interval", system.obs_interval))

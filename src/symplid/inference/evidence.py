@@ -74,7 +74,8 @@ from scipy.special import logsumexp
 from symplid.inference.laplace import laplace_covariance, repaired_eigenvalues, scan_from_bound
 from symplid.model.params import POSITIVE_GROUPS, SearchSpace
 
-_LOG_2PI = math.log(2.0 * math.pi)
+Warm = tuple[np.ndarray, np.ndarray | None]
+"""A warm start: u at a neighbouring node's inner maximum and the Hessian there (or None)."""
 
 
 @dataclass(frozen=True)
@@ -135,25 +136,31 @@ class _Profile:
         value = float(self.vg(jnp.asarray(self.u_of_theta(theta)))[0])
         return -value if np.isfinite(value) else -math.inf
 
-    def fit(self, s: np.ndarray, warm: np.ndarray) -> tuple[float, np.ndarray, np.ndarray | None]:
+    def fit(self, s: np.ndarray, warm: Warm) -> tuple[float, np.ndarray, np.ndarray | None]:
         """(max over c of log π, u at the maximum, ∇²(−log π) there or None) with the
         variances at v(s): Newton's method, else L-BFGS-B."""
-        u = np.array(warm, dtype=float)
+        u = np.array(warm[0], dtype=float)
         u[self.var] = s
         self.num_fits += 1
         if self.free.size == 0:
             return self.log_density(np.asarray(self.space.to_theta(jnp.asarray(u)))), u, None
-        found = self._newton(u) if self.newton_ok else None
+        found = self._newton(u, warm[1]) if self.newton_ok else None
         return found if found is not None else (*self._lbfgs(u), None)
 
-    def _newton(self, u: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+    def _newton(self, u: np.ndarray, start_hessian: np.ndarray | None
+                ) -> tuple[float, np.ndarray, np.ndarray] | None:
         """Newton's method with the (repaired) Hessian and a backtracking line search, for
-        unbounded c; from a neighbouring node it takes 2–4 steps (L-BFGS-B ~20). None when it
-        fails (then L-BFGS-B runs)."""
+        unbounded c. The steps start with the Hessian of the neighbouring node (a chord
+        method: one Hessian per node, which the Gaussian integral needs anyway), and the
+        Hessian is recomputed when a step is cut or at the end. None when it fails (then
+        L-BFGS-B runs)."""
         free, u = self.free, u.copy()
         value, grad = (np.asarray(x, dtype=float) for x in self.vg(jnp.asarray(u)))
+        full, fresh = start_hessian, False
         for _ in range(self.max_newton):
-            full = np.asarray(self.hessian(self.space.to_theta(jnp.asarray(u))), dtype=float)
+            if full is None:
+                full = np.asarray(self.hessian(self.space.to_theta(jnp.asarray(u))), dtype=float)
+                fresh = True
             g = grad[free]
             if not (np.isfinite(value) and np.all(np.isfinite(g)) and np.all(np.isfinite(full))):
                 return None
@@ -161,7 +168,10 @@ class _Profile:
             step = -(vecs @ ((vecs.T @ g) / fixed))
             slope = float(g @ step)
             if -0.5 * slope < 1e-11:
-                return -float(value), u, full
+                if fresh:
+                    return -float(value), u, full
+                full = None  # converged with the neighbour's Hessian: check with this one's
+                continue
             t = 1.0
             while t > 1e-6:
                 trial = u.copy()
@@ -173,6 +183,9 @@ class _Profile:
                 t *= 0.5
             else:
                 return None
+            if t < 1.0:
+                full = None
+            fresh = False
         return None
 
     def _lbfgs(self, u: np.ndarray) -> tuple[float, np.ndarray]:
@@ -192,14 +205,14 @@ class _Profile:
         value = float(self.vg(jnp.asarray(u))[0])
         return (-value if np.isfinite(value) else -math.inf), u
 
-    def value(self, s: np.ndarray, warm: np.ndarray) -> tuple[float, np.ndarray]:
-        """(g(s), u at the inner maximum): the Gaussian integral over c plus Σ s."""
+    def value(self, s: np.ndarray, warm: Warm) -> tuple[float, Warm]:
+        """(g(s), (u, Hessian) at the inner maximum, the warm start of the next node)."""
         log_post, u, full = self.fit(s, warm)
         if not np.isfinite(log_post):
-            return -math.inf, u
+            return -math.inf, (u, None)
         theta = np.asarray(self.space.to_theta(jnp.asarray(u)), dtype=float)
         if self.free.size == 0:
-            return log_post + float(np.sum(s)), u
+            return log_post + float(np.sum(s)), (u, None)
         if full is None:
             full = np.asarray(self.hessian(jnp.asarray(theta)), dtype=float)
         block = full[np.ix_(self.free, self.free)]
@@ -207,7 +220,7 @@ class _Profile:
         scans = [scan_from_bound(self.log_density, theta, int(self.free[j]), self.space, u,
                                  log_post) for j in on_bound]
         _, _, log_mass = laplace_covariance(block, log_post, list(on_bound), scans)
-        return (log_mass + float(np.sum(s)) if np.isfinite(log_mass) else -math.inf), u
+        return (log_mass + float(np.sum(s)) if np.isfinite(log_mass) else -math.inf), (u, full)
 
 
 def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -254,10 +267,10 @@ class _Grid:
                  step: float) -> None:
         self.profile, self.axes, self.step = profile, axes, step
         self.centre = u_centre[profile.var].copy()
-        self.values: dict[tuple[int, ...], tuple[float, np.ndarray]] = {}
-        self.root = u_centre
+        self.values: dict[tuple[int, ...], tuple[float, Warm]] = {}
+        self.root: Warm = (u_centre, None)
 
-    def g(self, key: tuple[int, ...], warm: np.ndarray | None = None) -> float:
+    def g(self, key: tuple[int, ...], warm: Warm | None = None) -> float:
         if key not in self.values:
             s = self.centre + self.step * self.axes @ np.asarray(key, dtype=float)
             self.values[key] = self.profile.value(s, self.root if warm is None else warm)

@@ -19,6 +19,7 @@ import numpy as np
 
 from symplid.compiled import jit_for
 from symplid.dynamics.damping import bind_dynamics, is_damped, with_damping
+from symplid.dynamics.hamiltonians import is_hamiltonian
 from symplid.dynamics.integrators import Integrator, get_integrator
 from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.trajectory import solve
@@ -109,7 +110,7 @@ def resolve_coefficients(model_or_potential: Any, coefficients: Any, mass: Any =
             )
         if mass is None:
             mass = model.mass
-    elif isinstance(model_or_potential, Potential):
+    elif isinstance(model_or_potential, Potential) or is_hamiltonian(model_or_potential):
         potential = model_or_potential
         if coefficients.shape[-1] != potential.num_params:
             raise ValueError(
@@ -118,8 +119,8 @@ def resolve_coefficients(model_or_potential: Any, coefficients: Any, mass: Any =
             )
     else:
         raise TypeError(
-            "expected a potential (symplid.Polynomial, FunctionPotential, ...) or a "
-            f"HamiltonianModel, got {type(model_or_potential).__name__}"
+            "expected a potential (symplid.Polynomial, FunctionPotential, ...), a "
+            f"Hamiltonian or a HamiltonianModel, got {type(model_or_potential).__name__}"
         )
     return potential, coefficients, inverse_mass(mass, potential.dim)
 

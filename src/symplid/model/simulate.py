@@ -79,8 +79,8 @@ def simulate(
     seed: int = 0,
     x0=None,
     dt: float = 1e-3,
-    observation: str = "full",
-    integrator: str = "leapfrog",
+    observation: str | None = None,
+    integrator: str | None = None,
     observation_noise: str = "additive",
     rel_std: float = 0.05,
 ) -> Observations:
@@ -101,7 +101,10 @@ def simulate(
     dt
         Step of the fine "truth" integration.
     observation
-        ``"full"`` or ``"positions"``.
+        ``"full"`` or ``"positions"`` (default: the system's; ``"positions"`` for the double
+        pendulum, ``"full"`` otherwise).
+    integrator
+        The truth's integrator (default: the system's; leapfrog for a separable H).
     observation_noise
         A noise model of :data:`~symplid.filters.noise.OBSERVATION_NOISE`: ``"additive"``
         (y = h(x) + σ·e, the paper's), ``"multiplicative"`` (y = h(x)∘(1 + ``rel_std``·e′))
@@ -117,8 +120,10 @@ def simulate(
     if noise_std < 0:
         raise ValueError("noise_std must be ≥ 0")
     x0 = system.initial_state if x0 is None else np.asarray(x0, dtype=float)
+    observation = system.observation if observation is None else observation
     if observation not in ("full", "positions"):
         raise ValueError("observation must be 'full' or 'positions'")
+    integrator = system.truth_integrator if integrator is None else integrator
     states = true_trajectory(
         system.potential, system.coefficients, x0, times, dt, integrator, damping=system.damping
     )

@@ -46,6 +46,7 @@ def build_model(settings: Settings, obs: Observations | list[Observations]) -> H
     return HamiltonianModel(
         build_family(layout.dim, m),
         integrator=m.integrator,
+        binding=m.binding or None,
         dt=m.dt,
         observation=observation,
         process_noise_per=m.process_noise_per,
@@ -112,7 +113,7 @@ def find_map_for(settings: Settings, posterior) -> Any:
 
     m = settings.map
     if not family_of(settings.model).neural:
-        return find_map(posterior, seed=m.seed, num_starts=m.num_starts)
+        return find_map(posterior, seed=m.seed, num_starts=m.num_starts, evidence=m.evidence)
     from symplid.inference.neural_fit import find_map_neural
 
     start = time.perf_counter()

@@ -19,7 +19,7 @@ from symplid.model.data import DataError
 from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.auto import resolve_noise
 from symplid.workflow.scaling import resolve_standardise
-from symplid.workflow.settings_schema import Settings
+from symplid.workflow.settings_schema import Settings, check_model_family
 from symplid.workflow.validate import SettingsError
 
 __all__ = ["MAX_SUBSTEPS_PER_GAP", "resolve_for_data"]
@@ -76,6 +76,7 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         )
     if model.mass and len(model.mass) != d:
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
+    check_model_family(settings, d, source)
     for k, one in enumerate(trajectories):
         _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")
     _warn_few_values(trajectories, settings, source)
@@ -147,9 +148,6 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -
     values = sum(int(np.sum(obs.mask)) for obs in trajectories)
     layout = observation_layout(trajectories[0])
     d = layout.dim
-    if model.damping and model.hamiltonian != "separable":
-        raise SettingsError(source, "model.damping", f"is true but model.hamiltonian is "
-                            f"{model.hamiltonian!r}: the friction −γM⁻¹p needs a separable H")
     try:  # the model itself: its size, and whether the integrator can take its H
         built = HamiltonianModel(build_family(d, model), model.integrator,
                                  observation=layout.kind,

@@ -13,14 +13,22 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any
 
-from symplid.dynamics.families import HAMILTONIAN_FAMILIES, POTENTIAL_FAMILIES, family_of
-from symplid.dynamics.integrators import INTEGRATORS
+from symplid.dynamics.families import (
+    HAMILTONIAN_FAMILIES,
+    POTENTIAL_FAMILIES,
+    build_family,
+    family_of,
+)
+from symplid.dynamics.hamiltonians import is_hamiltonian
+from symplid.dynamics.integrators import INTEGRATORS, get_integrator
 from symplid.dynamics.neural import ACTIVATIONS
+from symplid.dynamics.nonseparable import TaoIntegrator
 from symplid.filters.noise import OBSERVATION_NOISE
+from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec, as_prior
-from symplid.workflow.validate import Spec, setting
+from symplid.workflow.validate import SettingsError, Spec, setting
 
 __all__ = [
     "RENAMED",
@@ -32,6 +40,7 @@ __all__ = [
     "PriorSettings",
     "SamplerSettings",
     "Settings",
+    "check_model_family",
     "family_prior",
     "with_family_prior",
 ]
@@ -55,6 +64,7 @@ class ModelSettings:
     activation: str = setting("tanh", choices=ACTIVATIONS)
     network_seed: int = setting(0, minimum=0)
     integrator: str = setting("leapfrog", choices=INTEGRATORS)
+    binding: float = setting(0.0, minimum=0.0)  # Tao's ω ("tao", "tao4"); 0: ω = 1/dt
     dt: float = setting(0.25, minimum=0.0, strict=True)
     process_noise_per: str = setting("gap", choices=("gap", "step"))
     noise: str = setting("auto", choices=("auto", "isotropic", "diagonal", "per-kind"))
@@ -128,10 +138,14 @@ class MapSettings:
     A neural family (``model.potential = "mlp"``) takes the scalable path instead
     (:func:`~symplid.inference.neural_fit.find_map_neural`): ``adam_steps`` of Adam with step
     ``learning_rate``, then ``lbfgs_steps`` of L-BFGS, and the Gauss–Newton Laplace covariance;
-    ``num_starts`` is not used there.
+    ``num_starts`` is not used there. ``evidence``: ``"quadrature"`` integrates the noise
+    variances over their logarithms (:mod:`symplid.inference.evidence`; right when a variance
+    piles against its floor, a few seconds more per fit), ``"laplace"`` the Gaussian
+    approximation alone (what a study that never reads the evidence needs).
     """
 
     num_starts: int = setting(4, minimum=1)
+    evidence: str = setting("quadrature", choices=EVIDENCE_METHODS)
     seed: int = setting(0, minimum=0)
     adam_steps: int = setting(2000, minimum=0)
     learning_rate: float = setting(0.01, minimum=0.0, strict=True)
@@ -237,3 +251,38 @@ PRIOR_SPECS = {
     "sigma": Spec(float, minimum=0.0, strict=True),
 }
 PRIOR_SYNONYMS = {"log-normal": {"loc": "mu", "scale": "sigma"}}
+
+
+def check_model_family(settings: Settings, dim: int, source: str) -> int:
+    """Check the model's U or H against the integrators; its number of parameters.
+
+    The family of ``model.hamiltonian``/``model.potential`` is built for the data's dimension
+    ``dim``. A non-separable H needs a learning and a prediction integrator that accept it
+    (not leapfrog or Yoshida), no constant mass and no damping; ``model.binding`` is Tao's ω
+    only.
+    """
+    model = settings.model
+    try:
+        family = build_family(dim, model)
+    except ValueError as err:
+        key = "model.hamiltonian" if model.hamiltonian != "separable" else "model.potential"
+        raise SettingsError(source, key, f"({model.hamiltonian}): {err}") from None
+    if model.binding and not isinstance(get_integrator(model.integrator), TaoIntegrator):
+        raise SettingsError(source, "model.binding", f"is Tao's ω; model.integrator is "
+                            f"{model.integrator!r} (set binding = 0, or use 'tao'/'tao4')")
+    if is_hamiltonian(family):
+        if model.damping:
+            raise SettingsError(source, "model.damping", f"is true but the Hamiltonian "
+                                f"{model.hamiltonian!r} is not separable: the friction "
+                                "−γM⁻¹p needs H = ½pᵀM⁻¹p + U(q)")
+        for key, name in (("model.integrator", model.integrator),
+                          ("prediction.integrator", settings.prediction.integrator)):
+            if not get_integrator(name).nonseparable:
+                choices = [n for n, e in INTEGRATORS.items() if e.nonseparable]
+                raise SettingsError(source, key, f"{name!r} needs a separable H; the model's "
+                                    f"Hamiltonian {model.hamiltonian!r} is not: choose one of "
+                                    f"{', '.join(choices)}")
+        if model.mass:
+            raise SettingsError(source, "model.mass", "applies to a separable H only; "
+                                f"{model.hamiltonian!r} carries its own mass")
+    return int(family.num_params)
