@@ -137,7 +137,7 @@ def test_same_seed_same_fit(tmp_path, harmonic_csv):
             "--no-progress",
         )
         assert result.exit_code == 0, result.output
-        assert re.search(r"log evidence -?\d+\.\d\d \(quadrature; Laplace -?\d+\.\d\d\)",
+        assert re.search(r"log evidence -?\d+\.\d\d \((axis-)?quadrature; Laplace -?\d+\.\d\d\)",
                          result.output), result.output
         outs.append(out)
     a, b = (json.loads((o / "summary.json").read_text()) for o in outs)

@@ -396,9 +396,9 @@ def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     # calibration: the truth's rank among 99 thinned draws, σ² as the true noise variance
     assert table["calibration.c[q1^2].rank"].between(0, 99).all()
     np.testing.assert_allclose(table["calibration.obs_var.truth"], 0.05**2)
-    inside = (table["calibration.q2^3.q025"] <= -1 / 3) & (table[
-        "calibration.q2^3.q975"] >= -1 / 3)
-    assert (inside == table["calibration.q2^3.covered"].astype(bool)).all()
+    inside = (table["calibration.c[q2^3].q025"] <= -1 / 3) & (table[
+        "calibration.c[q2^3].q975"] >= -1 / 3)
+    assert (inside == table["calibration.c[q2^3].covered"].astype(bool)).all()
 
 
 # ----------------------------------------------------------------------------- experiments

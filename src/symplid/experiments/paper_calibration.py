@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from symplid.dynamics.potentials import coefficient_name
 from symplid.experiments.claims_stats import (
     LEVEL,
     RANK_DRAWS,
@@ -93,7 +94,8 @@ def true_values(system: Any, model: Any, noise_std: float) -> dict[str, float]:
     """
     terms = dict(zip(system.potential.param_names, system.coefficients, strict=True))
     coefficients = model.potential.coefficients_from(terms)
-    truth = dict(zip(model.potential.param_names, map(float, coefficients), strict=True))
+    names = [coefficient_name(n) for n in model.potential.param_names]  # as in θ's names
+    truth = dict(zip(names, map(float, coefficients), strict=True))
     if "obs_var" in model.param_names:
         truth["obs_var"] = float(noise_std) ** 2
     return truth
