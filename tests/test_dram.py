@@ -261,7 +261,8 @@ def test_short_dram_run_on_the_papers_posterior(hh, hh_model, hh_data, hh_theta)
     scales = np.r_[np.full(9, 0.02), 4e-6, 4e-4]
     rough = MapResult(np.asarray(hh_theta), np.diag(scales**2), np.diag(scales**-2), 0.0)
     idata = sample(posterior, "dram", num_draws=1000, num_chains=2, seed=0, init=rough,
-                   burn_in=500, init_spread=0.5, progress=False)
+                   burn_in=500, init_spread=0.5, progress=False,
+                   settings=dram.DRAMSettings(variance_scale="natural"))  # the paper's, in θ
     adapted = np.asarray(idata.attrs["dram_adapted_covariance"])
     assert np.all(np.isfinite(adapted))
     assert np.all(np.linalg.eigvalsh(adapted) > 0)

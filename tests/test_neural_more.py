@@ -105,10 +105,11 @@ def test_a_non_separable_network_needs_a_non_separable_propagator(hh_data):
     def settings(integrator):
         return settings_from_dict({
             "model": {"hamiltonian": "mlp", "width": 3, "depth": 1, "integrator": integrator},
+            "prediction": {"integrator": integrator},
             "sampler": {"method": "nuts"}, "initial_state": {"x0": X0}})
 
     with pytest.raises(SettingsError,
-                       match=r"'leapfrog' needs a separable H.*implicit-midpoint"):
+                       match=r"model\.integrator 'leapfrog' needs a separable H"):
         resolve_for_data(settings("leapfrog"), hh_data)
     assert resolve_for_data(settings("implicit-midpoint"), hh_data).model.hamiltonian == "mlp"
 

@@ -225,7 +225,7 @@ def test_too_many_parameters_warn(tmp_path):
     t = np.arange(1, 9.0)
     obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
     settings = merge_overrides(Settings(), {"model.order": 50, "initial_state.x0": [1, 0]})
-    with pytest.warns(UserWarning, match="52 parameters .* for 16 data values"):
+    with pytest.warns(UserWarning, match="53 parameters .* for 16 data values"):
         resolve_for_data(settings, obs)
 
 
