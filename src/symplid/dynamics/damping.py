@@ -41,17 +41,18 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from symplid.compiled import cached
 from symplid.dynamics.integrators import (
     Dynamics,
     ForceStepFn,
+    GeneralDynamics,
     Integrator,
     StepFn,
     get_integrator,
     leapfrog_force_step,
     make_dynamics,
+    runge_kutta,
 )
 
 Array = jax.Array
@@ -134,30 +135,18 @@ def conformal_composition(weights: tuple[float, ...]) -> tuple[StepFn, ForceStep
 
 
 def damped_runge_kutta(a: tuple[tuple[float, ...], ...], b: tuple[float, ...]) -> StepFn:
-    """An explicit Runge–Kutta step of q̇ = M⁻¹p, ṗ = −∂U/∂q − γM⁻¹p from a Butcher tableau."""
-    a_np = np.asarray(a, dtype=float)
-    b_np = np.asarray(b, dtype=float)
-    stages = len(b_np)
-    if a_np.shape != (stages, stages) or np.any(np.triu(a_np) != 0):
-        raise ValueError("an explicit Butcher tableau needs a strictly lower-triangular a")
+    """An explicit Runge–Kutta step of q̇ = M⁻¹p, ṗ = −∂U/∂q − γM⁻¹p from a Butcher tableau:
+    the tableau's own step (:func:`~symplid.dynamics.integrators.runge_kutta`) on the
+    right-hand side with the friction folded into ∂H/∂q."""
+    rk_step = runge_kutta(a, b)
 
     def step(dynamics: DampedDynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
-        kq: list[Array] = []
-        kp: list[Array] = []
-        for i in range(stages):
-            qi, pi = q, p
-            for j in range(i):
-                if a_np[i, j] != 0.0:
-                    qi = qi + dt * a_np[i, j] * kq[j]
-                    pi = pi + dt * a_np[i, j] * kp[j]
-            velocity = dynamics.velocity(pi)
-            kq.append(velocity)
-            kp.append(-dynamics.grad_potential(qi) - dynamics.gamma * velocity)
-        for i in range(stages):
-            if b_np[i] != 0.0:
-                q = q + dt * b_np[i] * kq[i]
-                p = p + dt * b_np[i] * kp[i]
-        return q, p
+        rhs = GeneralDynamics(
+            grad_q=lambda qi, pi: (dynamics.grad_potential(qi)
+                                   + dynamics.gamma * dynamics.velocity(pi)),
+            grad_p=lambda qi, pi: dynamics.velocity(pi),
+        )
+        return rk_step(rhs, q, p, dt)
 
     return step  # type: ignore[return-value]
 
