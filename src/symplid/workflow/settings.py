@@ -58,6 +58,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     [map]
     num_starts = 4
     seed = 0
+    evidence = "quadrature"       # noise variances integrated on their log scale ("laplace")
     adam_steps = 2000             # a neural family's MAP: Adam, then L-BFGS (no multistart)
     learning_rate = 0.01
     lbfgs_steps = 1000
