@@ -100,6 +100,25 @@ def _check_sizes(dim: int, num_params: int, names: tuple[str, ...] | None) -> No
         raise ValueError(f"{len(names)} parameter names given for {num_params} parameters")
 
 
+class _NamedParameters:
+    """Parameter names of a Hamiltonian built from functions: ``names`` given, else c1..cN."""
+
+    dim: int
+    num_params: int
+    names: tuple[str, ...] | None
+
+    def _check_names(self) -> None:
+        if self.names is not None:
+            object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+        _check_sizes(self.dim, self.num_params, self.names)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        if self.names is not None:
+            return self.names
+        return tuple(f"c{m + 1}" for m in range(self.num_params))
+
+
 class _Autodiff:
     """``value``, ``grad_q`` and ``grad_p`` from ``_point(q, p, params)`` of one point."""
 
@@ -133,7 +152,7 @@ class _Autodiff:
 
 
 @dataclass(frozen=True, eq=False)
-class FunctionHamiltonian(_Autodiff):
+class FunctionHamiltonian(_NamedParameters, _Autodiff):
     """A Hamiltonian from any JAX function ``fn(q, p, params) -> scalar``.
 
     ``fn`` takes ``q`` and ``p`` of shape ``(dim,)`` and ``params`` of shape
@@ -155,15 +174,7 @@ class FunctionHamiltonian(_Autodiff):
     def __post_init__(self) -> None:
         if not callable(self.fn):
             raise TypeError("fn must be a callable H(q, p, params) -> scalar")
-        if self.names is not None:
-            object.__setattr__(self, "names", tuple(str(n) for n in self.names))
-        _check_sizes(self.dim, self.num_params, self.names)
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        if self.names is not None:
-            return self.names
-        return tuple(f"c{m + 1}" for m in range(self.num_params))
+        self._check_names()
 
     def _point(self, q: Array, p: Array, params: Array) -> Array:
         return jnp.asarray(self.fn(q, p, params)).reshape(())
@@ -244,7 +255,7 @@ class PolynomialHamiltonian:
 
 
 @dataclass(frozen=True, eq=False)
-class PositionDependentMass(_Autodiff):
+class PositionDependentMass(_NamedParameters, _Autodiff):
     """H = ½ pᵀ M(q; θ)⁻¹ p + U(q; θ): a mass matrix that depends on the position.
 
     ``mass_fn(q, params) -> (d, d)`` must be symmetric positive definite along the path and
@@ -268,15 +279,7 @@ class PositionDependentMass(_Autodiff):
     def __post_init__(self) -> None:
         if not callable(self.mass_fn) or not callable(self.potential_fn):
             raise TypeError("mass_fn(q, params) and potential_fn(q, params) must be callables")
-        if self.names is not None:
-            object.__setattr__(self, "names", tuple(str(n) for n in self.names))
-        _check_sizes(self.dim, self.num_params, self.names)
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        if self.names is not None:
-            return self.names
-        return tuple(f"c{m + 1}" for m in range(self.num_params))
+        self._check_names()
 
     def mass(self, q: Array, params: Array) -> Array:
         """M(q; θ) at one point, shape ``(d, d)``."""
