@@ -34,6 +34,7 @@ from symplid.model.data import DataError
 __all__ = [
     "RunFolderError",
     "atomic_write_text",
+    "flatten",
     "format_summary",
     "netcdf_attrs",
     "numeric_arrays",
@@ -143,7 +144,7 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     """
     summary = to_jsonable(summary)
     scalars = {k: v for k, v in summary.items() if not isinstance(v, dict)}
-    groups = {k: _flatten(v) for k, v in summary.items() if isinstance(v, dict)}
+    groups = {k: flatten(v) for k, v in summary.items() if isinstance(v, dict)}
     lines = []
     width = max([len(k) for k in scalars] + [len(k) for g in groups.values() for k in g] + [1])
     for key, value in scalars.items():
@@ -167,11 +168,12 @@ def format_summary(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
+def flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested tables as one level of dotted keys (``{"a": {"b": 1}}`` → ``{"a.b": 1}``)."""
     out: dict[str, Any] = {}
     for key, value in table.items():
-        if isinstance(value, dict):
-            out.update(_flatten(value, f"{prefix}{key}."))
+        if isinstance(value, Mapping):
+            out.update(flatten(value, f"{prefix}{key}."))
         else:
             out[f"{prefix}{key}"] = value
     return out

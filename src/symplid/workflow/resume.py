@@ -16,7 +16,7 @@ stays the run's).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ import numpy as np
 from symplid.inference.map_result import MapResult
 from symplid.inference.samplers import InterruptedInBurnIn
 from symplid.inference.samplers.resume import resume_sampling
+from symplid.io.runfiles import flatten
 from symplid.workflow.fit import FitOutcome, build_model, build_posterior, save_burn_in, save_run
 from symplid.workflow.results import RunFolder, RunFolderError
 from symplid.workflow.settings import Settings, SettingsError, settings_to_dict
@@ -32,19 +33,9 @@ from symplid.workflow.settings import Settings, SettingsError, settings_to_dict
 __all__ = ["check_same_settings", "resume_fit"]
 
 
-def _flat(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in table.items():
-        if isinstance(value, Mapping):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
-
-
 def check_same_settings(run: Settings, given: Settings, where: str | Path) -> None:
     """Refuse (one line) settings that differ from the interrupted run's own."""
-    have, want = _flat(settings_to_dict(run)), _flat(settings_to_dict(given))
+    have, want = flatten(settings_to_dict(run)), flatten(settings_to_dict(given))
     changed = sorted(k for k in have.keys() | want.keys()
                      if have.get(k) != want.get(k) and not k.startswith("plots."))
     if changed:
