@@ -73,6 +73,14 @@ class LikelihoodBackend:
     priority
         ``backend="auto"`` takes the supporting backend of highest priority (the JAX
         reference has 0).
+    batch_width
+        How many θ on the same data the backend evaluates together, in one batched call, at
+        well under that many times the cost of one (1: a batch costs its size). A sampler
+        that can choose how it batches its evaluations (DRAM's paired stages) reads it.
+    custom_call
+        Whether the backend's program is an opaque custom call: XLA:CPU then cannot compile
+        a loop around it as one kernel, and a sampler's small linear algebra is cheaper as
+        library calls than unrolled (DRAM's ``linalg``).
     description
         One line for help texts.
     """
@@ -82,6 +90,8 @@ class LikelihoodBackend:
     build: BuildFn
     filtered_moments: bool = False
     priority: int = 0
+    batch_width: int = 1
+    custom_call: bool = False
     description: str = ""
 
 

@@ -339,6 +339,10 @@ COMPILED_BACKEND = LIKELIHOOD_BACKENDS.register(
         build=_build_backend,
         filtered_moments=False,
         priority=10,
+        # One θ per lane of an eight-wide vector: eight θ cost about 3.5 times one
+        # (benchmarks/speed_tiers.py); fewer than eight are evaluated one at a time.
+        batch_width=8,
+        custom_call=True,
         description="the C++ UKF kernel through XLA's FFI (polynomial U, linear observation)",
     ),
     replace=True,

@@ -167,6 +167,8 @@ def sample(
     burn_in = _check_budget(spec, num_draws, num_chains, thin, burn_in, seed, init_spread)
     kernel_settings = _make_settings(method, spec.settings_class, settings)
     chain_method = spec.default_chain_method if chain_method is None else chain_method
+    if spec.resolve is not None:
+        kernel_settings = spec.resolve(kernel_settings, posterior, int(num_chains), chain_method)
     batch_logdensity = cached_or_built(
         posterior, "batch-log-density", lambda: _batch_log_density(posterior)
     )

@@ -57,12 +57,38 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from symplid.filters.linalg import MAX_UNROLLED_DIM, cholesky, matmul, solve_lower
+from symplid.filters import linalg
+from symplid.filters.linalg import MAX_UNROLLED_DIM
 
 Array = jax.Array
 LogDensityFn = Callable[[Array], Array]
 VARIANCE_SCALES = ("natural", "log")
 """Choices of :attr:`DRAMSettings.variance_scale`."""
+LINALG_CHOICES = ("unrolled", "lapack")
+"""Choices of :attr:`DRAMSettings.linalg`."""
+
+
+class Algebra(NamedTuple):
+    """The kernel's small linear algebra: proposal factor, triangular solve, ``L z``."""
+
+    cholesky: Callable[[Array], Array]
+    solve_lower: Callable[[Array, Array], Array]
+    matmul: Callable[[Array, Array], Array]
+
+
+#: Unrolled small-matrix arithmetic: XLA:CPU compiles a chunk around it as one kernel.
+UNROLLED = Algebra(
+    lambda a: linalg.cholesky(a, MAX_UNROLLED_DIM),
+    lambda chol, b: linalg.solve_lower(chol, b, MAX_UNROLLED_DIM),
+    linalg.matmul,
+)
+#: LAPACK and ``dot``: fewer, larger operations, for a chunk that XLA cannot compile as one
+#: kernel anyway (a log density that is a custom call, such as the compiled likelihood).
+LAPACK = Algebra(
+    jnp.linalg.cholesky,
+    lambda chol, b: jax.scipy.linalg.solve_triangular(chol, b, lower=True),
+    jnp.matmul,
+)
 
 __all__ = [
     "VARIANCE_SCALES",
@@ -106,6 +132,23 @@ class DRAMSettings:
         moves in θ itself (the paper's). On the paper's data (4 chains × 12,000 iterations)
         the log scale raised the smallest ESS from 121 to 263 (leapfrog) and 341 to 468
         (RK2), R-hat 1.056 → 1.034 and 1.020 → 1.011, with the same process-noise medians.
+    paired_stages
+        ``True``: both stages' proposals are drawn and evaluated in one batched call, stage
+        2's value used only when stage 1 rejects (the same chain, draw for draw, as
+        ``False``, where stage 2 is evaluated only when needed). Pays where a batch costs
+        little more than one point: four vectorised chains make a batch of eight, which the
+        compiled kernel evaluates 2.3 times faster than two batches of four.
+        ``None`` (default): :func:`~symplid.inference.samplers.sample` decides from the
+        chains and the likelihood backend (:func:`~.registry.resolve_dram`).
+    linalg
+        ``"unrolled"``: the proposal's Cholesky factor, triangular solve and ``L z`` as
+        unrolled small-matrix arithmetic, which lets XLA:CPU compile a whole chunk of
+        iterations as one kernel; ``"lapack"``: library calls, cheaper where the log density
+        is a custom call (the compiled likelihood), around which XLA runs every operation of
+        the chunk separately (four vectorised chains with paired stages on the paper's
+        posterior: 108 → 73 µs per iteration). The same numbers to rounding. ``None``
+        (default): decided by :func:`~.registry.resolve_dram` (unrolled when the backend is
+        unknown).
     """
 
     adapt_start: int = 200
@@ -116,12 +159,19 @@ class DRAMSettings:
     gamma: float = 0.01
     delayed_rejection: bool = True
     variance_scale: str = "log"
+    paired_stages: bool | None = None
+    linalg: str | None = None
 
     def __post_init__(self) -> None:
         if self.variance_scale not in VARIANCE_SCALES:
             raise ValueError(
                 f"variance_scale must be one of {', '.join(map(repr, VARIANCE_SCALES))}, "
                 f"got {self.variance_scale!r}"
+            )
+        if self.linalg not in (None, *LINALG_CHOICES):
+            raise ValueError(
+                f"linalg must be one of {', '.join(map(repr, LINALG_CHOICES))}, "
+                f"got {self.linalg!r}"
             )
         if self.adapt_start < 1:
             raise ValueError(f"adapt_start must be >= 1, got {self.adapt_start}")
@@ -234,9 +284,9 @@ def _log_alpha1(logdensity_from: Array, logdensity_to: Array) -> Array:
     return jnp.minimum(0.0, diff)
 
 
-def _log_q1(chol: Array, start: Array, end: Array) -> Array:
+def _log_q1(chol: Array, start: Array, end: Array, algebra: Algebra = UNROLLED) -> Array:
     """Log density of the stage-1 proposal ``N(end; start, L Lᵀ)`` up to its constant."""
-    white = solve_lower(chol, end - start, MAX_UNROLLED_DIM)
+    white = algebra.solve_lower(chol, end - start)
     return -0.5 * jnp.sum(white**2)
 
 
@@ -248,6 +298,7 @@ def stage2_log_acceptance(
     y2: Array,
     logdensity_y2: Array,
     chol: Array,
+    algebra: Algebra = UNROLLED,
 ) -> Array:
     """Log of the second-stage acceptance probability α2(x, y1, y2).
 
@@ -261,6 +312,8 @@ def stage2_log_acceptance(
         Second-stage proposal and its log density (may be −∞ or NaN).
     chol
         Lower Cholesky factor of the first-stage proposal covariance ``C``.
+    algebra
+        :data:`UNROLLED` or :data:`LAPACK` (the same numbers to rounding).
 
     Returns
     -------
@@ -274,12 +327,12 @@ def stage2_log_acceptance(
     safe_y2 = jnp.where(y2_valid, logdensity_y2, logdensity_x)
     numerator = (
         safe_y2
-        + _log_q1(chol, y2, y1)
+        + _log_q1(chol, y2, y1, algebra)
         + log1mexp(_log_alpha1(safe_y2, logdensity_y1))
     )
     denominator = (
         logdensity_x
-        + _log_q1(chol, x, y1)
+        + _log_q1(chol, x, y1, algebra)
         + log1mexp(_log_alpha1(logdensity_x, logdensity_y1))
     )
     log_ratio = numerator - denominator
@@ -287,9 +340,10 @@ def stage2_log_acceptance(
     return jnp.where(y2_valid, jnp.minimum(0.0, log_ratio), -jnp.inf)
 
 
-def _proposal_chol(cov: Array, nugget: Array, factor: float) -> Array:
+def _proposal_chol(cov: Array, nugget: Array, factor: float,
+                   algebra: Algebra = UNROLLED) -> Array:
     matrix = factor * (0.5 * (cov + cov.T) + jnp.diag(nugget))
-    return cholesky(matrix, MAX_UNROLLED_DIM)
+    return algebra.cholesky(matrix)
 
 
 def init(position: Array, logdensity_fn: LogDensityFn, cov: Array,
@@ -373,92 +427,133 @@ def build_kernel(logdensity_fn: LogDensityFn,
         A pure, jit- and vmap-able transition.
     """
     settings = DRAMSettings() if settings is None else settings
-    sqrt_gamma = math.sqrt(settings.gamma)
+    num_stages = 2 if settings.delayed_rejection else 1
+    paired = bool(settings.paired_stages) and num_stages == 2
+    algebra = LAPACK if settings.linalg == "lapack" else UNROLLED
+    stage_scales = jnp.array([1.0, math.sqrt(settings.gamma)])
 
     def logdensity(position: Array) -> Array:
         return _finite_or_neg_inf(logdensity_fn(position))
 
-    num_stages = 2 if settings.delayed_rejection else 1
-    stage_scales = jnp.array([1.0, sqrt_gamma])
-
     def step(rng_key: Array, state: DRAMState) -> tuple[DRAMState, DRAMInfo]:
-        x, logdensity_x, chol = state.position, state.logdensity, state.chol
+        x = state.position
         dim = x.shape[0]
         key1, key_u1, key2, key_u2 = jax.random.split(rng_key, 4)
         normals = jnp.stack([jax.random.normal(key1, (dim,), dtype=x.dtype),
                              jax.random.normal(key2, (dim,), dtype=x.dtype)])
         log_uniforms = jnp.log(jnp.stack([jax.random.uniform(key_u1, dtype=x.dtype),
                                           jax.random.uniform(key_u2, dtype=x.dtype)]))
-
-        # The stages run in a loop with one call site of the log density, so that it is
-        # compiled once (an expensive filter would otherwise be compiled twice), and stage 2
-        # runs only when stage 1 rejects. Stage 1: y1 ~ N(x, C); stage 2: y2 ~ N(x, γ C).
-        def keep_going(carry: _Stages) -> Array:
-            return (carry.stage < num_stages) & jnp.logical_not(carry.accepted)
-
-        def one_stage(carry: _Stages) -> _Stages:
-            s = carry.stage
-            y = x + stage_scales[s] * matmul(chol, normals[s])
-            logdensity_y = logdensity(y)
-            log_alpha = jnp.where(
-                s == 0,
-                _log_alpha1(logdensity_x, logdensity_y),
-                stage2_log_acceptance(x, logdensity_x, carry.proposals[0],
-                                      carry.logdensities[0], y, logdensity_y, chol),
-            )
-            return _Stages(
-                stage=s + 1,
-                accepted=log_uniforms[s] < log_alpha,
-                proposals=carry.proposals.at[s].set(y),
-                logdensities=carry.logdensities.at[s].set(logdensity_y),
-                log_alphas=carry.log_alphas.at[s].set(log_alpha),
-            )
-
-        start = _Stages(
-            stage=jnp.asarray(0, dtype=jnp.int32),
-            accepted=jnp.asarray(False),
-            proposals=jnp.stack([x, x]),
-            logdensities=jnp.stack([logdensity_x, logdensity_x]),
-            log_alphas=jnp.full((2,), -jnp.inf, dtype=x.dtype),
-        )
-        stages = lax.while_loop(keep_going, one_stage, start)
-        accept1 = stages.accepted & (stages.stage == 1)
-        accept2 = stages.accepted & (stages.stage == 2)
-        last = stages.stage - 1
-        new_position = jnp.where(stages.accepted, stages.proposals[last], x)
-        new_logdensity = jnp.where(stages.accepted, stages.logdensities[last], logdensity_x)
-
-        # Adaptive Metropolis: running moments, then the proposal for the next step.
-        mean, cov, count = _update_moments(state, new_position)
-        iteration = state.iteration + 1
-        adapting = count >= settings.adapt_start
-        if settings.adapt_stop is not None:
-            adapting = adapting & (iteration < settings.adapt_stop)
-        candidate = _proposal_chol(cov, state.nugget, settings.resolved_scale(dim))
-        usable = adapting & jnp.all(jnp.isfinite(candidate))
-        new_chol = jnp.where(usable, candidate, chol)
-
-        new_state = DRAMState(
-            position=new_position,
-            logdensity=new_logdensity,
-            mean=mean,
-            cov=cov,
-            count=count,
-            iteration=iteration,
-            chol=new_chol,
-            nugget=state.nugget,
-        )
-        info = DRAMInfo(
-            is_accepted=accept1 | accept2,
-            stage1_accepted=accept1,
-            stage2_attempted=stages.stage == 2,
-            stage2_accepted=accept2,
-            acceptance_rate1=jnp.exp(stages.log_alphas[0]),
-            acceptance_rate2=jnp.exp(stages.log_alphas[1]),
-            proposal1=stages.proposals[0],
-            proposal2=stages.proposals[1],
-            logdensity=new_logdensity,
-        )
-        return new_state, info
+        run = _paired_stages if paired else _staged
+        stages = run(logdensity, state, normals, log_uniforms, stage_scales, num_stages, algebra)
+        return _finish(state, stages, settings)
 
     return step
+
+
+def _staged(logdensity: LogDensityFn, state: DRAMState, normals: Array, log_uniforms: Array,
+            stage_scales: Array, num_stages: int, algebra: Algebra) -> _Stages:
+    """The stages in a loop with one call site of the log density, so that it is compiled
+    once (an expensive filter would otherwise be compiled twice), and stage 2 runs only when
+    stage 1 rejects. Stage 1: y1 ~ N(x, C); stage 2: y2 ~ N(x, γ C)."""
+    x, logdensity_x, chol = state.position, state.logdensity, state.chol
+
+    def keep_going(carry: _Stages) -> Array:
+        return (carry.stage < num_stages) & jnp.logical_not(carry.accepted)
+
+    def one_stage(carry: _Stages) -> _Stages:
+        s = carry.stage
+        y = x + stage_scales[s] * algebra.matmul(chol, normals[s])
+        logdensity_y = logdensity(y)
+        log_alpha = jnp.where(
+            s == 0,
+            _log_alpha1(logdensity_x, logdensity_y),
+            stage2_log_acceptance(x, logdensity_x, carry.proposals[0],
+                                  carry.logdensities[0], y, logdensity_y, chol, algebra),
+        )
+        return _Stages(
+            stage=s + 1,
+            accepted=log_uniforms[s] < log_alpha,
+            proposals=carry.proposals.at[s].set(y),
+            logdensities=carry.logdensities.at[s].set(logdensity_y),
+            log_alphas=carry.log_alphas.at[s].set(log_alpha),
+        )
+
+    start = _Stages(
+        stage=jnp.asarray(0, dtype=jnp.int32),
+        accepted=jnp.asarray(False),
+        proposals=jnp.stack([x, x]),
+        logdensities=jnp.stack([logdensity_x, logdensity_x]),
+        log_alphas=jnp.full((2,), -jnp.inf, dtype=x.dtype),
+    )
+    return lax.while_loop(keep_going, one_stage, start)
+
+
+def _paired_stages(logdensity: LogDensityFn, state: DRAMState, normals: Array,
+                   log_uniforms: Array, stage_scales: Array, num_stages: int,
+                   algebra: Algebra) -> _Stages:
+    """Both proposals drawn and evaluated in one batched call (a batch of two; of 2 × chains
+    when the chains are vectorized), then judged as :func:`_staged` judges them: stage 2's
+    value is used only when stage 1 rejects, so the chain is the same, draw for draw. For a
+    likelihood backend that evaluates a batch for little more than one point
+    (``LikelihoodBackend.batch_width``)."""
+    x, logdensity_x, chol = state.position, state.logdensity, state.chol
+    y = jnp.stack([x + stage_scales[s] * algebra.matmul(chol, normals[s]) for s in range(2)])
+    values = jax.vmap(logdensity)(y)
+    log_alpha1 = _log_alpha1(logdensity_x, values[0])
+    accept1 = log_uniforms[0] < log_alpha1
+    log_alpha2 = stage2_log_acceptance(x, logdensity_x, y[0], values[0], y[1], values[1], chol,
+                                       algebra)
+    accept2 = jnp.logical_not(accept1) & (log_uniforms[1] < log_alpha2)
+    return _Stages(
+        stage=jnp.where(accept1, 1, 2).astype(jnp.int32),
+        accepted=accept1 | accept2,
+        proposals=jnp.stack([y[0], jnp.where(accept1, x, y[1])]),
+        logdensities=jnp.stack([values[0], jnp.where(accept1, logdensity_x, values[1])]),
+        log_alphas=jnp.stack([log_alpha1, jnp.where(accept1, -jnp.inf, log_alpha2)]),
+    )
+
+
+def _finish(state: DRAMState, stages: _Stages,
+            settings: DRAMSettings) -> tuple[DRAMState, DRAMInfo]:
+    """The move the stages decided, the adaptive-Metropolis update and the step's info."""
+    x, logdensity_x, chol = state.position, state.logdensity, state.chol
+    dim = x.shape[0]
+    accept1 = stages.accepted & (stages.stage == 1)
+    accept2 = stages.accepted & (stages.stage == 2)
+    last = stages.stage - 1
+    new_position = jnp.where(stages.accepted, stages.proposals[last], x)
+    new_logdensity = jnp.where(stages.accepted, stages.logdensities[last], logdensity_x)
+
+    # Adaptive Metropolis: running moments, then the proposal for the next step.
+    mean, cov, count = _update_moments(state, new_position)
+    iteration = state.iteration + 1
+    adapting = count >= settings.adapt_start
+    if settings.adapt_stop is not None:
+        adapting = adapting & (iteration < settings.adapt_stop)
+    algebra = LAPACK if settings.linalg == "lapack" else UNROLLED
+    candidate = _proposal_chol(cov, state.nugget, settings.resolved_scale(dim), algebra)
+    usable = adapting & jnp.all(jnp.isfinite(candidate))
+    new_chol = jnp.where(usable, candidate, chol)
+
+    new_state = DRAMState(
+        position=new_position,
+        logdensity=new_logdensity,
+        mean=mean,
+        cov=cov,
+        count=count,
+        iteration=iteration,
+        chol=new_chol,
+        nugget=state.nugget,
+    )
+    info = DRAMInfo(
+        is_accepted=accept1 | accept2,
+        stage1_accepted=accept1,
+        stage2_attempted=stages.stage == 2,
+        stage2_accepted=accept2,
+        acceptance_rate1=jnp.exp(stages.log_alphas[0]),
+        acceptance_rate2=jnp.exp(stages.log_alphas[1]),
+        proposal1=stages.proposals[0],
+        proposal2=stages.proposals[1],
+        logdensity=new_logdensity,
+    )
+    return new_state, info

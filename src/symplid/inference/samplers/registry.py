@@ -23,6 +23,7 @@ JSON-ready attributes stored with the draws.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -31,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.filters.backends import LIKELIHOOD_BACKENDS
 from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
@@ -84,6 +86,9 @@ class SamplerSpec:
         ``num_warmup``; otherwise 0, and one compiled kernel serves every burn-in).
     default_burn_in
         ``(num_draws, thin) -> burn_in`` when ``sample(burn_in=None)``.
+    resolve
+        ``resolve(settings, posterior, num_chains, chain_method) -> settings``: fills the
+        settings left to the run (``None``: none are).
     description
         One line for help texts.
     """
@@ -94,6 +99,7 @@ class SamplerSpec:
     unconstrained: bool = False
     adapts_during_burn_in: bool = False
     default_burn_in: Callable[[int, int], int] = half_the_run
+    resolve: Callable[[Any, Any, int, str], Any] | None = None
     description: str = ""
 
 
@@ -167,6 +173,36 @@ def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
                          final_attrs, covariance_at)
 
 
+def resolve_dram(settings: DRAMSettings, posterior: Any, num_chains: int,
+                 chain_method: str) -> DRAMSettings:
+    """The settings left to the run (``None``), from the chains and the likelihood backend.
+
+    * ``paired_stages``: paired when the chains are vectorised and their two stages fill the
+      backend's batch (``2 × num_chains ≥ batch_width > 1``: four chains on the compiled
+      kernel), where one batch of both stages costs less than the stage-by-stage calls.
+    * ``linalg``: LAPACK when the backend is a custom call, else unrolled.
+    """
+    backend = _backend(posterior)
+    width = int(getattr(backend, "batch_width", 1))
+    changes: dict[str, Any] = {}
+    if settings.paired_stages is None:
+        changes["paired_stages"] = bool(settings.delayed_rejection
+                                        and chain_method == "vectorized"
+                                        and 1 < width <= 2 * num_chains)
+    if settings.linalg is None:
+        changes["linalg"] = "lapack" if getattr(backend, "custom_call", False) else "unrolled"
+    return dataclasses.replace(settings, **changes)
+
+
+def _backend(posterior: Any) -> Any:
+    """The likelihood backend of ``posterior``'s model (None if it has none)."""
+    try:
+        name = posterior.model.likelihood_backend
+    except AttributeError:
+        return None
+    return LIKELIHOOD_BACKENDS.get_entry(name)
+
+
 def _dram_step(posterior: Any, settings: DRAMSettings, scale: LogVariances | None) -> Callable:
     """DRAM's transition (in θ, or in w with the variances on a log scale); one that takes
     the observations as an argument (:class:`~.run.DataStep`) when the posterior offers
@@ -230,8 +266,9 @@ SAMPLERS: Registry[SamplerSpec] = Registry("sampler")
 """Sampler name → its :class:`SamplerSpec` (DRAM, the paper's; NUTS through BlackJAX)."""
 SAMPLERS.register(
     "dram",
-    SamplerSpec(DRAMSettings, build_dram, description="delayed-rejection adaptive Metropolis "
-                "(the paper's), in θ (variances optionally on a log scale)"),
+    SamplerSpec(DRAMSettings, build_dram, resolve=resolve_dram,
+                description="delayed-rejection adaptive Metropolis (the paper's), in θ "
+                "(variances optionally on a log scale)"),
 )
 SAMPLERS.register(
     "nuts",
