@@ -321,6 +321,20 @@ def test_readme_block_numbers_come_from_the_json(claims_json, tmp_path):
         update_readme(readme, claims_json)
 
 
+def test_readme_block_estimates_the_papers_budget_only_for_a_smaller_one(claims_json):
+    quick = json.loads(json.dumps(claims_json))
+    quick["study"]["estimate_paper_budget"] = {
+        "1_workers": {"core_s": 4172.0, "wall_s": 4172.0},
+        "2_workers": {"core_s": 4172.0, "wall_s": 2086.0},
+    }
+    block = readme_block(quick)
+    assert "estimated at 4,172 s" in block and "smaller than the paper's" in block
+    measured = json.loads(json.dumps(quick))
+    measured["study"]["budget_name"] = "paper"  # measured at the paper's budget: no estimate
+    block = readme_block(measured)
+    assert "estimated" not in block and "smaller than the paper's" not in block
+
+
 def test_report_and_calibration_answer(claims_json):
     answer = calibration_answer(claims_json)
     assert answer["baseline"]["label"] == "paper, leapfrog"

@@ -132,6 +132,9 @@ def _last_run(study: Mapping[str, Any]) -> str:
 
 
 def _estimate(study: Mapping[str, Any]) -> str:
+    """The estimated cost at the paper's budget (none when the paper's budget was run)."""
+    if study["budget_name"] == "paper":
+        return ""
     est = study.get("estimate_paper_budget") or {}
     one, two = est.get("1_workers"), est.get("2_workers")
     if not one or not two:
