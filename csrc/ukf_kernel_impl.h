@@ -581,8 +581,9 @@ struct CompositionMethod {
   }
 };
 
-// An explicit Runge–Kutta method of S stages (Settings::rk_a, rk_b): its stages hold more
-// registers than a leapfrog step, so fewer blocks go together beyond two stages.
+// An explicit Runge–Kutta method of S stages (Settings::rk_a, rk_b). Its stages hold more
+// registers than a leapfrog step: pairs beyond two stages (on the paper's workload, rk2 and
+// rk4 time the same with two or three blocks, so the smaller register set is kept for rk4).
 template <int S>
 struct RungeKuttaMethod {
   static constexpr int kMaxBlocks = S <= 2 ? 3 : 2;
@@ -597,23 +598,26 @@ struct RungeKuttaMethod {
 // lanes of one θ (its npts sigma points), G = kWidth one vector per sigma point.
 using FastAdvanceFn = void (*)(const Settings&, Vec*, Vec*, const Vec*, int, int, double, int);
 
+// Whole vectors of lanes in use; with one θ, a last partly used vector counts as whole (its
+// padding lanes hold finite copies of the centre point) unless it has a single lane, which
+// then goes in a scalar block (lone).
+struct LaneLayout {
+  int full;
+  bool lone;
+};
+inline LaneLayout lane_layout(const Settings& s, int C, int G) {
+  if (G != 1) return {C, false};
+  const int rest = s.npts % kWidth;
+  return {s.npts / kWidth + (rest > 1 ? 1 : 0), rest == 1};
+}
+
 template <int D, int ORDER, bool MASS, class Method>
 void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G, double dt,
                   int steps) {
   if (steps <= 0) return;
   using V = Block<D, ORDER, MASS, Vec>;
   using S = Block<D, ORDER, MASS, double>;
-  // Whole vectors of lanes in use; with one θ, a last partly used vector counts as whole
-  // (its padding lanes hold finite copies of the centre point) unless it has a single lane,
-  // which then goes in a scalar block.
-  int full = C;
-  bool lone = false;
-  if (G == 1) {
-    full = s.npts / kWidth;
-    const int rest = s.npts % kWidth;
-    if (rest > 1) ++full;
-    lone = rest == 1;
-  }
+  const auto [full, lone] = lane_layout(s, C, G);
   const int lane = full * kWidth;  // the lone scalar lane
   // Only used where the vector registers are many (select_fast_advance): with AVX2 or SSE2
   // a Vec is already two or four registers and register blocks would spill.
