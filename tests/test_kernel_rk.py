@@ -1,8 +1,8 @@
 """Runge–Kutta propagators in the compiled kernel equal the JAX reference filter (Theorem 1).
 
 The kernel advances Runge–Kutta sigma points in register blocks when the potential's basis
-has a compile-time table (d ≤ 3, order ≤ 5, at most four stages) and sweeps them through
-memory otherwise. Both paths must give the JAX backend's log-likelihood to rounding, for one θ
+has a compile-time table (d ≤ 3, order ≤ 5), the tableau at most four stages and the
+processor AVX-512, and sweeps them through memory otherwise (here d = 4 and order 6). Both paths must give the JAX backend's log-likelihood to rounding, for one θ
 (sigma points in the lanes of one vector and a lone scalar lane) and for vmap batches of 8
 and 16 (one vector per sigma point, eight θ per vector).
 """
@@ -28,22 +28,28 @@ pytestmark = pytest.mark.skipif(
 TIMES = np.array([0.7, 1.5, 2.0, 3.1])  # gaps of 3, 4, 2 and 5 substeps at dt = 0.25
 TOL = 1e-12  # as test_compiled_kernel.py
 
-# (d, order, integrator, mass): the register path (fixed tables) and the memory path.
+# (d, order, integrator, mass, Σ per): the register path (fixed tables) and the memory path.
 CASES = [
-    (2, 3, "rk2-midpoint", None),  # the paper's cubic Hénon–Heiles basis
-    (2, 3, "rk2-heun", ((2.0, 0.5), (0.5, 1.0))),
-    (2, 3, "rk4", None),
-    (1, 4, "euler", (1.5,)),
-    (3, 2, "rk4", (1.0, 2.0, 3.0)),
-    (1, 6, "rk2-midpoint", None),  # order 6: no compile-time table
-    (4, 2, "rk4", None),  # d = 4: no compile-time table
+    (2, 3, "rk2-midpoint", None, "gap"),  # the paper's cubic Hénon–Heiles basis
+    (2, 3, "rk2-heun", ((2.0, 0.5), (0.5, 1.0)), "gap"),
+    (2, 3, "rk4", None, "gap"),
+    (2, 5, "rk2-midpoint", None, "step"),
+    (1, 4, "euler", (1.5,), "gap"),
+    (3, 2, "rk4", (1.0, 2.0, 3.0), "gap"),
+    (1, 6, "rk2-midpoint", None, "gap"),  # order 6: no compile-time table
+    (4, 2, "rk4", None, "step"),  # d = 4: no compile-time table
 ]
 
 
 def _problem(case, rng: np.random.Generator):
-    d, order, integrator, mass = case
+    d, order, integrator, mass, per = case
     model = symplid.HamiltonianModel(
-        Polynomial(d, order), integrator=integrator, dt=0.25, mass=mass, backend="compiled"
+        Polynomial(d, order),
+        integrator=integrator,
+        dt=0.25,
+        mass=mass,
+        process_noise_per=per,
+        backend="compiled",
     )
     values = 0.3 * rng.standard_normal((TIMES.size, model.obs_dim))
     values[1, 0] = np.nan  # one missing component
@@ -67,7 +73,7 @@ def _close(a, b) -> bool:
     return bool(np.all(np.abs(a - b) <= TOL * np.maximum(1.0, np.abs(b))))
 
 
-@pytest.mark.parametrize("case", CASES, ids=lambda c: f"d{c[0]}-l{c[1]}-{c[2]}-m{c[3] is not None}")
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"d{c[0]}-l{c[1]}-{c[2]}-{c[4]}")
 def test_runge_kutta_kernel_equals_jax(case):
     rng = np.random.default_rng(CASES.index(case))
     model, prepared, thetas, x0 = _problem(case, rng)
