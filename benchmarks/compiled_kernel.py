@@ -155,8 +155,10 @@ def propagators(repeats: int, previous: str | None) -> None:
             print(f"<!-- {name}: largest |previous − kernel| over 400 θ: {diff:.3g} -->")
         for per in (1, 8):
             batch = thetas if per == 1 else thetas.reshape(50, 8, -1)
-            times = {k: loop_time(f if per == 1 else jax.vmap(f), batch, repeats) * 1e6
-                     for k, f in tiers.items()}
+            times = {
+                k: loop_time(f if per == 1 else jax.vmap(f), batch, repeats) * 1e6
+                for k, f in tiers.items()
+            }
             row = f"| {name} | {per} | {times['ref']:.1f} | {times['new']:.1f} |"
             if make_previous:
                 row += f" {times['old']:.1f} | {times['old'] / times['new']:.2f}× |"
