@@ -15,11 +15,20 @@ sees), the minimum over repeats:
 Times are the process's CPU time (``time.process_time``), the minimum over repeats: on a
 shared machine wall time would count other people's work. XLA runs on one thread.
 
-Run on one idle core: ``taskset -c 0 python benchmarks/compiled_kernel.py``.
+A second table times the propagators on the same workload (leapfrog, the paper's RK2
+reference ``rk2-midpoint``, ``rk4``), µs per call for one θ and for a vmap batch of eight θ
+(one call), JAX reference against the kernel. ``--previous PATH`` adds a column for another
+build of the kernel (e.g. the one before a change), loaded beside this one under its own FFI
+target so that both run in the same process and loop, and reports the largest difference
+between the two builds' values.
+
+Run on one idle core: ``taskset -c 0 python benchmarks/compiled_kernel.py [--previous SO]``.
 """
 
 from __future__ import annotations
 
+import argparse
+import ctypes
 import dataclasses
 import os
 
@@ -32,6 +41,7 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import symplid
 from symplid.model import kernel as compiled_kernel
@@ -91,6 +101,70 @@ def main(repeats: int = 7) -> None:
         print(f"| {name} | {t_ref:.2f} | {t_new:.2f} | {t_ref / t_new:.1f}× |")
 
 
+PROPAGATORS = ("leapfrog", "rk2-midpoint", "rk4")
+PREVIOUS_TARGET = "symplid_ukf_loglik_previous"
+
+
+def previous_build(path: str) -> Callable[..., Callable[[jax.Array], jax.Array]]:
+    """``make(model, prepared, x0)``: θ ↦ log L by the kernel build at ``path`` (its handler
+    registered under its own FFI target, beside the package's)."""
+    handle = ctypes.CDLL(os.path.abspath(path))
+    jax.ffi.register_ffi_target(
+        PREVIOUS_TARGET, jax.ffi.pycapsule(handle.SymplidUkfLogLikelihood), platform="cpu"
+    )
+    call = jax.ffi.ffi_call(
+        PREVIOUS_TARGET, jax.ShapeDtypeStruct((), jnp.float64), vmap_method="expand_dims"
+    )
+
+    def make(model, prepared, x0):
+        attrs = compiled_kernel._attributes(model, prepared)
+        x0, p0 = model._check_initial(x0, None)
+        step_size = jnp.asarray(prepared.inputs.step_size, jnp.float64)
+        num_steps = jnp.asarray(prepared.inputs.num_steps, jnp.int64)
+        ys, masks = jnp.asarray(prepared.ys), jnp.asarray(prepared.masks, jnp.bool_)
+        return lambda th: call(th, x0, p0, step_size, num_steps, ys, masks, **attrs)
+
+    return make
+
+
+def propagators(repeats: int, previous: str | None) -> None:
+    """µs per call by propagator, one θ and a batch of eight, on the paper's workload."""
+    system = symplid.get_system("henon-heiles")
+    data = symplid.simulate(system, seed=0)
+    x0 = system.initial_state
+    make_previous = previous_build(previous) if previous else None
+    key = jax.random.key(0)
+    head = "| propagator | θ per call | JAX reference (µs) | kernel (µs) |"
+    rule = "|---|---:|---:|---:|"
+    if make_previous:
+        head += " previous kernel (µs) | previous / kernel |"
+        rule += "---:|---:|"
+    print(f"\n{head}\n{rule}")
+    for name in PROPAGATORS:
+        model = symplid.HamiltonianModel(system.potential, integrator=name, dt=0.25)
+        prepared = model.prepare(data)
+        theta = jnp.asarray(model.pack(system.coefficients, 1e-6, 0.05**2))
+        thetas = theta * (1.0 + 1e-3 * jax.random.normal(key, (400, theta.shape[0])))
+        tiers = {
+            "ref": dataclasses.replace(model, backend="jax").log_likelihood_fn(data, x0),
+            "new": lambda th, m=model, pr=prepared: compiled_kernel.log_likelihood(m, pr, th, x0),
+        }
+        if make_previous:
+            tiers["old"] = make_previous(model, prepared, x0)
+            diff = np.max(np.abs(jax.vmap(tiers["old"])(thetas) - jax.vmap(tiers["new"])(thetas)))
+            print(f"<!-- {name}: largest |previous − kernel| over 400 θ: {diff:.3g} -->")
+        for per in (1, 8):
+            batch = thetas if per == 1 else thetas.reshape(50, 8, -1)
+            times = {
+                k: loop_time(f if per == 1 else jax.vmap(f), batch, repeats) * 1e6
+                for k, f in tiers.items()
+            }
+            row = f"| {name} | {per} | {times['ref']:.1f} | {times['new']:.1f} |"
+            if make_previous:
+                row += f" {times['old']:.1f} | {times['old'] / times['new']:.2f}× |"
+            print(row)
+
+
 def _value_and_grad(fn: Callable[[jax.Array], jax.Array]) -> Callable[[jax.Array], jax.Array]:
     def step(th):
         value, grad = jax.value_and_grad(fn)(th)
@@ -100,4 +174,10 @@ def _value_and_grad(fn: Callable[[jax.Array], jax.Array]) -> Callable[[jax.Array
 
 
 if __name__ == "__main__":
-    main()
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--previous", help="another build of the kernel's shared library")
+    parser.add_argument("--propagators-only", action="store_true")
+    args = parser.parse_args()
+    if not args.propagators_only:
+        main()
+    propagators(7, args.previous)

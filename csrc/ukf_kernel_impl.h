@@ -389,6 +389,27 @@ class Propagator {
 // blocks are advanced in the same loop body so that the processor overlaps their dependency
 // chains. The arithmetic is the reference's, operation for operation (see Propagator).
 
+// An explicit Runge–Kutta tableau of S stages for one step size h: h a_ij and h b_i, with
+// flags for the entries that are not zero (Propagator::runge_kutta skips those that are).
+template <int S>
+struct RkTableau {
+  double a[S][S] = {};
+  bool use_a[S][S] = {};
+  double b[S] = {};
+  bool use_b[S] = {};
+
+  RkTableau(const Settings& s, double h) {
+    for (int i = 0; i < S; ++i) {
+      for (int j = 0; j < i; ++j) {
+        use_a[i][j] = s.rk_a[i * S + j] != 0.0;
+        a[i][j] = h * s.rk_a[i * S + j];
+      }
+      use_b[i] = s.rk_b[i] != 0.0;
+      b[i] = h * s.rk_b[i];
+    }
+  }
+};
+
 // A block of lanes (T = Vec for eight lanes, double for one) for a fixed basis of degree ORDER
 // in D coordinates; MASS says whether the velocity is M⁻¹p (else p).
 template <int D, int ORDER, bool MASS, class T>
@@ -399,15 +420,18 @@ struct Block {
   T q[D], p[D], f[D];
   T tc[Basis::kTable.start[D]];  // c_m e_mj per term, for these lanes
 
-  // ∂U/∂q at q into out, straight-line: powers by repeated multiplication, then per
+  // ∂U/∂q at q into out.
+  SYMPLID_INLINE void force(T (&out)[D]) const { force_at(q, out); }
+
+  // ∂U/∂q at x into out, straight-line: powers by repeated multiplication, then per
   // component the terms in basis order (the first term starts the sum: 0 + v = v).
-  SYMPLID_INLINE void force(T (&out)[D]) const {
+  SYMPLID_INLINE void force_at(const T (&x)[D], T (&out)[D]) const {
     T pw[D][ORDER + 1];
 #pragma GCC unroll 16
     for (int i = 0; i < D; ++i) {
-      pw[i][1] = q[i];
+      pw[i][1] = x[i];
 #pragma GCC unroll 16
-      for (int k = 2; k <= ORDER; ++k) pw[i][k] = pw[i][k - 1] * q[i];
+      for (int k = 2; k <= ORDER; ++k) pw[i][k] = pw[i][k - 1] * x[i];
     }
 #pragma GCC unroll 16
     for (int j = 0; j < D; ++j) {
@@ -455,6 +479,55 @@ struct Block {
     }
   }
 
+  // One explicit Runge–Kutta step from the tableau (as Propagator::runge_kutta, operation for
+  // operation): stage i at (q, p) + Σ_j h a_ij (kq_j, kp_j) over a_ij ≠ 0 in j order, with
+  // kq_i = M⁻¹p_i and kp_i = −∂U/∂q(q_i) (eq 7's vector field); then (q, p) += h b_i (kq_i, kp_i)
+  // over b_i ≠ 0 in stage order, summed as the stages finish so that no stage outlives its use.
+  template <int S>
+  SYMPLID_INLINE void rk_step(const RkTableau<S>& tab, const double* inv_mass) {
+    T kq[S][D], kp[S][D], nq[D], np[D];
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) {
+      nq[i] = q[i];
+      np[i] = p[i];
+    }
+#pragma GCC unroll 4
+    for (int st = 0; st < S; ++st) {
+      T sq[D], sp[D];
+#pragma GCC unroll 16
+      for (int i = 0; i < D; ++i) {
+        sq[i] = q[i];
+        sp[i] = p[i];
+      }
+#pragma GCC unroll 4
+      for (int j = 0; j < st; ++j) {
+        if (!tab.use_a[st][j]) continue;
+        const double fa = tab.a[st][j];
+#pragma GCC unroll 16
+        for (int i = 0; i < D; ++i) {
+          sq[i] = sq[i] + fa * kq[j][i];
+          sp[i] = sp[i] + fa * kp[j][i];
+        }
+      }
+      velocity(sp, kq[st], inv_mass);
+      force_at(sq, kp[st]);
+#pragma GCC unroll 16
+      for (int i = 0; i < D; ++i) kp[st][i] = -kp[st][i];
+      if (!tab.use_b[st]) continue;
+      const double fb = tab.b[st];
+#pragma GCC unroll 16
+      for (int i = 0; i < D; ++i) {
+        nq[i] = nq[i] + fb * kq[st][i];
+        np[i] = np[i] + fb * kp[st][i];
+      }
+    }
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) {
+      q[i] = nq[i];
+      p[i] = np[i];
+    }
+  }
+
   // Moves the lanes between registers and the kernel's arrays (d rows of C vectors): `at` is
   // the vector's index in a row for a Vec block, the lane's index for a double block.
   void load(const Vec* qs, const Vec* ps, const Vec* tcs, int C, int at) {
@@ -465,7 +538,6 @@ struct Block {
     for (int t = 0; t < kTable.start[D]; ++t) {
       get(tcs + t, std::is_same<T, Vec>::value ? 0 : at % kWidth, tc[t]);
     }
-    force(f);
   }
   void store(Vec* qs, Vec* ps, int C, int at) const {
     for (int i = 0; i < D; ++i) {
@@ -489,55 +561,89 @@ struct Block {
   }
 };
 
-// Advances the given blocks together over `steps` steps of the composition (weights w).
-template <class... Blocks>
-SYMPLID_INLINE void leapfrog_blocks(const Settings& s, double dt, int steps, Blocks&... blocks) {
-  for (int k = 0; k < steps; ++k) {
-    for (int w = 0; w < s.ncomp; ++w) {
-      const double h = s.comp_w[w] * dt;
-      const double half_h2 = 0.5 * h * h;
-      const double half_h = 0.5 * h;
-      (blocks.step(h, half_h, half_h2, s.inv_mass), ...);
+// How a few blocks advance together over `steps` steps of a gap, per kind of propagator, and
+// how many vector blocks go together at most (more hide more latency until they spill).
+// The composition of leapfrog steps (weights w): first-same-as-last, the force at the end of
+// a step starts the next one (as Propagator::advance).
+struct CompositionMethod {
+  static constexpr int kMaxBlocks = 3;
+  template <class... Blocks>
+  SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, Blocks&... blocks) {
+    (blocks.force(blocks.f), ...);
+    for (int k = 0; k < steps; ++k) {
+      for (int w = 0; w < s.ncomp; ++w) {
+        const double h = s.comp_w[w] * dt;
+        const double half_h2 = 0.5 * h * h;
+        const double half_h = 0.5 * h;
+        (blocks.step(h, half_h, half_h2, s.inv_mass), ...);
+      }
     }
   }
-}
+};
+
+// An explicit Runge–Kutta method of S stages (Settings::rk_a, rk_b). Its stages hold more
+// registers than a leapfrog step: pairs beyond two stages (on the paper's workload, rk2 and
+// rk4 time the same with two or three blocks, so the smaller register set is kept for rk4).
+template <int S>
+struct RungeKuttaMethod {
+  static constexpr int kMaxBlocks = S <= 2 ? 3 : 2;
+  template <class... Blocks>
+  SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, Blocks&... blocks) {
+    const RkTableau<S> tableau(s, dt);
+    for (int k = 0; k < steps; ++k) (blocks.template rk_step<S>(tableau, s.inv_mass), ...);
+  }
+};
 
 // Ψ over one gap for every lane of the arrays q, p (d rows of C vectors): G = 1 takes the
 // lanes of one θ (its npts sigma points), G = kWidth one vector per sigma point.
 using FastAdvanceFn = void (*)(const Settings&, Vec*, Vec*, const Vec*, int, int, double, int);
 
-template <int D, int ORDER, bool MASS>
+// Whole vectors of lanes in use; with one θ, a last partly used vector counts as whole (its
+// padding lanes hold finite copies of the centre point) unless it has a single lane, which
+// then goes in a scalar block (lone).
+struct LaneLayout {
+  int full;
+  bool lone;
+};
+inline LaneLayout lane_layout(const Settings& s, int C, int G) {
+  if (G != 1) return {C, false};
+  const int rest = s.npts % kWidth;
+  return {s.npts / kWidth + (rest > 1 ? 1 : 0), rest == 1};
+}
+
+template <int D, int ORDER, bool MASS, class Method>
 void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G, double dt,
                   int steps) {
   if (steps <= 0) return;
   using V = Block<D, ORDER, MASS, Vec>;
   using S = Block<D, ORDER, MASS, double>;
-  // Whole vectors of lanes in use; with one θ, a last partly used vector counts as whole
-  // (its padding lanes hold finite copies of the centre point) unless it has a single lane,
-  // which then goes in a scalar block.
-  int full = C;
-  bool lone = false;
-  if (G == 1) {
-    full = s.npts / kWidth;
-    const int rest = s.npts % kWidth;
-    if (rest > 1) ++full;
-    lone = rest == 1;
-  }
+  const auto [full, lone] = lane_layout(s, C, G);
   const int lane = full * kWidth;  // the lone scalar lane
   // Only used where the vector registers are many (select_fast_advance): with AVX2 or SSE2
   // a Vec is already two or four registers and register blocks would spill.
   int c = 0;
-  // Three vectors at a time hide the latency of one step's chain; the leftovers go in a pair
-  // or alone, with the lone lane beside them.
-  for (; c + 3 <= full; c += 3) {
-    V a, b, e;
-    a.load(q, p, tc, C, c);
-    b.load(q, p, tc, C, c + 1);
-    e.load(q, p, tc, C, c + 2);
-    leapfrog_blocks(s, dt, steps, a, b, e);
-    a.store(q, p, C, c);
-    b.store(q, p, C, c + 1);
-    e.store(q, p, C, c + 2);
+  // Three (or two) vectors at a time hide the latency of one step's chain; the leftovers go
+  // in a pair or alone, with the lone lane beside them.
+  if constexpr (Method::kMaxBlocks >= 3) {
+    for (; c + 3 <= full; c += 3) {
+      V a, b, e;
+      a.load(q, p, tc, C, c);
+      b.load(q, p, tc, C, c + 1);
+      e.load(q, p, tc, C, c + 2);
+      Method::run(s, dt, steps, a, b, e);
+      a.store(q, p, C, c);
+      b.store(q, p, C, c + 1);
+      e.store(q, p, C, c + 2);
+    }
+  } else {
+    for (; c + 2 < full; c += 2) {  // pairs while more than two are left
+      V a, b;
+      a.load(q, p, tc, C, c);
+      b.load(q, p, tc, C, c + 1);
+      Method::run(s, dt, steps, a, b);
+      a.store(q, p, C, c);
+      b.store(q, p, C, c + 1);
+    }
   }
   S x;
   if (lone) x.load(q, p, tc, C, lane);
@@ -546,9 +652,9 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
     a.load(q, p, tc, C, c);
     b.load(q, p, tc, C, c + 1);
     if (lone) {
-      leapfrog_blocks(s, dt, steps, a, b, x);
+      Method::run(s, dt, steps, a, b, x);
     } else {
-      leapfrog_blocks(s, dt, steps, a, b);
+      Method::run(s, dt, steps, a, b);
     }
     a.store(q, p, C, c);
     b.store(q, p, C, c + 1);
@@ -556,29 +662,48 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
     V a;
     a.load(q, p, tc, C, c);
     if (lone) {
-      leapfrog_blocks(s, dt, steps, a, x);
+      Method::run(s, dt, steps, a, x);
     } else {
-      leapfrog_blocks(s, dt, steps, a);
+      Method::run(s, dt, steps, a);
     }
     a.store(q, p, C, c);
   } else if (lone) {
-    leapfrog_blocks(s, dt, steps, x);
+    Method::run(s, dt, steps, x);
   }
   if (lone) x.store(q, p, C, lane);
 }
 
-// The fast propagation for these settings, or nullptr (Runge-Kutta, or a basis without a
-// compile-time table: then Propagator::advance).
-inline FastAdvanceFn select_fast_advance(const Settings& s) {
-  if (!s.composition || !kManyRegisters) return nullptr;
+// fast_advance for a fixed basis and mass flag, by propagator: a composition, or an explicit
+// Runge–Kutta method of at most four stages (else nullptr: Propagator::advance).
+template <int D, int ORDER, bool MASS>
+FastAdvanceFn fast_advance_for(const Settings& s) {
+  if (s.composition) return &fast_advance<D, ORDER, MASS, CompositionMethod>;
+  switch (s.stages) {
+    case 1: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<1>>;
+    case 2: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<2>>;
+    case 3: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<3>>;
+    case 4: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<4>>;
+    default: return nullptr;
+  }
+}
+
+// The fast propagation for these settings, or nullptr (few vector registers, more than four
+// Runge–Kutta stages, or a basis without a compile-time table: then Propagator::advance).
+// A template so that the instruction sets with few registers do not instantiate the blocks.
+template <bool MANY = kManyRegisters>
+FastAdvanceFn select_fast_advance(const Settings& s) {
+  if constexpr (MANY) {
 #define SYMPLID_TRY_FAST(D, ORDER)                                                      \
   if (FixedBasis<D, ORDER>::matches(s)) {                                               \
-    return s.has_mass ? &fast_advance<D, ORDER, true> : &fast_advance<D, ORDER, false>; \
+    return s.has_mass ? fast_advance_for<D, ORDER, true>(s)                             \
+                      : fast_advance_for<D, ORDER, false>(s);                           \
   }
-  SYMPLID_TRY_FAST(1, 2) SYMPLID_TRY_FAST(1, 3) SYMPLID_TRY_FAST(1, 4) SYMPLID_TRY_FAST(1, 5)
-  SYMPLID_TRY_FAST(2, 2) SYMPLID_TRY_FAST(2, 3) SYMPLID_TRY_FAST(2, 4) SYMPLID_TRY_FAST(2, 5)
-  SYMPLID_TRY_FAST(3, 2) SYMPLID_TRY_FAST(3, 3) SYMPLID_TRY_FAST(3, 4) SYMPLID_TRY_FAST(3, 5)
+    SYMPLID_TRY_FAST(1, 2) SYMPLID_TRY_FAST(1, 3) SYMPLID_TRY_FAST(1, 4) SYMPLID_TRY_FAST(1, 5)
+    SYMPLID_TRY_FAST(2, 2) SYMPLID_TRY_FAST(2, 3) SYMPLID_TRY_FAST(2, 4) SYMPLID_TRY_FAST(2, 5)
+    SYMPLID_TRY_FAST(3, 2) SYMPLID_TRY_FAST(3, 3) SYMPLID_TRY_FAST(3, 4) SYMPLID_TRY_FAST(3, 5)
 #undef SYMPLID_TRY_FAST
+  }
+  (void)s;
   return nullptr;
 }
 
