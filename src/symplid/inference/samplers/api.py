@@ -165,10 +165,8 @@ def sample(
     num_params, names = _check_posterior(posterior, spec)
     num_draws = _num_draws(num_draws, num_samples)
     burn_in = _check_budget(spec, num_draws, num_chains, thin, burn_in, seed, init_spread)
-    kernel_settings = _make_settings(method, spec.settings_class, settings)
-    chain_method = spec.default_chain_method if chain_method is None else chain_method
-    if spec.resolve is not None:
-        kernel_settings = spec.resolve(kernel_settings, posterior, int(num_chains), chain_method)
+    kernel_settings, chain_method = _run_settings(spec, method, settings, chain_method,
+                                                  posterior, int(num_chains))
     batch_logdensity = cached_or_built(
         posterior, "batch-log-density", lambda: _batch_log_density(posterior)
     )
@@ -261,6 +259,17 @@ def _check_budget(spec: SamplerSpec, num_draws: int, num_chains: int, thin: int,
     if not (np.isfinite(init_spread) and init_spread >= 0):
         raise ValueError(f"init_spread must be a finite number >= 0, got {init_spread}")
     return int(burn_in)
+
+
+def _run_settings(spec: SamplerSpec, method: str, settings: Any, chain_method: str | None,
+                  posterior: Any, num_chains: int) -> tuple[Any, str]:
+    """The kernel's settings, with what the sampler leaves to the run resolved, and the chain
+    layout."""
+    kernel_settings = _make_settings(method, spec.settings_class, settings)
+    chain_method = spec.default_chain_method if chain_method is None else chain_method
+    if spec.resolve is not None:
+        kernel_settings = spec.resolve(kernel_settings, posterior, num_chains, chain_method)
+    return kernel_settings, chain_method
 
 
 def _make_settings(method: str, cls: type, settings: Any) -> Any:
