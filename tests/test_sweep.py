@@ -344,6 +344,19 @@ def test_paper_claims_study_end_to_end(shared_cluster, tmp_path):
         assert f"(figures/{name}.png)" in report
     assert "| paper | rk2-midpoint | 2 | 2 |" in report
 
+    # --report-only over more seeds than ran: nothing runs, the missing cells are pending and
+    # out of every fraction.
+    partial = run_paper_claims(out, seeds=3, budget="quick", variants="none",
+                               report_only=True, progress=False)
+    assert len(list((out / "cells").glob("*.json"))) == 6
+    assert partial["study"]["cells"] == 9 and partial["study"]["cells_pending"] == 3
+    assert partial["study"]["cells_failed"] == 0 and partial["study"]["failures"] == []
+    assert partial["variants"][0]["seeds"] == 2 and partial["variants"][0]["unpaired"] == 0
+    assert partial["claims"] == claims["claims"]
+    assert "3 not run yet" in (out / "report.md").read_text()
+    with pytest.raises(FileNotFoundError, match="no cells to report on"):
+        run_paper_claims(tmp_path / "empty", seeds=2, report_only=True, progress=False)
+
 
 # ----------------------------------------------------------------------------- the real cell
 PAPER_METRICS = (

@@ -483,10 +483,12 @@ def study() -> None:
               help="Local worker processes [default: one per core].")
 @click.option("--update-readme", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Rewrite the claims block of this README from claims.json.")
+@click.option("--report-only", is_flag=True,
+              help="Run nothing: judge the cells OUT holds (cells not run yet are pending).")
 @no_progress_option
 @user_errors
 def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, workers,
-                 update_readme, no_progress) -> None:
+                 update_readme, report_only, no_progress) -> None:
     """How often the paper's claims hold over many data seeds, per variant; calibration."""
     from symplid.experiments.paper_study import run_paper_claims
 
@@ -498,6 +500,7 @@ def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, wo
         workers=workers,
         variants="none" if no_variants else variants,
         progress=not no_progress,
+        report_only=report_only,
     )
     click.echo(f"{out}: claims.json, report.md and figures/")
     if update_readme is not None:

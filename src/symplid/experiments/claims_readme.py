@@ -110,8 +110,10 @@ def _setup(study: Mapping[str, Any]) -> list[str]:
         f"chains × {whole(b['num_iterations'])} iterations, {whole(b['burn_in'])} burn-in, "
         f"{whole(b['num_starts'])} MAP starts per cell) over {whole(study['seeds'])} data "
         f"seeds; variants: {names}. {whole(study['cells'])} cells, "
-        f"{whole(study['cells_failed'])} failed, {whole(study['cell_seconds_total'])} s of "
-        "compute in all."
+        f"{whole(study['cells_failed'])} failed"
+        + (f", {whole(study['cells_pending'])} not run yet (left out of every fraction)"
+           if study.get("cells_pending") else "")
+        + f", {whole(study['cell_seconds_total'])} s of compute in all."
         + _last_run(study)
         + _estimate(study)
         + _caveat(study)

@@ -149,8 +149,9 @@ def _evaluate_variant(result: dict[str, Any], table: Any, ok: Any, v: Any, sympl
     setting = v.setting()
     sym = _unique(_match(ok, setting, symplectic), v.name, symplectic)
     ref = _unique(_match(ok, setting, v.reference), v.name, v.reference)
-    seeds_all = set(_match(table, setting, symplectic)["seed"])
-    seeds_all |= set(_match(table, setting, v.reference)["seed"])
+    done = table[table["status"] != "pending"]  # a cell not run yet is no seed of the variant
+    seeds_all = set(_match(done, setting, symplectic)["seed"])
+    seeds_all |= set(_match(done, setting, v.reference)["seed"])
     paired = sorted(set(sym.index) & set(ref.index))
     unpaired = len(seeds_all) - len(paired)
     result["variants"].append({"name": v.name, "reference": v.reference,

@@ -53,6 +53,7 @@ from symplid.experiments.paper_claims import CLAIMS, evaluate_claims
 from symplid.experiments.paper_study_report import format_claims_report, plot_claims
 from symplid.workflow.results import read_json, write_json
 from symplid.workflow.sweep import SweepSpec, run_sweep, sweep_spec_from_dict
+from symplid.workflow.sweep_results import CELLS_DIR, load_results
 
 __all__ = [
     "BUDGETS",
@@ -71,6 +72,8 @@ __all__ = [
 ]
 
 SYMPLECTIC = "leapfrog"
+#: The status of a cell that has not run yet (:func:`~symplid.workflow.sweep_results.load_results`).
+PENDING = "pending"
 REFERENCE = PaperConfig.rk2
 
 #: The paper's Hénon–Heiles setting (Section IV), in sweep keys.
@@ -248,6 +251,7 @@ def run_paper_claims(
     variants: str | Sequence[str] | bool | None = "all",
     cell_fn: str | Callable[[dict], Mapping[str, Any]] | None = None,
     progress: bool = True,
+    report_only: bool = False,
 ) -> dict[str, Any]:
     """Run the paper-claims study (resumable) and write its claims, figures and report.
 
@@ -260,6 +264,9 @@ def run_paper_claims(
         See :func:`paper_claims_spec`.
     scheduler, workers, cell_fn, progress
         See :func:`symplid.workflow.sweep.run_sweep`.
+    report_only
+        Run nothing: judge the cells the folder already holds (an interrupted or partly run
+        study); the cells not run yet are counted as pending and left out of every fraction.
 
     Returns
     -------
@@ -274,8 +281,13 @@ def run_paper_claims(
     out = Path(out_dir)
     started = datetime.datetime.now(datetime.UTC).isoformat(timespec="microseconds")
     t0 = time.perf_counter()
-    table = run_sweep(spec, out_dir, scheduler, workers, cell_fn, progress=progress,
-                      figures=False)
+    if report_only:
+        if not (out / CELLS_DIR).is_dir():
+            raise FileNotFoundError(f"{out}: no cells to report on (run the study there first)")
+        table = load_results(out_dir, spec)
+    else:
+        table = run_sweep(spec, out_dir, scheduler, workers, cell_fn, progress=progress,
+                          figures=False)
     wall = time.perf_counter() - t0
     claims = evaluate_claims(table, chosen, symplectic=SYMPLECTIC)
     claims["study"] = _study_record(table, seeds, label, keys, chosen, wall, workers, scheduler)
@@ -305,7 +317,8 @@ def _study_record(table: Any, seeds: int, label: str, keys: dict[str, Any],
         "cells": counts.get("cells", len(table)),
         "cells_run": counts.get("ran"),
         "cells_skipped": counts.get("skipped"),
-        "cells_failed": int((table["status"] != "ok").sum()),
+        "cells_failed": int((~table["status"].isin(["ok", PENDING])).sum()),
+        "cells_pending": int((table["status"] == PENDING).sum()),
         "failures": _failures(table),
         "wall_time_s": wall,
         **_cell_times(table),
@@ -376,7 +389,7 @@ def _versions() -> dict[str, str]:
 
 
 def _failures(table: Any) -> list[dict[str, Any]]:
-    bad = table[table["status"] != "ok"]
+    bad = table[~table["status"].isin(["ok", PENDING])]
     return [
         {"cell_id": r.cell_id, "seed": int(r.seed), "integrator": r.integrator, "error": r.error}
         for r in bad.itertuples()

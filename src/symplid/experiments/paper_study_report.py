@@ -211,7 +211,9 @@ def _study_lines(study: Mapping[str, Any]) -> list[str]:
         f"{b['num_iterations']:,} iterations ({b['burn_in']:,} burn-in), {b['num_starts']} "
         "MAP starts.",
         f"Cells: {study['cells']} ({study['cells_run']} run now, {study['cells_skipped']} "
-        f"already done, {study['cells_failed']} failed). Wall time of this call: "
+        f"already done, {study['cells_failed']} failed"
+        + (f", {study['cells_pending']} not run yet" if study.get("cells_pending") else "")
+        + "). Wall time of this call: "
         f"{study['wall_time_s']:.0f} s; the cells' own times sum to "
         f"{study['cell_seconds_total']:.0f} s"
         + (f". The last call that ran cells ran {last['cells_run']} in "
