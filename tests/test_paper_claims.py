@@ -65,6 +65,11 @@ def test_wilson_interval_closed_forms_and_errors():
     assert wilson_interval(0, 0) is None
     with pytest.raises(ValueError, match="0 ≤ k ≤ n"):
         wilson_interval(4, 3)
+    for n in range(1, 41):  # the interval holds k / n itself, ends included exactly
+        assert wilson_interval(0, n)[0] == 0.0 and wilson_interval(n, n)[1] == 1.0
+        for k in range(n + 1):
+            lo, hi = wilson_interval(k, n)
+            assert 0.0 <= lo <= k / n <= hi <= 1.0
 
 
 def test_bootstrap_median_known_cases():

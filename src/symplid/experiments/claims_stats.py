@@ -57,7 +57,11 @@ def wilson_interval(k: int, n: int, level: float = LEVEL) -> tuple[float, float]
     denom = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # At k = 0 (k = n) the lower (upper) bound is exactly 0 (1); the formula's rounding would
+    # leave it a hair inside, and the interval would then miss p̂ itself.
+    lo = 0.0 if k == 0 else max(0.0, min(p, centre - half))
+    hi = 1.0 if k == n else min(1.0, max(p, centre + half))
+    return lo, hi
 
 
 def bootstrap_median(

@@ -48,6 +48,12 @@ def plot_claims(claims: Mapping[str, Any], folder: str | os.PathLike) -> dict[st
     return paths
 
 
+def _bars(value: float, lo: float, hi: float) -> list[list[float]]:
+    """Error-bar lengths below and above ``value``; zero where the interval does not reach past
+    it (a percentile-bootstrap interval of a median of few values need not contain it)."""
+    return [[max(0.0, value - lo)], [max(0.0, hi - value)]]
+
+
 def _plot_claim(name: str, claim: Mapping[str, Any], claims: Mapping[str, Any],
                 folder: Path) -> Path:
     from matplotlib.figure import Figure
@@ -61,7 +67,7 @@ def _plot_claim(name: str, claim: Mapping[str, Any], claims: Mapping[str, Any],
         if e["fraction_ci"] is None:
             continue
         lo, hi = e["fraction_ci"]
-        left.errorbar(i, e["fraction"], [[e["fraction"] - lo], [hi - e["fraction"]]],
+        left.errorbar(i, e["fraction"], _bars(e["fraction"], lo, hi),
                       fmt="o", color=COLORS["leapfrog"], capsize=3)
         left.annotate(f"{e['holds']}/{e['n']}", (i, hi), textcoords="offset points",
                       xytext=(0, 4), ha="center", fontsize=7)
@@ -74,8 +80,7 @@ def _plot_claim(name: str, claim: Mapping[str, Any], claims: Mapping[str, Any],
         strip_plot(right, i, values, "#555555", rng)
         eff = e["effect"]
         if eff["lo"] is not None:
-            right.errorbar(i + 0.3, eff["median"], [[eff["median"] - eff["lo"]],
-                                                     [eff["hi"] - eff["median"]]],
+            right.errorbar(i + 0.3, eff["median"], _bars(eff["median"], eff["lo"], eff["hi"]),
                            fmt="s", color="black", ms=4, capsize=3)
     if claim["effect"] == "ratio":
         right.set_yscale("log")
@@ -111,7 +116,7 @@ def _plot_coverage(groups: list, level: float, folder: Path) -> Path:
                 continue
             lo, hi = p["coverage_ci"]
             xi = i - 0.4 + width * (k + 0.5)
-            ax.errorbar(xi, p["coverage"], [[p["coverage"] - lo], [hi - p["coverage"]]],
+            ax.errorbar(xi, p["coverage"], _bars(p["coverage"], lo, hi),
                         fmt="o", ms=3, capsize=2, color=_PALETTE[k % len(_PALETTE)],
                         label=g["label"] if i == 0 else None)
     ax.axhline(level, color="black", lw=0.8, ls="--")
