@@ -351,6 +351,7 @@ def test_paper_claims_study_end_to_end(shared_cluster, tmp_path):
     assert len(list((out / "cells").glob("*.json"))) == 6
     assert partial["study"]["cells"] == 9 and partial["study"]["cells_pending"] == 3
     assert partial["study"]["cells_failed"] == 0 and partial["study"]["failures"] == []
+    assert (partial["study"]["cells_run"], partial["study"]["cells_skipped"]) == (0, 6)
     assert partial["variants"][0]["seeds"] == 2 and partial["variants"][0]["unpaired"] == 0
     assert partial["claims"] == claims["claims"]
     assert "3 not run yet" in (out / "report.md").read_text()
