@@ -2,9 +2,10 @@
 
 The kernel advances Runge–Kutta sigma points in register blocks when the potential's basis
 has a compile-time table (d ≤ 3, order ≤ 5), the tableau at most four stages and the
-processor AVX-512, and sweeps them through memory otherwise (here d = 4 and order 6). Both paths must give the JAX backend's log-likelihood to rounding, for one θ
-(sigma points in the lanes of one vector and a lone scalar lane) and for vmap batches of 8
-and 16 (one vector per sigma point, eight θ per vector).
+processor AVX-512, and sweeps them through memory otherwise (here d = 4 and order 6). Both
+paths must give the JAX backend's log-likelihood to rounding, for one θ (sigma points in the
+lanes of one vector and a lone scalar lane) and for vmap batches of 8 and 16 (one vector per
+sigma point, eight θ per vector).
 """
 
 from __future__ import annotations
