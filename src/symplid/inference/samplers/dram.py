@@ -44,6 +44,11 @@ proposal's Cholesky factor, the triangular solve of ``q1`` and ``L z``) is unrol
 arithmetic (:mod:`symplid.filters.linalg`) instead of LAPACK calls and ``dot``: without a
 custom call or ``dot`` in its body, XLA:CPU compiles a whole chunk of iterations as one kernel
 (see :func:`symplid.runtime.configure_xla`). The results equal LAPACK's to rounding (1e-12).
+Where the log density is a custom call (the compiled likelihood), XLA runs the chunk operation
+by operation anyway, and LAPACK's fewer, larger calls are cheaper (``linalg = "lapack"``); and
+a backend that evaluates a batch for little more than one point gets both stages' proposals
+in one call (``paired_stages``; stage 2's value is used only when stage 1 rejects, so the
+chain is the same to rounding). :func:`~.registry.resolve_dram` picks both per run.
 """
 
 from __future__ import annotations
@@ -493,7 +498,7 @@ def _paired_stages(logdensity: LogDensityFn, state: DRAMState, normals: Array,
                    algebra: Algebra) -> _Stages:
     """Both proposals drawn and evaluated in one batched call (a batch of two; of 2 × chains
     when the chains are vectorized), then judged as :func:`_staged` judges them: stage 2's
-    value is used only when stage 1 rejects, so the chain is the same, draw for draw. For a
+    value is used only when stage 1 rejects, so the chain is the same to rounding. For a
     likelihood backend that evaluates a batch for little more than one point
     (``LikelihoodBackend.batch_width``)."""
     x, logdensity_x, chol = state.position, state.logdensity, state.chol
