@@ -450,7 +450,7 @@ def build_kernel(logdensity_fn: LogDensityFn,
                                           jax.random.uniform(key_u2, dtype=x.dtype)]))
         run = _paired_stages if paired else _staged
         stages = run(logdensity, state, normals, log_uniforms, stage_scales, num_stages, algebra)
-        return _finish(state, stages, settings)
+        return _finish(state, stages, settings, algebra)
 
     return step
 
@@ -518,8 +518,8 @@ def _paired_stages(logdensity: LogDensityFn, state: DRAMState, normals: Array,
     )
 
 
-def _finish(state: DRAMState, stages: _Stages,
-            settings: DRAMSettings) -> tuple[DRAMState, DRAMInfo]:
+def _finish(state: DRAMState, stages: _Stages, settings: DRAMSettings,
+            algebra: Algebra) -> tuple[DRAMState, DRAMInfo]:
     """The move the stages decided, the adaptive-Metropolis update and the step's info."""
     x, logdensity_x, chol = state.position, state.logdensity, state.chol
     dim = x.shape[0]
@@ -535,7 +535,6 @@ def _finish(state: DRAMState, stages: _Stages,
     adapting = count >= settings.adapt_start
     if settings.adapt_stop is not None:
         adapting = adapting & (iteration < settings.adapt_stop)
-    algebra = LAPACK if settings.linalg == "lapack" else UNROLLED
     candidate = _proposal_chol(cov, state.nugget, settings.resolved_scale(dim), algebra)
     usable = adapting & jnp.all(jnp.isfinite(candidate))
     new_chol = jnp.where(usable, candidate, chol)
