@@ -130,6 +130,22 @@ def test_log_density_sum():
         log_density_sum(priors, jnp.zeros(2))
 
 
+def test_log_density_sum_of_shared_priors_matches_scipy_in_batches():
+    """Parameters sharing one prior (a network's weights) are evaluated as one vector; the
+    sum must still be each parameter's own term, in any interleaving and for a batch of θ."""
+    shared, other = Normal(0.0, 1.0), Laplace(0.5, 2.0)
+    priors = [shared, other, shared, shared, HalfNormal(3.0), other, Normal(0.0, 1.0)]
+    refs = [stats.norm(), stats.laplace(0.5, 2.0), stats.norm(), stats.norm(),
+            stats.halfnorm(scale=3.0), stats.laplace(0.5, 2.0), stats.norm()]
+    theta = np.random.default_rng(3).uniform(0.1, 2.0, size=(5, len(priors)))
+    want = [sum(r.logpdf(v) for r, v in zip(refs, row, strict=True)) for row in theta]
+    got = np.asarray(log_density_sum(priors, jnp.asarray(theta)))
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    theta[2, 4] = -1.0  # off the half-normal's support: that row alone is −∞
+    got = np.asarray(log_density_sum(priors, jnp.asarray(theta)))
+    assert got[2] == -np.inf and np.all(np.isfinite(np.delete(got, 2)))
+
+
 def test_prior_spec_defaults_are_the_papers():
     spec = PriorSpec()
     assert spec.coefficients == Laplace(0.0, 10.0)

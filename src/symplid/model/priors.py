@@ -524,9 +524,24 @@ def log_density_sum(priors: Sequence[Prior], theta: Array) -> Array:
     if theta.shape[-1] != len(priors):
         raise ValueError(f"θ has {theta.shape[-1]} entries but {len(priors)} priors were given")
     total = jnp.zeros(theta.shape[:-1])
-    for i, prior in enumerate(priors):
-        total = total + prior.log_density(theta[..., i])
+    for prior, index in _shared(priors):
+        terms = prior.log_density(theta[..., index])
+        total = total + (terms[..., 0] if len(index) == 1 else jnp.sum(terms, axis=-1))
     return total
+
+
+def _shared(priors: Sequence[Prior]) -> list[tuple[Prior, np.ndarray]]:
+    """The distinct priors, each with the indices of the parameters it holds, in order of
+    first appearance: a network's thousand weights that share one prior are evaluated as one
+    vector (one traced expression instead of a thousand)."""
+    groups: dict[Any, tuple[Prior, list[int]]] = {}
+    for i, prior in enumerate(priors):
+        try:
+            key = (type(prior), hash(prior), prior)
+        except TypeError:  # a user's prior that is not hashable stands alone
+            key = ("unhashable", i)
+        groups.setdefault(key, (prior, []))[1].append(i)
+    return [(prior, np.asarray(index)) for prior, index in groups.values()]
 
 
 __all__ = [
