@@ -111,3 +111,12 @@ def claims_cell(cell: dict) -> dict:
         "loglik": ll,
         "wall_time_s": 0.0,
     }
+
+
+def slow_cell(cell: dict) -> dict:
+    """A cell that takes minutes (it sleeps): for stopping a sweep while cells run."""
+    import time
+
+    _log_call(cell)
+    time.sleep(600.0)
+    return {"loglik": 0.0}

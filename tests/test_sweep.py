@@ -10,6 +10,11 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -213,6 +218,64 @@ def test_failing_cell_is_recorded_and_retried(shared_cluster, tmp_path):
     assert len(_calls(calls)) - n0 == 6
     assert table.attrs["sweep"]["skipped"] == 2 and table.attrs["sweep"]["ran"] == 2
     assert list(table["status"]) == ["ok"] * 4
+
+
+_STOPPED_SWEEP = """
+import signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)  # not ignored in a background job
+sys.path.insert(0, {tests!r})
+from symplid.workflow.sweep import run_sweep
+
+if __name__ == "__main__":
+    spec = {{"base": {{"num_iterations": 20, "burn_in": 10}},
+            "sweep": {{"grid": {{"seed": [0, 1, 2]}}}}}}
+    run_sweep(spec, {out!r}, workers=2, cell_fn="sweep_cells:slow_cell", progress=False,
+              figures=False, worker_env={{"PYTHONPATH": {tests!r}, {env!r}: {calls!r},
+                                          "SYMPLID_CACHE_DIR": "off"}})
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(os.name != "posix", reason="sends SIGINT")
+def test_ctrl_c_ends_a_local_sweep_without_waiting_for_its_cells(tmp_path):
+    """Ctrl-C while two workers run ten-minute cells: the sweep stops within seconds, its
+    worker processes are gone, and no cell is recorded (a rerun runs them)."""
+    calls = tmp_path / "calls"
+    calls.mkdir()
+    script = tmp_path / "sweep.py"
+    script.write_text(_STOPPED_SWEEP.format(tests=str(TESTS_DIR), out=str(tmp_path / "out"),
+                                            env=sweep_cells.CALLS_ENV, calls=str(calls)))
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120.0
+        while len(_calls(calls)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert len(_calls(calls)) == 2, proc.stderr.read() if proc.poll() is not None else ""
+        workers = [int(p.read_text()) for p in calls.glob("*.call")]
+        start = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+        stopped = time.monotonic() - start
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode != 0
+    # Closing the cluster gracefully waits about 5 s for the running cells (then kills them).
+    assert stopped < 3.0, f"the sweep took {stopped:.1f} s to stop"
+    for _ in range(50):
+        if not any(_alive(pid) for pid in workers):
+            break
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in workers)
+    assert not list((tmp_path / "out" / "cells").glob("*.json"))
 
 
 def test_unimportable_cell_function_is_a_clear_error(tmp_path):

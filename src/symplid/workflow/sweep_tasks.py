@@ -13,6 +13,7 @@ import importlib
 import logging
 import math
 import os
+import signal
 import socket
 import time
 import traceback
@@ -234,7 +235,28 @@ def dask_client(
         ) as cluster,
         Client(cluster) as client,
     ):
-        yield client
+        try:
+            yield client
+        except BaseException:  # Ctrl-C above all: the cells still running are not waited for
+            _end_local_workers(client)
+            raise
+
+
+def _end_local_workers(client: Any) -> None:
+    """End the worker processes of the local cluster at once, by their ids.
+
+    Closing the cluster waits for the cells that are running, which on Ctrl-C took 5–10 s;
+    their results would be lost anyway (a rerun runs unfinished cells again), and the
+    workers write nothing themselves. Nothing is done when the workers cannot be asked.
+    """
+    try:
+        pids = list(client.run(os.getpid).values())
+    except Exception:  # a worker already gone, the scheduler closing: the plain close follows
+        return
+    for pid in pids:
+        if pid != os.getpid():
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, getattr(signal, "SIGKILL", signal.SIGTERM))
 
 
 def _num_cores() -> int:
