@@ -236,11 +236,16 @@ if __name__ == "__main__":
 
 
 def _alive(pid: int) -> bool:
+    """Whether the process runs (a zombie left for its new parent to reap does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    return True
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state != "Z"
 
 
 @pytest.mark.skipif(os.name != "posix", reason="sends SIGINT")
@@ -252,13 +257,15 @@ def test_ctrl_c_ends_a_local_sweep_without_waiting_for_its_cells(tmp_path):
     script = tmp_path / "sweep.py"
     script.write_text(_STOPPED_SWEEP.format(tests=str(TESTS_DIR), out=str(tmp_path / "out"),
                                             env=sweep_cells.CALLS_ENV, calls=str(calls)))
-    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
+    log = tmp_path / "stderr.txt"
+    with log.open("w") as err:
+        proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.DEVNULL,
+                                stderr=err)
     try:
         deadline = time.monotonic() + 120.0
         while len(_calls(calls)) < 2 and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.2)
-        assert len(_calls(calls)) == 2, proc.stderr.read() if proc.poll() is not None else ""
+        assert len(_calls(calls)) == 2, log.read_text()
         workers = [int(p.read_text()) for p in calls.glob("*.call")]
         start = time.monotonic()
         proc.send_signal(signal.SIGINT)
