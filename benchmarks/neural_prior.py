@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import symplid  # noqa: F401  (float64)
+from symplid.inference.neural_fit import _diagonal_hessian as diagonal_hessian
 from symplid.model.priors import Normal, log_density_sum
 
 NUM_WEIGHTS = 336  # MLPPotential(dim=2, width=16, depth=2)
@@ -46,12 +47,6 @@ def per_parameter_sum(priors, theta):
     for i, prior in enumerate(priors):
         total = total + prior.log_density(theta[..., i])
     return total
-
-
-def diagonal_hessian(fn):
-    def diagonal(theta):
-        return jax.jvp(jax.grad(fn), (theta,), (jnp.ones_like(theta),))[1]
-    return diagonal
 
 
 def cpu_seconds(work, repeats: int = REPEATS) -> float:

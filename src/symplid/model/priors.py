@@ -525,8 +525,7 @@ def log_density_sum(priors: Sequence[Prior], theta: Array) -> Array:
         raise ValueError(f"θ has {theta.shape[-1]} entries but {len(priors)} priors were given")
     total = jnp.zeros(theta.shape[:-1])
     for prior, index in _shared(priors):
-        terms = prior.log_density(theta[..., index])
-        total = total + (terms[..., 0] if len(index) == 1 else jnp.sum(terms, axis=-1))
+        total = total + jnp.sum(prior.log_density(theta[..., index]), axis=-1)
     return total
 
 
@@ -536,8 +535,9 @@ def _shared(priors: Sequence[Prior]) -> list[tuple[Prior, np.ndarray]]:
     vector (one traced expression instead of a thousand)."""
     groups: dict[Any, tuple[Prior, list[int]]] = {}
     for i, prior in enumerate(priors):
+        key: Any = prior  # the families are frozen dataclasses: equal fields, equal prior
         try:
-            key = (type(prior), hash(prior), prior)
+            hash(prior)
         except TypeError:  # a user's prior that is not hashable stands alone
             key = ("unhashable", i)
         groups.setdefault(key, (prior, []))[1].append(i)

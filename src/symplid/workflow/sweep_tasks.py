@@ -253,10 +253,9 @@ def _end_local_workers(client: Any) -> None:
         pids = list(client.run(os.getpid).values())
     except Exception:  # a worker already gone, the scheduler closing: the plain close follows
         return
-    for pid in pids:
-        if pid != os.getpid():
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.kill(pid, getattr(signal, "SIGKILL", signal.SIGTERM))
+    for pid in pids:  # worker processes of their own (processes=True above)
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, getattr(signal, "SIGKILL", signal.SIGTERM))
 
 
 def _num_cores() -> int:
