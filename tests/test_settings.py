@@ -33,7 +33,7 @@ def _load_text(tmp_path, text: str, name: str = "run.toml") -> Settings:
 # ----------------------------------------------------------------------------- defaults
 def test_defaults_are_the_papers_numbers():
     s = Settings()
-    # Section IV of the paper and DESIGN.md: cubic potential, leapfrog at dt = 0.25, process
+    # Section IV of the paper: cubic potential, leapfrog at dt = 0.25, process
     # noise once per gap. The noise layout and the standardisation default to "auto" (decided
     # by the data); the paper's experiment sets one isotropic variance each for Σ and Γ and
     # no standardisation itself (see test_paper_settings_fix_the_auto_defaults).

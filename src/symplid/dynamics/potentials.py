@@ -11,8 +11,8 @@ Two kinds ship with the library:
 * :class:`FunctionPotential`: any JAX function ``U(q, coefficients)``; its gradient is taken
   by automatic differentiation.
 
-Basis order (fixed, see DESIGN.md): by total degree, then lexicographically with the first
-coordinate's power highest. For ``dim=2, order=3``::
+Basis order (fixed; ``docs/explanation/conventions.md``): by total degree, then
+lexicographically with the first coordinate's power highest. For ``dim=2, order=3``::
 
     q1, q2, q1^2, q1*q2, q2^2, q1^3, q1^2*q2, q1*q2^2, q2^3
 

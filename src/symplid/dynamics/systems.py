@@ -3,10 +3,10 @@
 Each :class:`System` carries a potential (a :class:`~symplid.dynamics.potentials.Polynomial`,
 or a :class:`~.potentials.FunctionPotential` for a system that no polynomial describes exactly)
 and its true coefficients in the library's convention (coefficients of **U**, basis order of
-DESIGN.md), a true damping rate γ (0 for a conservative system), plus a default initial state
-and observation schedule. A non-separable system carries a whole Hamiltonian
-(:mod:`symplid.dynamics.hamiltonians`) and its true parameters instead, with an integrator for
-its fine "truth" that accepts it.
+``docs/explanation/conventions.md``), a true damping rate γ (0 for a conservative system),
+plus a default initial state and observation schedule. A non-separable system carries a whole
+Hamiltonian (:mod:`symplid.dynamics.hamiltonians`) and its true parameters instead, with an
+integrator for its fine "truth" that accepts it.
 
 To add a system, register a factory in :data:`SYSTEMS` (``SYSTEMS.register(name, factory)``).
 """

@@ -60,7 +60,8 @@ PAPER = {
 }
 
 APPROACHES = ("leapfrog", "rk2")
-HORIZON_THRESHOLD = 0.1  # |q1 − q1_true| that ends a valid prediction (DESIGN.md)
+#: |q1 − q1_true| that ends a valid prediction (``docs/explanation/conventions.md``)
+HORIZON_THRESHOLD = 0.1
 QUICK = {"iterations": 3000, "burn_in": 1500, "chains": 2, "num_starts": 2, "num_paths": 20}
 TRUTH_DT = 1e-3
 

@@ -10,8 +10,8 @@ written as a BlackJAX-style pair of pure functions,
 
 so that a chunk of iterations is one ``lax.scan`` and several chains are one ``vmap``.
 
-Conventions (DESIGN.md)
------------------------
+Conventions (``docs/explanation/conventions.md``):
+
 * **Stage 1** is a Gaussian random walk ``y1 = x + L z``, ``L Lᵀ = C`` the current proposal
   covariance.
 * **Adaptive Metropolis.** The running mean and covariance of *every* state of the chain
