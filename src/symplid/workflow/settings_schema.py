@@ -56,27 +56,87 @@ class ModelSettings:
     (:class:`~symplid.dynamics.neural.MLPPotential`). A family ignores the others.
     """
 
-    potential: str = setting("polynomial", choices=POTENTIAL_FAMILIES)
-    hamiltonian: str = setting("separable", choices=HAMILTONIAN_FAMILIES)
-    order: int = setting(3, minimum=1)
-    width: int = setting(32, minimum=1)
-    depth: int = setting(2, minimum=0)
-    activation: str = setting("tanh", choices=ACTIVATIONS)
-    network_seed: int = setting(0, minimum=0)
-    integrator: str = setting("leapfrog", choices=INTEGRATORS)
-    binding: float = setting(0.0, minimum=0.0)  # Tao's ω ("tao", "tao4"); 0: ω = 1/dt
-    dt: float = setting(0.25, minimum=0.0, strict=True)
-    process_noise_per: str = setting("gap", choices=("gap", "step"))
-    noise: str = setting("auto", choices=("auto", "isotropic", "diagonal", "per-kind"))
-    observation_noise: str = setting("additive", choices=OBSERVATION_NOISE)
-    standardise: str = setting("auto", choices=("auto", "on", "off"))
-    observation: str = setting("auto", choices=("auto", "full", "positions"))
-    mass: tuple[float, ...] = setting(())
-    alpha: float = setting(1.0, minimum=0.0, strict=True)
-    beta: float = setting(2.0)
-    kappa: float = setting(0.0)
-    jitter: float = setting(1e-12, minimum=0.0)
-    damping: bool = setting(False)
+    potential: str = setting(
+        "polynomial", choices=POTENTIAL_FAMILIES,
+        doc="Family of U(q; θ): the polynomial of eq. 13 or a neural network (``\"mlp\"``).",
+    )
+    hamiltonian: str = setting(
+        "separable", choices=HAMILTONIAN_FAMILIES,
+        doc=(
+            "Family of a whole H(q, p; θ); ``\"separable\"``: H = ½pᵀM⁻¹p + U(q) with U from "
+            "``potential``."
+        ),
+    )
+    order: int = setting(
+        3, minimum=1,
+        doc="Polynomial order ℓ of U (monomials of total degree 1..ℓ).",
+    )
+    width: int = setting(32, minimum=1, doc="Units per hidden layer of an ``\"mlp\"`` network.")
+    depth: int = setting(2, minimum=0, doc="Hidden layers of an ``\"mlp\"`` network.")
+    activation: str = setting(
+        "tanh", choices=ACTIVATIONS,
+        doc="Activation of an ``\"mlp\"`` network.",
+    )
+    network_seed: int = setting(
+        0, minimum=0,
+        doc="Seed of an ``\"mlp\"`` network's initial weights.",
+    )
+    integrator: str = setting(
+        "leapfrog", choices=INTEGRATORS,
+        doc="Propagator Ψ inside the likelihood (eq. 14); any name in ``symplid.INTEGRATORS``.",
+    )
+    binding: float = setting(
+        0.0, minimum=0.0,
+        doc="Tao's binding ω (``\"tao\"``, ``\"tao4\"``); 0: ω = 1/dt.",
+    )
+    dt: float = setting(
+        0.25, minimum=0.0, strict=True,
+        doc="Learning step: each observation gap is split into ⌈gap/dt⌉ equal substeps.",
+    )
+    process_noise_per: str = setting(
+        "gap", choices=("gap", "step"),
+        doc="Process noise Σ added once per observation gap (the paper's) or after every substep.",
+    )
+    noise: str = setting(
+        "auto", choices=("auto", "isotropic", "diagonal", "per-kind"),
+        doc=(
+            "Observation variances: ``\"auto\"`` is one per kind of column (q, p) when the data "
+            "have both, one in all for positions only."
+        ),
+    )
+    observation_noise: str = setting(
+        "additive", choices=OBSERVATION_NOISE,
+        doc="How the noise enters the data: y = h(x) + η, y = h(x)∘(1 + ε), or both.",
+    )
+    standardise: str = setting(
+        "auto", choices=("auto", "on", "off"),
+        doc=(
+            "Fit in q/a, p/a (a = RMS of the positions) and report in the data's units; "
+            "``\"auto\"``: on when a is outside [0.1, 10]."
+        ),
+    )
+    observation: str = setting(
+        "auto", choices=("auto", "full", "positions"),
+        doc=(
+            "Observation operator h: the full state or the positions; ``\"auto\"``: from the data's"
+            " columns."
+        ),
+    )
+    mass: tuple[float, ...] = setting(
+        (),
+        doc="Diagonal of the mass matrix M (empty: the identity).",
+    )
+    alpha: float = setting(1.0, minimum=0.0, strict=True, doc="Unscented transform's spread α.")
+    beta: float = setting(2.0, doc="Unscented transform's β (2 is optimal for a Gaussian).")
+    kappa: float = setting(0.0, doc="Unscented transform's κ.")
+    jitter: float = setting(
+        1e-12, minimum=0.0,
+        doc="Added to the diagonal of covariances before a Cholesky factorisation.",
+    )
+    damping: bool = setting(
+        False,
+        doc="Learn a damping rate γ: ṗ = −∂U/∂q − γM⁻¹p (CLI ``--damping``).",
+    )
     """Learn a damping rate γ: ṗ = −∂U/∂q − γM⁻¹p (:mod:`symplid.dynamics.damping`)."""
 
 
@@ -88,10 +148,25 @@ class InitialStateSettings:
     that observation's update; see :class:`~symplid.model.posterior.Posterior`, ``t0=None``).
     """
 
-    mode: str = setting("known", choices=("known", "learned"))
-    x0: tuple[float, ...] = setting(())
-    p0_var: float = setting(1e-16, minimum=0.0)
-    t0: float | str = setting(0.0, words=("first",))
+    mode: str = setting(
+        "known", choices=("known", "learned"),
+        doc=(
+            "``\"known\"``: x0 is given; ``\"learned\"``: each trajectory's initial state joins θ, "
+            "its prior centred on the first observation."
+        ),
+    )
+    x0: tuple[float, ...] = setting(
+        (),
+        doc="The known initial state q1..qd, p1..pd (one per trajectory, one after the other).",
+    )
+    p0_var: float = setting(
+        1e-16, minimum=0.0,
+        doc="Variance of the known initial state (P0 = p0_var·I).",
+    )
+    t0: float | str = setting(
+        0.0, words=("first",),
+        doc="Time of the initial state; ``\"first\"``: at the first observation.",
+    )
 
     @property
     def at_first_observation(self) -> bool:
@@ -115,9 +190,13 @@ class PriorSettings:
     """
 
     coefficients: Prior = field(default_factory=lambda: Laplace(0.0, 10.0))
+    """Prior of every coefficient of U or H (a neural family names its own default)."""
     variances: Prior = field(default_factory=lambda: HalfNormal(1.0))
+    """Prior of every noise variance (process, observation, relative)."""
     initial_state: Prior = field(default_factory=lambda: Normal(0.0, 1.0))
+    """Prior of a learned initial state's offset from its centre (the first observation)."""
     damping: Prior = field(default_factory=lambda: HalfNormal(1.0))
+    """Prior of the damping rate γ (bounded below by 0 whatever its prior)."""
 
     def prior_spec(self, learned_initial_state: bool) -> PriorSpec:
         """The :class:`~symplid.model.priors.PriorSpec` of these groups for the posterior."""
@@ -144,12 +223,21 @@ class MapSettings:
     approximation alone (what a study that never reads the evidence needs).
     """
 
-    num_starts: int = setting(4, minimum=1)
-    evidence: str = setting("quadrature", choices=EVIDENCE_METHODS)
-    seed: int = setting(0, minimum=0)
-    adam_steps: int = setting(2000, minimum=0)
-    learning_rate: float = setting(0.01, minimum=0.0, strict=True)
-    lbfgs_steps: int = setting(1000, minimum=0)
+    num_starts: int = setting(4, minimum=1, doc="Seeded starts of the MAP search (L-BFGS-B).")
+    evidence: str = setting(
+        "quadrature", choices=EVIDENCE_METHODS,
+        doc=(
+            "Log evidence: noise variances integrated over log v (``\"quadrature\"``) or the "
+            "Laplace approximation alone."
+        ),
+    )
+    seed: int = setting(0, minimum=0, doc="Seed of the MAP starts.")
+    adam_steps: int = setting(2000, minimum=0, doc="Adam steps of a neural family's MAP.")
+    learning_rate: float = setting(
+        0.01, minimum=0.0, strict=True,
+        doc="Adam's step size for a neural family.",
+    )
+    lbfgs_steps: int = setting(1000, minimum=0, doc="L-BFGS steps after Adam for a neural family.")
 
 
 @dataclass(frozen=True)
@@ -162,15 +250,30 @@ class SamplerSettings:
     Jacobian (no wall at their floor), ``"natural"`` as themselves (the paper's).
     """
 
-    method: str = setting("dram", choices=SAMPLERS)
-    num_iterations: int = setting(200_000, minimum=1)
-    burn_in: int = setting(100_000, minimum=0)
-    num_chains: int = setting(4, minimum=1)
-    gamma: float = setting(0.01, minimum=0.0, strict=True)
-    adapt_start: int = setting(200, minimum=0)
-    variance_scale: str = setting("log", choices=VARIANCE_SCALES)
-    thin: int = setting(1, minimum=1)
-    seed: int = setting(0, minimum=0)
+    method: str = setting(
+        "dram", choices=SAMPLERS,
+        doc="The sampler: any name in ``symplid.samplers.SAMPLERS``.",
+    )
+    num_iterations: int = setting(
+        200_000, minimum=1,
+        doc=(
+            "Iterations per chain, burn-in included (old name: ``num_samples``; CLI "
+            "``--iterations``)."
+        ),
+    )
+    burn_in: int = setting(100_000, minimum=0, doc="Iterations per chain discarded at the start.")
+    num_chains: int = setting(4, minimum=1, doc="Independent chains.")
+    gamma: float = setting(0.01, minimum=0.0, strict=True, doc="DRAM's second-stage scale.")
+    adapt_start: int = setting(
+        200, minimum=0,
+        doc="Iteration from which DRAM adapts its proposal covariance.",
+    )
+    variance_scale: str = setting(
+        "log", choices=VARIANCE_SCALES,
+        doc="DRAM moves the noise variances as log(v) (with the Jacobian) or as v (the paper's).",
+    )
+    thin: int = setting(1, minimum=1, doc="Keep every thin-th draw.")
+    seed: int = setting(0, minimum=0, doc="Seed of the sampler.")
 
     @property
     def num_draws(self) -> int:
@@ -182,10 +285,13 @@ class SamplerSettings:
 class PredictionSettings:
     """Predictions from the learned models: leapfrog at a fine dt to t_end (Figs 1–3)."""
 
-    integrator: str = setting("leapfrog", choices=INTEGRATORS)
-    dt: float = setting(0.01, minimum=0.0, strict=True)
-    t_end: float = setting(200.0)
-    num_paths: int = setting(100, minimum=0)
+    integrator: str = setting("leapfrog", choices=INTEGRATORS, doc="Propagator of the predictions.")
+    dt: float = setting(0.01, minimum=0.0, strict=True, doc="Step of the predictions.")
+    t_end: float = setting(200.0, doc="Predictions run to this time.")
+    num_paths: int = setting(
+        100, minimum=0,
+        doc="Posterior sample paths drawn for the prediction band.",
+    )
 
 
 @dataclass(frozen=True)
@@ -196,17 +302,29 @@ class PlotSettings:
     ``symplid.SYSTEMS``, e.g. for simulated data): its U and coefficients are drawn as the
     truth."""
 
-    time_unit: str = setting("s")
-    truth: str = setting("")
-    max_pair_params: int = setting(6, minimum=2)
-    max_trace_params: int = setting(16, minimum=1)
+    time_unit: str = setting("s", doc="Unit written on every time axis (CLI ``--time-unit``).")
+    truth: str = setting(
+        "",
+        doc="The named system that made the data, if known: its U and true values are drawn.",
+    )
+    max_pair_params: int = setting(
+        6, minimum=2,
+        doc=(
+            "Parameters in the pair plot (the first ones in θ's order; a note says when some are "
+            "left out)."
+        ),
+    )
+    max_trace_params: int = setting(16, minimum=1, doc="Parameters in the trace plot.")
 
 
 @dataclass(frozen=True)
 class Settings:
     """Everything a run needs; the defaults are the paper's Hénon–Heiles experiment."""
 
-    seed: int = setting(0, minimum=0)
+    seed: int = setting(
+        0, minimum=0,
+        doc="Seed of the run (data simulation, MAP starts and sampler unless they set their own).",
+    )
     model: ModelSettings = field(default_factory=ModelSettings)
     initial_state: InitialStateSettings = field(default_factory=InitialStateSettings)
     priors: PriorSettings = field(default_factory=PriorSettings)

@@ -1,0 +1,98 @@
+"""Cross-references in docstrings: a link where the target is documented, text where it is not.
+
+The docstrings name internal functions and classes (``:func:`symplid.runtime.configure_xla```)
+and outside ones (``:class:`numpy.ndarray```) that the reference does not document: the
+reference shows the public surface only. With ``nitpicky = True`` each of those would be a
+warning. This handler resolves such a reference by importing what it names:
+
+* an object documented under another (public) path -> a link to that entry
+  (``symplid.model.posterior.Posterior`` -> ``symplid.Posterior``);
+* an object that exists but is not documented -> its name as code, no link;
+* a name that does not exist -> left alone, so Sphinx reports it (a broken reference fails
+  the build under ``-W``).
+"""
+
+from __future__ import annotations
+
+import builtins
+import importlib
+import sys
+from typing import Any
+
+_MISSING = object()
+_ALIASES = {"np": "numpy", "jnp": "jax.numpy", "npt": "numpy.typing"}
+
+
+def _import(path: str) -> Any:
+    """The object at a dotted path, or ``_MISSING``."""
+    parts = path.split(".")
+    if parts[0] in _ALIASES:
+        parts = _ALIASES[parts[0]].split(".") + parts[1:]
+    if len(parts) == 1 and hasattr(builtins, parts[0]):
+        return getattr(builtins, parts[0])
+    for cut in range(len(parts), 0, -1):
+        modname = ".".join(parts[:cut])
+        try:
+            obj = importlib.import_module(modname)
+        except Exception:  # noqa: BLE001 - any failure means: not this split
+            continue
+        for attr in parts[cut:]:
+            obj = getattr(obj, attr, _MISSING)
+            if obj is _MISSING:
+                break
+        if obj is not _MISSING:
+            return obj
+    return _MISSING
+
+
+def _candidates(target: str, module: str | None, cls: str | None) -> list[str]:
+    target = target.lstrip("~")
+    out = []
+    if target.startswith("."):
+        target = target.lstrip(".")
+        names = [m for m in list(sys.modules) if m.startswith("symplid")]
+        out += [f"{m}.{target}" for m in sorted(names)]
+    if module and cls:
+        out.append(f"{module}.{cls}.{target}")
+    if module:
+        parts = module.split(".")
+        out += [".".join([*parts[:i], target]) for i in range(len(parts), 0, -1)]
+    out.append(target)
+    return out
+
+
+def _documented(env: Any) -> dict[int, tuple[str, str]]:
+    cache = getattr(env, "_symplid_documented", None)
+    if cache is None:
+        cache = {}
+        for name, entry in env.get_domain("py").objects.items():
+            obj = _import(name)
+            if obj is not _MISSING and not isinstance(obj, (int, float, str, bool)):
+                cache.setdefault(id(obj), (name, entry.objtype))
+        env._symplid_documented = cache
+    return cache
+
+
+def missing_reference(app: Any, env: Any, node: Any, contnode: Any) -> Any:
+    """Resolve a py reference that Sphinx did not find (see the module docstring)."""
+    if node.get("refdomain") != "py":
+        return None
+    target = node["reftarget"]
+    for path in _candidates(target, node.get("py:module"), node.get("py:class")):
+        obj = _import(path)
+        if obj is _MISSING:
+            continue
+        hit = _documented(env).get(id(obj))
+        if hit is not None:
+            py = env.get_domain("py")
+            ref = py.resolve_xref(env, node["refdoc"], app.builder, "obj", hit[0], node,
+                                  contnode)
+            if ref is not None:
+                return ref
+        return contnode
+    return None
+
+
+def setup(app: Any) -> dict[str, Any]:
+    app.connect("missing-reference", missing_reference)
+    return {"parallel_read_safe": True, "parallel_write_safe": True}
