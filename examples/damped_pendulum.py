@@ -1,4 +1,5 @@
 """A damped pendulum, as measured data: is damping needed, and what does it do to a forecast?
+==========================================================================================
 
 What it shows
 -------------
@@ -31,6 +32,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -41,7 +43,10 @@ from matplotlib.figure import Figure
 from scipy.signal import savgol_filter
 
 SPACING, T_END, NOISE, HORIZON = 0.25, 30.0, 0.02, 40.0
+QUICK = os.environ.get("SYMPLID_EXAMPLE_BUDGET", "full") == "quick"  # the docs build's budget
 SAMPLER = ["--method", "nuts", "--iterations", "1500", "--burn-in", "500", "--chains", "2"]
+if QUICK:
+    SAMPLER = ["--method", "nuts", "--iterations", "40", "--burn-in", "20", "--chains", "1"]
 COMMON = ["--learn-initial-state", "--set", "initial_state.t0=first", "--no-progress"]
 
 
@@ -114,13 +119,14 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     data = measured_data(out)
 
-    symplid("compare", data, "--orders", "2,4", "--damping", "--out", out / "compare", *COMMON)
+    orders = "2" if QUICK else "2,4"
+    symplid("compare", data, "--orders", orders, "--damping", "--out", out / "compare", *COMMON)
 
     runs = {"damped": out / "runs" / "damped", "undamped": out / "runs" / "undamped"}
     for label, run in runs.items():
         flag = ["--damping"] if label == "damped" else []
-        symplid("fit", data, "--out", run, "--order", 4, *flag, "--holdout", 0.25, "--overwrite",
-                *SAMPLER, *COMMON)
+        symplid("fit", data, "--out", run, "--order", 2 if QUICK else 4, *flag, "--holdout", 0.25,
+                "--overwrite", *SAMPLER, *COMMON)
         symplid("predict", run, "--from", "end", "--t-end", HORIZON)
 
     truth_csv = out / "truth.csv"

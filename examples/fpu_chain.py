@@ -1,4 +1,5 @@
 """A chain of three coupled anharmonic oscillators (FPU-α) from one and from two trajectories.
+===========================================================================================
 
 What it shows
 -------------
@@ -26,6 +27,7 @@ minutes on a laptop core, most of it compiling the Hessian of a 21-parameter pos
 from __future__ import annotations
 
 import argparse
+import os
 import warnings
 from pathlib import Path
 
@@ -39,13 +41,14 @@ from symplid.plotting import save_figure
 
 T_PREDICT = 80.0
 NOISE = 0.02
+QUICK = os.environ.get("SYMPLID_EXAMPLE_BUDGET", "full") == "quick"  # the docs build's budget
 
 
 def fit(model, data, x0):
     posterior = symplid.Posterior(model, data, x0=x0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", symplid.BoundWarning)
-        return posterior, symplid.find_map(posterior, seed=0, num_starts=2)
+        return posterior, symplid.find_map(posterior, seed=0, num_starts=1 if QUICK else 2)
 
 
 def plot_coefficients(system, fits, path: Path) -> None:
@@ -99,7 +102,7 @@ def plot_energy(times, energies, t_data_end, path: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("out", nargs="?", default="examples/out/fpu_chain", type=Path)
     parser.add_argument("--integrator", default="leapfrog",
                         help="learning propagator (e.g. yoshida4)")

@@ -1,4 +1,5 @@
 """A neural potential learned from the paper's 20 observations, against the polynomial.
+====================================================================================
 
 What it shows
 -------------
@@ -12,7 +13,7 @@ polynomial is fitted to the same data (MAP, exact Hessian) for comparison.
 
 Printed: each model's learned H at the true initial state against the true 0.12271, its
 prediction horizon (the MAP model integrated by leapfrog at dt = 0.01 from the true initial
-state, valid while |q1 − q1_true| ≤ 0.1; the paper: about 150 s for the polynomial), and for
+state, valid while ``|q1 − q1_true| ≤ 0.1``; the paper: about 150 s for the polynomial), and for
 the MLP how much of the true U lies inside its 95 % (linearised) Laplace band where the data
 went, and how wide the band is there.
 
@@ -27,6 +28,7 @@ Run: ``python examples/mlp_potential.py [OUT]`` (default ``examples/out/mlp_pote
 from __future__ import annotations
 
 import argparse
+import os
 import time
 import warnings
 from pathlib import Path
@@ -43,6 +45,7 @@ from symplid.inference.predict import predict_trajectory, prediction_horizon
 from symplid.plotting import save_figure
 
 T_END = 200.0
+QUICK = os.environ.get("SYMPLID_EXAMPLE_BUDGET", "full") == "quick"  # the docs build's budget
 FINE_DT = 0.01
 
 
@@ -51,7 +54,7 @@ def fit_polynomial(system, data):
     posterior = symplid.Posterior(model, data, x0=system.initial_state)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", symplid.BoundWarning)
-        result = symplid.find_map(posterior, seed=0, num_starts=2)
+        result = symplid.find_map(posterior, seed=0, num_starts=1 if QUICK else 2)
     return result.theta[: system.potential.num_params]
 
 
@@ -59,7 +62,8 @@ def fit_mlp(system, data, width: int, depth: int):
     U = symplid.MLPPotential(dim=2, width=width, depth=depth, seed=0)
     model = symplid.HamiltonianModel(U, "leapfrog", dt=0.25)
     posterior = neural_posterior(model, data, x0=system.initial_state, weight_scale=1.0)
-    result = find_map_neural(posterior, adam_steps=1500, lbfgs_steps=1000, polish="scipy")
+    result = find_map_neural(posterior, adam_steps=100 if QUICK else 1500,
+                                    lbfgs_steps=50 if QUICK else 1000, polish="scipy")
     nc = U.num_params
     return U, result.theta[:nc], result.covariance[:nc, :nc]
 
@@ -98,9 +102,9 @@ def horizon(potential, coefficients, x0, truth_times, truth):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("out", nargs="?", default="examples/out/mlp_potential")
-    parser.add_argument("--width", type=int, default=16)
+    parser.add_argument("--width", type=int, default=4 if QUICK else 16)
     parser.add_argument("--depth", type=int, default=2)
     args = parser.parse_args()
     runtime.enable_compilation_cache()
