@@ -70,6 +70,7 @@ nb_execution_mode = os.environ.get("SYMPLID_DOCS_EXECUTE", "force")
 nb_execution_timeout = 600
 nb_execution_raise_on_error = True
 nb_execution_show_tb = True
+nb_execution_in_temp = True  # the tutorials write their files in a temporary folder
 
 # ---------------------------------------------------------------- API reference
 autodoc_typehints = "none"  # the numpydoc sections carry the types

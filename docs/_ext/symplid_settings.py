@@ -23,14 +23,8 @@ from sphinx.util.nodes import nested_parse_with_titles
 def _toml(value: Any) -> str:
     import tomli_w
 
-    if dataclasses.is_dataclass(value):  # a prior
-        from symplid.model.priors import PRIOR_FAMILIES
-
-        family = next(n for n in PRIOR_FAMILIES.names() if PRIOR_FAMILIES[n] is type(value))
-        fields = {"family": family}
-        fields.update({f.name: getattr(value, f.name) for f in dataclasses.fields(value)})
-        value = fields
-        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + " }"
+    if hasattr(value, "to_dict"):  # a prior: its family and the parameters it uses
+        return "{ " + ", ".join(f"{k} = {_toml(v)}" for k, v in value.to_dict().items()) + " }"
     if isinstance(value, tuple):
         value = list(value)
     return tomli_w.dumps({"x": value}).strip()[4:]

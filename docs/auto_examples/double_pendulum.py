@@ -1,4 +1,5 @@
 """A double pendulum from its angles alone: a non-separable H learned with Tao's method.
+=====================================================================================
 
 What it shows
 -------------
@@ -28,6 +29,7 @@ A few minutes on one core, nearly all of it compiling the likelihood's gradient 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -44,6 +46,7 @@ from symplid.plotting import save_figure
 
 DT = 0.025
 T_END = 20.0
+QUICK = os.environ.get("SYMPLID_EXAMPLE_BUDGET", "full") == "quick"  # the docs build's budget
 
 
 def fit(system: symplid.System, data: symplid.Observations) -> tuple:
@@ -58,7 +61,7 @@ def fit(system: symplid.System, data: symplid.Observations) -> tuple:
 
 def grid_start(posterior: symplid.Posterior) -> np.ndarray:
     """The best point of a 7³ grid of log-ratios (variances at the default start)."""
-    axis = np.linspace(-1.0, 1.0, 7)
+    axis = np.linspace(-1.0, 1.0, 3 if QUICK else 7)
     ratios = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     variances = default_start(posterior)[3:]
     thetas = np.hstack([ratios, np.broadcast_to(variances, (len(ratios), 2))])
@@ -102,7 +105,7 @@ def figure(system, data, times, path, truth, energy, out: Path) -> Path:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("out", nargs="?", default="examples/out/double_pendulum", type=Path)
     out: Path = parser.parse_args().out
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,60 @@
+"""Check that every public name of symplid has an entry in the built API reference.
+
+Usage: ``python docs/check_reference.py docs/_build/html`` after ``sphinx-build``. The public
+names are ``symplid.__all__`` and the ``__all__`` of every namespace it names; the entries are
+read from the site's ``objects.inv``. Exit code 1, with the missing names listed, if any is
+missing.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from sphinx.util.inventory import InventoryFile
+
+
+def public_names() -> list[str]:
+    """``symplid.X`` for X in ``symplid.__all__``, and ``symplid.M.Y`` for a namespace M."""
+    import types
+
+    import symplid
+
+    names = []
+    for name in symplid.__all__:
+        if name.startswith("__"):
+            continue
+        names.append(f"symplid.{name}")
+        obj = getattr(symplid, name)
+        if isinstance(obj, types.ModuleType):
+            names += [f"symplid.{name}.{n}" for n in getattr(obj, "__all__", [])
+                      if not n.startswith("_")]
+    return names
+
+
+def documented(html: Path) -> set[str]:
+    """The Python objects listed in the built site's inventory."""
+    with open(html / "objects.inv", "rb") as f:
+        inventory = InventoryFile.load(f, "", lambda base, uri: uri)
+    return {name for kind, entries in inventory.items() if kind.startswith("py:")
+            for name in entries}
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 1:
+        print("usage: python docs/check_reference.py BUILT_HTML_FOLDER", file=sys.stderr)
+        return 2
+    html = Path(argv[0])
+    if not (html / "objects.inv").is_file():
+        print(f"{html}: no objects.inv (build the site first)", file=sys.stderr)
+        return 2
+    missing = sorted(set(public_names()) - documented(html))
+    for name in missing:
+        print(f"no reference entry: {name}", file=sys.stderr)
+    print(f"{len(public_names()) - len(missing)} of {len(public_names())} public names have a "
+          "reference entry")
+    return 1 if missing else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,90 @@
+"""The generated reference pages against the library they document.
+
+The settings reference (``docs/_ext/symplid_settings.py``) must list every key with its true
+default: the rows are read back into a settings table and loaded by the library's own settings
+reader, which must give the default ``Settings()``; the keys are compared with those of the
+writer of a run's ``settings.toml`` (``settings_to_dict``). The API page
+(``docs/_ext/symplid_api.py``) must have one entry per public name of ``symplid.__all__`` and
+of the namespaces it names. (The built site is checked by ``docs/check_reference.py`` in
+``.ci/run``.)
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("sphinx")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "docs" / "_ext"))
+
+import tomllib  # noqa: E402
+
+import symplid  # noqa: E402
+from symplid.workflow.settings import settings_from_dict, settings_to_dict  # noqa: E402
+from symplid.workflow.settings_schema import Settings  # noqa: E402
+
+
+def _rows() -> list[tuple[str, str, str]]:
+    """(key, default, meaning) of every row of the generated settings tables."""
+    from symplid_settings import settings_rst
+
+    lines = settings_rst()
+    rows = []
+    for i, line in enumerate(lines):
+        key = re.fullmatch(r"   \* - ``(.+)``", line)
+        if key and key.group(1) != "key" and lines[i + 1].startswith("     - ``"):
+            default = lines[i + 1][len("     - ``"):-2]
+            rows.append((key.group(1), default, lines[i + 3][len("     - "):].strip()))
+    return rows
+
+
+def _flat(d: dict, prefix: str = "") -> set[str]:
+    out = set()
+    for k, v in d.items():
+        if isinstance(v, dict) and "family" not in v:
+            out |= _flat(v, f"{prefix}{k}.")
+        else:
+            out.add(f"{prefix}{k}")
+    return out
+
+
+def test_every_settings_key_is_documented_once_with_a_meaning():
+    rows = _rows()
+    keys = [k for k, _, _ in rows]
+    assert len(keys) == len(set(keys))
+    assert set(keys) == _flat(settings_to_dict(Settings()))
+    assert all(meaning for _, _, meaning in rows), [k for k, _, m in rows if not m]
+
+
+def test_documented_defaults_load_back_to_the_defaults():
+    text = []
+    sections: dict[str, list[str]] = {}
+    for key, default, _ in _rows():
+        section, _, name = key.rpartition(".")
+        sections.setdefault(section, []).append(f"{name} = {default}")
+    text += sections.pop("")
+    for section, lines in sections.items():
+        text += [f"[{section}]", *lines]
+    loaded = settings_from_dict(tomllib.loads("\n".join(text)), "the reference")
+    assert loaded == Settings()
+
+
+def test_the_api_page_has_an_entry_per_public_name():
+    from symplid_api import api_rst
+
+    rst = "\n".join(api_rst())
+    entries = set(re.findall(r"^\.\. auto\w+:: (\S+)$", rst, flags=re.M))
+    expected = set()
+    for name in symplid.__all__:
+        if name.startswith("__"):
+            continue
+        obj = getattr(symplid, name)
+        if isinstance(obj, types.ModuleType):
+            expected |= {f"symplid.{name}.{n}" for n in obj.__all__ if not n.startswith("_")}
+        else:
+            expected.add(f"symplid.{name}")
+    assert entries == expected
