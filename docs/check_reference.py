@@ -1,4 +1,4 @@
-"""Check that every public name of symplid has an entry in the built API reference.
+"""Check that every public name and every CLI option of symplid is in the built reference.
 
 Usage: ``python docs/check_reference.py docs/_build/html`` after ``sphinx-build``. The public
 names are ``symplid.__all__`` and the ``__all__`` of every namespace it names; the entries are
@@ -40,6 +40,28 @@ def documented(html: Path) -> set[str]:
             for name in entries}
 
 
+def cli_anchors() -> list[str]:
+    """The anchor sphinx-click gives every visible option of every command (``--out`` of
+    ``symplid fit``: ``cmdoption-symplid-fit-out``), from the click commands themselves."""
+    import click
+
+    from symplid.cli import main
+
+    out = []
+
+    def walk(command: click.Command, prog: str) -> None:
+        for param in command.params:
+            if isinstance(param, click.Option) and not param.hidden:
+                out.append(f"cmdoption-{prog}-{param.opts[0].lstrip('-')}")
+            elif isinstance(param, click.Argument):
+                out.append(f"cmdoption-{prog}-arg-{param.name.upper()}")
+        for name, sub in getattr(command, "commands", {}).items():
+            walk(sub, f"{prog}-{name}")
+
+    walk(main, "symplid")
+    return out
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         print("usage: python docs/check_reference.py BUILT_HTML_FOLDER", file=sys.stderr)
@@ -53,7 +75,13 @@ def main(argv: list[str]) -> int:
         print(f"no reference entry: {name}", file=sys.stderr)
     print(f"{len(public_names()) - len(missing)} of {len(public_names())} public names have a "
           "reference entry")
-    return 1 if missing else 0
+    cli = (html / "reference" / "cli.html").read_text(encoding="utf-8")
+    absent = [a for a in cli_anchors() if f'id="{a}"' not in cli]
+    for anchor in absent:
+        print(f"not in the CLI reference: {anchor}", file=sys.stderr)
+    print(f"{len(cli_anchors()) - len(absent)} of {len(cli_anchors())} CLI options and arguments "
+          "are in the CLI reference")
+    return 1 if missing or absent else 0
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ import symplid  # noqa: E402  (after the path above)
 
 project = "symplid"
 author = "the symplid developers"
-copyright = "the symplid developers"  # noqa: A001
+copyright = "the symplid developers"
 version = release = symplid.__version__
 
 extensions = [

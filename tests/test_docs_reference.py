@@ -21,11 +21,11 @@ import pytest
 pytest.importorskip("sphinx")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "docs" / "_ext"))
 
-import tomllib  # noqa: E402
+import tomllib
 
-import symplid  # noqa: E402
-from symplid.workflow.settings import settings_from_dict, settings_to_dict  # noqa: E402
-from symplid.workflow.settings_schema import Settings  # noqa: E402
+import symplid
+from symplid.workflow.settings import settings_from_dict, settings_to_dict
+from symplid.workflow.settings_schema import Settings
 
 
 def _rows() -> list[tuple[str, str, str]]:

@@ -34,7 +34,7 @@ def _import(path: str) -> Any:
         modname = ".".join(parts[:cut])
         try:
             obj = importlib.import_module(modname)
-        except Exception:  # noqa: BLE001 - any failure means: not this split
+        except Exception:
             continue
         for attr in parts[cut:]:
             obj = getattr(obj, attr, _MISSING)

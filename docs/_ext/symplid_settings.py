@@ -78,8 +78,10 @@ def settings_rst() -> list[str]:
             spec = f.metadata.get("spec")
             doc = (spec.doc if spec is not None else "") or " ".join(
                 attr_docs.get((cls.__name__, f.name), []))
-            lines += [f"   * - ``{prefix}{f.name}``", f"     - ``{_toml(getattr(defaults, f.name))}``",
-                      f"     - {_cell(_type(f.type) + ('; ' if _allowed(spec) else '') + _allowed(spec))}",
+            allowed = "; ".join(x for x in (_type(f.type), _allowed(spec)) if x)
+            lines += [f"   * - ``{prefix}{f.name}``",
+                      f"     - ``{_toml(getattr(defaults, f.name))}``",
+                      f"     - {_cell(allowed)}",
                       f"     - {_cell(doc)}"]
         lines.append("")
     return lines
