@@ -34,7 +34,7 @@ version = release = symplid.__version__
 extensions = [
     "myst_nb",
     "sphinx.ext.autodoc",
-    "sphinx.ext.napoleon",
+    "numpydoc",
     "sphinx.ext.mathjax",
     "sphinx_click",
     "sphinx_copybutton",
@@ -76,12 +76,10 @@ nb_execution_in_temp = True  # the tutorials write their files in a temporary fo
 autodoc_typehints = "none"  # the numpydoc sections carry the types
 autodoc_member_order = "bysource"
 autodoc_default_options = {"members": True, "show-inheritance": False}
-napoleon_google_docstring = False
-napoleon_numpy_docstring = True
-napoleon_use_param = False  # types stay text ("array (n, d)"), not references
-napoleon_use_rtype = False
-napoleon_use_ivar = True
-napoleon_custom_sections = [("What it shows", "notes_style"), ("Conventions", "notes_style")]
+numpydoc_show_class_members = False  # autodoc's :members: lists them
+numpydoc_class_members_toctree = False
+numpydoc_xref_param_type = False  # types stay text ("array (n, d)"), not references
+numpydoc_validation_checks: set[str] = set()
 
 # ---------------------------------------------------------------- gallery of examples
 sphinx_gallery_conf = {

@@ -45,9 +45,16 @@ def _import(path: str) -> Any:
     return _MISSING
 
 
-def _candidates(target: str, module: str | None, cls: str | None) -> list[str]:
+def _candidates(target: str, module: str | None, cls: str | None, source: str) -> list[str]:
+    """Where ``target`` may live: relative to the defining object of the docstring that names
+    it (read from the node's source, ``"...:docstring of symplid.model.posterior.Posterior"``),
+    to the page's current module and class, under any symplid module (a leading dot), or as
+    it is."""
     target = target.lstrip("~")
     out = []
+    if "docstring of " in source:
+        parts = source.rsplit("docstring of ", 1)[1].split(":")[0].split(".")
+        out += [".".join([*parts[:i], target.lstrip(".")]) for i in range(len(parts), 0, -1)]
     if target.startswith("."):
         target = target.lstrip(".")
         names = [m for m in list(sys.modules) if m.startswith("symplid")]
@@ -78,7 +85,8 @@ def missing_reference(app: Any, env: Any, node: Any, contnode: Any) -> Any:
     if node.get("refdomain") != "py":
         return None
     target = node["reftarget"]
-    for path in _candidates(target, node.get("py:module"), node.get("py:class")):
+    source = node.source or ""
+    for path in _candidates(target, node.get("py:module"), node.get("py:class"), source):
         obj = _import(path)
         if obj is _MISSING:
             continue
@@ -90,6 +98,9 @@ def missing_reference(app: Any, env: Any, node: Any, contnode: Any) -> Any:
             if ref is not None:
                 return ref
         return contnode
+    root = target.lstrip("~.").split(".")[0]
+    if root not in ("", "symplid") and _import(root) is not _MISSING and "." in target:
+        return contnode  # a name inside an outside package (jax's private module paths)
     return None
 
 

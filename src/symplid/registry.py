@@ -31,7 +31,7 @@ class Registry(Mapping[str, T], Generic[T]):
     """Named entries of one kind, in registration order, with aliases and helpful errors.
 
     A read-only :class:`~collections.abc.Mapping` from canonical names to entries; names are
-    matched after :func:`normalise` and through aliases.
+    matched after :func:`~symplid.registry.normalise` and through aliases.
 
     Parameters
     ----------

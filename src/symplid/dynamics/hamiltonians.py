@@ -264,7 +264,7 @@ class PositionDependentMass(_NamedParameters, _Autodiff):
 
     Examples
     --------
-    A particle on a line whose mass grows with |q| (θ = (a, k)):
+    A particle on a line whose mass grows with ``|q|`` (θ = (a, k)):
 
     >>> H = PositionDependentMass(lambda q, c: (1 + c[0] * q**2)[:, None],
     ...                           lambda q, c: 0.5 * c[1] * q[0]**2, dim=1, num_params=2)

@@ -123,7 +123,8 @@ class Integrator:
     sub-steps of ``w·Δt``) or ``("runge-kutta", a, b)`` (a Butcher tableau); None when the
     step is only a function."""
     nonseparable: bool = False
-    """Whether ``step`` also accepts :class:`GeneralDynamics` (a non-separable H)."""
+    """Whether ``step`` also accepts :class:`~symplid.dynamics.integrators.GeneralDynamics` (a
+    non-separable H)."""
     start: Callable[[GeneralDynamics, Array, Array], Array] | None = None
     """Optional ``(dynamics, q, p) -> aux``: what ``force_step`` carries in its third slot at
     the start of a run, when that is not the force ∂U(q) (Tao's copies of the state)."""

@@ -122,9 +122,9 @@ class MapResult:
     evidence_method, evidence
         How ``log_evidence`` was computed, and the details (nodes, timing, error estimate).
     optima
-        The distinct optima the starts ended in, best first (:func:`~.map_starts.
-        distinct_optima`); more than one means the log posterior has several local maxima
-        within reach of the starts.
+        The distinct optima the starts ended in, best first
+        (:func:`~symplid.inference.map_starts.distinct_optima`); more than one means the log
+        posterior has several local maxima within reach of the starts.
     """
 
     theta: np.ndarray

@@ -399,7 +399,7 @@ class Posterior:
         return self.space.to_unconstrained(theta)
 
     def log_abs_det_jacobian(self, z: Array) -> Array:
-        """log |det ∂θ/∂z| of :meth:`from_unconstrained` (a sum over the parameters)."""
+        """log ``|det ∂θ/∂z|`` of :meth:`from_unconstrained` (a sum over the parameters)."""
         return self.space.log_abs_det_jacobian(z)
 
     def _log_density_unconstrained(self, z: Array, data: Any = None) -> Array:

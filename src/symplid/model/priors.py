@@ -181,7 +181,7 @@ class Normal(Prior):
 
 @dataclass(frozen=True)
 class HalfNormal(Prior):
-    """HalfNormal(scale): the law of |Z|·scale, Z ~ N(0, 1); support [0, ∞)."""
+    """HalfNormal(scale): the law of ``|Z|``·scale, Z ~ N(0, 1); support [0, ∞)."""
 
     scale: float = 1.0
     family: ClassVar[str] = "half-normal"

@@ -78,10 +78,10 @@ class HamiltonianModel:
         (:class:`~symplid.dynamics.hamiltonians.Hamiltonian`: ``FunctionHamiltonian``,
         ``DoublePendulum``, ...), whose parameters then lead θ in place of U's coefficients.
     integrator
-        Name from :data:`~.integrators.INTEGRATORS` (``"leapfrog"``, ``"rk2-midpoint"``,
-        ``"rk2-heun"``, ``"rk4"``, ``"euler"``, ``"yoshida4"``; for a non-separable H
-        ``"tao"``, ``"tao4"``, ``"implicit-midpoint"`` or a Runge–Kutta method) or an
-        ``Integrator``.
+        Name from :data:`~symplid.dynamics.integrators.INTEGRATORS` (``"leapfrog"``,
+        ``"rk2-midpoint"``, ``"rk2-heun"``, ``"rk4"``, ``"euler"``, ``"yoshida4"``; for a
+        non-separable H ``"tao"``, ``"tao4"``, ``"implicit-midpoint"`` or a Runge–Kutta
+        method) or an ``Integrator``.
     dt
         Largest learning step; each gap is split into ⌈gap/dt⌉ equal substeps.
     observation

@@ -245,7 +245,7 @@ class SamplerSettings:
     """MCMC: DRAM with the paper's budget per chain (200,000 iterations, 100,000 burn-in).
 
     ``num_iterations`` counts every iteration of a chain, ``burn_in`` included; the draws kept
-    per chain are ``(num_iterations − burn_in) // thin`` (:attr:`num_draws`).
+    per chain are ``(num_iterations − burn_in) // thin`` (the property ``num_draws``).
     ``variance_scale`` is DRAM's: ``"log"`` (default) moves the variances as log(v) with the
     Jacobian (no wall at their floor), ``"natural"`` as themselves (the paper's).
     """
