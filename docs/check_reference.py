@@ -1,4 +1,4 @@
-"""Check that every public name and every CLI option of symplid is in the built reference.
+"""Check the built site: every public name and CLI option documented, every example's figure shown.
 
 Usage: ``python docs/check_reference.py docs/_build/html`` after ``sphinx-build``. The public
 names are ``symplid.__all__`` and the ``__all__`` of every namespace it names; the entries are
@@ -62,6 +62,18 @@ def cli_anchors() -> list[str]:
     return out
 
 
+def examples_without_figure(html: Path) -> list[str]:
+    """Examples whose gallery page shows no figure of their own (or has no page)."""
+    root = Path(__file__).resolve().parents[1] / "examples"
+    out = []
+    for script in sorted(root.glob("*.py")):
+        page = html / "auto_examples" / f"{script.stem}.html"
+        text = page.read_text(encoding="utf-8") if page.is_file() else ""
+        if f"sphx_glr_{script.stem}_0" not in text:
+            out.append(script.name)
+    return out
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         print("usage: python docs/check_reference.py BUILT_HTML_FOLDER", file=sys.stderr)
@@ -81,7 +93,10 @@ def main(argv: list[str]) -> int:
         print(f"not in the CLI reference: {anchor}", file=sys.stderr)
     print(f"{len(cli_anchors()) - len(absent)} of {len(cli_anchors())} CLI options and arguments "
           "are in the CLI reference")
-    return 1 if missing or absent else 0
+    bare = examples_without_figure(html)
+    for name in bare:
+        print(f"example without a figure on its page: {name}", file=sys.stderr)
+    return 1 if missing or absent or bare else 0
 
 
 if __name__ == "__main__":

@@ -75,7 +75,7 @@ nb_execution_in_temp = True  # the tutorials write their files in a temporary fo
 # ---------------------------------------------------------------- API reference
 autodoc_typehints = "none"  # the numpydoc sections carry the types
 autodoc_member_order = "bysource"
-autodoc_default_options = {"members": True, "show-inheritance": False}
+autodoc_default_options = {"members": True}
 numpydoc_show_class_members = False  # autodoc's :members: lists them
 numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False  # types stay text ("array (n, d)"), not references
