@@ -1,7 +1,8 @@
 """The package's layers hold: no module imports from a higher layer, and no imports in a circle.
 
 Imports are read from the source (every ``import``, function-local ones too), so the test
-needs nothing but the standard library. The layers are those of ``docs/explanation/architecture.md``.
+needs nothing but the standard library. The layers are those of
+``docs/explanation/architecture.md``.
 """
 
 from __future__ import annotations
