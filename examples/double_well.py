@@ -172,7 +172,10 @@ def main() -> None:
     posterior, result = outcome.posterior, outcome.map_result
     nc = outcome.model.num_coefficients
     print("\nMAP ± Laplace sd (truth):")
-    truth = [*system.coefficients, np.nan, 0.05**2, *system.initial_state]
+    # the true value of each entry of θ by its name: one observation variance per kind of
+    # column when the file has q and p columns (model.noise = "auto"), σ² = 0.05² each
+    noise_vars = [0.05**2] * outcome.model.num_obs_noise
+    truth = [*system.coefficients, np.nan, *noise_vars, *system.initial_state]
     for name, value, sd, t in zip(posterior.param_names, result.theta, result.std, truth,
                                   strict=True):
         truth_text = "-" if np.isnan(t) else f"{t:.4g}"
