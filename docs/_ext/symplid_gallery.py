@@ -27,7 +27,9 @@ def reset_argv(gallery_conf: dict[str, Any], script_vars: dict[str, Any]) -> lis
 def png_scraper(block: Any, block_vars: dict[str, Any], gallery_conf: dict[str, Any]) -> str:
     """Copy the PNG files the example has written (not yet shown) into the gallery's images."""
     folder = OUT / Path(block_vars["src_file"]).stem
-    new = [p for p in sorted(folder.rglob("*.png")) if p not in _shown]
+    # the example's own figures sit in its folder; those of runs it made (reports) below it
+    figures = sorted(folder.glob("*.png")) or sorted(folder.rglob("*.png"))
+    new = [p for p in figures if p not in _shown]
     targets = []
     for png, target in zip(new, block_vars["image_path_iterator"], strict=False):
         shutil.copyfile(png, target)
