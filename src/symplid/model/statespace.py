@@ -148,6 +148,9 @@ class HamiltonianModel:
         object.__setattr__(self, "integrator", integrator)
         self._check_hamiltonian()
         if self.damping:
+            if callable(getattr(self.potential, "kinetic", None)):
+                raise ValueError("damping=True needs T = ½pᵀM⁻¹p (the friction is −γM⁻¹p); "
+                                 "the model has its own kinetic energy T(p)")
             if not self.separable:
                 raise ValueError("damping=True needs a separable H = ½pᵀM⁻¹p + U(q) (the "
                                  "friction is −γM⁻¹p); a non-separable H cannot be damped")
