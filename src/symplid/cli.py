@@ -25,9 +25,11 @@ from symplid.workflow.commandline import (
     fit_result_line,
     floats,
     integrator_registry,
+    model_text,
     no_progress_option,
     noise_model_names,
     potential_registry,
+    quiet_option,
     report_after_fit,
     rk2_variants,
     run_fit,
@@ -214,7 +216,12 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
 @config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option("--potential", cls=RegistryOption, registry=potential_registry, default=None,
-              help="Family of U: {choices} (model.width, model.depth for mlp).")
+              help="U(q): a family ({choices}; model.width, model.depth for mlp), an "
+              "expression in q1.. ('k*(1 - cos(q1))') or FILE.py:U; its parameters in "
+              "[model.parameters].")
+@click.option("--hamiltonian", type=str, default=None,
+              help="A whole H(q, p): an expression in q1.., p1.. or FILE.py:H (a JAX function "
+              "H(q, p, params)); its parameters in [model.parameters].")
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
               help="Learning propagator: {choices}.")
 @click.option("--dt", type=float, default=None, help="Learning step.")
@@ -254,7 +261,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               help="Write report.md and the figures when the fit finishes (as symplid report).")
 @no_progress_option
 @user_errors
-def fit(data, out, config, order, potential, integrator, dt, damping, observation_noise, method,
+def fit(data, out, config, order, potential, hamiltonian, integrator, dt, damping, observation_noise, method,
         iterations, samples, burn_in, chains, seed, x0, learn_initial_state, t0, time_unit,
         holdout, holdout_after, sets, overwrite, resume, report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
@@ -272,7 +279,8 @@ def fit(data, out, config, order, potential, integrator, dt, damping, observatio
         iterations = samples
     overrides = {
         "model.order": order,
-        "model.potential": potential,
+        "model.potential": model_text(potential),
+        "model.hamiltonian": model_text(hamiltonian),
         "model.integrator": integrator,
         "model.dt": dt,
         "model.damping": True if damping else None,
@@ -331,8 +339,9 @@ def fit(data, out, config, order, potential, integrator, dt, damping, observatio
     help="start: paths from the initial state; end: a forecast from each draw's filtered "
     "state at the last observation, with process noise (forecast.npz).",
 )
+@quiet_option
 @user_errors
-def predict(run, t_end, dt, num_paths, start) -> None:
+def predict(run, t_end, dt, num_paths, start, no_progress) -> None:
     """Predict from a finished run: MAP path and posterior band, or a forecast from the end of
     the data (--from end), saved with a figure."""
     if start == "end":
@@ -351,8 +360,9 @@ def predict(run, t_end, dt, num_paths, start) -> None:
 # ----------------------------------------------------------------------------- report
 @main.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
+@quiet_option
 @user_errors
-def report(run) -> None:
+def report(run, no_progress) -> None:
     """Write report.md (tables and figures) for a finished run."""
     from symplid.workflow.run_tools import report_run
 

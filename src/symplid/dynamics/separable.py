@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -64,6 +65,7 @@ class SeparablePotential:
     dim: int
     num_params: int
     names: tuple[str, ...] | None = None
+    parameter_group: ClassVar[str] = "parameters"  # named parameters with their own priors
 
     def __post_init__(self) -> None:
         if not callable(self.potential_fn) or not callable(self.kinetic_fn):

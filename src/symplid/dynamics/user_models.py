@@ -30,7 +30,7 @@ import tokenize
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -41,7 +41,7 @@ from symplid.dynamics.separable import SeparablePotential
 
 Array = jax.Array
 
-__all__ = ["FUNCTIONS", "QUADRATIC", "UserModelError", "build_user_model", "is_user_model",
+__all__ = ["FUNCTIONS", "QUADRATIC", "UserHamiltonian", "UserModelError", "UserPotential", "build_user_model", "is_user_model",
            "load_function", "parse_expression"]
 
 #: The kinetic energy ½pᵀM⁻¹p (``model.kinetic``'s default).
@@ -64,13 +64,29 @@ class UserModelError(ValueError):
     """A user model that cannot be used: one line saying what is wrong and where."""
 
 
+@dataclass(frozen=True)
+class UserPotential(FunctionPotential):
+    """A user's U(q; θ): its parameters form θ's ``parameters`` group (declared priors)."""
+
+    parameter_group: ClassVar[str] = "parameters"
+
+
+@dataclass(frozen=True, eq=False)
+class UserHamiltonian(FunctionHamiltonian):
+    """A user's non-separable H(q, p; θ); its parameters form θ's ``parameters`` group."""
+
+    parameter_group: ClassVar[str] = "parameters"
+
+
 def is_user_model(text: Any) -> bool:
-    """Whether ``text`` is a user model (``file:...`` or an expression in q1.., p1..) rather
-    than the name of a registered family."""
+    """Whether ``text`` is a user model (``file:...`` or an expression) rather than the name of
+    a registered family: anything but a bare name (letters, digits, ``-``, ``_``), so that a
+    misspelt family name is answered with the family names."""
     if not isinstance(text, str):
         return False
     text = text.strip()
-    return text.startswith("file:") or bool(re.search(r"\b[qp][1-9][0-9]*\b", text))
+    return (text.startswith("file:") or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", text)
+            or bool(_COORDINATE.match(text)))
 
 
 @dataclass(frozen=True)
@@ -206,7 +222,7 @@ def _expression_model(text: str, kind: str, dim: int, names: tuple[str, ...],
                                  f"the whole H as model.hamiltonian")
         u = _lambdified(parsed.expr, dim, names, "q")
         if kinetic == QUADRATIC:
-            return FunctionPotential(u, dim, len(names), names)
+            return UserPotential(u, dim, len(names), names)
         t = kinetic_function(kinetic, dim, names, parsed.parameters)
         return SeparablePotential(u, t, dim, len(names), names)
     parts = _split(parsed.expr)
@@ -216,7 +232,7 @@ def _expression_model(text: str, kind: str, dim: int, names: tuple[str, ...],
     return _nonseparable(parsed.expr, dim, names)
 
 
-def _nonseparable(expr: Any, dim: int, names: tuple[str, ...]) -> FunctionHamiltonian:
+def _nonseparable(expr: Any, dim: int, names: tuple[str, ...]) -> UserHamiltonian:
     import sympy
 
     qs = [sympy.Symbol(f"q{i + 1}", real=True) for i in range(dim)]
@@ -229,7 +245,7 @@ def _nonseparable(expr: Any, dim: int, names: tuple[str, ...]) -> FunctionHamilt
                     *(params[j] for j in range(len(names))))
         return jnp.asarray(value, dtype=float) + 0.0 * q[0]
 
-    return FunctionHamiltonian(h, dim, len(names), names)
+    return UserHamiltonian(h, dim, len(names), names)
 
 
 def kinetic_function(text: str, dim: int, names: tuple[str, ...],
@@ -335,7 +351,7 @@ def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
 
     Returns
     -------
-    FunctionPotential, SeparablePotential or FunctionHamiltonian
+    UserPotential, SeparablePotential or UserHamiltonian
     """
     names = tuple(str(n) for n in names)
     text = text.strip()
@@ -345,7 +361,7 @@ def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
         return _expression_model(text, kind, dim, names, kinetic)
     fn = _checked_file_function(text, kind, dim, names)
     if kind == "hamiltonian":
-        return FunctionHamiltonian(fn, dim, len(names), names)
+        return UserHamiltonian(fn, dim, len(names), names)
     if kinetic == QUADRATIC:
-        return FunctionPotential(fn, dim, len(names), names)
+        return UserPotential(fn, dim, len(names), names)
     return SeparablePotential(fn, kinetic_function(kinetic, dim, names), dim, len(names), names)

@@ -317,9 +317,10 @@ class HamiltonianModel:
     @property
     def param_groups(self) -> tuple[str, ...]:
         """The prior group of each entry of θ (``coefficients``, ``damping``, ``process_var``,
-        ``obs_var``, ``obs_rel_var``)."""
+        ``obs_var``, ``obs_rel_var``); a user model's declared parameters are ``parameters``
+        (the potential's ``parameter_group``)."""
         return tuple(
-            ["coefficients"] * self.num_coefficients
+            [getattr(self.potential, "parameter_group", "coefficients")] * self.num_coefficients
             + ["damping"] * self.num_damping
             + ["process_var"] * self.num_process_noise
             + ["obs_var"] * self.num_obs_noise

@@ -31,7 +31,9 @@ __all__ = [
     "floats",
     "integrator_registry",
     "no_progress_option",
+    "model_text",
     "potential_registry",
+    "quiet_option",
     "report_after_fit",
     "rk2_variants",
     "run_fit",
@@ -240,6 +242,25 @@ def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: 
 # ----------------------------------------------------------------------------- shared options
 def no_progress_option(fn: Callable) -> Callable:
     return click.option("--no-progress", is_flag=True, help="No progress bars.")(fn)
+
+
+def quiet_option(fn: Callable) -> Callable:
+    """``--no-progress`` of a command that draws no progress bar (predict, report): accepted so
+    that one script can pass it to every command."""
+    return click.option("--no-progress", is_flag=True,
+                        help="Accepted for scripts that pass it to every command; this command "
+                        "draws no progress bar.")(fn)
+
+
+def model_text(text: str | None) -> str | None:
+    """``--potential``/``--hamiltonian``: ``FILE.py:NAME`` becomes ``file:FILE.py:NAME``; a family
+    name or an expression is passed on as written."""
+    if text is None:
+        return None
+    path, sep, name = text.strip().rpartition(":")
+    if sep and path.endswith(".py") and not text.strip().startswith("file:"):
+        return f"file:{path}:{name}"
+    return text
 
 
 def config_option(help_text: str) -> Callable[[Callable], Callable]:

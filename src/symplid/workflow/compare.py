@@ -383,7 +383,7 @@ def _coefficients(fit: CandidateFit) -> dict[str, float]:
     groups = tuple(fit.posterior.param_groups)
     theta = np.asarray(fit.map_result.theta, dtype=float)
     return {str(n): float(v) for n, g, v in zip(names, groups, theta, strict=True)
-            if g == "coefficients"}
+            if g in ("coefficients", "parameters")}
 
 
 def _bound_flags(fit: CandidateFit) -> tuple[str, str]:

@@ -472,9 +472,8 @@ def merge_overrides(
         parts = key.split(".")
         table = data
         for depth, part in enumerate(parts):
-            if not isinstance(table, dict) or (
-                part not in table and not _is_prior_key(parts, depth)
-            ):
+            if not isinstance(table, dict) or (part not in table and not _is_prior_key(
+                    parts, depth) and parts[:2] != ["model", "parameters"]):
                 section = list(table) if isinstance(table, dict) else []
                 raise SettingsError(source, None, f"unknown key '{key}'" + _suggest(key, section))
             if depth == len(parts) - 1:
