@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import jax
@@ -62,13 +62,18 @@ class Truncated(Prior):
     lower: float = -math.inf
     upper: float = math.inf
     family: ClassVar[str] = "truncated"
+    _cdfs: tuple[float, float] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if type(self.base) not in CDFS:
             raise ValueError(f"bounds cannot be put on a {self.base.family!r} prior (bounded: "
                              f"{', '.join(c.family for c in CDFS)})")
+        object.__setattr__(self, "lower", float(self.lower))
+        object.__setattr__(self, "upper", float(self.upper))
         if not self.lower < self.upper:
             raise ValueError(f"lower ({self.lower:g}) must be less than upper ({self.upper:g})")
+        with jax.ensure_compile_time_eval():  # numbers fixed once, never traced
+            object.__setattr__(self, "_cdfs", (self._cdf(self.lower), self._cdf(self.upper)))
         if not self.mass > 1e-12:
             raise ValueError(f"the bounds [{self.lower:g}, {self.upper:g}] leave the prior "
                              f"{self.base} no probability")
@@ -83,7 +88,7 @@ class Truncated(Prior):
     @property
     def mass(self) -> float:
         """F(upper) − F(lower): the base prior's probability inside the bounds."""
-        return self._cdf(self.upper) - self._cdf(self.lower)
+        return self._cdfs[1] - self._cdfs[0]
 
     @property
     def support(self) -> tuple[float, float]:
@@ -97,7 +102,7 @@ class Truncated(Prior):
 
     def quantile(self, u: Array) -> Array:
         """F⁻¹ of the truncated law."""
-        lo = self._cdf(self.lower)
+        lo = self._cdfs[0]
         inverse = CDFS[type(self.base)][1]
         x = inverse(self.base, lo + jnp.asarray(u, dtype=float) * self.mass)
         lo_s, hi_s = self.support
