@@ -227,11 +227,11 @@ def test_a_non_separable_expression_picks_a_non_separable_integrator():
 
 
 def test_kinetic_and_parameters_need_a_user_model():
-    with pytest.raises(SettingsError, match="model.parameters declares"):
+    with pytest.raises(SettingsError, match=r"model\.parameters declares"):
         resolve_for_data(settings_from_dict({
             "model": {"parameters": {"a": {"prior": "normal"}}},
             "initial_state": {"x0": [1.0, 0.0]}}), _pendulum_data(5))
-    with pytest.raises(SettingsError, match="model.kinetic"):
+    with pytest.raises(SettingsError, match=r"model\.kinetic"):
         resolve_for_data(settings_from_dict({
             "model": {"kinetic": "cosh(p1)"}, "initial_state": {"x0": [1.0, 0.0]}}),
             _pendulum_data(5))

@@ -261,9 +261,10 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               help="Write report.md and the figures when the fit finishes (as symplid report).")
 @no_progress_option
 @user_errors
-def fit(data, out, config, order, potential, hamiltonian, integrator, dt, damping, observation_noise, method,
-        iterations, samples, burn_in, chains, seed, x0, learn_initial_state, t0, time_unit,
-        holdout, holdout_after, sets, overwrite, resume, report, no_progress) -> None:
+def fit(data, out, config, order, potential, hamiltonian, integrator, dt, damping,
+        observation_noise, method, iterations, samples, burn_in, chains, seed, x0,
+        learn_initial_state, t0, time_unit, holdout, holdout_after, sets, overwrite, resume,
+        report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
     Several DATA files, or a `trajectory` column in one, are several trajectories of the same

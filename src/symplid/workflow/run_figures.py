@@ -13,8 +13,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from symplid.dynamics.potentials import coefficient_name
 from symplid.dynamics.hamiltonians import is_hamiltonian
+from symplid.dynamics.potentials import coefficient_name
 from symplid.inference.measures import potential_slices
 from symplid.inference.predict import posterior_predictive, predict_trajectory
 from symplid.io import as_list, observation_layout

@@ -23,9 +23,9 @@ from symplid.dynamics.families import (
 from symplid.dynamics.hamiltonians import is_hamiltonian
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
 from symplid.dynamics.neural import ACTIVATIONS
+from symplid.dynamics.nonseparable import TaoIntegrator
 from symplid.dynamics.separable import has_kinetic
 from symplid.dynamics.user_models import QUADRATIC, is_user_model
-from symplid.dynamics.nonseparable import TaoIntegrator
 from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
@@ -49,8 +49,8 @@ __all__ = [
     "SamplerSettings",
     "Settings",
     "check_model_family",
-    "follow_model",
     "family_prior",
+    "follow_model",
     "map_start",
     "prior_spec",
     "with_family_prior",
