@@ -102,6 +102,26 @@ def test_pendulum_from_a_python_file_then_report_and_predict(workdir):
     assert (out / "predictions.npz").exists()
 
 
+@pytest.mark.slow
+def test_compare_ranks_two_user_models(workdir, tmp_path):
+    """A pendulum against a harmonic well with its k fitted too, on data of a large swing
+    (amplitude 2.5 rad): the evidence must prefer the true U = k(1 − cos q)."""
+    sim = _simulator()
+    field, _, times, columns, sd, names = sim.SYSTEMS["pendulum"]
+    sim.SYSTEMS["swing"] = (field, np.array([2.5, 0.0]), times, columns, sd, names)
+    sim.write_csv("swing", tmp_path / "swing.csv")
+    true = (workdir / "pendulum.toml").read_text().replace("x0 = [1.0, 0.0]", "x0 = [2.5, 0.0]")
+    (tmp_path / "pendulum.toml").write_text(true)
+    (tmp_path / "harmonic.toml").write_text(true.replace("k*(1 - cos(q1))", "0.5*k*q1^2"))
+    result = run("compare", tmp_path / "swing.csv", "--candidates",
+                 f"{tmp_path / 'pendulum.toml'},{tmp_path / 'harmonic.toml'}",
+                 "--out", tmp_path / "cmp", "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert "best: pendulum with leapfrog" in result.output
+    table = (tmp_path / "cmp" / "compare.csv").read_text()
+    assert "harmonic" in table and "pendulum" in table
+
+
 @pytest.mark.parametrize(("option", "value", "message"), [
     ("--potential", "k*(1 - cos(x1))", "unknown symbol 'x1'"),
     ("--potential", "PY:V", "does not define a function 'V'"),

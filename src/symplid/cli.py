@@ -21,6 +21,7 @@ from symplid.workflow.commandline import (
     RegistryOption,
     UserError,
     baselines_study_options,
+    compare_candidates,
     config_option,
     fit_result_line,
     floats,
@@ -383,9 +384,9 @@ def report(run, no_progress) -> None:
 @click.option(
     "--orders",
     type=str,
-    default="2..5",
-    show_default=True,
-    help="Polynomial orders, e.g. 2..5 or 2,3,5.",
+    default=None,
+    help="Polynomial orders, e.g. 2..5 or 2,3,5 [default: 2..5 for the polynomial family; "
+    "another family, or a user's model, is one candidate].",
 )
 @click.option(
     "--integrators",
@@ -400,36 +401,45 @@ def report(run, no_progress) -> None:
 )
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
+@click.option("--candidates", type=str, default=None,
+              help="Comma-separated settings files, one whole model each (e.g. two of your "
+              "own): rank them instead of polynomial orders.")
 @sets_option
 @no_progress_option
 @user_errors
-def compare(
-    data, out, config, orders, integrators, damping, x0, learn_initial_state, sets, no_progress
-) -> None:
-    """Rank polynomial orders (propagators, damping) for DATA by the log evidence (Gaussian in
-    the coefficients, the noise variances integrated on their log scale)."""
+def compare(data, out, config, orders, integrators, damping, x0, learn_initial_state,
+            candidates, sets, no_progress) -> None:
+    """Rank polynomial orders (propagators, damping), or whole models (--candidates), for DATA
+    by the log evidence (Gaussian in the coefficients, the noise variances integrated on their
+    log scale)."""
     from symplid.io import read_observations
-    from symplid.workflow.compare import compare_models, parse_orders
+    from symplid.workflow.compare import candidate_orders, compare_models, format_table
 
     obs = read_observations(data)
     overrides = {
         "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
     }
-    settings, source = settings_from_options(config, overrides, sets)
     names = [n.strip() for n in integrators.split(",")] if integrators else None
+    if candidates is not None:
+        table = compare_candidates(obs, candidates, config, orders, overrides, sets, names,
+                                   out, not no_progress, [False, True] if damping else None)
+        best = table.iloc[0]
+        click.echo(format_table(table))
+        click.echo(f"best: {best['model']} with {best['integrator']}"
+                   + (f"; table in {out}" if out is not None else ""))
+        return
+    settings, source = settings_from_options(config, overrides, sets)
     table = compare_models(
         obs,
         settings,
-        orders=parse_orders(orders),
+        orders=candidate_orders(settings, orders),
         integrators=names,
         out=out,
         progress=not no_progress,
         source=source,
         dampings=[False, True] if damping else None,
     )
-    from symplid.workflow.compare import format_table
-
     click.echo(format_table(table))
     best = table.iloc[0]
     click.echo(

@@ -25,6 +25,7 @@ __all__ = [
     "RegistryOption",
     "UserError",
     "baselines_study_options",
+    "compare_candidates",
     "config_option",
     "converged",
     "fit_result_line",
@@ -242,6 +243,23 @@ def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: 
 # ----------------------------------------------------------------------------- shared options
 def no_progress_option(fn: Callable) -> Callable:
     return click.option("--no-progress", is_flag=True, help="No progress bars.")(fn)
+
+
+def compare_candidates(obs: Any, files: str, config: Path | None, orders: str | None,
+                       overrides: dict[str, Any], sets: tuple[str, ...], integrators: Any,
+                       out: Path | None, progress: bool, dampings: Any) -> Any:
+    """``symplid compare --candidates a.toml,b.toml``: each file is one whole model, labelled
+    by its name; the options and ``--set`` apply to every one."""
+    from symplid.workflow.compare import compare_settings
+
+    if config is not None or orders is not None:
+        raise UserError("--candidates gives each model its own settings file; drop --config "
+                        "and --orders")
+    paths = [Path(p.strip()) for p in files.split(",") if p.strip()]
+    if len(paths) < 2:
+        raise UserError(f"--candidates needs two settings files or more, got {files!r}")
+    pairs = [(p.stem, settings_from_options(p, dict(overrides), sets)[0]) for p in paths]
+    return compare_settings(obs, pairs, integrators, out, progress, dampings)
 
 
 def quiet_option(fn: Callable) -> Callable:

@@ -85,6 +85,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from symplid.dynamics.families import family_of
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
 from symplid.inference.map import find_map
 from symplid.io import observation_layout
@@ -93,11 +94,14 @@ from symplid.model.params import POSITIVE_GROUPS
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.scaling import resolve_standardise, scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
+from symplid.workflow.settings_schema import map_start
 
 __all__ = [
     "COLUMNS",
     "CandidateFit",
+    "candidate_orders",
     "compare_models",
+    "compare_settings",
     "comparison_table",
     "fit_candidates",
     "format_table",
@@ -127,6 +131,7 @@ COLUMNS = (
     "log_evidence_laplace",
     "converged",
     "map_seconds",
+    "model",
 )
 """The fixed columns of the comparison table, in order; the MAP coefficients follow, one
 column per coefficient name."""
@@ -187,6 +192,19 @@ def parse_orders(text: str | int | Sequence[int]) -> list[int]:
     return sorted(set(values))
 
 
+def candidate_orders(settings: Settings, orders: str | None) -> list[int] | None:
+    """The orders a comparison tries: ``orders`` (text for :func:`parse_orders`) for the
+    polynomial family, 2..5 when not given; None (the model itself) for any other family,
+    whose ``model.order`` is not read. Orders given for another family are an error."""
+    family = family_of(settings.model).name
+    if family == "polynomial":
+        return parse_orders(orders if orders is not None else "2..5")
+    if orders is not None:
+        raise ValueError(f"--orders applies to the polynomial family; the model is "
+                         f"{family!r} (one candidate): drop --orders")
+    return None
+
+
 def parse_integrators(text: str | Sequence[str]) -> list[str]:
     """Integrator names from ``"leapfrog,rk2"`` or a list; canonical names, in the given order.
 
@@ -230,6 +248,8 @@ class CandidateFit:
     log_likelihood: float
     seconds: float
     damping: bool = False
+    model: str = "polynomial"
+    """The candidate's model: its family's name, or a label (a settings file's name)."""
 
 
 def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
@@ -285,10 +305,12 @@ def fit_candidates(
     progress: bool = True,
     source: str = "settings",
     dampings: Sequence[bool] | None = None,
+    label: str | None = None,
 ) -> list[CandidateFit]:
     """MAP and Hessian of every (order, integrator, damping) candidate, in grid order.
 
-    Parameters are those of :func:`compare_models`. Each candidate uses ``settings`` with
+    Parameters are those of :func:`compare_models`; ``label`` names the model in the table
+    (default: its family's name). Each candidate uses ``settings`` with
     ``model.order``, ``model.integrator`` and ``model.damping`` replaced, and the MAP search
     of ``settings.map`` (its seed and number of starts), without the sampler.
     """
@@ -318,7 +340,8 @@ def fit_candidates(
             model = build_model(fit_s, fit_sets[0])
             posterior = build_posterior(fit_s, fit_data, model)  # type: ignore[arg-type]
             result = find_map(
-                posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False
+                posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False,
+                init=map_start(s),  # a user model's declared starts
             )
             seconds = time.perf_counter() - start
             log_prior = float(posterior.log_prior(np.asarray(result.theta)))
@@ -329,6 +352,7 @@ def fit_candidates(
             fits.append(
                 CandidateFit(
                     order, integrator, s, posterior, result, log_likelihood, seconds, damping,
+                    label or family_of(s.model).name,
                 )
             )
             bar.update(1)
@@ -431,6 +455,7 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
                                                       r.log_evidence)),
                 "converged": bool(r.success),
                 "map_seconds": float(fit.seconds),
+                "model": fit.model,
             }
         )
         coefficient_rows.append(coefficients)
@@ -454,16 +479,18 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
 
 def format_table(table: pd.DataFrame, title: str | None = None) -> str:
     """The comparison table as aligned text (what ``compare.txt`` holds)."""
+    by_model = any(m != "polynomial" for m in table["model"])
     header = (
-        "rank", "order", "integrator", "damping", "params", "log L", "log post", "log evidence",
-        "Δ log ev", "prob", "BIC", "process var", "obs var", "MAP s", "on a bound",
+        "rank", "model" if by_model else "order", "integrator", "damping", "params", "log L",
+        "log post", "log evidence", "Δ log ev", "prob", "BIC", "process var", "obs var",
+        "MAP s", "on a bound",
     )
     lines_body = []
     for row in table.itertuples(index=False):
         lines_body.append(
             (
                 str(row.rank),
-                str(row.order),
+                str(row.model) if by_model else str(row.order),
                 str(row.integrator),
                 f"γ = {row.gamma:.3g}" if row.damping else "no",
                 str(row.num_params),
@@ -480,7 +507,7 @@ def format_table(table: pd.DataFrame, title: str | None = None) -> str:
             )
         )
     widths = [max(len(h), *(len(r[j]) for r in lines_body)) for j, h in enumerate(header)]
-    left = {2, 3, 14}
+    left = {1, 2, 3, 14} if by_model else {2, 3, 14}
 
     def fmt(cells: Sequence[str]) -> str:
         out = [
@@ -517,6 +544,35 @@ def _prob(x: float) -> str:
     if not np.isfinite(x):
         return "nan"
     return "<0.001" if 0 < x < 1e-3 else f"{x:.3f}"
+
+
+def compare_settings(
+    obs: Observations | Sequence[Observations],
+    candidates: Sequence[tuple[str, Settings]],
+    integrators: Sequence[str] | str | None = None,
+    out: str | os.PathLike | None = None,
+    progress: bool = True,
+    dampings: Sequence[bool] | None = None,
+) -> pd.DataFrame:
+    """Rank whole models, each from its own settings (e.g. two users' expressions), by the
+    log evidence; ``candidates`` are ``(label, settings)`` pairs, the label naming the row.
+
+    Each candidate is fitted as by :func:`compare_models` with its own priors, model and
+    ``[map]`` (a polynomial candidate at its ``model.order``); ``integrators`` and
+    ``dampings`` apply to every one. The evidences are comparable when every candidate's
+    priors are proper.
+    """
+    if len(candidates) < 1:
+        raise ValueError("give at least one candidate")
+    fits: list[CandidateFit] = []
+    for label, settings in candidates:
+        fits += fit_candidates(obs, settings, None, integrators, progress, label, dampings,
+                               label=label)
+    table = comparison_table(fits)
+    if out is not None:
+        write_comparison(table, out, f"Model comparison: {len(fits)} candidate(s) "
+                         f"({', '.join(label for label, _ in candidates)})")
+    return table
 
 
 def write_comparison(
