@@ -413,7 +413,8 @@ def compare(data, out, config, orders, integrators, damping, x0, learn_initial_s
     by the log evidence (Gaussian in the coefficients, the noise variances integrated on their
     log scale)."""
     from symplid.io import read_observations
-    from symplid.workflow.compare import candidate_orders, compare_models, format_table
+    from symplid.workflow.compare import compare_models, format_table
+    from symplid.workflow.compare_candidates import candidate_orders
 
     obs = read_observations(data)
     overrides = {

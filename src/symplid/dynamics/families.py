@@ -17,6 +17,11 @@ registries below, and the entry builds the object for the data's dimension::
 * :data:`HAMILTONIAN_FAMILIES`: the Hamiltonian itself. ``"separable"`` (the default) means
   "½pᵀM⁻¹p plus the potential family above"; any other entry returns a whole H(q, p; θ),
   which replaces the potential family.
+
+A value that is not a name (an expression such as ``"-GM/sqrt(q1^2 + q2^2)"``, or
+``"file:model.py:U"``) is a user's own model: :func:`family_of` answers it with
+:func:`user_family`, built by :mod:`symplid.dynamics.user_models` with the parameters that
+``options.parameters`` declares.
 """
 
 from __future__ import annotations

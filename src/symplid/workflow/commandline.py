@@ -250,7 +250,7 @@ def compare_candidates(obs: Any, files: str, config: Path | None, orders: str | 
                        out: Path | None, progress: bool, dampings: Any) -> Any:
     """``symplid compare --candidates a.toml,b.toml``: each file is one whole model, labelled
     by its name; the options and ``--set`` apply to every one."""
-    from symplid.workflow.compare import compare_settings
+    from symplid.workflow.compare_candidates import compare_settings
 
     if config is not None or orders is not None:
         raise UserError("--candidates gives each model its own settings file; drop --config "

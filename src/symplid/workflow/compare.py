@@ -99,9 +99,7 @@ from symplid.workflow.settings_schema import map_start
 __all__ = [
     "COLUMNS",
     "CandidateFit",
-    "candidate_orders",
     "compare_models",
-    "compare_settings",
     "comparison_table",
     "fit_candidates",
     "format_table",
@@ -190,19 +188,6 @@ def parse_orders(text: str | int | Sequence[int]) -> list[int]:
         if v < 1:
             raise ValueError(f"orders: {v} is not a polynomial order (orders are ≥ 1)")
     return sorted(set(values))
-
-
-def candidate_orders(settings: Settings, orders: str | None) -> list[int] | None:
-    """The orders a comparison tries: ``orders`` (text for :func:`parse_orders`) for the
-    polynomial family, 2..5 when not given; None (the model itself) for any other family,
-    whose ``model.order`` is not read. Orders given for another family are an error."""
-    family = family_of(settings.model).name
-    if family == "polynomial":
-        return parse_orders(orders if orders is not None else "2..5")
-    if orders is not None:
-        raise ValueError(f"--orders applies to the polynomial family; the model is "
-                         f"{family!r} (one candidate): drop --orders")
-    return None
 
 
 def parse_integrators(text: str | Sequence[str]) -> list[str]:
@@ -544,35 +529,6 @@ def _prob(x: float) -> str:
     if not np.isfinite(x):
         return "nan"
     return "<0.001" if 0 < x < 1e-3 else f"{x:.3f}"
-
-
-def compare_settings(
-    obs: Observations | Sequence[Observations],
-    candidates: Sequence[tuple[str, Settings]],
-    integrators: Sequence[str] | str | None = None,
-    out: str | os.PathLike | None = None,
-    progress: bool = True,
-    dampings: Sequence[bool] | None = None,
-) -> pd.DataFrame:
-    """Rank whole models, each from its own settings (e.g. two users' expressions), by the
-    log evidence; ``candidates`` are ``(label, settings)`` pairs, the label naming the row.
-
-    Each candidate is fitted as by :func:`compare_models` with its own priors, model and
-    ``[map]`` (a polynomial candidate at its ``model.order``); ``integrators`` and
-    ``dampings`` apply to every one. The evidences are comparable when every candidate's
-    priors are proper.
-    """
-    if len(candidates) < 1:
-        raise ValueError("give at least one candidate")
-    fits: list[CandidateFit] = []
-    for label, settings in candidates:
-        fits += fit_candidates(obs, settings, None, integrators, progress, label, dampings,
-                               label=label)
-    table = comparison_table(fits)
-    if out is not None:
-        write_comparison(table, out, f"Model comparison: {len(fits)} candidate(s) "
-                         f"({', '.join(label for label, _ in candidates)})")
-    return table
 
 
 def write_comparison(

@@ -8,8 +8,11 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     seed = 0                      # seeds [map] and [sampler] unless they set their own
 
     [model]                       # the state-space model, eq. (7)
-    potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES
-    hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES
+    potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES,
+                                  # or a user's expression ("k*(1 - cos(q1))") or file:PATH:NAME
+    hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES, or a
+                                  # user's H (expression or file); parameters: [model.parameters]
+    kinetic = "quadratic"         # T(p) of a user's potential: ½pᵀM⁻¹p, or an expression/file
     order = 3                     # polynomial potential of total degree ≤ 3 (eqs 17–18)
     width = 32                    # potential = "mlp" (or hamiltonian = "mlp"): units per layer,
     depth = 2                     #   hidden layers,
