@@ -236,3 +236,13 @@ def test_kinetic_and_parameters_need_a_user_model():
             "model": {"kinetic": "cosh(p1)"}, "initial_state": {"x0": [1.0, 0.0]}}),
             _pendulum_data(5))
 
+
+
+def test_a_sweep_cell_sets_a_user_model_by_dotted_keys():
+    from symplid.workflow.sweep_spec import cell_settings
+
+    s = cell_settings({"model.potential": "k*(1 - cos(q1))",
+                       "model.parameters.k": {"prior": "half-normal", "scale": 5.0},
+                       "model.parameters.k.initial": 1.0}, experiment="paper")
+    assert s.model.potential == "k*(1 - cos(q1))"
+    assert s.model.parameters[0].initial == 1.0 and s.model.parameters[0].prior == HalfNormal(5)
