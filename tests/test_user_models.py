@@ -246,3 +246,15 @@ def test_a_sweep_cell_sets_a_user_model_by_dotted_keys():
                        "model.parameters.k.initial": 1.0}, experiment="paper")
     assert s.model.potential == "k*(1 - cos(q1))"
     assert s.model.parameters[0].initial == 1.0 and s.model.parameters[0].prior == HalfNormal(5)
+
+
+def test_a_model_file_is_found_from_the_settings_files_folder(tmp_path, monkeypatch):
+    (tmp_path / "m.py").write_text("def U(q, params):\n    return params['k'] * q[0] ** 2\n")
+    (tmp_path / "s.toml").write_text('[model]\npotential = "file:m.py:U"\n'
+                                     '[model.parameters]\nk = { prior = "half-normal" }\n')
+    monkeypatch.chdir(tmp_path.parent)
+    s = load_settings(tmp_path / "s.toml")
+    assert s.model.potential == f"file:{(tmp_path / 'm.py').resolve()}:U"
+    with pytest.raises(SettingsError, match="not a usable parameter name"):
+        settings_from_dict({"model": {"potential": "lambda*q1",
+                                      "parameters": {"lambda": {"prior": "normal"}}}})

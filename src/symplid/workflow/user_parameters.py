@@ -20,6 +20,7 @@ samplers and the MAP search (:mod:`symplid.model.params`).
 
 from __future__ import annotations
 
+import keyword
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -72,8 +73,8 @@ def _number(value: Any, key: str, source: str) -> float:
 
 
 def _one(name: str, table: Any, key: str, source: str) -> UserParameter:
-    if not name.isidentifier() or _COORDINATE.match(name) or name in FUNCTIONS \
-            or name in CONSTANTS or name.startswith("_"):
+    if (not name.isidentifier() or keyword.iskeyword(name) or _COORDINATE.match(name)
+            or name in FUNCTIONS or name in CONSTANTS or name.startswith("_")):
         raise SettingsError(source, key, "is not a usable parameter name (a letter, then letters,"
                             " digits or _; not q1.., p1.., a function or pi)")
     if not isinstance(table, Mapping):
