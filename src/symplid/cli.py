@@ -21,13 +21,16 @@ from symplid.workflow.commandline import (
     RegistryOption,
     UserError,
     baselines_study_options,
+    compare_candidates,
     config_option,
     fit_result_line,
     floats,
     integrator_registry,
+    model_text,
     no_progress_option,
     noise_model_names,
     potential_registry,
+    quiet_option,
     report_after_fit,
     rk2_variants,
     run_fit,
@@ -214,7 +217,12 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
 @config_option("Settings file (TOML); command-line options override it.")
 @click.option("--order", type=click.IntRange(min=1), default=None, help="Polynomial order of U.")
 @click.option("--potential", cls=RegistryOption, registry=potential_registry, default=None,
-              help="Family of U: {choices} (model.width, model.depth for mlp).")
+              help="U(q): a family ({choices}; model.width, model.depth for mlp), an "
+              "expression in q1.. ('k*(1 - cos(q1))') or FILE.py:U; its parameters in "
+              "[model.parameters].")
+@click.option("--hamiltonian", type=str, default=None,
+              help="A whole H(q, p): an expression in q1.., p1.. or FILE.py:H (a JAX function "
+              "H(q, p, params)); its parameters in [model.parameters].")
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
               help="Learning propagator: {choices}.")
 @click.option("--dt", type=float, default=None, help="Learning step.")
@@ -254,9 +262,10 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               help="Write report.md and the figures when the fit finishes (as symplid report).")
 @no_progress_option
 @user_errors
-def fit(data, out, config, order, potential, integrator, dt, damping, observation_noise, method,
-        iterations, samples, burn_in, chains, seed, x0, learn_initial_state, t0, time_unit,
-        holdout, holdout_after, sets, overwrite, resume, report, no_progress) -> None:
+def fit(data, out, config, order, potential, hamiltonian, integrator, dt, damping,
+        observation_noise, method, iterations, samples, burn_in, chains, seed, x0,
+        learn_initial_state, t0, time_unit, holdout, holdout_after, sets, overwrite, resume,
+        report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
     Several DATA files, or a `trajectory` column in one, are several trajectories of the same
@@ -272,7 +281,8 @@ def fit(data, out, config, order, potential, integrator, dt, damping, observatio
         iterations = samples
     overrides = {
         "model.order": order,
-        "model.potential": potential,
+        "model.potential": model_text(potential),
+        "model.hamiltonian": model_text(hamiltonian),
         "model.integrator": integrator,
         "model.dt": dt,
         "model.damping": True if damping else None,
@@ -331,8 +341,9 @@ def fit(data, out, config, order, potential, integrator, dt, damping, observatio
     help="start: paths from the initial state; end: a forecast from each draw's filtered "
     "state at the last observation, with process noise (forecast.npz).",
 )
+@quiet_option
 @user_errors
-def predict(run, t_end, dt, num_paths, start) -> None:
+def predict(run, t_end, dt, num_paths, start, no_progress) -> None:
     """Predict from a finished run: MAP path and posterior band, or a forecast from the end of
     the data (--from end), saved with a figure."""
     if start == "end":
@@ -351,8 +362,9 @@ def predict(run, t_end, dt, num_paths, start) -> None:
 # ----------------------------------------------------------------------------- report
 @main.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
+@quiet_option
 @user_errors
-def report(run) -> None:
+def report(run, no_progress) -> None:
     """Write report.md (tables and figures) for a finished run."""
     from symplid.workflow.run_tools import report_run
 
@@ -372,9 +384,9 @@ def report(run) -> None:
 @click.option(
     "--orders",
     type=str,
-    default="2..5",
-    show_default=True,
-    help="Polynomial orders, e.g. 2..5 or 2,3,5.",
+    default=None,
+    help="Polynomial orders, e.g. 2..5 or 2,3,5 [default: 2..5 for the polynomial family; "
+    "another family, or a user's model, is one candidate].",
 )
 @click.option(
     "--integrators",
@@ -389,36 +401,46 @@ def report(run) -> None:
 )
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
+@click.option("--candidates", type=str, default=None,
+              help="Comma-separated settings files, one whole model each (e.g. two of your "
+              "own): rank them instead of polynomial orders.")
 @sets_option
 @no_progress_option
 @user_errors
-def compare(
-    data, out, config, orders, integrators, damping, x0, learn_initial_state, sets, no_progress
-) -> None:
-    """Rank polynomial orders (propagators, damping) for DATA by the log evidence (Gaussian in
-    the coefficients, the noise variances integrated on their log scale)."""
+def compare(data, out, config, orders, integrators, damping, x0, learn_initial_state,
+            candidates, sets, no_progress) -> None:
+    """Rank polynomial orders (propagators, damping), or whole models (--candidates), for DATA
+    by the log evidence (Gaussian in the coefficients, the noise variances integrated on their
+    log scale)."""
     from symplid.io import read_observations
-    from symplid.workflow.compare import compare_models, parse_orders
+    from symplid.workflow.compare import compare_models, format_table
+    from symplid.workflow.compare_candidates import candidate_orders
 
     obs = read_observations(data)
     overrides = {
         "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
     }
-    settings, source = settings_from_options(config, overrides, sets)
     names = [n.strip() for n in integrators.split(",")] if integrators else None
+    if candidates is not None:
+        table = compare_candidates(obs, candidates, config, orders, overrides, sets, names,
+                                   out, not no_progress, [False, True] if damping else None)
+        best = table.iloc[0]
+        click.echo(format_table(table))
+        click.echo(f"best: {best['model']} with {best['integrator']}"
+                   + (f"; table in {out}" if out is not None else ""))
+        return
+    settings, source = settings_from_options(config, overrides, sets)
     table = compare_models(
         obs,
         settings,
-        orders=parse_orders(orders),
+        orders=candidate_orders(settings, orders),
         integrators=names,
         out=out,
         progress=not no_progress,
         source=source,
         dampings=[False, True] if damping else None,
     )
-    from symplid.workflow.compare import format_table
-
     click.echo(format_table(table))
     best = table.iloc[0]
     click.echo(

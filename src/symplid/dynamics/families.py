@@ -17,6 +17,11 @@ registries below, and the entry builds the object for the data's dimension::
 * :data:`HAMILTONIAN_FAMILIES`: the Hamiltonian itself. ``"separable"`` (the default) means
   "½pᵀM⁻¹p plus the potential family above"; any other entry returns a whole H(q, p; θ),
   which replaces the potential family.
+
+A value that is not a name (an expression such as ``"-GM/sqrt(q1^2 + q2^2)"``, or
+``"file:model.py:U"``) is a user's own model: :func:`family_of` answers it with
+:func:`user_family`, built by :mod:`symplid.dynamics.user_models` with the parameters that
+``options.parameters`` declares.
 """
 
 from __future__ import annotations
@@ -27,11 +32,12 @@ from typing import Any
 
 from symplid.dynamics.hamiltonians import DoublePendulum, PolynomialHamiltonian
 from symplid.dynamics.potentials import Polynomial
+from symplid.dynamics.user_models import QUADRATIC, build_user_model, is_user_model
 from symplid.registry import Registry
 
 __all__ = [
     "HAMILTONIAN_FAMILIES", "POTENTIAL_FAMILIES", "SEPARABLE", "Family", "build_family",
-    "family_of",
+    "family_of", "user_family",
 ]
 
 BuildFn = Callable[[int, Any], Any]
@@ -146,13 +152,32 @@ def _mlp(dim: int, options: Any, hamiltonian: bool = False) -> Any:
     )
 
 
+def user_family(text: str, kind: str) -> Family:
+    """The family of a user's own model (:mod:`symplid.dynamics.user_models`): the expression
+    or ``file:PATH:NAME`` ``text`` as ``model.<kind>``, its parameters those that
+    ``options.parameters`` declare (objects with a ``name``), ``options.kinetic`` its T(p)."""
+
+    def build(dim: int, options: Any) -> Any:
+        names = [p.name for p in getattr(options, "parameters", ())]
+        return build_user_model(text, kind, dim, names, getattr(options, "kinetic", QUADRATIC))
+
+    return Family("user", build, f"the user's {kind} {text}")
+
+
 def family_of(options: Any) -> Family:
     """The family entry that ``options`` (model settings) build: a Hamiltonian family other
-    than ``"separable"``, else the potential family."""
-    entry = HAMILTONIAN_FAMILIES.get_entry(getattr(options, "hamiltonian", SEPARABLE))
+    than ``"separable"``, else the potential family; a user's expression or file for either
+    (:func:`user_family`)."""
+    hamiltonian = getattr(options, "hamiltonian", SEPARABLE)
+    if is_user_model(hamiltonian):
+        return user_family(hamiltonian, "hamiltonian")
+    entry = HAMILTONIAN_FAMILIES.get_entry(hamiltonian)
     if entry.name != SEPARABLE:
         return entry
-    return POTENTIAL_FAMILIES.get_entry(getattr(options, "potential", "polynomial"))
+    potential = getattr(options, "potential", "polynomial")
+    if is_user_model(potential):
+        return user_family(potential, "potential")
+    return POTENTIAL_FAMILIES.get_entry(potential)
 
 
 def build_family(dim: int, options: Any) -> Any:

@@ -34,20 +34,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.dynamics.separable import has_kinetic
 from symplid.registry import Registry
 
 Array = jax.Array
 
 
 class Dynamics(NamedTuple):
-    """The right-hand side of Hamilton's equations (3) for H = ½pᵀM⁻¹p + U(q).
+    """The right-hand side of Hamilton's equations (3) for a separable H = T(p) + U(q).
 
-    ``grad_potential(q)`` is ∂U/∂q and ``velocity(p)`` is M⁻¹p, so q̇ = velocity(p) and
-    ṗ = −grad_potential(q).
+    ``grad_potential(q)`` is ∂U/∂q and ``velocity(p)`` is ∂T/∂p (M⁻¹p for the quadratic
+    T = ½pᵀM⁻¹p of eq. 2), so q̇ = velocity(p) and ṗ = −grad_potential(q). ``linear`` says
+    that ``velocity`` is linear in p (a quadratic T): leapfrog then uses the integer-step form
+    of eqs (5)–(6); otherwise its kick–drift–kick form (:mod:`symplid.dynamics.separable`).
     """
 
     grad_potential: Callable[[Array], Array]
     velocity: Callable[[Array], Array]
+    linear: bool = True
 
 
 class GeneralDynamics(NamedTuple):
@@ -87,6 +91,12 @@ def make_dynamics(
             lambda q, p: potential.grad_q(q, p, coefficients),
             lambda q, p: potential.grad_p(q, p, coefficients),
         )
+    if has_kinetic(potential):  # H = T(p) + U(q) with its own T
+        if inv_mass is not None:
+            raise ValueError("a constant mass matrix applies to H = ½pᵀM⁻¹p + U(q) only; the "
+                             "model's own kinetic energy T(p) replaces it")
+        return Dynamics(lambda q: potential.gradient(q, coefficients),
+                        lambda p: potential.velocity(p, coefficients), linear=False)
     if inv_mass is None:
         velocity = _identity
     else:
@@ -135,17 +145,22 @@ def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Ar
 
     q⁺ = q + Δt M⁻¹p − ½Δt² M⁻¹∂U(q);  p⁺ = p − ½Δt (∂U(q) + ∂U(q⁺)).
     """
-    g = dynamics.grad_potential(q)
-    q_next = q + dt * dynamics.velocity(p) - 0.5 * dt * dt * dynamics.velocity(g)
-    p_next = p - 0.5 * dt * (g + dynamics.grad_potential(q_next))
+    q_next, p_next, _ = leapfrog_force_step(dynamics, q, p, dynamics.grad_potential(q), dt)
     return q_next, p_next
 
 
 def leapfrog_force_step(
     dynamics: Dynamics, q: Array, p: Array, force: Array, dt: Array
 ) -> tuple[Array, Array, Array]:
-    """Eqs (5)–(6) with ``force = ∂U(q)`` given; returns the new state and ∂U(q⁺)."""
-    q_next = q + dt * dynamics.velocity(p) - 0.5 * dt * dt * dynamics.velocity(force)
+    """Eqs (5)–(6) with ``force = ∂U(q)`` given; returns the new state and ∂U(q⁺).
+
+    For a kinetic energy other than ½pᵀM⁻¹p (``dynamics.linear`` false) the drift uses the
+    half-kicked momentum, q⁺ = q + Δt ∂T(p − ½Δt ∂U(q)): the same step when ∂T is linear.
+    """
+    if getattr(dynamics, "linear", True):
+        q_next = q + dt * dynamics.velocity(p) - 0.5 * dt * dt * dynamics.velocity(force)
+    else:
+        q_next = q + dt * dynamics.velocity(p - 0.5 * dt * force)
     force_next = dynamics.grad_potential(q_next)
     p_next = p - 0.5 * dt * (force + force_next)
     return q_next, p_next, force_next

@@ -311,4 +311,9 @@ def hamiltonian(
             lambda qq, pp: potential.value(qq, pp, coefficients), signature="(d),(d)->()"
         )(q, p)
     u = jnp.vectorize(lambda qq: potential.value(qq, coefficients), signature="(d)->()")(q)
+    if callable(getattr(potential, "kinetic", None)):  # its own T(p), a SeparablePotential
+        if inv_mass is not None:
+            raise ValueError("a constant mass matrix applies to H = ½pᵀM⁻¹p + U(q) only")
+        t = jnp.vectorize(lambda pp: potential.kinetic(pp, coefficients), signature="(d)->()")
+        return t(p) + u
     return kinetic_energy(p, inv_mass) + u

@@ -43,6 +43,10 @@ Array = jax.Array
 POSITIVE_GROUPS = ("damping", "process_var", "obs_var", "obs_rel_var")
 """Groups bounded below by 0 whatever their prior: the damping rate and the variances."""
 
+LOG_SCALE_GROUPS = (*POSITIVE_GROUPS, "parameters")
+"""Groups whose parameters, when bounded below only, DRAM moves on a log scale: the positive
+groups and the declared parameters of a user's model (``[model.parameters]``)."""
+
 MAX_UNCONSTRAINED_VARIANCE = 4.0
 """Cap on each variance of a covariance pushed to the unconstrained space."""
 
@@ -306,6 +310,7 @@ def pushforward_covariance(
 
 __all__ = [
     "BIJECTORS",
+    "LOG_SCALE_GROUPS",
     "MAX_UNCONSTRAINED_VARIANCE",
     "POSITIVE_GROUPS",
     "ParameterProperties",

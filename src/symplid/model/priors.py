@@ -503,6 +503,8 @@ class PriorSpec:
 
     def group_prior(self, group: str) -> Prior | None:
         """The prior of a group (``None`` for the data-centred initial-state default)."""
+        if group == "parameters":  # a user model's declared parameters: their own priors
+            return self.coefficients
         if group not in GROUPS:
             raise ValueError(f"unknown group {group!r}; the groups are {', '.join(GROUPS)}")
         return getattr(self, group)

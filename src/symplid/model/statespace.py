@@ -148,6 +148,9 @@ class HamiltonianModel:
         object.__setattr__(self, "integrator", integrator)
         self._check_hamiltonian()
         if self.damping:
+            if callable(getattr(self.potential, "kinetic", None)):
+                raise ValueError("damping=True needs T = ½pᵀM⁻¹p (the friction is −γM⁻¹p); "
+                                 "the model has its own kinetic energy T(p)")
             if not self.separable:
                 raise ValueError("damping=True needs a separable H = ½pᵀM⁻¹p + U(q) (the "
                                  "friction is −γM⁻¹p); a non-separable H cannot be damped")
@@ -314,9 +317,10 @@ class HamiltonianModel:
     @property
     def param_groups(self) -> tuple[str, ...]:
         """The prior group of each entry of θ (``coefficients``, ``damping``, ``process_var``,
-        ``obs_var``, ``obs_rel_var``)."""
+        ``obs_var``, ``obs_rel_var``); a user model's declared parameters are ``parameters``
+        (the potential's ``parameter_group``)."""
         return tuple(
-            ["coefficients"] * self.num_coefficients
+            [getattr(self.potential, "parameter_group", "coefficients")] * self.num_coefficients
             + ["damping"] * self.num_damping
             + ["process_var"] * self.num_process_noise
             + ["obs_var"] * self.num_obs_noise

@@ -25,13 +25,16 @@ __all__ = [
     "RegistryOption",
     "UserError",
     "baselines_study_options",
+    "compare_candidates",
     "config_option",
     "converged",
     "fit_result_line",
     "floats",
     "integrator_registry",
+    "model_text",
     "no_progress_option",
     "potential_registry",
+    "quiet_option",
     "report_after_fit",
     "rk2_variants",
     "run_fit",
@@ -240,6 +243,42 @@ def settings_from_options(config: Path | None, overrides: dict[str, Any], sets: 
 # ----------------------------------------------------------------------------- shared options
 def no_progress_option(fn: Callable) -> Callable:
     return click.option("--no-progress", is_flag=True, help="No progress bars.")(fn)
+
+
+def compare_candidates(obs: Any, files: str, config: Path | None, orders: str | None,
+                       overrides: dict[str, Any], sets: tuple[str, ...], integrators: Any,
+                       out: Path | None, progress: bool, dampings: Any) -> Any:
+    """``symplid compare --candidates a.toml,b.toml``: each file is one whole model, labelled
+    by its name; the options and ``--set`` apply to every one."""
+    from symplid.workflow.compare_candidates import compare_settings
+
+    if config is not None or orders is not None:
+        raise UserError("--candidates gives each model its own settings file; drop --config "
+                        "and --orders")
+    paths = [Path(p.strip()) for p in files.split(",") if p.strip()]
+    if len(paths) < 2:
+        raise UserError(f"--candidates needs two settings files or more, got {files!r}")
+    pairs = [(p.stem, settings_from_options(p, dict(overrides), sets)[0]) for p in paths]
+    return compare_settings(obs, pairs, integrators, out, progress, dampings)
+
+
+def quiet_option(fn: Callable) -> Callable:
+    """``--no-progress`` of a command that draws no progress bar (predict, report): accepted so
+    that one script can pass it to every command."""
+    return click.option("--no-progress", is_flag=True,
+                        help="Accepted for scripts that pass it to every command; this command "
+                        "draws no progress bar.")(fn)
+
+
+def model_text(text: str | None) -> str | None:
+    """``--potential``/``--hamiltonian``: ``FILE.py:NAME`` becomes ``file:FILE.py:NAME``; a family
+    name or an expression is passed on as written."""
+    if text is None:
+        return None
+    path, sep, name = text.strip().rpartition(":")
+    if sep and path.endswith(".py") and not text.strip().startswith("file:"):
+        return f"file:{path}:{name}"
+    return text
 
 
 def config_option(help_text: str) -> Callable[[Callable], Callable]:

@@ -85,6 +85,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from symplid.dynamics.families import family_of
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
 from symplid.inference.map import find_map
 from symplid.io import observation_layout
@@ -93,6 +94,7 @@ from symplid.model.params import POSITIVE_GROUPS
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.scaling import resolve_standardise, scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
+from symplid.workflow.settings_schema import map_start
 
 __all__ = [
     "COLUMNS",
@@ -127,6 +129,7 @@ COLUMNS = (
     "log_evidence_laplace",
     "converged",
     "map_seconds",
+    "model",
 )
 """The fixed columns of the comparison table, in order; the MAP coefficients follow, one
 column per coefficient name."""
@@ -230,6 +233,8 @@ class CandidateFit:
     log_likelihood: float
     seconds: float
     damping: bool = False
+    model: str = "polynomial"
+    """The candidate's model: its family's name, or a label (a settings file's name)."""
 
 
 def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
@@ -285,10 +290,12 @@ def fit_candidates(
     progress: bool = True,
     source: str = "settings",
     dampings: Sequence[bool] | None = None,
+    label: str | None = None,
 ) -> list[CandidateFit]:
     """MAP and Hessian of every (order, integrator, damping) candidate, in grid order.
 
-    Parameters are those of :func:`compare_models`. Each candidate uses ``settings`` with
+    Parameters are those of :func:`compare_models`; ``label`` names the model in the table
+    (default: its family's name). Each candidate uses ``settings`` with
     ``model.order``, ``model.integrator`` and ``model.damping`` replaced, and the MAP search
     of ``settings.map`` (its seed and number of starts), without the sampler.
     """
@@ -318,7 +325,8 @@ def fit_candidates(
             model = build_model(fit_s, fit_sets[0])
             posterior = build_posterior(fit_s, fit_data, model)  # type: ignore[arg-type]
             result = find_map(
-                posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False
+                posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False,
+                init=map_start(s),  # a user model's declared starts
             )
             seconds = time.perf_counter() - start
             log_prior = float(posterior.log_prior(np.asarray(result.theta)))
@@ -329,6 +337,7 @@ def fit_candidates(
             fits.append(
                 CandidateFit(
                     order, integrator, s, posterior, result, log_likelihood, seconds, damping,
+                    label or family_of(s.model).name,
                 )
             )
             bar.update(1)
@@ -383,7 +392,7 @@ def _coefficients(fit: CandidateFit) -> dict[str, float]:
     groups = tuple(fit.posterior.param_groups)
     theta = np.asarray(fit.map_result.theta, dtype=float)
     return {str(n): float(v) for n, g, v in zip(names, groups, theta, strict=True)
-            if g == "coefficients"}
+            if g in ("coefficients", "parameters")}
 
 
 def _bound_flags(fit: CandidateFit) -> tuple[str, str]:
@@ -431,6 +440,7 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
                                                       r.log_evidence)),
                 "converged": bool(r.success),
                 "map_seconds": float(fit.seconds),
+                "model": fit.model,
             }
         )
         coefficient_rows.append(coefficients)
@@ -454,16 +464,18 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
 
 def format_table(table: pd.DataFrame, title: str | None = None) -> str:
     """The comparison table as aligned text (what ``compare.txt`` holds)."""
+    by_model = any(m != "polynomial" for m in table["model"])
     header = (
-        "rank", "order", "integrator", "damping", "params", "log L", "log post", "log evidence",
-        "Δ log ev", "prob", "BIC", "process var", "obs var", "MAP s", "on a bound",
+        "rank", "model" if by_model else "order", "integrator", "damping", "params", "log L",
+        "log post", "log evidence", "Δ log ev", "prob", "BIC", "process var", "obs var",
+        "MAP s", "on a bound",
     )
     lines_body = []
     for row in table.itertuples(index=False):
         lines_body.append(
             (
                 str(row.rank),
-                str(row.order),
+                str(row.model) if by_model else str(row.order),
                 str(row.integrator),
                 f"γ = {row.gamma:.3g}" if row.damping else "no",
                 str(row.num_params),
@@ -480,7 +492,7 @@ def format_table(table: pd.DataFrame, title: str | None = None) -> str:
             )
         )
     widths = [max(len(h), *(len(r[j]) for r in lines_body)) for j, h in enumerate(header)]
-    left = {2, 3, 14}
+    left = {1, 2, 3, 14} if by_model else {2, 3, 14}
 
     def fmt(cells: Sequence[str]) -> str:
         out = [

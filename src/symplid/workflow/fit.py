@@ -34,6 +34,7 @@ from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.results import RunFolder
 from symplid.workflow.scaling import scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
+from symplid.workflow.settings_schema import map_start, prior_spec
 
 
 def build_model(settings: Settings, obs: Observations | list[Observations]) -> HamiltonianModel:
@@ -76,7 +77,7 @@ def build_posterior(settings: Settings, obs: Observations | list[Observations],
     return Posterior(
         model,
         obs,
-        prior=settings.priors.prior_spec(learned),
+        prior=prior_spec(settings),  # the groups' priors, and a user model's own
         x0=x0,
         P0=init.p0_var,
         t0=None if init.at_first_observation else init.t0,  # None: at the first observation
@@ -113,7 +114,8 @@ def find_map_for(settings: Settings, posterior) -> Any:
 
     m = settings.map
     if not family_of(settings.model).neural:
-        return find_map(posterior, seed=m.seed, num_starts=m.num_starts, evidence=m.evidence)
+        return find_map(posterior, seed=m.seed, num_starts=m.num_starts, evidence=m.evidence,
+                        init=map_start(settings))
     from symplid.inference.neural_fit import find_map_neural
 
     start = time.perf_counter()

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from symplid.dynamics.hamiltonians import is_hamiltonian
 from symplid.dynamics.potentials import coefficient_name
 from symplid.inference.measures import potential_slices
 from symplid.inference.predict import posterior_predictive, predict_trajectory
@@ -63,9 +64,10 @@ def potential_figure(settings: Any, data: Any, model: Any, flat: np.ndarray,
                      theta_map: np.ndarray) -> Any | None:
     """U(q) along each axis through the data's mean position, over a range covering the
     data: the posterior's 95 % band and median, the MAP and the truth (``plots.truth``).
-    None when the model has no polynomial-style potential U(q; c)."""
+    None when the model has no potential U(q; c): a whole, non-separable H(q, p; θ)
+    (``polynomial-qp``, a user's H that mixes q and p) has no U(q) to draw."""
     potential = getattr(model, "potential", None)
-    if potential is None or not hasattr(potential, "value"):
+    if potential is None or not hasattr(potential, "value") or is_hamiltonian(potential):
         return None
     nc = model.num_coefficients
     d = potential.dim

@@ -8,8 +8,11 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     seed = 0                      # seeds [map] and [sampler] unless they set their own
 
     [model]                       # the state-space model, eq. (7)
-    potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES
-    hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES
+    potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES,
+                                  # or a user's expression ("k*(1 - cos(q1))") or file:PATH:NAME
+    hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES, or a
+                                  # user's H (expression or file); parameters: [model.parameters]
+    kinetic = "quadratic"         # T(p) of a user's potential: ½pᵀM⁻¹p, or an expression/file
     order = 3                     # polynomial potential of total degree ≤ 3 (eqs 17–18)
     width = 32                    # potential = "mlp" (or hamiltonian = "mlp"): units per layer,
     depth = 2                     #   hidden layers,
@@ -138,6 +141,7 @@ from symplid.workflow.settings_schema import (
     family_prior,
     with_family_prior,
 )
+from symplid.workflow.user_parameters import parameters_from_table, with_model_paths
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
 
 __all__ = [
@@ -178,6 +182,8 @@ def _to_dict(obj: Any) -> dict[str, Any]:
         value = getattr(obj, f.name)
         if dataclasses.is_dataclass(value) or isinstance(value, Prior):
             out[f.name] = _to_dict(value)
+        elif f.name == "parameters" and isinstance(obj, ModelSettings):
+            out[f.name] = {p.name: p.to_dict() for p in value}
         elif isinstance(value, tuple):
             out[f.name] = list(value)
         else:
@@ -259,7 +265,7 @@ def settings_from_dict(data: Mapping[str, Any], source: str = "settings") -> Set
             table = data.get(section, {})
             if isinstance(table, Mapping) and "seed" not in table:
                 data[section] = {**table, "seed": data["seed"]}
-    data = with_family_prior(data)
+    data = with_model_paths(with_family_prior(data))
     settings = _build(Settings, data, "", source)
     _check_cross(settings, source)
     return settings
@@ -289,6 +295,8 @@ def _convert(value: Any, tp: Any, f: dataclasses.Field, key: str, source: str) -
         if tp is Prior:
             return _build_prior(value, key + ".", source)
         return _build(tp, value, key + ".", source)
+    if key == "model.parameters":
+        return parameters_from_table(value, key, source)
     return check_value(value, tp, f.metadata["spec"], key, source)
 
 
@@ -402,7 +410,7 @@ def load_settings(path: str | os.PathLike) -> Settings:
         raise SettingsError(str(path), None, "not a UTF-8 text file") from None
     except tomllib.TOMLDecodeError as err:
         raise SettingsError(str(path), None, f"not valid TOML: {err}") from None
-    return settings_from_dict(data, source=str(path))
+    return settings_from_dict(with_model_paths(data, path.parent), source=str(path))
 
 
 _HEADER = (
@@ -467,9 +475,8 @@ def merge_overrides(
         parts = key.split(".")
         table = data
         for depth, part in enumerate(parts):
-            if not isinstance(table, dict) or (
-                part not in table and not _is_prior_key(parts, depth)
-            ):
+            if not isinstance(table, dict) or (part not in table and not _is_prior_key(
+                    parts, depth) and parts[:2] != ["model", "parameters"]):
                 section = list(table) if isinstance(table, dict) else []
                 raise SettingsError(source, None, f"unknown key '{key}'" + _suggest(key, section))
             if depth == len(parts) - 1:

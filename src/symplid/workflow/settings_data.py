@@ -19,7 +19,7 @@ from symplid.model.data import DataError
 from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.auto import resolve_noise
 from symplid.workflow.scaling import resolve_standardise
-from symplid.workflow.settings_schema import Settings, check_model_family
+from symplid.workflow.settings_schema import Settings, check_model_family, follow_model
 from symplid.workflow.validate import SettingsError
 
 __all__ = ["MAX_SUBSTEPS_PER_GAP", "resolve_for_data"]
@@ -76,6 +76,8 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         )
     if model.mass and len(model.mass) != d:
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
+    settings = follow_model(settings, d)
+    model = settings.model
     check_model_family(settings, d, source)
     for k, one in enumerate(trajectories):
         _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")

@@ -8,6 +8,7 @@ loading and the overrides are in :mod:`symplid.workflow.settings`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -23,11 +24,18 @@ from symplid.dynamics.hamiltonians import is_hamiltonian
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
 from symplid.dynamics.neural import ACTIVATIONS
 from symplid.dynamics.nonseparable import TaoIntegrator
+from symplid.dynamics.separable import has_kinetic
+from symplid.dynamics.user_models import QUADRATIC, is_user_model
 from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec, as_prior
+from symplid.workflow.user_parameters import (
+    UserParameter,
+    initial_values,
+    parameter_priors,
+)
 from symplid.workflow.validate import SettingsError, Spec, setting
 
 __all__ = [
@@ -42,6 +50,9 @@ __all__ = [
     "Settings",
     "check_model_family",
     "family_prior",
+    "follow_model",
+    "map_start",
+    "prior_spec",
     "with_family_prior",
 ]
 
@@ -54,17 +65,38 @@ class ModelSettings:
     ``order`` is read by the polynomial family; ``width``, ``depth``, ``activation`` and
     ``network_seed`` (the seed of the initial weights) by the ``"mlp"`` family
     (:class:`~symplid.dynamics.neural.MLPPotential`). A family ignores the others.
+    ``potential`` and ``hamiltonian`` also take a user's own model, an expression or
+    ``file:PATH:NAME`` (:mod:`symplid.dynamics.user_models`), whose parameters
+    ``parameters`` declares (:mod:`symplid.workflow.user_parameters`); ``kinetic`` is the
+    T(p) of such a potential (``"quadratic"``: ½pᵀM⁻¹p).
     """
 
     potential: str = setting(
-        "polynomial", choices=POTENTIAL_FAMILIES,
-        doc="Family of U(q; θ): the polynomial of eq. 13 or a neural network (``\"mlp\"``).",
+        "polynomial", choices=POTENTIAL_FAMILIES, other=is_user_model,
+        doc=(
+            "Family of U(q; θ): the polynomial of eq. 13, a neural network (``\"mlp\"``), an "
+            "expression in q1..qd or ``file:PATH:NAME`` (a user's model)."
+        ),
     )
     hamiltonian: str = setting(
-        "separable", choices=HAMILTONIAN_FAMILIES,
+        "separable", choices=HAMILTONIAN_FAMILIES, other=is_user_model,
         doc=(
             "Family of a whole H(q, p; θ); ``\"separable\"``: H = ½pᵀM⁻¹p + U(q) with U from "
-            "``potential``."
+            "``potential``; also an expression in q1..qd, p1..pd or ``file:PATH:NAME``."
+        ),
+    )
+    kinetic: str = setting(
+        QUADRATIC, choices=(QUADRATIC,), other=is_user_model,
+        doc=(
+            "T(p) of a user's potential: ``\"quadratic\"`` (½pᵀM⁻¹p) or an expression in "
+            "p1..pd (or ``file:PATH:NAME``) with declared parameters."
+        ),
+    )
+    parameters: tuple[UserParameter, ...] = setting(
+        (),
+        doc=(
+            "A user model's parameters, one table each: ``NAME = { prior = ..., scale = ..., "
+            "lower = ..., upper = ..., initial = ... }``."
         ),
     )
     order: int = setting(
@@ -334,6 +366,20 @@ class Settings:
     plots: PlotSettings = field(default_factory=PlotSettings)
 
 
+def prior_spec(settings: Settings) -> PriorSpec:
+    """The posterior's priors: the groups of ``settings.priors`` and, for a user's model, each
+    declared parameter's own prior within its bounds (``[model.parameters]``)."""
+    spec = settings.priors.prior_spec(settings.initial_state.mode == "learned")
+    own = parameter_priors(settings.model.parameters)
+    return dataclasses.replace(spec, overrides={**spec.overrides, **own}) if own else spec
+
+
+def map_start(settings: Settings) -> dict[str, float] | None:
+    """The MAP's first start that the settings give: the ``initial`` values of
+    ``[model.parameters]`` (None when none is declared)."""
+    return initial_values(settings.model.parameters) or None
+
+
 def family_prior(model: Any) -> Prior:
     """The default coefficient prior of the family that model settings name.
 
@@ -371,6 +417,31 @@ PRIOR_SPECS = {
 PRIOR_SYNONYMS = {"log-normal": {"loc": "mu", "scale": "sigma"}}
 
 
+#: The integrator a user's non-separable H gets when the settings keep the default leapfrog.
+NONSEPARABLE_DEFAULT = "tao"
+
+
+def follow_model(settings: Settings, dim: int) -> Settings:
+    """A user's non-separable H with the default leapfrog: ``model.integrator`` becomes
+    :data:`NONSEPARABLE_DEFAULT` (explicit, symplectic in the extended phase space), and
+    ``prediction.integrator`` left at leapfrog follows ``model.integrator``."""
+    model = settings.model
+    if family_of(model).name != "user" or not is_user_model(model.hamiltonian):
+        return settings
+    try:
+        family = build_family(dim, model)
+    except ValueError:  # check_model_family says what is wrong
+        return settings
+    if not is_hamiltonian(family):
+        return settings
+    integrator = NONSEPARABLE_DEFAULT if model.integrator == "leapfrog" else model.integrator
+    prediction = settings.prediction
+    if prediction.integrator == "leapfrog":
+        prediction = dataclasses.replace(prediction, integrator=integrator)
+    return dataclasses.replace(settings, model=dataclasses.replace(model, integrator=integrator),
+                               prediction=prediction)
+
+
 def check_model_family(settings: Settings, dim: int, source: str) -> int:
     """Check the model's U or H against the integrators; its number of parameters.
 
@@ -380,14 +451,29 @@ def check_model_family(settings: Settings, dim: int, source: str) -> int:
     only.
     """
     model = settings.model
+    user = family_of(model).name == "user"
+    if model.kinetic != QUADRATIC and not (user and model.hamiltonian == "separable"):
+        raise SettingsError(source, "model.kinetic", "is the T(p) of a user's potential "
+                            "(model.potential = an expression or file:PATH:NAME); a whole H "
+                            "carries its own")
+    if model.parameters and not user:
+        raise SettingsError(source, "model.parameters", "declares parameters of a user's "
+                            "model, but the model is the family "
+                            f"{family_of(model).name!r}; write model.potential or "
+                            "model.hamiltonian as an expression or file:PATH:NAME")
     try:
         family = build_family(dim, model)
     except ValueError as err:
+        if user:
+            raise SettingsError(source, None, str(err)) from None
         key = "model.hamiltonian" if model.hamiltonian != "separable" else "model.potential"
         raise SettingsError(source, key, f"({model.hamiltonian}): {err}") from None
     if model.binding and not isinstance(get_integrator(model.integrator), TaoIntegrator):
         raise SettingsError(source, "model.binding", f"is Tao's ω; model.integrator is "
                             f"{model.integrator!r} (set binding = 0, or use 'tao'/'tao4')")
+    if has_kinetic(family) and (model.damping or model.mass):
+        raise SettingsError(source, "model.damping" if model.damping else "model.mass",
+                            "needs T = ½pᵀM⁻¹p; the model has its own kinetic energy T(p)")
     if is_hamiltonian(family):
         if model.damping:
             raise SettingsError(source, "model.damping", f"is true but the Hamiltonian "

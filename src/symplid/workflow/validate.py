@@ -61,6 +61,9 @@ class Spec:
         For a sweep cell key: the dotted run setting it stands for (``"model.dt"``).
     words
         For a number: words accepted in its place (``initial_state.t0 = "first"``).
+    other
+        For a string with choices: a test of text accepted as written besides the choices
+        (``model.potential``: a user's expression or ``file:PATH:NAME``).
     """
 
     type: Any
@@ -71,6 +74,7 @@ class Spec:
     choices: tuple[str, ...] | Registry | None = None
     setting: str | None = None
     words: tuple[str, ...] = ()
+    other: Any = None
 
     def names(self) -> tuple[str, ...]:
         """The allowed strings (a registry's names at the time of the call)."""
@@ -136,6 +140,8 @@ def check_value(
     elif tp is str:
         if not isinstance(value, str):
             raise error(source, key, f"must be a string, got {value!r}")
+        if spec.other is not None and spec.other(value):
+            return value.strip()
         out = _choose(value.strip().lower(), value, spec, key, source, error)
     else:  # tuple[float, ...]
         if not isinstance(value, list | tuple) or any(

@@ -37,7 +37,7 @@ from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
 from symplid.inference.samplers.run import DataStep
-from symplid.model.params import POSITIVE_GROUPS, ParameterSpace, pushforward_covariance
+from symplid.model.params import LOG_SCALE_GROUPS, ParameterSpace, pushforward_covariance
 from symplid.registry import Registry
 
 Array = jax.Array
@@ -105,11 +105,13 @@ class SamplerSpec:
 
 class LogVariances:
     """θ ↔ w with the variances (bounded below only) as w = log(v − a), the rest as is,
-    and the log density of w (log π(θ(w)) + Σ w over the variances: the log-Jacobian)."""
+    and the log density of w (log π(θ(w)) + Σ w over the variances: the log-Jacobian).
+    A user model's declared parameters bounded below only move on the same log scale
+    (:data:`~symplid.model.params.LOG_SCALE_GROUPS`)."""
 
     def __init__(self, posterior: Any) -> None:
         space = ParameterSpace.of(posterior)
-        self.mask = np.array([g in POSITIVE_GROUPS for g in space.groups], dtype=bool)
+        self.mask = np.array([g in LOG_SCALE_GROUPS for g in space.groups], dtype=bool)
         self.mask &= np.isfinite(space.lower) & ~np.isfinite(space.upper)
         self.lower = np.where(self.mask, space.lower, 0.0)
         self._log_density = posterior.log_density
