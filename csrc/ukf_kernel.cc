@@ -14,6 +14,7 @@
 // processor supports is chosen once at run time. Floating-point contraction is off
 // (-ffp-contract=off), so every variant gives the same numbers.
 
+#include <cstdlib>
 #include <string>
 #include <tuple>
 
@@ -24,21 +25,33 @@ namespace ffi = xla::ffi;
 
 namespace symplid {
 
-// The widest instruction set this processor supports, chosen once.
+// The widest instruction set this processor supports, chosen once, or a narrower one named
+// by the environment variable SYMPLID_KERNEL_ISA ("avx2" or "baseline": to test or time the
+// variants that this processor would not choose; a wider or unknown name is ignored).
 EvaluateFn select_kernel() {
+  const char* requested = std::getenv("SYMPLID_KERNEL_ISA");
+  const std::string cap = requested != nullptr ? requested : "";
+  if (cap == "baseline") return baseline::evaluate;
 #ifdef SYMPLID_X86
   __builtin_cpu_init();
-  if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
-      __builtin_cpu_supports("avx512dq")) {
+  const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  if (cap != "avx2" && avx2 && __builtin_cpu_supports("avx512f") &&
+      __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512dq")) {
     return avx512::evaluate;
   }
-  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return avx2::evaluate;
+  if (avx2) return avx2::evaluate;
 #endif
   return baseline::evaluate;
 }
 
+// The kernel this process runs with (the choice is made on the first call).
+EvaluateFn kernel() {
+  static const EvaluateFn chosen = select_kernel();
+  return chosen;
+}
+
 const char* kernel_isa() {
-  const EvaluateFn fn = select_kernel();
+  const EvaluateFn fn = kernel();
 #ifdef SYMPLID_X86
   if (fn == avx512::evaluate) return "avx512";
   if (fn == avx2::evaluate) return "avx2";
@@ -179,7 +192,7 @@ ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffe
                           ffi::Span<const double> wc, double scale, double jitter,
                           int64_t per_step, int64_t diagonal, int64_t max_steps,
                           int64_t uniform) {
-  static const EvaluateFn evaluate = select_kernel();
+  const EvaluateFn evaluate = kernel();
   thread_local Workspace work;
 
   Settings s;
