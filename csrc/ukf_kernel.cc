@@ -9,10 +9,12 @@
 // is not batched; the kernel loops over the batch itself and, when the data are shared,
 // propagates eight parameter vectors at once so that every vector lane is busy.
 //
-// The numerical kernel (ukf_kernel_impl.h) is compiled three times, for AVX-512, for AVX2 with
-// FMA and for the baseline x86-64 (or whatever the target is elsewhere), and the best one the
-// processor supports is chosen once at run time. Floating-point contraction is off
-// (-ffp-contract=off), so every variant gives the same numbers.
+// The numerical kernel (ukf_kernel_impl.h) is compiled three times, each in its own
+// translation unit so that the build runs them in parallel: for AVX-512
+// (ukf_kernel_avx512.cc), for AVX2 with FMA (ukf_kernel_avx2.cc) and for the baseline x86-64,
+// or whatever the target is elsewhere (ukf_kernel_baseline.cc). The best one the processor
+// supports is chosen once at run time. Floating-point contraction is off (-ffp-contract=off),
+// so every variant gives the same numbers.
 
 #include <cstdlib>
 #include <string>

@@ -687,12 +687,14 @@ FastAdvanceFn fast_advance_for(const Settings& s) {
 }
 
 // The fast propagation for these settings, or nullptr: then Propagator::advance, which gives
-// the same numbers (both follow the reference operation for operation) in about twice the time.
+// the same numbers (both follow the reference operation for operation), 1.5 to 4 times slower.
 // Each fast variant is straight-line code for one basis, propagator and block layout, and
 // compiling them all (12 bases x mass matrix or not x 5 propagators) took most of the build,
 // so the fast path covers the common shapes only: few vector registers (AVX2, SSE2: a Vec is
 // two or four registers and the blocks would spill), a mass matrix, Runge–Kutta methods of one
-// or three stages, and three coordinates at degree 4 or 5 take the general path.
+// or three stages, three coordinates at degree 5, and Runge–Kutta methods for three
+// coordinates at degree 4 take the general path (benchmarks/compiled_kernel.py --previous times such shapes against a build
+// that had them all).
 // A template so that the instruction sets with few registers do not instantiate the blocks.
 template <bool MANY = kManyRegisters>
 FastAdvanceFn select_fast_advance(const Settings& s) {
@@ -704,6 +706,9 @@ FastAdvanceFn select_fast_advance(const Settings& s) {
     SYMPLID_TRY_FAST(2, 2) SYMPLID_TRY_FAST(2, 3) SYMPLID_TRY_FAST(2, 4) SYMPLID_TRY_FAST(2, 5)
     SYMPLID_TRY_FAST(3, 2) SYMPLID_TRY_FAST(3, 3)
 #undef SYMPLID_TRY_FAST
+    if (s.composition && FixedBasis<3, 4>::matches(s)) {
+      return &fast_advance<3, 4, false, CompositionMethod>;
+    }
   }
   (void)s;
   return nullptr;
