@@ -693,8 +693,8 @@ FastAdvanceFn fast_advance_for(const Settings& s) {
 // so the fast path covers the common shapes only: few vector registers (AVX2, SSE2: a Vec is
 // two or four registers and the blocks would spill), a mass matrix, Runge–Kutta methods of one
 // or three stages, three coordinates at degree 5, and Runge–Kutta methods for three
-// coordinates at degree 4 take the general path (benchmarks/compiled_kernel.py --previous times such shapes against a build
-// that had them all).
+// coordinates at degree 4 take the general path (benchmarks/compiled_kernel.py --previous
+// times such shapes against a build that had them all).
 // A template so that the instruction sets with few registers do not instantiate the blocks.
 template <bool MANY = kManyRegisters>
 FastAdvanceFn select_fast_advance(const Settings& s) {
