@@ -20,7 +20,9 @@ reference ``rk2-midpoint``, ``rk4``), µs per call for one θ and for a vmap bat
 (one call), JAX reference against the kernel. ``--previous PATH`` adds a column for another
 build of the kernel (e.g. the one before a change), loaded beside this one under its own FFI
 target so that both run in the same process and loop, and reports the largest difference
-between the two builds' values.
+between the two builds' values; a third table then times both builds on other shapes, some
+outside the AVX-512 register path (a mass matrix, forward Euler, Runge–Kutta for d = 3 at
+degree 4).
 
 Run on one idle core: ``taskset -c 0 python benchmarks/compiled_kernel.py [--previous SO]``.
 """
@@ -127,12 +129,12 @@ def previous_build(path: str) -> Callable[..., Callable[[jax.Array], jax.Array]]
     return make
 
 
-def propagators(repeats: int, previous: str | None) -> None:
-    """µs per call by propagator, one θ and a batch of eight, on the paper's workload."""
+def propagators(repeats: int, make_previous: Callable | None) -> None:
+    """µs per call by propagator, one θ and a batch of eight, on the paper's workload
+    (``make_previous``: another build, from :func:`previous_build`)."""
     system = symplid.get_system("henon-heiles")
     data = symplid.simulate(system, seed=0)
     x0 = system.initial_state
-    make_previous = previous_build(previous) if previous else None
     key = jax.random.key(0)
     head = "| propagator | θ per call | JAX reference (µs) | kernel (µs) |"
     rule = "|---|---:|---:|---:|"
@@ -165,6 +167,44 @@ def propagators(repeats: int, previous: str | None) -> None:
             print(row)
 
 
+# Shapes outside the AVX-512 register path (a mass matrix, forward Euler, Runge–Kutta for
+# d = 3 at degree 4) and two inside it, for the --previous comparison: (d, order, integrator,
+# mass).
+SHAPES = (
+    (2, 3, "leapfrog", ((2.0, 0.5), (0.5, 1.0))),
+    (1, 4, "euler", None),
+    (3, 4, "rk2-midpoint", None),
+    (3, 4, "leapfrog", None),
+    (3, 3, "rk4", None),
+)
+
+
+def shapes(repeats: int, make_previous: Callable) -> None:
+    """µs per call for one θ on other shapes (20 full-state observations, confining potential),
+    this build against another (``make_previous``), with the largest difference between them."""
+    rng = np.random.default_rng(0)
+    times = np.arange(1, 21) * 5.0
+    print("\n| d, order | propagator | mass | kernel (µs) | previous kernel (µs) |"
+          " previous / kernel | largest difference |\n|---|---|---|---:|---:|---:|---:|")
+    for d, order, name, mass in SHAPES:
+        potential = symplid.Polynomial(d, order)
+        bowl = [0.5 if sum(e) == 2 and max(e) == 2 else 0.0 for e in potential.exponents]
+        model = symplid.HamiltonianModel(potential, integrator=name, dt=0.25, mass=mass)
+        data = symplid.Observations(times, 0.1 * rng.standard_normal((times.size, 2 * d)))
+        prepared = model.prepare(data)
+        x0 = np.r_[np.full(d, 0.2), np.full(d, -0.1)]
+        theta = jnp.asarray(model.pack(np.asarray(bowl), 1e-6, 0.05**2))
+        thetas = theta * (1.0 + 1e-3 * jax.random.normal(jax.random.key(0), (200, theta.size)))
+        def new(th, m=model, pr=prepared, x0=x0):
+            return compiled_kernel.log_likelihood(m, pr, th, x0)
+
+        old = make_previous(model, prepared, x0)
+        diff = np.max(np.abs(jax.vmap(old)(thetas) - jax.vmap(new)(thetas)))
+        t_new, t_old = (loop_time(f, thetas, repeats) * 1e6 for f in (new, old))
+        print(f"| {d}, {order} | {name} | {'yes' if mass else 'no'} | {t_new:.1f} | {t_old:.1f} |"
+              f" {t_old / t_new:.2f}× | {diff:.3g} |")
+
+
 def _value_and_grad(fn: Callable[[jax.Array], jax.Array]) -> Callable[[jax.Array], jax.Array]:
     def step(th):
         value, grad = jax.value_and_grad(fn)(th)
@@ -180,4 +220,7 @@ if __name__ == "__main__":
     args = parser.parse_args()
     if not args.propagators_only:
         main()
-    propagators(7, args.previous)
+    make_previous = previous_build(args.previous) if args.previous else None
+    propagators(7, make_previous)
+    if make_previous:
+        shapes(7, make_previous)

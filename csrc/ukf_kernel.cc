@@ -9,156 +9,51 @@
 // is not batched; the kernel loops over the batch itself and, when the data are shared,
 // propagates eight parameter vectors at once so that every vector lane is busy.
 //
-// The numerical kernel (ukf_kernel_impl.h) is compiled three times, for AVX-512, for AVX2 with
-// FMA and for the baseline x86-64 (or whatever the target is elsewhere), and the best one the
-// processor supports is chosen once at run time. Floating-point contraction is off
-// (-ffp-contract=off), so every variant gives the same numbers.
+// The numerical kernel (ukf_kernel_impl.h) is compiled three times, each in its own
+// translation unit so that the build runs them in parallel: for AVX-512
+// (ukf_kernel_avx512.cc), for AVX2 with FMA (ukf_kernel_avx2.cc) and for the baseline x86-64,
+// or whatever the target is elsewhere (ukf_kernel_baseline.cc). The best one the processor
+// supports is chosen once at run time. Floating-point contraction is off (-ffp-contract=off),
+// so every variant gives the same numbers.
 
-#include <algorithm>
-#include <cmath>
-#include <cstddef>
-#include <cstdint>
-#include <limits>
+#include <cstdlib>
 #include <string>
 #include <tuple>
-#include <type_traits>
-#include <utility>
-#include <vector>
 
+#include "ukf_kernel.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
 
-// Forces inlining of the small functions of the hot loops (the substep and the force), so
-// that a block of sigma points stays in registers for a whole gap.
-#define SYMPLID_INLINE inline __attribute__((always_inline))
-
 namespace symplid {
 
-// Largest number of parameter vectors propagated together.
-constexpr int kMaxGroup = 8;
-
-// The model's static settings (views into the call's attributes).
-struct Settings {
-  int d = 0;       // coordinates q (the state has n = 2d components)
-  int n = 0;       // state dimension
-  int dy = 0;      // observed components
-  int npts = 0;    // sigma points, 2n + 1
-  int order = 0;   // highest total degree of U
-  int ncoef = 0;   // coefficients of U
-  int nparams = 0; // entries of θ
-  const int64_t* exponents = nullptr;  // ncoef x d, the monomial basis
-  bool composition = true;             // leapfrog composition (else Runge-Kutta)
-  const double* comp_w = nullptr;      // leapfrog sub-step weights
-  int ncomp = 0;
-  const double* rk_a = nullptr;  // stages x stages Butcher matrix
-  const double* rk_b = nullptr;  // stages weights
-  int stages = 0;
-  bool has_mass = false;
-  const double* inv_mass = nullptr;    // d x d, M⁻¹
-  const double* obs_matrix = nullptr;  // dy x n, H
-  const double* wm = nullptr;          // npts mean weights
-  const double* wc = nullptr;          // npts covariance weights
-  double scale = 0.0;                  // sqrt(n + λ)
-  double jitter = 0.0;
-  bool per_step = false;  // Σ after every substep (else once per gap)
-  bool diagonal = false;  // one variance per component (else one each)
-  int max_steps = 0;
-  bool uniform = false;  // every gap has max_steps substeps
-  // The force as a program of terms (c_m e_mj) Π x_i^power, for j = 0..d-1 in turn.
-  int num_terms = 0;
-  const int* term_start = nullptr;      // d + 1: terms of component j are [start[j], start[j+1])
-  const int* term_coef_index = nullptr; // per term: m
-  const double* term_mult = nullptr;    // per term: e_mj
-  const int* factor_start = nullptr;    // num_terms + 1
-  const int* factor_rows = nullptr;     // per factor: i * (order + 1) + power
-};
-
-// Eight lanes of doubles: one AVX-512 register, two AVX2 or four SSE2 registers.
-typedef double Vec __attribute__((vector_size(8 * sizeof(double))));
-
-// Reused buffers (one per thread): lane arrays and the members' small matrices.
-struct Workspace {
-  // At least `count` vectors, aligned to a whole vector.
-  Vec* lanes(std::size_t count) {
-    lane_storage.resize((count + 1) * kVecDoubles);
-    const auto address = reinterpret_cast<std::uintptr_t>(lane_storage.data());
-    const std::size_t skip = (sizeof(Vec) - address % sizeof(Vec)) % sizeof(Vec);
-    return reinterpret_cast<Vec*>(lane_storage.data() + skip / sizeof(double));
-  }
-  static constexpr std::size_t kVecDoubles = sizeof(Vec) / sizeof(double);
-  std::vector<double> lane_storage;
-  std::vector<int> term_start, term_coef_index, factor_start, factor_rows;
-  std::vector<double> term_mult;
-};
-
-// One trajectory's observations and gap structure.
-struct TrajectoryData {
-  int num_gaps = 0;
-  const double* step_size = nullptr;  // per gap
-  const int64_t* num_steps = nullptr; // per gap
-  const double* ys = nullptr;         // num_gaps x dy
-  const bool* masks = nullptr;        // num_gaps x dy
-};
-
-// One evaluation: θ, the initial state's mean and covariance, where the result goes.
-struct Member {
-  const double* theta = nullptr;
-  const double* x0 = nullptr;
-  const double* P0 = nullptr;
-  double* out = nullptr;
-};
-
-}  // namespace symplid
-
-// ---------------------------------------------------------------- one kernel per instruction set
-#if defined(__GNUC__) && (defined(__x86_64__) || defined(__i386__))
-#define SYMPLID_X86 1
-#pragma GCC push_options
-#pragma GCC target("avx512f,avx512vl,avx512dq,avx2,fma")
-#define SYMPLID_ISA_NS avx512
-#define SYMPLID_MANY_REGISTERS 1
-#include "ukf_kernel_impl.h"
-#undef SYMPLID_MANY_REGISTERS
-#undef SYMPLID_ISA_NS
-#pragma GCC pop_options
-
-#pragma GCC push_options
-#pragma GCC target("avx2,fma")
-#define SYMPLID_ISA_NS avx2
-#define SYMPLID_MANY_REGISTERS 0
-#include "ukf_kernel_impl.h"
-#undef SYMPLID_MANY_REGISTERS
-#undef SYMPLID_ISA_NS
-#pragma GCC pop_options
-#endif
-
-#define SYMPLID_ISA_NS baseline
-#define SYMPLID_MANY_REGISTERS 0
-#include "ukf_kernel_impl.h"
-#undef SYMPLID_MANY_REGISTERS
-#undef SYMPLID_ISA_NS
-
-namespace symplid {
-
-using EvaluateFn = void (*)(const Settings&, const TrajectoryData&, const Member*, int,
-                            Workspace&);
-
-// The widest instruction set this processor supports, chosen once.
+// The widest instruction set this processor supports, chosen once, or a narrower one named
+// by the environment variable SYMPLID_KERNEL_ISA ("avx2" or "baseline": to test or time the
+// variants that this processor would not choose; a wider or unknown name is ignored).
 EvaluateFn select_kernel() {
+  const char* requested = std::getenv("SYMPLID_KERNEL_ISA");
+  const std::string cap = requested != nullptr ? requested : "";
+  if (cap == "baseline") return baseline::evaluate;
 #ifdef SYMPLID_X86
   __builtin_cpu_init();
-  if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
-      __builtin_cpu_supports("avx512dq")) {
+  const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  if (cap != "avx2" && avx2 && __builtin_cpu_supports("avx512f") &&
+      __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512dq")) {
     return avx512::evaluate;
   }
-  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return avx2::evaluate;
+  if (avx2) return avx2::evaluate;
 #endif
   return baseline::evaluate;
 }
 
+// The kernel this process runs with (the choice is made on the first call).
+EvaluateFn kernel() {
+  static const EvaluateFn chosen = select_kernel();
+  return chosen;
+}
+
 const char* kernel_isa() {
-  const EvaluateFn fn = select_kernel();
+  const EvaluateFn fn = kernel();
 #ifdef SYMPLID_X86
   if (fn == avx512::evaluate) return "avx512";
   if (fn == avx2::evaluate) return "avx2";
@@ -299,7 +194,7 @@ ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffe
                           ffi::Span<const double> wc, double scale, double jitter,
                           int64_t per_step, int64_t diagonal, int64_t max_steps,
                           int64_t uniform) {
-  static const EvaluateFn evaluate = select_kernel();
+  const EvaluateFn evaluate = kernel();
   thread_local Workspace work;
 
   Settings s;

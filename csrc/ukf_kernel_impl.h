@@ -1,10 +1,11 @@
 // The UKF log marginal likelihood (Theorem 1, eqs 10-12) of a polynomial Hamiltonian model,
 // compiled for one instruction set.
 //
-// This file is included several times by ukf_kernel.cc, once per instruction set, each time
-// inside a `#pragma GCC target(...)` region and with SYMPLID_ISA_NS naming the namespace. It
-// therefore has no include guard and includes nothing itself: the types it uses (Settings,
-// TrajectoryData, Member) and the standard headers come from ukf_kernel.cc.
+// This file is included once by each instruction set's translation unit (ukf_kernel_avx512.cc,
+// ukf_kernel_avx2.cc, ukf_kernel_baseline.cc), inside a `#pragma GCC target(...)` region and
+// with SYMPLID_ISA_NS naming the namespace. It includes nothing itself: the types it uses
+// (Settings, TrajectoryData, Member) and the standard headers come from ukf_kernel.h, which
+// those files include before the region.
 //
 // Layout. A "lane" is one sigma point of one parameter vector θ; lanes come in vectors of
 // eight (Vec). One θ puts its 2n+1 sigma points in consecutive lanes (the last vector padded);
@@ -34,8 +35,9 @@ struct RuntimeChunks {
 };
 
 // ---------------------------------------------------------------- force for small d and ℓ
-// For d ≤ 3 and ℓ ≤ 5 the force's term program is built at compile time, so the gradient is
-// straight-line code with the lanes in registers. The table is the library's basis order
+// For d ≤ 2 and ℓ ≤ 5, and for d = 3 and ℓ ≤ 3, the force's term program is built at compile
+// time, so the gradient is straight-line code with the lanes in registers (other bases use the
+// runtime program, same numbers). The table is the library's basis order
 // (by degree, then the first coordinate's power highest), and it is only used after checking
 // that it equals the runtime program (see Propagator's constructor).
 
@@ -171,8 +173,8 @@ GradientFn fixed_gradient(const Settings& s) {
   if (s.d == 2 && (C == 2 || C == 9)) {
     SYMPLID_TRY_BASIS(2, 2) SYMPLID_TRY_BASIS(2, 3) SYMPLID_TRY_BASIS(2, 4) SYMPLID_TRY_BASIS(2, 5)
   }
-  if (s.d == 3 && (C == 2 || C == 13)) {
-    SYMPLID_TRY_BASIS(3, 2) SYMPLID_TRY_BASIS(3, 3) SYMPLID_TRY_BASIS(3, 4) SYMPLID_TRY_BASIS(3, 5)
+  if (s.d == 3 && (C == 2 || C == 13)) {  // degree 4 and 5: 35 and 55 terms, rare, slow to build
+    SYMPLID_TRY_BASIS(3, 2) SYMPLID_TRY_BASIS(3, 3)
   }
 #undef SYMPLID_TRY_BASIS
   return nullptr;
@@ -673,35 +675,41 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
   if (lone) x.store(q, p, C, lane);
 }
 
-// fast_advance for a fixed basis and mass flag, by propagator: a composition, or an explicit
-// Runge–Kutta method of at most four stages (else nullptr: Propagator::advance).
-template <int D, int ORDER, bool MASS>
+// fast_advance for a fixed basis, by propagator: a composition of leapfrog steps, or an
+// explicit Runge–Kutta method of two or four stages (the library's rk2-midpoint, rk2-heun and
+// rk4); else nullptr: Propagator::advance.
+template <int D, int ORDER>
 FastAdvanceFn fast_advance_for(const Settings& s) {
-  if (s.composition) return &fast_advance<D, ORDER, MASS, CompositionMethod>;
-  switch (s.stages) {
-    case 1: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<1>>;
-    case 2: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<2>>;
-    case 3: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<3>>;
-    case 4: return &fast_advance<D, ORDER, MASS, RungeKuttaMethod<4>>;
-    default: return nullptr;
-  }
+  if (s.composition) return &fast_advance<D, ORDER, false, CompositionMethod>;
+  if (s.stages == 2) return &fast_advance<D, ORDER, false, RungeKuttaMethod<2>>;
+  if (s.stages == 4) return &fast_advance<D, ORDER, false, RungeKuttaMethod<4>>;
+  return nullptr;
 }
 
-// The fast propagation for these settings, or nullptr (few vector registers, more than four
-// Runge–Kutta stages, or a basis without a compile-time table: then Propagator::advance).
+// The fast propagation for these settings, or nullptr: then Propagator::advance, which gives
+// the same numbers (both follow the reference operation for operation), 1.5 to 2 times slower
+// (about 5 times for Runge–Kutta at d = 3 and degree 4, without a compile-time force table).
+// Each fast variant is straight-line code for one basis, propagator and block layout, and
+// compiling them all (12 bases x mass matrix or not x 5 propagators) took most of the build,
+// so the fast path covers the common shapes only: few vector registers (AVX2, SSE2: a Vec is
+// two or four registers and the blocks would spill), a mass matrix, Runge–Kutta methods of one
+// or three stages, three coordinates at degree 5, and Runge–Kutta methods for three
+// coordinates at degree 4 take the general path (benchmarks/compiled_kernel.py --previous
+// times such shapes against a build that had them all).
 // A template so that the instruction sets with few registers do not instantiate the blocks.
 template <bool MANY = kManyRegisters>
 FastAdvanceFn select_fast_advance(const Settings& s) {
   if constexpr (MANY) {
-#define SYMPLID_TRY_FAST(D, ORDER)                                                      \
-  if (FixedBasis<D, ORDER>::matches(s)) {                                               \
-    return s.has_mass ? fast_advance_for<D, ORDER, true>(s)                             \
-                      : fast_advance_for<D, ORDER, false>(s);                           \
-  }
+    if (s.has_mass) return nullptr;
+#define SYMPLID_TRY_FAST(D, ORDER) \
+  if (FixedBasis<D, ORDER>::matches(s)) return fast_advance_for<D, ORDER>(s);
     SYMPLID_TRY_FAST(1, 2) SYMPLID_TRY_FAST(1, 3) SYMPLID_TRY_FAST(1, 4) SYMPLID_TRY_FAST(1, 5)
     SYMPLID_TRY_FAST(2, 2) SYMPLID_TRY_FAST(2, 3) SYMPLID_TRY_FAST(2, 4) SYMPLID_TRY_FAST(2, 5)
-    SYMPLID_TRY_FAST(3, 2) SYMPLID_TRY_FAST(3, 3) SYMPLID_TRY_FAST(3, 4) SYMPLID_TRY_FAST(3, 5)
+    SYMPLID_TRY_FAST(3, 2) SYMPLID_TRY_FAST(3, 3)
 #undef SYMPLID_TRY_FAST
+    if (s.composition && FixedBasis<3, 4>::matches(s)) {
+      return &fast_advance<3, 4, false, CompositionMethod>;
+    }
   }
   (void)s;
   return nullptr;
@@ -1124,8 +1132,8 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member* memb
 
 // Entry point for this instruction set: compile-time chunk counts and sizes where common
 // (one θ: npts lanes in 1 or 2 vectors; a group: one vector per sigma point).
-inline void evaluate(const Settings& s, const TrajectoryData& data, const Member* members,
-                     int G, Workspace& work) {
+void evaluate(const Settings& s, const TrajectoryData& data, const Member* members, int G,
+              Workspace& work) {
   const int chunks = (G * s.npts + kWidth - 1) / kWidth;
   if (G == 1) {
     if (s.d == 1) return run_sized<FixedChunks<1>, double, 2>(s, data, members, G, {}, work);

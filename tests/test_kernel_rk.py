@@ -1,8 +1,9 @@
 """Runge–Kutta propagators in the compiled kernel equal the JAX reference filter (Theorem 1).
 
-The kernel advances Runge–Kutta sigma points in register blocks when the potential's basis
-has a compile-time table (d ≤ 3, order ≤ 5), the tableau at most four stages and the
-processor AVX-512, and sweeps them through memory otherwise (here d = 4 and order 6). Both
+The kernel advances Runge–Kutta sigma points in register blocks when the processor has
+AVX-512, the method two or four stages, there is no mass matrix and the potential's basis is
+a common one (d ≤ 2 up to order 5, d = 3 up to order 3), and sweeps them through memory
+otherwise (here a mass matrix, forward Euler, d = 4 and order 6). Both
 paths must give the JAX backend's log-likelihood to rounding, for one θ (sigma points in the
 lanes of one vector and a lone scalar lane) and for vmap batches of 8 and 16 (one vector per
 sigma point, eight θ per vector).
@@ -37,6 +38,7 @@ CASES = [
     (2, 5, "rk2-midpoint", None, "step"),
     (1, 4, "euler", (1.5,), "gap"),
     (3, 2, "rk4", (1.0, 2.0, 3.0), "gap"),
+    (3, 3, "rk4", None, "gap"),  # d = 3 in register blocks
     (1, 6, "rk2-midpoint", None, "gap"),  # order 6: no compile-time table
     (4, 2, "rk4", None, "step"),  # d = 4: no compile-time table
 ]

@@ -1,0 +1,14 @@
+// The numerical kernel for AVX2 with FMA (floating-point contraction stays off, so the numbers
+// are the other variants'). Its own translation unit, so that the build compiles the
+// instruction sets in parallel; compiled to nothing off x86.
+
+#include "ukf_kernel.h"
+
+#ifdef SYMPLID_X86
+#pragma GCC push_options
+#pragma GCC target("avx2,fma")
+#define SYMPLID_ISA_NS avx2
+#define SYMPLID_MANY_REGISTERS 0
+#include "ukf_kernel_impl.h"
+#pragma GCC pop_options
+#endif
