@@ -157,6 +157,7 @@ class Posterior:
         self.state_names = state_names(n // 2)
         self.t0 = per_trajectory(t0, K, "t0")
         self.P0 = [as_P0(p, n, k) for k, p in enumerate(per_trajectory(P0, K, "P0"))]
+        _check_point_start(model, self.P0)
         x0s = as_x0(x0, n, K, required=not self.learn_initial_state)
 
         names, groups = self._layout()
@@ -449,5 +450,25 @@ class Posterior:
             f"trajectory(ies){learned})"
         )
 
+
+def _check_point_start(model: Any, P0s: list[np.ndarray]) -> None:
+    """A model without process noise follows one path from a point: refuse a spread P0.
+
+    Its likelihood (:mod:`symplid.model.deterministic`) starts from the mean x0 and does not
+    read P0; a P0 larger than rounding would be silently ignored, so it is an error.
+    """
+    if not getattr(model, "deterministic", False):
+        return
+    largest = max(float(np.max(np.abs(p))) for p in P0s)
+    if largest > _POINT_P0:
+        raise ValueError(
+            f"process_noise_per='none' integrates one path from a point initial state, but P0 "
+            f"has entries up to {largest:.3g}; use a known x0 with P0 ≈ 0 (p0_var ≤ "
+            f"{_POINT_P0:g}) or learn the initial state"
+        )
+
+
+_POINT_P0 = 1e-12
+"""The largest P0 entry a deterministic-likelihood posterior accepts (a point start)."""
 
 __all__ = ["KNOWN_P0", "UNOBSERVED_SCALE_FACTOR", "Posterior"]

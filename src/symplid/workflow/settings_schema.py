@@ -28,6 +28,7 @@ from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec, as_prior
+from symplid.model.statespace import PROCESS_NOISE_CHOICES
 from symplid.workflow.validate import SettingsError, Spec, setting
 
 __all__ = [
@@ -66,7 +67,7 @@ class ModelSettings:
     integrator: str = setting("leapfrog", choices=INTEGRATORS)
     binding: float = setting(0.0, minimum=0.0)  # Tao's ω ("tao", "tao4"); 0: ω = 1/dt
     dt: float = setting(0.25, minimum=0.0, strict=True)
-    process_noise_per: str = setting("gap", choices=("gap", "step"))
+    process_noise_per: str = setting("gap", choices=PROCESS_NOISE_CHOICES)  # "none": no Σ
     noise: str = setting("auto", choices=("auto", "isotropic", "diagonal", "per-kind"))
     observation_noise: str = setting("additive", choices=OBSERVATION_NOISE)
     standardise: str = setting("auto", choices=("auto", "on", "off"))
