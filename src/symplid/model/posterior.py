@@ -149,6 +149,9 @@ class Posterior:
         initial_state_prior: Any = None,
     ) -> None:
         self.model = model
+        self._arguments = {"data": data, "prior": prior, "x0": x0, "P0": P0, "t0": t0,
+                           "learn_initial_state": learn_initial_state,
+                           "initial_state_prior": initial_state_prior}
         self.datasets = as_datasets(data)
         self.num_trajectories = K = len(self.datasets)
         self.learn_initial_state = bool(learn_initial_state)
@@ -172,6 +175,11 @@ class Posterior:
         # set of the same shape, which JAX's persistent compilation cache can serve.
         self.data: tuple[tuple[Array, ...], ...] = tuple(t.leaves for t in self._trajectories)
         self._groups = self._group_trajectories()
+
+    def with_model(self, model: Any) -> Posterior:
+        """The same data, priors and initial states for another model (e.g. the one with
+        process noise beside one without: :mod:`symplid.inference.homotopy`)."""
+        return Posterior(model, **self._arguments)
 
     # ------------------------------------------------------------------ construction steps
     def _layout(self) -> tuple[list[str], list[str]]:
