@@ -9,7 +9,8 @@ Gaussian log densities.
 Rows: each likelihood's value, and its value with the gradient (``jax.value_and_grad``, what
 MAP, the Laplace Hessian and NUTS need), one jitted call from Python; the UKF both as the JAX
 reference (``backend="jax"``) and as the compiled kernel where it is available (the default
-``backend="auto"``). Each time is the smallest mean over 7 batches of calls.
+``backend="auto"``). Each time is the smallest mean over 30 batches of 50 calls (the least
+disturbed by other processes on a shared machine).
 
 Everything runs on one CPU thread, pinned to CPU 0, with the XLA flags of ``import symplid``.
 Run: ``taskset -c 0 python benchmarks/deterministic_likelihood.py``.
@@ -36,7 +37,7 @@ import numpy as np  # noqa: E402
 import symplid  # noqa: E402
 
 
-def best_time(fn, *args, number: int, repeats: int = 7) -> float:
+def best_time(fn, *args, number: int, repeats: int = 30) -> float:
     """Smallest mean wall time per call over ``repeats`` batches of ``number`` calls (seconds)."""
     jax.block_until_ready(fn(*args))
     best = float("inf")
@@ -76,7 +77,7 @@ def main() -> None:
         theta = (model.pack(coefficients, (), 0.05**2) if per == "none"
                  else model.pack(coefficients, 1e-6, 0.05**2))
         name = f"{label} [{model.likelihood_backend}]"
-        rows.append((name, *_timings(model, theta, data, x0, number=200)))
+        rows.append((name, *_timings(model, theta, data, x0, number=50)))
     det_value, det_grad = rows[0][2], rows[0][3]
     print("Hénon–Heiles, cubic U, leapfrog dt 0.25, 20 observations × 20 substeps, one thread")
     print("| likelihood [backend] | log L | value µs | × det. | value+grad µs | × det. |")

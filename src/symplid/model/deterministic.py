@@ -14,9 +14,10 @@ filter:
 
 with R_k = Γ for additive noise and Γ + diag(r ∘ h(x_k)∘h(x_k)) for multiplicative noise (the
 noise model's covariance with the state's covariance zero: for a known state it is the exact
-variance of Y_k). Missing components (NaN in the data, ``mask`` False) are left out of each
-term. No sigma points and no jitter: one path instead of 2n + 1, so it costs about 1/(2n+1)
-of the unscented filter's prediction.
+variance of Y_k; every registered noise model has independent components, so each term is a
+sum of univariate densities). Missing components (NaN in the data, ``mask`` False) are left
+out of each term. No sigma points and no jitter: one path instead of 2n + 1
+(``benchmarks/deterministic_likelihood.py`` times it against the filter).
 
 The initial state is the point x0 (known or learned); its covariance P0 does not enter (a
 spread initial state would need a filter, see
@@ -39,31 +40,13 @@ import numpy as np
 from symplid.dynamics.damping import bind_dynamics
 from symplid.dynamics.potentials import inverse_mass
 from symplid.dynamics.trajectory import propagate
-from symplid.filters import FilterResult, ObservationMoments, cholesky, solve_lower, symmetrize
+from symplid.filters import FilterResult, ObservationMoments
 
 Array = jax.Array
 
-__all__ = ["build_trajectory_likelihood", "masked_gaussian_log_density"]
+__all__ = ["build_trajectory_likelihood", "noise_variances"]
 
 _LOG_2PI = math.log(2.0 * math.pi)
-
-
-def masked_gaussian_log_density(y: Array, mean: Array, cov: Array, mask: Array) -> Array:
-    """log N(y; mean, cov) over the components where ``mask`` is True.
-
-    The unmeasured components are decoupled as in the filter's update
-    (:func:`~symplid.filters.gaussian_update`): zero residual, identity rows and columns, so
-    they contribute nothing. NaN or inf (never an error) when ``cov`` restricted to the
-    measured components is not positive definite.
-    """
-    d_y = y.shape[0]
-    pair = mask[:, None] & mask[None, :]
-    residual = jnp.where(mask, y - mean, 0.0)
-    s = jnp.where(pair, symmetrize(cov), jnp.eye(d_y, dtype=cov.dtype))
-    chol = cholesky(s)
-    z = solve_lower(chol, residual)
-    log_diag = jnp.log(jnp.sum(jnp.where(jnp.eye(d_y, dtype=bool), chol, 0.0), axis=-1))
-    return -0.5 * jnp.sum(z * z) - jnp.sum(log_diag) - 0.5 * jnp.sum(mask) * _LOG_2PI
 
 
 def build_trajectory_likelihood(
@@ -78,7 +61,6 @@ def build_trajectory_likelihood(
     nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ for a damped model
     d = model.potential.dim
     observe = _observer(model)
-    multiplicative = bool(model.noise_model.multiplicative)
 
     def trajectory_fn(theta, inputs, ys, masks, x0, p0) -> FilterResult:
         del p0  # one path from the point x0 (module docstring)
@@ -89,28 +71,50 @@ def build_trajectory_likelihood(
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
         inv_mass = inverse_mass(model.mass, d)
         dynamics = bind_dynamics(model.integrator, model.potential, theta[:nc], inv_mass)
-        noise = model.noise_covariance(theta)  # Γ, or moments -> R_k (filters.noise)
 
-        def gap(x, xs):
-            inp, y, mask = xs
+        def gap(x, inp):
             q, p = propagate(model.integrator, dynamics, x[:d], x[d:], inp.step_size,
                              inp.num_steps, max_steps, model.unroll, masked=not uniform_steps)
             x = jnp.concatenate([q, p])
-            y_hat = observe(x)
-            if multiplicative:  # the state is known: S_h = 0, C = 0
-                zero = jnp.zeros((y_hat.shape[0], y_hat.shape[0]), y_hat.dtype)
-                cov = noise(ObservationMoments(y_hat, zero, jnp.zeros((2 * d, y_hat.shape[0]))))
-            else:
-                cov = noise
-            return x, (x, masked_gaussian_log_density(y, y_hat, cov, mask))
+            return x, x
 
-        _, (path, terms) = jax.lax.scan(gap, jnp.asarray(x0, dtype=float), (inputs, ys, masks))
+        # The loop carries the path only; the observation terms are elementwise over all
+        # times at once after it (inside the loop they cost several times the path itself).
+        _, path = jax.lax.scan(gap, jnp.asarray(x0, dtype=float), inputs)
+        y_hat = jax.vmap(observe)(path)
+        var = jax.vmap(noise_variances(model, theta))(y_hat)
+        residual = jnp.where(masks, ys - y_hat, 0.0)
+        var = jnp.where(masks, var, 1.0)
+        terms = jnp.sum(jnp.where(masks, -0.5 * (residual**2 / var + jnp.log(var) + _LOG_2PI),
+                                  0.0), axis=1)
         total = jnp.sum(terms)
         total = jnp.where(variances_ok & jnp.isfinite(total), total, -jnp.inf)
         covs = jnp.zeros((*path.shape, path.shape[-1]), path.dtype)
         return FilterResult(total, path, covs, path, covs, terms)
 
     return trajectory_fn
+
+
+def noise_variances(model: Any, theta: Array) -> Callable[[Array], Array]:
+    """``h(x) -> Var[Y | X = x]`` per observed component: the diagonal of the noise model's
+    covariance (:mod:`symplid.filters.noise`) at a known state, Γ or Γ + diag(r ∘ h∘h).
+
+    Every noise model of :data:`~symplid.filters.noise.OBSERVATION_NOISE` has independent
+    components (Γ and r are diagonal), so this diagonal is the whole covariance.
+    """
+    noise = model.noise_covariance(theta)  # Γ, or moments -> R_k
+    d_x = int(model.state_dim)
+
+    def variances(y_hat: Array) -> Array:
+        d_y = y_hat.shape[0]
+        eye = jnp.eye(d_y, dtype=y_hat.dtype)
+        if callable(noise):  # the state is known: S_h = 0, C = 0
+            cov = noise(ObservationMoments(y_hat, 0.0 * eye, jnp.zeros((d_x, d_y), y_hat.dtype)))
+        else:
+            cov = noise
+        return jnp.sum(eye * cov, axis=-1)  # the diagonal by a mask (no gather)
+
+    return variances
 
 
 def _observer(model: Any) -> Callable[[Array], Array]:
