@@ -4,8 +4,8 @@ The deterministic-trajectory likelihood (``process_noise_per="none"``,
 :mod:`symplid.model.deterministic`) compares the data with one integrated path. On a long
 record of a nearly chaotic system that path depends so sharply on the coefficients that the
 likelihood is rugged far from the answer: started from zero coefficients, a quasi-Newton
-search stops in a local optimum (on the paper's Hénon–Heiles data, 20 observations over 95 s:
-log posterior −27 instead of +85).
+search stops in a local optimum (on the paper's Hénon–Heiles data, 20 observations over 100 s:
+log posterior −27.5 instead of +99.7).
 
 The filter's likelihood does not have this problem while its process variance Σ is large: the
 filter re-anchors the state at every observation, and the MAP search starts there and lowers
