@@ -151,6 +151,9 @@ class MapSettings:
     adam_steps: int = setting(2000, minimum=0)
     learning_rate: float = setting(0.01, minimum=0.0, strict=True)
     lbfgs_steps: int = setting(1000, minimum=0)
+    sensitivity: bool = setting(False)
+    """Add the step-size and process-noise checks (two MAP refits,
+    :mod:`symplid.workflow.sensitivity`) to the run's report."""
 
 
 @dataclass(frozen=True)
