@@ -187,6 +187,13 @@ def test_spread_initial_state_is_refused(hh, hh_data):
     with pytest.raises(ValueError, match="point initial state"):
         Posterior(model, hh_data, x0=hh.initial_state, P0=1e-4)
     Posterior(model, hh_data, x0=hh.initial_state)  # the default point start is fine
+    # "negligible" is relative to the size of the motion: the same data in units 1000 times
+    # larger (standardised fits divide p0_var by the scale²) keep the default start a point
+    small = symplid.Observations(hh_data.times, 1e-3 * np.asarray(hh_data.values),
+                                 hh_data.names)
+    Posterior(model, small, x0=1e-3 * hh.initial_state, P0=1e-16)
+    with pytest.raises(ValueError, match="point initial state"):
+        Posterior(model, small, x0=1e-3 * hh.initial_state, P0=1e-4 * 1e-6)
 
 
 def test_compiled_kernel_declines_and_names_the_reason(hh):

@@ -64,6 +64,7 @@ from symplid.model.initial_state import (
     as_datasets,
     as_P0,
     as_x0,
+    data_scale,
     first_observation_update,
     initial_state_prior,
     per_trajectory,
@@ -160,7 +161,7 @@ class Posterior:
         self.state_names = state_names(n // 2)
         self.t0 = per_trajectory(t0, K, "t0")
         self.P0 = [as_P0(p, n, k) for k, p in enumerate(per_trajectory(P0, K, "P0"))]
-        _check_point_start(model, self.P0)
+        _check_point_start(model, self.P0, self.datasets)
         x0s = as_x0(x0, n, K, required=not self.learn_initial_state)
 
         names, groups = self._layout()
@@ -459,24 +460,29 @@ class Posterior:
         )
 
 
-def _check_point_start(model: Any, P0s: list[np.ndarray]) -> None:
+def _check_point_start(model: Any, P0s: list[np.ndarray], datasets: list[Observations]) -> None:
     """A model without process noise follows one path from a point: refuse a spread P0.
 
     Its likelihood (:mod:`symplid.model.deterministic`) starts from the mean x0 and does not
-    read P0; a P0 larger than rounding would be silently ignored, so it is an error.
+    read P0, so a P0 that is not negligible would be silently ignored: an error. Negligible
+    is relative to the size of the motion s (:func:`~.initial_state.data_scale`, the largest
+    sd over time of an observed component), so that the check does not depend on units:
+    every entry at most :data:`_POINT_P0` · s².
     """
     if not getattr(model, "deterministic", False):
         return
+    scale = max(data_scale(obs) for obs in datasets)
     largest = max(float(np.max(np.abs(p))) for p in P0s)
-    if largest > _POINT_P0:
+    if largest > _POINT_P0 * scale**2:
         raise ValueError(
             f"process_noise_per='none' integrates one path from a point initial state, but P0 "
             f"has entries up to {largest:.3g}; use a known x0 with P0 ≈ 0 (p0_var ≤ "
-            f"{_POINT_P0:g}) or learn the initial state"
+            f"{_POINT_P0 * scale**2:.3g}, the default 1e-16 is fine) or learn the initial state"
         )
 
 
-_POINT_P0 = 1e-12
-"""The largest P0 entry a deterministic-likelihood posterior accepts (a point start)."""
+_POINT_P0 = 1e-8
+"""The largest P0 entry a deterministic-likelihood posterior accepts, relative to the square
+of the data's scale (a start whose spread is 1e-4 of the motion's size is a point)."""
 
 __all__ = ["KNOWN_P0", "UNOBSERVED_SCALE_FACTOR", "Posterior"]

@@ -112,7 +112,8 @@ class HamiltonianModel:
         2n points of weight 1/(2n) and a centre point that only enters the covariance.
     jitter
         Added to the diagonal of the predicted covariance after every prediction (the
-        filtered covariance is kept as a Cholesky factor and needs none).
+        filtered covariance is kept as a Cholesky factor and needs none); not used without
+        process noise (there is no filter).
     unroll
         Unroll factor of the substep loop (``lax.fori_loop(unroll=...)``).
     backend
@@ -486,6 +487,9 @@ class HamiltonianModel:
         t0: float = 0.0,
     ) -> FilterResult:
         """Run the UKF; returns the log-likelihood and the filtered and predicted moments.
+
+        Without process noise (``process_noise_per="none"``) there is no filter: the
+        moments are the integrated path with zero covariances (:mod:`.deterministic`).
 
         ``P0=None`` means a known initial state (P0 = 1e-16·I); a scalar or a vector is
         read as a multiple of the identity or a diagonal.
