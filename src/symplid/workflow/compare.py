@@ -339,7 +339,7 @@ def fit_candidates(
             result = find_map(
                 posterior, seed=s.map.seed, num_starts=s.map.num_starts, init=init, warn=False
             )
-            if noise == "gap":
+            if noise != "none":
                 with_noise[(order, integrator, damping)] = _without_process_var(posterior,
                                                                                 result.theta)
             seconds = time.perf_counter() - start
