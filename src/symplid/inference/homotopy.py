@@ -23,7 +23,7 @@ import numpy as np
 
 from symplid.inference.map import find_map
 
-__all__ = ["filter_start", "with_process_noise"]
+__all__ = ["filter_start", "with_process_noise", "without_process_var"]
 
 
 def with_process_noise(posterior: Any) -> Any:
@@ -31,6 +31,13 @@ def with_process_noise(posterior: Any) -> Any:
     once per gap (``process_noise_per="gap"``)."""
     model = dataclasses.replace(posterior.model, process_noise_per="gap")
     return posterior.with_model(model)
+
+
+def without_process_var(groups: Any, theta: Any) -> np.ndarray:
+    """θ of a posterior with process noise, its process variance(s) left out: a θ of the same
+    posterior without process noise (``groups``: the posterior's ``param_groups``)."""
+    keep = [i for i, group in enumerate(groups) if group != "process_var"]
+    return np.asarray(theta, dtype=float)[keep]
 
 
 def filter_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.ndarray | None:
@@ -52,7 +59,5 @@ def filter_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.ndarr
         return None
     twin = with_process_noise(posterior)
     result = find_map(twin, seed=seed, num_starts=num_starts, compute_hessian=False, warn=False)
-    theta = np.asarray(result.theta, dtype=float)
-    keep = [i for i, group in enumerate(twin.param_groups) if group != "process_var"]
-    start = theta[keep]
+    start = without_process_var(twin.param_groups, result.theta)
     return start if np.all(np.isfinite(start)) else None

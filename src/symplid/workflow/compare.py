@@ -89,7 +89,7 @@ import numpy as np
 import pandas as pd
 
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
-from symplid.inference.homotopy import filter_start
+from symplid.inference.homotopy import filter_start, without_process_var
 from symplid.inference.map import find_map
 from symplid.io import observation_layout
 from symplid.model.data import DataError, Observations
@@ -340,8 +340,8 @@ def fit_candidates(
                 posterior, seed=s.map.seed, num_starts=s.map.num_starts, init=init, warn=False
             )
             if noise != "none":
-                with_noise[(order, integrator, damping)] = _without_process_var(posterior,
-                                                                                result.theta)
+                with_noise[(order, integrator, damping)] = without_process_var(
+                    posterior.param_groups, result.theta)
             seconds = time.perf_counter() - start
             log_prior = float(posterior.log_prior(np.asarray(result.theta)))
             log_likelihood = result.log_posterior - log_prior
@@ -374,12 +374,6 @@ def _process_noises(values: Sequence[str]) -> list[str]:
     if not out:
         raise ValueError("process noise: give at least one of gap, none")
     return sorted(out, key=lambda v: v == "none")
-
-
-def _without_process_var(posterior: Any, theta: Any) -> np.ndarray:
-    """θ of a posterior with process noise, its process variance(s) left out."""
-    keep = [i for i, g in enumerate(posterior.param_groups) if g != "process_var"]
-    return np.asarray(theta, dtype=float)[keep]
 
 
 def _start_without_noise(posterior: Any, fitted: np.ndarray | None, s: Settings) -> Any:

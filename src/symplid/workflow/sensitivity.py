@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from symplid.inference.homotopy import without_process_var
 from symplid.inference.map import find_map
 from symplid.io import as_list
 from symplid.workflow.fit import build_model, build_posterior
@@ -113,8 +114,7 @@ def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any
         m, process_noise_per=other))
     # without Σ: start from the fit's MAP less its process variance (the homotopy); with Σ:
     # the default start (a large process variance)
-    init = None if deterministic else np.asarray(map_result.theta)[
-        [i for i, g in enumerate(groups) if g != "process_var"]]
+    init = None if deterministic else without_process_var(groups, map_result.theta)
     alt_map, alt_post = refit_map(alt_settings, obs, init)
     shifts = _shifts(list(posterior.param_names), groups, map_result, alt_map,
                      list(alt_post.param_names))
