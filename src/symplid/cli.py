@@ -399,6 +399,12 @@ def report(run, no_progress) -> None:
     is_flag=True,
     help="Every candidate without and with a learned damping rate γ (is damping needed?).",
 )
+@click.option(
+    "--process-noise",
+    is_flag=True,
+    help="Every candidate with process noise and without (model.process_noise_per = none: "
+    "one integrated path, no filter): does the model need Σ?",
+)
 @click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
 @click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
 @click.option("--candidates", type=str, default=None,
@@ -407,11 +413,13 @@ def report(run, no_progress) -> None:
 @sets_option
 @no_progress_option
 @user_errors
-def compare(data, out, config, orders, integrators, damping, x0, learn_initial_state,
-            candidates, sets, no_progress) -> None:
-    """Rank polynomial orders (propagators, damping), or whole models (--candidates), for DATA
-    by the log evidence (Gaussian in the coefficients, the noise variances integrated on their
-    log scale)."""
+def compare(
+    data, out, config, orders, integrators, damping, process_noise, x0, learn_initial_state,
+    candidates, sets, no_progress,
+) -> None:
+    """Rank polynomial orders (propagators, damping, process noise), or whole models
+    (--candidates), for DATA by the log evidence (Gaussian in the coefficients, the noise
+    variances integrated on their log scale)."""
     from symplid.io import read_observations
     from symplid.workflow.compare import compare_models, format_table
     from symplid.workflow.compare_candidates import candidate_orders
@@ -440,14 +448,23 @@ def compare(data, out, config, orders, integrators, damping, x0, learn_initial_s
         progress=not no_progress,
         source=source,
         dampings=[False, True] if damping else None,
+        process_noises=_with_and_without_noise(settings) if process_noise else None,
     )
     click.echo(format_table(table))
     best = table.iloc[0]
     click.echo(
         f"best: order {best['order']} with {best['integrator']}"
         + (f", damped (γ = {best['gamma']:.3g})" if best["damping"] else "")
+        + (", no process noise" if best["process_noise"] == "none" else "")
         + (f"; table in {out}" if out is not None else "")
     )
+
+
+def _with_and_without_noise(settings) -> list[str]:
+    """``compare --process-noise``: the settings' process noise (``gap`` if it is none)
+    beside none."""
+    per = settings.model.process_noise_per
+    return ["gap" if per == "none" else per, "none"]
 
 
 # ----------------------------------------------------------------------------- sweep, study

@@ -132,6 +132,8 @@ def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = N
     integrators, a linear observation operator and float64 on the CPU. It does not say
     whether the extension is loaded: see :func:`available`.
     """
+    if getattr(model, "process_noise_per", "gap") == "none":
+        return "no process noise: the deterministic-trajectory likelihood needs no filter"
     if getattr(model, "damping", False):
         return "the model is damped (γ); the kernel propagates undamped dynamics only"
     if not isinstance(model.potential, Polynomial):

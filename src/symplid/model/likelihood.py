@@ -46,6 +46,7 @@ from symplid.filters import (
     unscented_weights,
 )
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
+from symplid.model.deterministic import build_trajectory_likelihood
 
 Array = jax.Array
 FilterFn = Callable[..., FilterResult]
@@ -85,7 +86,7 @@ class StateSpaceModel(Protocol):
     integrator: Any
     mass: Any
     observation: Any
-    process_noise_per: Literal["gap", "step"]
+    process_noise_per: Literal["gap", "step", "none"]
     alpha: float
     beta: float
     kappa: float
@@ -155,7 +156,12 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
 
     ``max_steps`` and ``uniform_steps`` come from the prepared data: the most substeps in
     one gap, and whether every gap has that many (then no substep is masked).
+    A model without process noise (``process_noise_per="none"``) gets the exact
+    deterministic-trajectory likelihood instead (:mod:`symplid.model.deterministic`): no
+    filter, the same signature and result type.
     """
+    if model.process_noise_per == "none":
+        return build_trajectory_likelihood(model, max_steps, uniform_steps)
     weights = unscented_weights(model.state_dim, model.alpha, model.beta, model.kappa)
     moments = _observation_moments(model, weights)
     nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ for a damped model

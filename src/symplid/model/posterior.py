@@ -64,6 +64,7 @@ from symplid.model.initial_state import (
     as_datasets,
     as_P0,
     as_x0,
+    data_scale,
     first_observation_update,
     initial_state_prior,
     per_trajectory,
@@ -149,6 +150,9 @@ class Posterior:
         initial_state_prior: Any = None,
     ) -> None:
         self.model = model
+        self._arguments = {"data": data, "prior": prior, "x0": x0, "P0": P0, "t0": t0,
+                           "learn_initial_state": learn_initial_state,
+                           "initial_state_prior": initial_state_prior}
         self.datasets = as_datasets(data)
         self.num_trajectories = K = len(self.datasets)
         self.learn_initial_state = bool(learn_initial_state)
@@ -157,6 +161,7 @@ class Posterior:
         self.state_names = state_names(n // 2)
         self.t0 = per_trajectory(t0, K, "t0")
         self.P0 = [as_P0(p, n, k) for k, p in enumerate(per_trajectory(P0, K, "P0"))]
+        _check_point_start(model, self.P0, self.datasets)
         x0s = as_x0(x0, n, K, required=not self.learn_initial_state)
 
         names, groups = self._layout()
@@ -171,6 +176,11 @@ class Posterior:
         # set of the same shape, which JAX's persistent compilation cache can serve.
         self.data: tuple[tuple[Array, ...], ...] = tuple(t.leaves for t in self._trajectories)
         self._groups = self._group_trajectories()
+
+    def with_model(self, model: Any) -> Posterior:
+        """The same data, priors and initial states for another model (e.g. the one with
+        process noise beside one without: :mod:`symplid.inference.homotopy`)."""
+        return Posterior(model, **self._arguments)
 
     # ------------------------------------------------------------------ construction steps
     def _layout(self) -> tuple[list[str], list[str]]:
@@ -449,5 +459,30 @@ class Posterior:
             f"trajectory(ies){learned})"
         )
 
+
+def _check_point_start(model: Any, P0s: list[np.ndarray], datasets: list[Observations]) -> None:
+    """A model without process noise follows one path from a point: refuse a spread P0.
+
+    Its likelihood (:mod:`symplid.model.deterministic`) starts from the mean x0 and does not
+    read P0, so a P0 that is not negligible would be silently ignored: an error. Negligible
+    is relative to the size of the motion s (:func:`~.initial_state.data_scale`, the largest
+    sd over time of an observed component), so that the check does not depend on units:
+    every entry at most :data:`_POINT_P0` · s².
+    """
+    if not getattr(model, "deterministic", False):
+        return
+    scale = max(data_scale(obs) for obs in datasets)
+    largest = max(float(np.max(np.abs(p))) for p in P0s)
+    if largest > _POINT_P0 * scale**2:
+        raise ValueError(
+            f"process_noise_per='none' integrates one path from a point initial state, but P0 "
+            f"has entries up to {largest:.3g}; use a known x0 with P0 ≈ 0 (p0_var ≤ "
+            f"{_POINT_P0 * scale**2:.3g}, the default 1e-16 is fine) or learn the initial state"
+        )
+
+
+_POINT_P0 = 1e-8
+"""The largest P0 entry a deterministic-likelihood posterior accepts, relative to the square
+of the data's scale (a start whose spread is 1e-4 of the motion's size is a point)."""
 
 __all__ = ["KNOWN_P0", "UNOBSERVED_SCALE_FACTOR", "Posterior"]

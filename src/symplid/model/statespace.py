@@ -16,7 +16,10 @@ with one variance each (``noise="isotropic"``: Σ = θ_Σ I, Γ = θ_Γ I, the p
 one per component (``noise="diagonal"``), or one Σ variance and one Γ variance per kind of
 observed component (``noise="per-kind"``: positions and momenta; for data whose columns are
 measured differently, e.g. a velocity column smoothed from positions). Variances, not standard
-deviations. With ``damping=True`` the damping rate γ (:mod:`symplid.dynamics.damping`) comes
+deviations. With ``process_noise_per="none"`` the model has no process noise and θ no
+process variance: the states are one path of Ψ and the likelihood is the exact
+deterministic-trajectory likelihood of :mod:`symplid.model.deterministic` (no filter).
+With ``damping=True`` the damping rate γ (:mod:`symplid.dynamics.damping`) comes
 right after the coefficients: θ_Ψ = [coefficients ..., γ].
 
 ``observation_noise`` picks the noise model of Y_k from
@@ -60,6 +63,8 @@ from symplid.model.data import DataError, Observations
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 
 Array = jax.Array
+#: Where the process noise enters (``HamiltonianModel.process_noise_per``); ``"none"``: nowhere.
+PROCESS_NOISE_CHOICES = ("gap", "step", "none")
 #: The layouts of the noise variances (``HamiltonianModel.noise``).
 NOISE_LAYOUTS = ("isotropic", "diagonal", "per-kind")
 ObservationSpec = str | np.ndarray | Callable[[Array], Array]
@@ -90,6 +95,8 @@ class HamiltonianModel:
     process_noise_per
         ``"gap"`` (default): sigma points are formed once per observation gap, pushed through
         all its substeps, and Σ is added once. ``"step"``: Σ is added after every substep.
+        ``"none"``: no process noise (Σ = 0, no ``process_var`` in θ); the likelihood is that
+        of the observations around one integrated path (:mod:`symplid.model.deterministic`).
     noise
         ``"isotropic"`` (one variance for Σ and one for Γ), ``"diagonal"`` (one per component)
         or ``"per-kind"`` (one for Σ, and one per kind of observed component for Γ: positions,
@@ -105,7 +112,8 @@ class HamiltonianModel:
         2n points of weight 1/(2n) and a centre point that only enters the covariance.
     jitter
         Added to the diagonal of the predicted covariance after every prediction (the
-        filtered covariance is kept as a Cholesky factor and needs none).
+        filtered covariance is kept as a Cholesky factor and needs none); not used without
+        process noise (there is no filter).
     unroll
         Unroll factor of the substep loop (``lax.fori_loop(unroll=...)``).
     backend
@@ -127,7 +135,7 @@ class HamiltonianModel:
     integrator: str | Integrator = "leapfrog"
     dt: float = 0.25
     observation: ObservationSpec = "full"
-    process_noise_per: Literal["gap", "step"] = "gap"
+    process_noise_per: Literal["gap", "step", "none"] = "gap"
     noise: Literal["isotropic", "diagonal", "per-kind"] = "isotropic"
     mass: Any = None
     alpha: float = 1.0
@@ -157,9 +165,10 @@ class HamiltonianModel:
             object.__setattr__(self, "integrator", with_damping(self.integrator))
         if not np.isfinite(self.dt) or self.dt <= 0:
             raise ValueError(f"dt must be a positive number, got {self.dt}")
-        if self.process_noise_per not in ("gap", "step"):
+        if self.process_noise_per not in PROCESS_NOISE_CHOICES:
             raise ValueError(
-                f"process_noise_per must be 'gap' or 'step', got {self.process_noise_per!r}"
+                "process_noise_per must be 'gap', 'step' or 'none', got "
+                f"{self.process_noise_per!r}"
             )
         if self.noise not in NOISE_LAYOUTS:
             raise ValueError(
@@ -253,7 +262,16 @@ class HamiltonianModel:
         return self.num_coefficients + self.num_damping
 
     @property
+    def deterministic(self) -> bool:
+        """Whether the model has no process noise (``process_noise_per="none"``): its
+        likelihood follows one integrated path (:mod:`symplid.model.deterministic`)."""
+        return self.process_noise_per == "none"
+
+    @property
     def num_process_noise(self) -> int:
+        """How many process variances θ holds (0 without process noise)."""
+        if self.deterministic:
+            return 0
         return self.state_dim if self.noise == "diagonal" else 1
 
     @property
@@ -308,7 +326,7 @@ class HamiltonianModel:
         if self.noise == "diagonal":
             names += [f"process_var[{i}]" for i in range(self.num_process_noise)]
         else:
-            names += ["process_var"]
+            names += ["process_var"] * self.num_process_noise
         labels = [f"[{label}]" if label else "" for label in self.obs_noise_labels]
         names += [f"obs_var{label}" for label in labels][: self.num_obs_noise]
         names += [f"obs_rel_var{label}" for label in labels][: self.num_rel_noise]
@@ -338,7 +356,10 @@ class HamiltonianModel:
         nc, nd, nq = self.num_coefficients, self.num_dynamics_params, self.num_process_noise
         coeffs = theta[:nc]
         q_var = theta[nd : nd + nq]
-        proc = jnp.eye(self.state_dim) * (q_var[0] if nq == 1 else q_var)
+        if nq == 0:  # no process noise: Σ = 0
+            proc = jnp.zeros((self.state_dim, self.state_dim), theta.dtype)
+        else:
+            proc = jnp.eye(self.state_dim) * (q_var[0] if nq == 1 else q_var)
         if self.num_obs_noise == 0:  # multiplicative noise only: Γ = 0
             return coeffs, proc, jnp.zeros((self.obs_dim, self.obs_dim), theta.dtype)
         r_var = theta[nd + nq : nd + nq + self.num_obs_noise]
@@ -374,7 +395,7 @@ class HamiltonianModel:
     ) -> np.ndarray:
         """(coefficients, process variance(s), observation variance(s), relative
         observation variance(s)) → θ; ``gamma`` (γ) is required for a damped model and refused
-        otherwise."""
+        otherwise; ``process_var`` is ``()`` for a model without process noise."""
         if (gamma is None) == self.damping:
             need = "needs" if self.damping else "has no"
             raise ValueError(f"this model {need} a damping rate: pass gamma accordingly")
@@ -470,6 +491,9 @@ class HamiltonianModel:
         t0: float = 0.0,
     ) -> FilterResult:
         """Run the UKF; returns the log-likelihood and the filtered and predicted moments.
+
+        Without process noise (``process_noise_per="none"``) there is no filter: the
+        moments are the integrated path with zero covariances (:mod:`.deterministic`).
 
         ``P0=None`` means a known initial state (P0 = 1e-16·I); a scalar or a vector is
         read as a multiple of the identity or a diagonal.

@@ -29,6 +29,9 @@ The table (a :class:`pandas.DataFrame`, best first) has one row per candidate:
 ``rank``                  1 = the largest Laplace log evidence
 ``order``, ``integrator``  the candidate
 ``damping``               whether it learns a damping rate γ (:mod:`symplid.dynamics.damping`)
+``process_noise``         where its process noise enters (``model.process_noise_per``):
+                          ``gap``, ``step``, or ``none`` (no Σ: the deterministic-trajectory
+                          likelihood, :mod:`symplid.model.deterministic`)
 ``gamma``                 its MAP γ (NaN for an undamped candidate)
 ``num_params``            the size of θ (coefficients, variances, learned initial states)
 ``log_likelihood``        log L(θ*) at the MAP (Theorem 1, by the UKF)
@@ -87,10 +90,12 @@ import pandas as pd
 
 from symplid.dynamics.families import family_of
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
+from symplid.inference.homotopy import filter_start, without_process_var
 from symplid.inference.map import find_map
 from symplid.io import observation_layout
 from symplid.model.data import DataError, Observations
 from symplid.model.params import POSITIVE_GROUPS
+from symplid.model.statespace import PROCESS_NOISE_CHOICES
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.scaling import resolve_standardise, scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
@@ -113,6 +118,7 @@ COLUMNS = (
     "order",
     "integrator",
     "damping",
+    "process_noise",
     "gamma",
     "num_params",
     "log_likelihood",
@@ -235,6 +241,8 @@ class CandidateFit:
     damping: bool = False
     model: str = "polynomial"
     """The candidate's model: its family's name, or a label (a settings file's name)."""
+    process_noise: str = "gap"
+    """``model.process_noise_per`` of the candidate (``"none"``: no process noise)."""
 
 
 def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
@@ -291,13 +299,18 @@ def fit_candidates(
     source: str = "settings",
     dampings: Sequence[bool] | None = None,
     label: str | None = None,
+    process_noises: Sequence[str] | None = None,
 ) -> list[CandidateFit]:
-    """MAP and Hessian of every (order, integrator, damping) candidate, in grid order.
+    """MAP and Hessian of every (order, integrator, damping, process noise) candidate, in
+    grid order.
 
     Parameters are those of :func:`compare_models`; ``label`` names the model in the table
     (default: its family's name). Each candidate uses ``settings`` with
-    ``model.order``, ``model.integrator`` and ``model.damping`` replaced, and the MAP search
-    of ``settings.map`` (its seed and number of starts), without the sampler.
+    ``model.order``, ``model.integrator``, ``model.damping`` and ``model.process_noise_per``
+    replaced, and the MAP search of ``settings.map`` (its seed and number of starts), without
+    the sampler. A candidate without process noise starts its MAP search from the MAP of the
+    same candidate with process noise (:mod:`symplid.inference.homotopy`): the one fitted in
+    this grid when there is one; otherwise a user model's declared starts come first.
     """
 
     datasets = _as_list(obs)
@@ -307,14 +320,19 @@ def fit_candidates(
     )
     base = _resolve_all(settings, datasets, source)
     damping_list = [settings.model.damping] if dampings is None else _dampings(dampings)
-    grid = [(o, i, g) for g in damping_list for i in integrator_list for o in order_list]
+    noise_list = ([settings.model.process_noise_per] if process_noises is None
+                  else _process_noises(process_noises))
+    grid = [(o, i, g, n) for n in noise_list for g in damping_list for i in integrator_list
+            for o in order_list]
     fits: list[CandidateFit] = []
+    with_noise: dict[tuple, np.ndarray] = {}  # the MAP with process noise, to start from
     bar = _progress(len(grid), progress)
     try:
-        for order, integrator, damping in grid:
-            bar.set_postfix_str(f"order {order}, {integrator}" + (", damped" if damping else ""))
+        for order, integrator, damping, noise in grid:
+            bar.set_postfix_str(f"order {order}, {integrator}" + (", damped" if damping else "")
+                                + (", no process noise" if noise == "none" else ""))
             model_settings = dataclasses.replace(base.model, order=order, integrator=integrator,
-                                                 damping=damping)
+                                                 damping=damping, process_noise_per=noise)
             s = dataclasses.replace(base, model=model_settings)
             start = time.perf_counter()
             # model.standardise: fit on q/a, p/a, report in the data's units (workflow.scaling)
@@ -324,10 +342,15 @@ def fit_candidates(
             fit_data = fit_sets[0] if len(fit_sets) == 1 else fit_sets
             model = build_model(fit_s, fit_sets[0])
             posterior = build_posterior(fit_s, fit_data, model)  # type: ignore[arg-type]
+            init = _start_without_noise(posterior, with_noise.get((order, integrator, damping)),
+                                        s)
             result = find_map(
                 posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False,
-                init=map_start(s),  # a user model's declared starts
+                init=map_start(s) if init is None else init,  # declared starts, if any
             )
+            if noise != "none":
+                with_noise[(order, integrator, damping)] = without_process_var(
+                    posterior.param_groups, result.theta)
             seconds = time.perf_counter() - start
             log_prior = float(posterior.log_prior(np.asarray(result.theta)))
             log_likelihood = result.log_posterior - log_prior
@@ -338,12 +361,39 @@ def fit_candidates(
                 CandidateFit(
                     order, integrator, s, posterior, result, log_likelihood, seconds, damping,
                     label or family_of(s.model).name,
+                    noise,
                 )
             )
             bar.update(1)
     finally:
         bar.close()
     return fits
+
+
+def _process_noises(values: Sequence[str]) -> list[str]:
+    """The process-noise choices of a comparison (``model.process_noise_per`` values),
+    without repeats, those with process noise first (a candidate without starts from one
+    with)."""
+    out: list[str] = []
+    for v in values:
+        if v not in PROCESS_NOISE_CHOICES:
+            raise ValueError(f"process noise: expected {', '.join(PROCESS_NOISE_CHOICES)}, "
+                             f"got {v!r}")
+        if v not in out:
+            out.append(str(v))
+    if not out:
+        raise ValueError("process noise: give at least one of gap, none")
+    return sorted(out, key=lambda v: v == "none")
+
+
+def _start_without_noise(posterior: Any, fitted: np.ndarray | None, s: Settings) -> Any:
+    """The first MAP start of a candidate: None (the default) with process noise; without,
+    the MAP of its twin with process noise (``fitted`` when the grid has it)."""
+    if not getattr(posterior.model, "deterministic", False):
+        return None
+    if fitted is not None and np.all(np.isfinite(fitted)):
+        return fitted
+    return filter_start(posterior, seed=s.map.seed, num_starts=s.map.num_starts)
 
 
 def _dampings(values: Sequence[bool]) -> list[bool]:
@@ -425,6 +475,7 @@ def comparison_table(fits: Sequence[CandidateFit]) -> pd.DataFrame:
                 "order": int(fit.order),
                 "integrator": fit.integrator,
                 "damping": bool(fit.damping),
+                "process_noise": str(fit.process_noise),
                 "gamma": _gamma(fit),
                 "num_params": k,
                 "log_likelihood": float(fit.log_likelihood),
@@ -485,7 +536,7 @@ def format_table(table: pd.DataFrame, title: str | None = None) -> str:
                 _num(row.delta_log_evidence, 2),
                 _prob(row.probability),
                 _num(row.bic, 2),
-                _sci(row.process_var),
+                "none" if row.process_noise == "none" else _sci(row.process_var),
                 _sci(row.obs_var),
                 f"{row.map_seconds:.1f}",
                 (row.at_bounds or "-") + ("" if row.converged else " (not converged)"),
@@ -561,6 +612,7 @@ def compare_models(
     progress: bool = True,
     source: str = "settings",
     dampings: Sequence[bool] | None = None,
+    process_noises: Sequence[str] | None = None,
 ) -> pd.DataFrame:
     """Rank polynomial orders, propagators and damping by the log evidence (MAP only).
 
@@ -590,6 +642,11 @@ def compare_models(
         Damping choices, e.g. ``[False, True]``: every candidate without and with a learned
         damping rate γ, so the evidence says whether the data need dissipation; None: the
         settings' ``model.damping`` only.
+    process_noises
+        Process-noise choices (``model.process_noise_per`` values), e.g. ``["gap", "none"]``:
+        every candidate with and without process noise, so the evidence says whether the data
+        need it (a candidate without is fitted from the MAP of the one with); None: the
+        settings' choice only.
 
     Returns
     -------
@@ -597,7 +654,8 @@ def compare_models(
         One row per candidate, best first, with the columns of :data:`COLUMNS` and then
         one per coefficient name (NaN where a candidate lacks that coefficient).
     """
-    fits = fit_candidates(obs, settings, orders, integrators, progress, source, dampings)
+    fits = fit_candidates(obs, settings, orders, integrators, progress, source, dampings,
+                          process_noises)
     table = comparison_table(fits)
     if out is not None:
         n = _num_measured(fits[0])

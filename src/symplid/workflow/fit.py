@@ -23,6 +23,7 @@ import numpy as np
 
 from symplid.dynamics.families import build_family, family_of
 from symplid.inference.diagnostics import summary as diagnostics_summary
+from symplid.inference.homotopy import filter_start
 from symplid.inference.map import find_map
 from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
 from symplid.io import as_list, observation_layout
@@ -106,7 +107,9 @@ def find_map_for(settings: Settings, posterior) -> Any:
     """The MAP and its Laplace covariance, by the path the model's family calls for.
 
     A polynomial (or any family with few coefficients): bounded quasi-Newton from
-    ``settings.map.num_starts`` seeded starts and the exact Hessian. A neural family
+    ``settings.map.num_starts`` seeded starts and the exact Hessian (without process noise,
+    ``model.process_noise_per = "none"``, the first start is the MAP with process noise:
+    :func:`~symplid.inference.homotopy.filter_start`). A neural family
     (:attr:`~symplid.dynamics.families.Family.neural`, e.g. ``"mlp"``): Adam then L-BFGS and
     the Gauss–Newton covariance (:func:`~symplid.inference.neural_fit.find_map_neural`),
     returned as a :class:`~symplid.inference.map_result.MapResult`.
@@ -114,8 +117,11 @@ def find_map_for(settings: Settings, posterior) -> Any:
 
     m = settings.map
     if not family_of(settings.model).neural:
+        # without process noise: start from the filter's MAP (symplid.inference.homotopy);
+        # otherwise from a user model's declared starts, if any
+        init = filter_start(posterior, seed=m.seed, num_starts=m.num_starts)
         return find_map(posterior, seed=m.seed, num_starts=m.num_starts, evidence=m.evidence,
-                        init=map_start(settings))
+                        init=map_start(settings) if init is None else init)
     from symplid.inference.neural_fit import find_map_neural
 
     start = time.perf_counter()

@@ -11,12 +11,14 @@ import numpy as np
 
 from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD, quiet_arviz
 from symplid.inference.diagnostics import summary as diagnostics_summary
+from symplid.inference.map_result import MapResult
 from symplid.inference.samplers import draws_array
 from symplid.io import as_list
 from symplid.plotting import plot_predictive, save_figure
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder, format_summary
 from symplid.workflow.run_figures import ReportFigure, report_figures, trajectory_paths
+from symplid.workflow.sensitivity import sensitivity_checks, sensitivity_lines
 
 #: The most integrator steps a prediction may take ((t_end − t0)/dt), so that a mistyped
 #: horizon (1e9) is a one-line error rather than hours of work or an exhausted memory.
@@ -155,6 +157,15 @@ def report_run(run: str | Path) -> str:
     ]
     if table is not None:
         lines += ["## Convergence", "", table, ""]
+    flagged = ""
+    if settings.map.sensitivity:  # MAP refits at dt/2 and with the other process noise
+        checks = sensitivity_checks(settings, obs, posterior,
+                                    MapResult.from_dict(folder.read_map()))
+        lines += sensitivity_lines(checks)
+        if checks["step_size"]["flagged"]:
+            flagged = ("; warning: the learning step biases "
+                       f"{', '.join(checks['step_size']['flagged'])} (use a smaller dt or "
+                       "yoshida4)")
     notes = [f"{f.title}: {f.note}" for f in figures if f.note]
     with RunFolder(run, "a") as update:
         for f in figures:
@@ -166,7 +177,7 @@ def report_run(run: str | Path) -> str:
             lines += [f"![{title}]({path})\n"] + ([f"*{note}*\n"] if note else [])
         update.write_report("\n".join(lines))
     extra = f" ({'; '.join(notes)})" if notes else ""
-    return f"{folder.file('report.md')}: {len(shown)} figures{extra}"
+    return f"{folder.file('report.md')}: {len(shown)} figures{extra}{flagged}"
 
 
 def _which(path: Path) -> str:

@@ -21,7 +21,8 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     binding = 0.0                 # Tao's ω for "tao"/"tao4" (non-separable H); 0: ω = 1/dt
     dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
-    process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep)
+    process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep;
+                                  # "none": no Σ, one integrated path, no filter)
     noise = "auto"                # "isotropic": Σ = θ_Σ I, Γ = θ_Γ I; "diagonal": one variance per
                                   # component; "per-kind": one Γ variance for q, one for p;
                                   # "auto": per-kind for q and p columns, else isotropic
@@ -65,6 +66,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     adam_steps = 2000             # a neural family's MAP: Adam, then L-BFGS (no multistart)
     learning_rate = 0.01
     lbfgs_steps = 1000
+    sensitivity = false           # report: MAP refits at dt/2 and with the other process noise
 
     [sampler]
     method = "dram"               # any name in symplid.inference.samplers.SAMPLERS

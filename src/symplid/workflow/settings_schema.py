@@ -36,6 +36,7 @@ from symplid.workflow.user_parameters import (
     initial_values,
     parameter_priors,
 )
+from symplid.model.statespace import PROCESS_NOISE_CHOICES
 from symplid.workflow.validate import SettingsError, Spec, setting
 
 __all__ = [
@@ -126,8 +127,11 @@ class ModelSettings:
         doc="Learning step: each observation gap is split into ⌈gap/dt⌉ equal substeps.",
     )
     process_noise_per: str = setting(
-        "gap", choices=("gap", "step"),
-        doc="Process noise Σ added once per observation gap (the paper's) or after every substep.",
+        "gap", choices=PROCESS_NOISE_CHOICES,
+        doc=(
+            "Process noise Σ added once per observation gap (the paper's), after every substep, "
+            "or ``\"none\"``: no Σ, the exact likelihood of the data around one integrated path."
+        ),
     )
     noise: str = setting(
         "auto", choices=("auto", "isotropic", "diagonal", "per-kind"),
@@ -270,6 +274,13 @@ class MapSettings:
         doc="Adam's step size for a neural family.",
     )
     lbfgs_steps: int = setting(1000, minimum=0, doc="L-BFGS steps after Adam for a neural family.")
+    sensitivity: bool = setting(
+        False,
+        doc=(
+            "Add the step-size and process-noise checks (two MAP refits, "
+            ":mod:`symplid.workflow.sensitivity`) to the run's report."
+        ),
+    )
 
 
 @dataclass(frozen=True)

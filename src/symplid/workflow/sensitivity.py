@@ -1,0 +1,176 @@
+"""MAP-level sensitivity checks of a fit: the learning step, and the process noise.
+
+Two questions a posterior cannot answer about itself, each answered by one more MAP search
+with one setting changed, the shift of every coefficient measured in the fit's posterior
+standard deviations (the Laplace sds of its MAP):
+
+* **step size**: the MAP refitted at dt/2 (``model.dt`` halved, everything else equal). The
+  integrator's error is O(dt^p); a coefficient that moves by more than :data:`THRESHOLD_SD`
+  posterior sds when dt is halved is biased by the learning step: the warning says to use a
+  smaller dt or a higher-order integrator (``yoshida4``).
+* **process noise**: the MAP of the same settings with the other likelihood: without process
+  noise (``model.process_noise_per = "none"``, :mod:`symplid.model.deterministic`) for a fit
+  with, with process noise once per gap for a fit without; the shift of each coefficient and
+  the log evidence of both (``symplid compare --process-noise`` ranks them the same way). A
+  large shift means the answer depends on Σ: the evidence says which model the data prefer.
+
+:func:`sensitivity_checks` runs both and returns a JSON-ready dict; :func:`sensitivity_lines`
+turns it into the Markdown of a report. The refits start from the fit's MAP (without its
+process variance for the refit without process noise, the homotopy of
+:mod:`symplid.inference.homotopy`), so each costs a short search and one compilation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from symplid.inference.homotopy import without_process_var
+from symplid.inference.map import find_map
+from symplid.io import as_list
+from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.scaling import scaling_for
+
+__all__ = [
+    "THRESHOLD_SD",
+    "process_noise_check",
+    "refit_map",
+    "sensitivity_checks",
+    "sensitivity_lines",
+    "step_size_check",
+]
+
+THRESHOLD_SD = 0.3
+"""A coefficient whose MAP moves by more than this many posterior sds is flagged."""
+
+
+def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None) -> tuple[Any, Any]:
+    """(MAP result in the data's units, posterior) of ``settings`` on ``obs``, one start.
+
+    The fit runs in standardised coordinates when ``settings`` ask for them (as a fit does,
+    :mod:`symplid.workflow.scaling`); ``init`` is a θ in the data's units, or None for the
+    default start.
+    """
+    scaling = scaling_for(settings, obs)
+    fit_settings = settings if scaling is None else scaling.settings(settings)
+    fit_obs = obs
+    if scaling is not None:
+        scaled = [scaling.observations(o) for o in as_list(obs)]
+        fit_obs = scaled if isinstance(obs, list) else scaled[0]
+    posterior = build_posterior(fit_settings, fit_obs, build_model(fit_settings, fit_obs))
+    groups = posterior.param_groups
+    start = None
+    if init is not None:
+        start = np.asarray(init, dtype=float)
+        if scaling is not None:
+            start = start / scaling.factors(groups)
+    result = find_map(posterior, seed=settings.map.seed, num_starts=1, init=start,
+                      evidence=settings.map.evidence, warn=False)
+    if scaling is not None:
+        result = scaling.map_result(result, groups, obs)
+    return result, posterior
+
+
+def _shifts(names: list[str], groups: list[str], base: Any, other: Any,
+            other_names: list[str]) -> dict[str, float]:
+    """Each coefficient's change from ``base`` to ``other`` in ``base``'s posterior sds."""
+    if base.covariance is None:
+        return {}
+    sd = np.sqrt(np.maximum(np.diag(np.asarray(base.covariance)), 0.0))
+    theta, alt = np.asarray(base.theta), np.asarray(other.theta)
+    index = {n: i for i, n in enumerate(other_names)}
+    return {n: float((alt[index[n]] - theta[i]) / sd[i])
+            for i, (n, g) in enumerate(zip(names, groups, strict=True))
+            if g == "coefficients" and n in index and sd[i] > 0}
+
+
+def _check(shifts: dict[str, float]) -> list[str]:
+    return [n for n, z in shifts.items() if not abs(z) <= THRESHOLD_SD]
+
+
+def step_size_check(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
+    """The MAP refitted at dt/2 (started from the fit's): ``dt``, ``dt_refit``, ``shifts``
+    (coefficient → change in the fit's posterior sds) and ``flagged`` (above
+    :data:`THRESHOLD_SD`). Arguments as :func:`sensitivity_checks`."""
+    m = settings.model
+    half = dataclasses.replace(settings, model=dataclasses.replace(m, dt=m.dt / 2))
+    half_map, half_post = refit_map(half, obs, np.asarray(map_result.theta))
+    shifts = _shifts(list(posterior.param_names), list(posterior.param_groups), map_result,
+                     half_map, list(half_post.param_names))
+    return {"dt": m.dt, "dt_refit": m.dt / 2, "shifts": shifts, "flagged": _check(shifts)}
+
+
+def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
+    """The MAP with the other likelihood (without process noise for a fit with, with for a
+    fit without): ``fitted``, ``refit`` (the ``model.process_noise_per`` of each), ``shifts``,
+    ``flagged`` and the ``log_evidence`` of both. Arguments as :func:`sensitivity_checks`."""
+    m = settings.model
+    groups = list(posterior.param_groups)
+    deterministic = m.process_noise_per == "none"
+    other = "gap" if deterministic else "none"
+    alt_settings = dataclasses.replace(settings, model=dataclasses.replace(
+        m, process_noise_per=other))
+    # without Σ: start from the fit's MAP less its process variance (the homotopy); with Σ:
+    # the default start (a large process variance)
+    init = None if deterministic else without_process_var(groups, map_result.theta)
+    alt_map, alt_post = refit_map(alt_settings, obs, init)
+    shifts = _shifts(list(posterior.param_names), groups, map_result, alt_map,
+                     list(alt_post.param_names))
+    return {"fitted": m.process_noise_per, "refit": other, "shifts": shifts,
+            "flagged": _check(shifts), "log_evidence": float(map_result.log_evidence),
+            "log_evidence_refit": float(alt_map.log_evidence)}
+
+
+def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
+    """The step-size and process-noise checks of a fit (module docstring).
+
+    Parameters
+    ----------
+    settings
+        The fit's resolved settings.
+    obs
+        Its data (one :class:`~symplid.model.data.Observations` or a list), in the data's units.
+    posterior, map_result
+        The fit's posterior and MAP (with its Laplace covariance), in the data's units.
+
+    Returns
+    -------
+    dict
+        ``{"threshold_sd": ..., "step_size": {...}, "process_noise": {...}}``: the results of
+        :func:`step_size_check` and :func:`process_noise_check`.
+    """
+    return {"threshold_sd": THRESHOLD_SD,
+            "step_size": step_size_check(settings, obs, posterior, map_result),
+            "process_noise": process_noise_check(settings, obs, posterior, map_result)}
+
+
+def sensitivity_lines(checks: dict) -> list[str]:
+    """The Markdown section of a report for :func:`sensitivity_checks`' result, warnings
+    first."""
+    step, noise = checks["step_size"], checks["process_noise"]
+    limit = checks["threshold_sd"]
+    lines = ["## Sensitivity (MAP refits)", ""]
+    if step["flagged"]:
+        lines += [f"**Warning**: the learning step biases these parameters: "
+                  f"{', '.join(step['flagged'])} (they move by more than {limit:g} posterior "
+                  f"sds when dt is halved); use a smaller dt or yoshida4.", ""]
+    without = noise["refit"] == "none"
+    name = "without" if without else "with"
+    if noise["flagged"]:
+        lines += [f"**Note**: these parameters depend on the process noise: "
+                  f"{', '.join(noise['flagged'])} (they move by more than {limit:g} posterior "
+                  f"sds in the fit {name} process noise); compare the evidences below.", ""]
+    lines += [f"| coefficient | shift at dt = {step['dt_refit']:g} (sds) | "
+              f"shift {name} process noise (sds) |", "|---|---:|---:|"]
+    for coefficient in step["shifts"] | noise["shifts"]:
+        lines.append(f"| {coefficient} | {_fmt(step['shifts'].get(coefficient))} | "
+                     f"{_fmt(noise['shifts'].get(coefficient))} |")
+    lines += ["", f"Log evidence: this fit {noise['log_evidence']:.2f}, the fit {name} process "
+              f"noise {noise['log_evidence_refit']:.2f}.", ""]
+    return lines
+
+
+def _fmt(value: float | None) -> str:
+    return "—" if value is None else f"{value:+.2f}"
