@@ -31,12 +31,12 @@ from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec, as_prior
+from symplid.model.statespace import PROCESS_NOISE_CHOICES
 from symplid.workflow.user_parameters import (
     UserParameter,
     initial_values,
     parameter_priors,
 )
-from symplid.model.statespace import PROCESS_NOISE_CHOICES
 from symplid.workflow.validate import SettingsError, Spec, setting
 
 __all__ = [
