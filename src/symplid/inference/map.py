@@ -19,31 +19,34 @@ data and leapfrog this happens to the process variance: no process noise is dete
 
 Starting points
 ---------------
-Start 0 is ``init`` when given, else the default start:
+Start 0 is ``init`` when given; otherwise the **data start** of
+:mod:`symplid.inference.map_data_start`: the dynamic parameters (and the momenta) from a
+collocation fit of Hamilton's equations to a smoothing spline of the measured positions, the
+observation variances at a model-free noise estimate, the process variance at the fit's
+momentum defect, and a learned initial state on the smoothed path. Start 1 is the same point
+with the variances of the default start (a process variance as large as the data's variance,
+an observation variance a tenth of it): with such process noise the filter follows the data
+whatever the dynamics, and as the optimiser lowers it the search moves to the deterministic
+fit (a homotopy that the marginal likelihood gives for free). Starts 2, ... perturb start 0
+on each parameter's own scale: by max(3 × its least-squares standard error, 10 % of its
+value) for the dynamic parameters and the initial state, and by a factor exp(N(0, 1)) for
+the variances; a start with a non-finite log posterior is drawn again with half the step.
 
-* coefficients (and any other unbounded parameter) at their prior median (0 for the paper's
-  Laplace prior), moved inside the bounds;
-* the process-noise variance at the variance of the data (over time and components), and the
-  observation-noise variance at a tenth of it (a relative variance of multiplicative noise at
-  0.1, about 30 % relative noise);
-* a learned initial state at its prior's centre (the first observation).
-
-With all coefficients at zero the model alone is a free particle, but the large process
-noise makes the filter follow the data, so the likelihood is smooth and informative; as the
-optimiser lowers the process variance it moves to the deterministic fit (a homotopy that the
-marginal likelihood gives for free). Starting instead from prior draws fails: coefficients
-drawn from Laplace(0, 10) make most trajectories escape to infinity.
-
-Starts 1, 2, ... perturb the default start: each unbounded parameter by a normal draw of
-standard deviation ``start_spread`` × its prior's standard deviation (0.02 × 14.1 = 0.28 for
-the coefficients under Laplace(0, 10)), each variance by a factor exp(N(0, 1)); a start
-with a non-finite log posterior is drawn again with half the perturbation (up to 8 times).
-Draws use ``jax.random.fold_in(jax.random.key(seed), k)`` for start k.
+When the model or the data do not allow a data start (a nonlinear observation operator,
+unmeasured positions, fewer than five observations), start 0 is the **default start**
+(:func:`~.map_starts.default_start`): coefficients at their prior median, the process
+variance at the data's variance and the observation variance at a tenth of it, a learned
+initial state at its prior's centre; starts 1, ... then perturb it by ``start_spread`` ×
+each prior's standard deviation (variances by a factor exp(N(0, 1))). Draws use
+``jax.random.fold_in(jax.random.key(seed), k)`` for start k.
 
 A non-finite objective (a failed filter, an overflow) is returned to L-BFGS-B as a large
 value, so its line search backs off. A start counts as converged only when L-BFGS-B says so
 and the Newton decrement ½ gᵀH⁻¹g there is below 1e-3 (see :class:`StartResult`); the best
-start (highest log posterior) gives the MAP whether or not the others converged.
+start (highest log posterior) gives the MAP. It is reported failed (``success`` False, the
+reason in ``failure``, a :class:`MapConvergenceWarning`) when it did not converge, never
+moved from its start, is not a maximum, or explains the data as noise
+(:mod:`symplid.inference.map_checks`); at a point that is no optimum the evidence is NaN.
 
 The Hessian, the covariance and the Laplace evidence are :mod:`symplid.inference.laplace`'s;
 ``MapResult.log_evidence`` integrates the variances on their log scale by quadrature
@@ -74,6 +77,8 @@ from symplid.inference.laplace import (
     newton_decrement,
     scan_from_bound,
 )
+from symplid.inference.map_checks import failure_message, is_optimum, judge, model_free_noise
+from symplid.inference.map_data_start import data_start
 from symplid.inference.map_result import (
     BoundWarning,
     MapConvergenceWarning,
@@ -85,7 +90,9 @@ from symplid.inference.map_starts import (
     as_theta,
     default_start,
     distinct_optima,
+    homotopy_start,
     perturbed_start,
+    scaled_start,
     warn_optima,
 )
 from symplid.model.params import ParameterSpace, SearchSpace
@@ -220,33 +227,39 @@ def find_map(
     best = results[k_best]
     u_best = space.to_u(best.theta)
     at_bounds = tuple(n for n, hit in zip(names, space.at_bounds(u_best), strict=True) if hit)
+    if compute_hessian and hessians[k_best] is None:
+        hessians[k_best] = np.asarray(fns["hessian"](jnp.asarray(best.theta)), dtype=float)
+    failure = judge(best, tuple(results), hessians[k_best], space,
+                    tuple(parameter_space.groups), model_free_noise(posterior))
     laplace: tuple[Any, Any, bool, float] = (None, None, False, math.nan)
     if compute_hessian:
-        hessian = hessians[k_best]
-        if hessian is None:
-            hessian = np.asarray(fns["hessian"](jnp.asarray(best.theta)), dtype=float)
         bound_idx = [names.index(n) for n in at_bounds]
-        laplace = (hessian, *_laplace(hessian, best, bound_idx, objective, u_best, warn))
+        laplace = (hessians[k_best],
+                   *_laplace(hessians[k_best], best, bound_idx, objective, u_best, warn))
+        if not is_optimum(failure):  # no evidence at a point that is not an optimum
+            laplace = (*laplace[:3], math.nan)
     log_evidence, method, details = laplace[3], "laplace" if compute_hessian else "none", {}
-    if compute_hessian and evidence == "quadrature" and np.isfinite(best.log_posterior):
+    if (compute_hessian and evidence == "quadrature" and np.isfinite(best.log_posterior)
+            and is_optimum(failure)):
         log_evidence, method, details = _quadrature(
             fns, space, parameter_space.groups, names, best.theta, laplace[3])
     optima = distinct_optima(results, laplace[1], space)
     if warn:
-        _warn_outcome(best, results, at_bounds, names, space, u_best)
+        _warn_outcome(best, failure, at_bounds, names, space, u_best)
         warn_optima(optima, len(results))
     settings = {
         "num_starts": int(num_starts), "start_spread": float(start_spread),
         "positive_floor": float(positive_floor), **options, "init": init is not None,
     }
     return MapResult(
-        theta=best.theta, log_posterior=float(best.log_posterior), success=bool(best.success),
+        theta=best.theta, log_posterior=float(best.log_posterior),
+        success=bool(best.success) and not failure,
         message=best.message, num_starts=int(num_starts), starts=tuple(results),
         hessian=laplace[0], covariance=laplace[1], covariance_repaired=laplace[2],
         log_evidence=log_evidence, param_names=names, at_bounds=at_bounds, seed=int(seed),
         seconds=time.perf_counter() - t_begin, settings=settings,
         log_evidence_laplace=laplace[3], evidence_method=method, evidence=details,
-        optima=optima,
+        optima=optima, failure=failure,
     )
 
 
@@ -286,9 +299,16 @@ def _starts(
     spread: float,
     names: tuple[str, ...],
 ) -> list[np.ndarray]:
-    """Start 0 (``init`` or the default start), then ``num_starts − 1`` perturbed ones."""
+    """Start 0 (``init``, the data start or the default start), then ``num_starts − 1`` more
+    ("Starting points" in the module docstring)."""
     default = default_start(posterior)
-    first = default if init is None else as_theta(init, posterior, default)
+    found = data_start(posterior, default) if init is None else None
+    if found is not None and not objective.is_finite(found.theta):
+        found = None
+    if init is not None:
+        first = as_theta(init, posterior, default)
+    else:
+        first = default if found is None else found.theta
     if not objective.is_finite(first):
         where = "init" if init is not None else "the default start"
         raise ValueError(
@@ -297,11 +317,21 @@ def _starts(
             "pass init=... at a point where the model can be evaluated"
         )
     root = jax.random.key(int(seed))
-    return [first] + [
-        perturbed_start(jax.random.fold_in(root, k), posterior, objective.space, first, spread,
-                        objective.is_finite)
-        for k in range(1, num_starts)
-    ]
+    if found is None:
+        return [first] + [
+            perturbed_start(jax.random.fold_in(root, k), posterior, objective.space, first,
+                            spread, objective.is_finite)
+            for k in range(1, num_starts)
+        ]
+    starts = [first]
+    homotopy = homotopy_start(posterior, first, default)
+    if num_starts > 1 and objective.is_finite(homotopy):
+        starts.append(homotopy)
+    while len(starts) < num_starts:
+        key = jax.random.fold_in(root, len(starts))
+        starts.append(scaled_start(key, objective.space, first, found.scale,
+                                   objective.is_finite))
+    return starts
 
 
 def _laplace(
@@ -334,14 +364,14 @@ def _laplace(
 
 def _warn_outcome(
     best: StartResult,
-    results: Sequence[StartResult],
+    failure: str,
     at_bounds: tuple[str, ...],
     names: tuple[str, ...],
     space: SearchSpace,
     u_best: np.ndarray,
 ) -> None:
-    """:class:`BoundWarning` for a MAP on a bound; :class:`MapConvergenceWarning` when no
-    start converged."""
+    """:class:`BoundWarning` for a MAP on a bound; :class:`MapConvergenceWarning` when the
+    search failed (:mod:`symplid.inference.map_checks`)."""
     if at_bounds:
         desc = []
         for n in at_bounds:
@@ -358,13 +388,8 @@ def _warn_outcome(
             BoundWarning,
             stacklevel=3,
         )
-    if not any(r.success for r in results):
-        warnings.warn(
-            f"no start of the MAP search converged (best: {best.message}); try more starts, "
-            "a better init or a larger maxiter",
-            MapConvergenceWarning,
-            stacklevel=3,
-        )
+    if failure:
+        warnings.warn(failure_message(failure), MapConvergenceWarning, stacklevel=3)
 
 
 def _snap_to_floor(
