@@ -8,7 +8,9 @@ when any of these holds at the best start's end point:
    the Newton decrement ½ gᵀH⁻¹g is below 1e-3), and no start that did ended within
    0.1 nats of it.
 2. **Never moved**: the best point is its own start (every coordinate within 1e-9 in the
-   search space): the search did nothing, whatever its message says.
+   search space) and that start was not handed in (``init``): the search did nothing,
+   whatever its message says. (A start handed in may be a previous MAP, where staying put
+   is right.)
 3. **Not a maximum**: the Hessian of −log π over the parameters off their bounds is not
    positive definite (a saddle, a flat direction, non-finite entries).
 4. **Residuals contradict the noise**: the MAP's observation-noise variance is more than
@@ -93,13 +95,14 @@ def noise_contradiction(groups: tuple[str, ...], theta: np.ndarray,
 
 
 def judge(best: StartResult, results: tuple[StartResult, ...], hessian: np.ndarray | None,
-          space: SearchSpace, groups: tuple[str, ...], noise: np.ndarray | None) -> str:
+          space: SearchSpace, groups: tuple[str, ...], noise: np.ndarray | None,
+          given_start: bool = False) -> str:
     """Why the best point is not a MAP to report ("" when it is); module docstring."""
     if not best.success and not any(
             r.success and best.log_posterior - r.log_posterior <= OPTIMUM_LOG_POSTERIOR_TOL
             for r in results):
         return f"did not converge (best start: {best.message})"
-    if not moved(best, space):
+    if not moved(best, space) and not (given_start and best is results[0]):
         return "did not move from its start"
     free = np.flatnonzero(~space.at_bounds(space.to_u(best.theta)))
     if not positive_definite(hessian, free):
