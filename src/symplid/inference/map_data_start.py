@@ -22,13 +22,16 @@ reads both from the data, in three cheap steps that use no filter:
 
    with g = −∂H/∂q − γ ∂H/∂p (γ: the damping rate of a damped model), h_i = t_{i+1} − t_i,
    each residual divided by the typical size of its term; measured momenta add
-   p_i − y_i residuals. The fit starts at the prior medians and p_i = q̇_i. For a potential
-   that is linear in its parameters (Kepler's GM, a polynomial) the momentum residual is
-   linear in φ, so the fit is a linear least-squares problem after one step; for a general H
-   it is a small, well-conditioned nonlinear one.
+   p_i − y_i residuals. A long record is thinned evenly to at most :data:`MAX_NODES` nodes.
+   The fit starts at the prior medians and p_i = q̇_i. The positions being held fixed, a
+   separable H whose potential is linear in its parameters (Kepler's GM, a polynomial)
+   makes every residual linear in (φ, p): one linear least-squares problem; a general H
+   gives a small nonlinear one.
 3. **Scales.** The least-squares covariance s²(JᵀJ)⁻¹ gives each parameter's standard error.
    Starts after the first are spread by max(3 × that error, 10 % of the value) for the dynamic
-   parameters and the initial state, and by a factor exp(N(0, 1)) for the variances.
+   parameters, by the noise's standard deviation (positions) and the momenta's standard
+   error (momenta) for a learned initial state, and by a factor exp(N(0, 1)) for the
+   variances.
 
 The noise variances start from the data: each observation variance at its difference
 estimate, the process variance at the mean squared defect of the collocation's momentum step
@@ -57,6 +60,8 @@ from scipy.interpolate import make_smoothing_spline
 Array = jax.Array
 MIN_POINTS = 5
 """Fewest observations of a trajectory the smoothing spline is fitted to."""
+MAX_NODES = 300
+"""Most collocation nodes over all trajectories (a longer record is thinned evenly)."""
 DYNAMIC_GROUPS = ("coefficients", "damping")
 
 
@@ -172,9 +177,18 @@ def _smooth(posterior: Any, rows: np.ndarray, factors: np.ndarray):
                 p_obs[:, i] = values[:, rows[d + i]] / factors[d + i]
                 var[rows[d + i]] = difference_variance(p_obs[:, i]) * factors[d + i] ** 2
         t0 = posterior.t0[k]
-        paths.append(_Smoothed(t, q, qdot, p_obs, float(t[0] if t0 is None else t0)))
+        keep = _nodes(t.size, max(MIN_POINTS, MAX_NODES // len(posterior.datasets)))
+        paths.append(_Smoothed(t[keep], q[keep], qdot[keep], p_obs[keep],
+                               float(t[0] if t0 is None else t0)))
         noise.append(var)
     return paths, np.nanmean(np.vstack(noise), axis=0)
+
+
+def _nodes(n: int, most: int) -> np.ndarray:
+    """At most ``most`` evenly spread indices of n times, the first one always included."""
+    if n <= most:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, most)).astype(int))
 
 
 # ----------------------------------------------------------------------------- collocation
