@@ -40,7 +40,7 @@ from symplid.model.params import SearchSpace
 NOISE_RATIO_LIMIT = 25.0
 """Largest ratio of the MAP's observation variance to the model-free noise variance (a
 standard deviation five times larger)."""
-NOT_AN_OPTIMUM = ("did not converge", "did not move", "not a maximum")
+NOT_AN_OPTIMUM = ("did not converge", "did not move", "is not a maximum")
 """Failure reasons (their opening words) of a point where no evidence is computed."""
 
 
@@ -89,9 +89,9 @@ def noise_contradiction(groups: tuple[str, ...], theta: np.ndarray,
     fitted = float(np.max(np.asarray(theta)[obs]))
     if not (math.isfinite(reference) and reference > 0 and fitted > NOISE_RATIO_LIMIT * reference):
         return ""
-    return (f"its observation noise (sd {math.sqrt(fitted):.3g}) is "
-            f"{math.sqrt(fitted / reference):.0f} times the noise the data show without a model "
-            f"(sd {math.sqrt(reference):.3g}): the fit explains the motion as noise")
+    return (f"has an observation noise (sd {math.sqrt(fitted):.3g}) "
+            f"{math.sqrt(fitted / reference):.0f} times the noise the data show without a "
+            f"model (sd {math.sqrt(reference):.3g}): the fit explains the motion as noise")
 
 
 def judge(best: StartResult, results: tuple[StartResult, ...], hessian: np.ndarray | None,
@@ -106,7 +106,7 @@ def judge(best: StartResult, results: tuple[StartResult, ...], hessian: np.ndarr
         return "did not move from its start"
     free = np.flatnonzero(~space.at_bounds(space.to_u(best.theta)))
     if not positive_definite(hessian, free):
-        return "not a maximum: the Hessian there is not positive definite"
+        return "is not a maximum: the Hessian there is not positive definite"
     return noise_contradiction(groups, best.theta, noise)
 
 
