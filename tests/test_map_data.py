@@ -219,12 +219,14 @@ def test_fit_stops_before_sampling_when_the_map_fails(tmp_path: Path, monkeypatc
     monkeypatch.setattr(fit_module, "find_map",
                         functools.partial(symplid.find_map, maxiter=1))
     out = tmp_path / "run"
-    result = runner.invoke(main, ["fit", str(data), "--out", str(out), "--iterations", "400",
+    result = runner.invoke(main, ["fit", str(data), "--out", str(out), "--order", "2",
+                                  "--x0", "1,0", "--iterations", "400",
                                   "--burn-in", "200", "--chains", "2", "--no-progress",
                                   "--no-report"])
     assert result.exit_code == 2, result.output
     err = result.stderr.strip()
-    assert err.count("\n") == 0 and err.startswith("symplid: error: the MAP search failed")
+    assert err.count("\n") == 0, err
+    assert err.startswith("symplid: error: the MAP search failed")
     assert "Try more starts" in err
     assert not (out / "posterior.nc").exists() and not (out / "summary.json").exists()
     assert "failed" in (out / ".incomplete").read_text()

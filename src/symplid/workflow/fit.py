@@ -115,10 +115,15 @@ def find_map_for(settings: Settings, posterior) -> Any:
 
     m = settings.map
     if not family_of(settings.model).neural:
-        with warnings.catch_warnings():  # a failure is raised by the caller, in one line
-            warnings.simplefilter("ignore", MapConvergenceWarning)
-            return find_map(posterior, seed=m.seed, num_starts=m.num_starts,
-                            evidence=m.evidence)
+        # a failed search is raised by the caller in one line: its warnings would only repeat
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = find_map(posterior, seed=m.seed, num_starts=m.num_starts,
+                              evidence=m.evidence)
+        for w in caught if not result.failure else ():
+            if not issubclass(w.category, MapConvergenceWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return result
     from symplid.inference.neural_fit import find_map_neural
 
     start = time.perf_counter()
