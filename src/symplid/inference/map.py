@@ -159,12 +159,14 @@ def find_map(
     seed
         Seed of the perturbed starts (start k uses ``fold_in(key(seed), k)``).
     num_starts
-        Number of L-BFGS-B runs; the first starts at ``init`` or the default start.
+        Number of L-BFGS-B runs; the first starts at ``init``, else at the data start (else
+        the default start); see "Starting points" in the module docstring.
     init
         First start: an array, a ``{name: value}`` mapping (the others at the default start)
         or a previous :class:`MapResult`. The further starts perturb it.
     start_spread
-        Perturbation of the further starts, as a fraction of each prior's standard deviation.
+        Perturbation of the further starts, as a fraction of each prior's standard
+        deviation, where no data start sets each parameter's own scale.
     positive_floor
         Smallest value searched for a parameter bounded below only (above its bound).
     maxiter, ftol, gtol, maxcor
@@ -178,7 +180,7 @@ def find_map(
         Laplace evidence only (no extra fits). Both are recorded when computed.
     warn
         Warn (:class:`BoundWarning`) when the MAP is on a bound, and
-        (:class:`MapConvergenceWarning`) when no start converged.
+        (:class:`MapConvergenceWarning`) when the search failed (``MapResult.failure``).
 
     Returns
     -------
@@ -237,7 +239,7 @@ def find_map(
     }
     return MapResult(
         theta=best.theta, log_posterior=float(best.log_posterior),
-        success=bool(best.success) and not failure,
+        success=not failure,
         message=best.message, num_starts=int(num_starts), starts=tuple(results),
         hessian=laplace[0], covariance=laplace[1], covariance_repaired=laplace[2],
         log_evidence=log_evidence, param_names=names, at_bounds=at_bounds, seed=int(seed),
