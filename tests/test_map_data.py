@@ -21,7 +21,7 @@ import symplid
 from symplid.cli import main
 from symplid.dynamics.potentials import FunctionPotential
 from symplid.inference import map_checks
-from symplid.inference.map_data_start import data_start, difference_variance
+from symplid.inference.map_data_start import data_start, difference_variance, position_rows
 from symplid.inference.map_result import MapConvergenceWarning, StartResult
 from symplid.inference.map_starts import default_start
 from symplid.model.data import Observations
@@ -75,6 +75,19 @@ def test_data_start_of_a_harmonic_oscillator_is_near_its_stiffness():
     assert found.theta[0] == pytest.approx(40.0, rel=0.1)
     # the difference estimate is biased upward by the signal (20 samples a period here)
     assert 0.5 * 0.01**2 < found.noise_var[0] < 3 * 0.01**2
+
+
+def test_data_start_reads_only_models_that_measure_every_position():
+    """A linear operator that measures q directly is read (its rows and factors); a function
+    h, or a matrix that leaves a position unmeasured, falls back to the default start."""
+    pot = symplid.Polynomial(dim=2, order=2)
+    found = position_rows(symplid.HamiltonianModel(pot, observation=np.diag([2.0, 1, 1, 1])))
+    assert found is not None
+    np.testing.assert_array_equal(found[0], [0, 1, 2, 3])
+    np.testing.assert_array_equal(found[1], [2.0, 1, 1, 1])
+    assert position_rows(symplid.HamiltonianModel(pot, observation=lambda x: x[:2])) is None
+    only_q1 = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    assert position_rows(symplid.HamiltonianModel(pot, observation=only_q1)) is None
 
 
 # ----------------------------------------------------------------------------- the targets

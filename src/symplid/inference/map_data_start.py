@@ -176,7 +176,7 @@ def _smooth(posterior: Any, rows: np.ndarray, factors: np.ndarray):
             if rows[d + i] >= 0:
                 p_obs[:, i] = values[:, rows[d + i]] / factors[d + i]
                 var[rows[d + i]] = difference_variance(p_obs[:, i]) * factors[d + i] ** 2
-        t0 = posterior.t0[k]
+        t0 = getattr(posterior, "t0", [None] * len(posterior.datasets))[k]
         keep = _nodes(t.size, max(MIN_POINTS, MAX_NODES // len(posterior.datasets)))
         paths.append(_Smoothed(t[keep], q[keep], qdot[keep], p_obs[keep],
                                float(t[0] if t0 is None else t0)))
@@ -290,7 +290,10 @@ def data_start(posterior: Any, default: np.ndarray) -> DataStart | None:
     if smoothed is None:
         return None
     paths, noise_var = smoothed
-    colloc = _collocate(posterior, paths, np.asarray(default, dtype=float))
+    try:  # a start is a heuristic: a model it cannot read falls back to the default start
+        colloc = _collocate(posterior, paths, np.asarray(default, dtype=float))
+    except (TypeError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
     if colloc is None:
         return None
     dyn, phi, momenta, stderr, defect = colloc
