@@ -223,6 +223,24 @@ def test_initial_state_at_first_observation_matches_kalman_filter(osc, osc_pos_m
     assert value == pytest.approx(want, rel=1e-9)
 
 
+def test_learned_initial_state_at_first_observation_meets_y1_through_process_noise(
+        osc, osc_pos_model):
+    """A learned x0 at t_1 with the default (point) P0: y_1 updates N(x0, Σ), so the exact
+    Kalman filter with a first gap of length zero *and* one process-noise increment Σ gives
+    the same number (the learned-initial-state corner: y_1 never has variance Γ alone)."""
+    times = np.array([2.0, 2.7, 3.5, 4.0, 5.1, 5.6])
+    data = symplid.simulate(osc, times=times, observation="positions", seed=5)
+    x1 = np.array([0.4, -0.9])
+    theta = osc_pos_model.pack(osc.coefficients, 1e-3, 0.04**2)
+    post = Posterior(osc_pos_model, data, t0=None, learn_initial_state=True)
+    value = float(post.log_likelihood(np.r_[theta, x1]))
+    F = [np.eye(2), *_transitions(osc.coefficients, times[1:], 0.25, times[0])]
+    Q = [1e-3 * np.eye(2)] + [(1e-3 + JITTER) * np.eye(2)] * (len(times) - 1)
+    want = kalman_loglik(x1, 1e-16 * np.eye(2), F, Q, np.array([[1.0, 0.0]]),
+                         0.04**2 * np.eye(1), data.values)
+    assert value == pytest.approx(want, rel=1e-9)
+
+
 def test_learned_x0_equals_model_likelihood(osc_model, osc_theta, osc_sets):
     data = osc_sets[0]
     post = Posterior(osc_model, data[2], learn_initial_state=True, t0=0.1, P0=1e-4)

@@ -19,31 +19,34 @@ data and leapfrog this happens to the process variance: no process noise is dete
 
 Starting points
 ---------------
-Start 0 is ``init`` when given, else the default start:
+Start 0 is ``init`` when given; otherwise the **data start** of
+:mod:`symplid.inference.map_data_start`: the dynamic parameters (and the momenta) from a
+collocation fit of Hamilton's equations to a smoothing spline of the measured positions, the
+observation variances at a model-free noise estimate, the process variance at the fit's
+momentum defect, and a learned initial state on the smoothed path. Start 1 is the same point
+with the variances of the default start (a process variance as large as the data's variance,
+an observation variance a tenth of it): with such process noise the filter follows the data
+whatever the dynamics, and as the optimiser lowers it the search moves to the deterministic
+fit (a homotopy that the marginal likelihood gives for free). Starts 2, ... perturb start 0
+on each parameter's own scale: by max(3 × its least-squares standard error, 10 % of its
+value) for the dynamic parameters and the initial state, and by a factor exp(N(0, 1)) for
+the variances; a start with a non-finite log posterior is drawn again with half the step.
 
-* coefficients (and any other unbounded parameter) at their prior median (0 for the paper's
-  Laplace prior), moved inside the bounds;
-* the process-noise variance at the variance of the data (over time and components), and the
-  observation-noise variance at a tenth of it (a relative variance of multiplicative noise at
-  0.1, about 30 % relative noise);
-* a learned initial state at its prior's centre (the first observation).
-
-With all coefficients at zero the model alone is a free particle, but the large process
-noise makes the filter follow the data, so the likelihood is smooth and informative; as the
-optimiser lowers the process variance it moves to the deterministic fit (a homotopy that the
-marginal likelihood gives for free). Starting instead from prior draws fails: coefficients
-drawn from Laplace(0, 10) make most trajectories escape to infinity.
-
-Starts 1, 2, ... perturb the default start: each unbounded parameter by a normal draw of
-standard deviation ``start_spread`` × its prior's standard deviation (0.02 × 14.1 = 0.28 for
-the coefficients under Laplace(0, 10)), each variance by a factor exp(N(0, 1)); a start
-with a non-finite log posterior is drawn again with half the perturbation (up to 8 times).
-Draws use ``jax.random.fold_in(jax.random.key(seed), k)`` for start k.
+When the model or the data do not allow a data start (a nonlinear observation operator,
+unmeasured positions, fewer than five observations), start 0 is the **default start**
+(:func:`~.map_starts.default_start`): coefficients at their prior median, the process
+variance at the data's variance and the observation variance at a tenth of it, a learned
+initial state at its prior's centre; starts 1, ... then perturb it by ``start_spread`` ×
+each prior's standard deviation (variances by a factor exp(N(0, 1))). Draws use
+``jax.random.fold_in(jax.random.key(seed), k)`` for start k.
 
 A non-finite objective (a failed filter, an overflow) is returned to L-BFGS-B as a large
 value, so its line search backs off. A start counts as converged only when L-BFGS-B says so
 and the Newton decrement ½ gᵀH⁻¹g there is below 1e-3 (see :class:`StartResult`); the best
-start (highest log posterior) gives the MAP whether or not the others converged.
+start (highest log posterior) gives the MAP. It is reported failed (``success`` False, the
+reason in ``failure``, a :class:`MapConvergenceWarning`) when it did not converge, never
+moved from its start, is not a maximum, or explains the data as noise
+(:mod:`symplid.inference.map_checks`); at a point that is no optimum the evidence is NaN.
 
 The Hessian, the covariance and the Laplace evidence are :mod:`symplid.inference.laplace`'s;
 ``MapResult.log_evidence`` integrates the variances on their log scale by quadrature
@@ -54,26 +57,25 @@ recorded as ``MapResult.optima`` and reported in one line (:class:`MultipleOptim
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.optimize
 
 from symplid.compiled import cached_or_built
 from symplid.inference.evidence import EvidenceSettings, quadrature_evidence
 from symplid.inference.laplace import (
     hessian_function,
     laplace_covariance,
-    newton_decrement,
     scan_from_bound,
 )
+from symplid.inference.map_checks import failure_message, is_optimum, judge, model_free_noise
+from symplid.inference.map_data_start import data_start
 from symplid.inference.map_result import (
     BoundWarning,
     MapConvergenceWarning,
@@ -81,11 +83,14 @@ from symplid.inference.map_result import (
     MultipleOptimaWarning,
     StartResult,
 )
+from symplid.inference.map_search import Objective, judge_with_hessian, run_start
 from symplid.inference.map_starts import (
     as_theta,
     default_start,
     distinct_optima,
+    homotopy_start,
     perturbed_start,
+    scaled_start,
     warn_optima,
 )
 from symplid.model.params import ParameterSpace, SearchSpace
@@ -127,21 +132,6 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
     }
 
 
-class _Objective:
-    """−log π in the search space (compiled) and log π of θ through it."""
-
-    def __init__(self, space: SearchSpace, value_and_grad: Callable) -> None:
-        self.space = space
-        self.value_and_grad = value_and_grad
-
-    def log_density(self, theta: np.ndarray) -> float:
-        # through the compiled search function: no second compilation for plain values
-        return -float(self.value_and_grad(jnp.asarray(self.space.to_u(theta)))[0])
-
-    def is_finite(self, theta: np.ndarray) -> bool:
-        return bool(np.isfinite(self.log_density(theta)))
-
-
 # ----------------------------------------------------------------------------- the search
 def find_map(
     posterior: Any,
@@ -169,12 +159,14 @@ def find_map(
     seed
         Seed of the perturbed starts (start k uses ``fold_in(key(seed), k)``).
     num_starts
-        Number of L-BFGS-B runs; the first starts at ``init`` or the default start.
+        Number of L-BFGS-B runs; the first starts at ``init``, else at the data start (else
+        the default start); see "Starting points" in the module docstring.
     init
         First start: an array, a ``{name: value}`` mapping (the others at the default start)
         or a previous :class:`MapResult`. The further starts perturb it.
     start_spread
-        Perturbation of the further starts, as a fraction of each prior's standard deviation.
+        Perturbation of the further starts, as a fraction of each prior's standard
+        deviation, where no data start sets each parameter's own scale.
     positive_floor
         Smallest value searched for a parameter bounded below only (above its bound).
     maxiter, ftol, gtol, maxcor
@@ -188,7 +180,7 @@ def find_map(
         Laplace evidence only (no extra fits). Both are recorded when computed.
     warn
         Warn (:class:`BoundWarning`) when the MAP is on a bound, and
-        (:class:`MapConvergenceWarning`) when no start converged.
+        (:class:`MapConvergenceWarning`) when the search failed (``MapResult.failure``).
 
     Returns
     -------
@@ -200,17 +192,17 @@ def find_map(
     parameter_space = ParameterSpace.of(posterior)
     space = parameter_space.search(positive_floor)
     fns = _compiled(posterior, space)
-    objective = _Objective(space, fns["value_and_grad"])
+    objective = Objective(space, fns["value_and_grad"])
     options = {"maxiter": int(maxiter), "ftol": float(ftol), "gtol": float(gtol),
                "maxcor": int(maxcor)}
     starts = _starts(posterior, objective, init, seed, int(num_starts), start_spread, names)
-    results = [_run_start(theta0, objective, options) for theta0 in starts]
+    results = [run_start(theta0, objective, options) for theta0 in starts]
     hessians: list[np.ndarray | None] = [None] * len(results)
     if compute_hessian:
         for k, r in enumerate(results):
             if np.isfinite(r.log_posterior):
                 hessians[k] = np.asarray(fns["hessian"](jnp.asarray(r.theta)), dtype=float)
-                results[k] = _judge_with_hessian(r, hessians[k], objective)
+                results[k] = judge_with_hessian(r, hessians[k], objective)
     k_best = max(
         range(len(results)),
         key=lambda k: (
@@ -220,33 +212,40 @@ def find_map(
     best = results[k_best]
     u_best = space.to_u(best.theta)
     at_bounds = tuple(n for n, hit in zip(names, space.at_bounds(u_best), strict=True) if hit)
+    if compute_hessian and hessians[k_best] is None:
+        hessians[k_best] = np.asarray(fns["hessian"](jnp.asarray(best.theta)), dtype=float)
+    failure = judge(best, tuple(results), hessians[k_best], space,
+                    tuple(parameter_space.groups), model_free_noise(posterior),
+                    given_start=init is not None)
     laplace: tuple[Any, Any, bool, float] = (None, None, False, math.nan)
     if compute_hessian:
-        hessian = hessians[k_best]
-        if hessian is None:
-            hessian = np.asarray(fns["hessian"](jnp.asarray(best.theta)), dtype=float)
         bound_idx = [names.index(n) for n in at_bounds]
-        laplace = (hessian, *_laplace(hessian, best, bound_idx, objective, u_best, warn))
+        laplace = (hessians[k_best],
+                   *_laplace(hessians[k_best], best, bound_idx, objective, u_best, warn))
+        if not is_optimum(failure):  # no evidence at a point that is not an optimum
+            laplace = (*laplace[:3], math.nan)
     log_evidence, method, details = laplace[3], "laplace" if compute_hessian else "none", {}
-    if compute_hessian and evidence == "quadrature" and np.isfinite(best.log_posterior):
+    if (compute_hessian and evidence == "quadrature" and np.isfinite(best.log_posterior)
+            and is_optimum(failure)):
         log_evidence, method, details = _quadrature(
             fns, space, parameter_space.groups, names, best.theta, laplace[3])
     optima = distinct_optima(results, laplace[1], space)
     if warn:
-        _warn_outcome(best, results, at_bounds, names, space, u_best)
+        _warn_outcome(best, failure, at_bounds, names, space, u_best)
         warn_optima(optima, len(results))
     settings = {
         "num_starts": int(num_starts), "start_spread": float(start_spread),
         "positive_floor": float(positive_floor), **options, "init": init is not None,
     }
     return MapResult(
-        theta=best.theta, log_posterior=float(best.log_posterior), success=bool(best.success),
+        theta=best.theta, log_posterior=float(best.log_posterior),
+        success=not failure,
         message=best.message, num_starts=int(num_starts), starts=tuple(results),
         hessian=laplace[0], covariance=laplace[1], covariance_repaired=laplace[2],
         log_evidence=log_evidence, param_names=names, at_bounds=at_bounds, seed=int(seed),
         seconds=time.perf_counter() - t_begin, settings=settings,
         log_evidence_laplace=laplace[3], evidence_method=method, evidence=details,
-        optima=optima,
+        optima=optima, failure=failure,
     )
 
 
@@ -279,16 +278,23 @@ def _check_options(
 
 def _starts(
     posterior: Any,
-    objective: _Objective,
+    objective: Objective,
     init: Any,
     seed: int,
     num_starts: int,
     spread: float,
     names: tuple[str, ...],
 ) -> list[np.ndarray]:
-    """Start 0 (``init`` or the default start), then ``num_starts − 1`` perturbed ones."""
+    """Start 0 (``init``, the data start or the default start), then ``num_starts − 1`` more
+    ("Starting points" in the module docstring)."""
     default = default_start(posterior)
-    first = default if init is None else as_theta(init, posterior, default)
+    found = data_start(posterior, default) if init is None else None
+    if found is not None and not objective.is_finite(found.theta):
+        found = None
+    if init is not None:
+        first = as_theta(init, posterior, default)
+    else:
+        first = default if found is None else found.theta
     if not objective.is_finite(first):
         where = "init" if init is not None else "the default start"
         raise ValueError(
@@ -297,18 +303,28 @@ def _starts(
             "pass init=... at a point where the model can be evaluated"
         )
     root = jax.random.key(int(seed))
-    return [first] + [
-        perturbed_start(jax.random.fold_in(root, k), posterior, objective.space, first, spread,
-                        objective.is_finite)
-        for k in range(1, num_starts)
-    ]
+    if found is None:
+        return [first] + [
+            perturbed_start(jax.random.fold_in(root, k), posterior, objective.space, first,
+                            spread, objective.is_finite)
+            for k in range(1, num_starts)
+        ]
+    starts = [first]
+    homotopy = homotopy_start(posterior, first, default)
+    if num_starts > 1 and objective.is_finite(homotopy):
+        starts.append(homotopy)
+    while len(starts) < num_starts:
+        key = jax.random.fold_in(root, len(starts))
+        starts.append(scaled_start(key, objective.space, first, found.scale,
+                                   objective.is_finite))
+    return starts
 
 
 def _laplace(
     hessian: np.ndarray,
     best: StartResult,
     bound_idx: list[int],
-    objective: _Objective,
+    objective: Objective,
     u_best: np.ndarray,
     warn: bool,
 ) -> tuple[np.ndarray, bool, float]:
@@ -334,14 +350,14 @@ def _laplace(
 
 def _warn_outcome(
     best: StartResult,
-    results: Sequence[StartResult],
+    failure: str,
     at_bounds: tuple[str, ...],
     names: tuple[str, ...],
     space: SearchSpace,
     u_best: np.ndarray,
 ) -> None:
-    """:class:`BoundWarning` for a MAP on a bound; :class:`MapConvergenceWarning` when no
-    start converged."""
+    """:class:`BoundWarning` for a MAP on a bound; :class:`MapConvergenceWarning` when the
+    search failed (:mod:`symplid.inference.map_checks`)."""
     if at_bounds:
         desc = []
         for n in at_bounds:
@@ -358,139 +374,8 @@ def _warn_outcome(
             BoundWarning,
             stacklevel=3,
         )
-    if not any(r.success for r in results):
-        warnings.warn(
-            f"no start of the MAP search converged (best: {best.message}); try more starts, "
-            "a better init or a larger maxiter",
-            MapConvergenceWarning,
-            stacklevel=3,
-        )
-
-
-def _snap_to_floor(
-    theta: np.ndarray,
-    log_post: float,
-    space: SearchSpace,
-    log_density: Callable[[np.ndarray], float],
-) -> tuple[np.ndarray, float]:
-    """Move a log-searched parameter whose optimum is its bound onto the floor.
-
-    In u = log(θ − a) the gradient vanishes as θ → a, so the search stops short of a bound
-    that is the optimum. A parameter is moved to the floor when the log posterior there is
-    not lower (within 1e-10 relative); it is then reported on its bound.
-    """
-    theta = np.array(theta, dtype=float)
-    floor_value = space.lower + space.floor
-    for i in np.flatnonzero(space.log):
-        if theta[i] <= floor_value[i]:
-            continue
-        trial = theta.copy()
-        trial[i] = floor_value[i]
-        value = log_density(trial)
-        if np.isfinite(value) and value >= log_post - 1e-10 * max(1.0, abs(log_post)):
-            theta, log_post = trial, max(value, log_post)
-    return theta, log_post
-
-
-def _run_start(theta0: np.ndarray, objective: _Objective, options: dict[str, Any]) -> StartResult:
-    """L-BFGS-B from θ0; then the floor snap, and a second run from there if it moved."""
-    t0 = time.perf_counter()
-    space, value_and_grad = objective.space, objective.value_and_grad
-    u0 = space.to_u(theta0)
-    f0 = float(value_and_grad(jnp.asarray(u0))[0])
-    penalty = 1e10 + 1e3 * abs(f0)
-    bounds = space.bounds()
-
-    def fun(u: np.ndarray) -> tuple[float, np.ndarray]:
-        value, grad = value_and_grad(jnp.asarray(u))
-        value = float(value)
-        grad = np.asarray(grad, dtype=float)
-        if not (np.isfinite(value) and np.all(np.isfinite(grad))):
-            return penalty, np.zeros_like(u)
-        return value, grad
-
-    def search(u: np.ndarray) -> Any:
-        return scipy.optimize.minimize(
-            fun,
-            u,
-            jac=True,
-            method="L-BFGS-B",
-            bounds=bounds,
-            options={**options, "maxfun": 4 * options["maxiter"]},
-        )
-
-    res = search(u0)
-    iterations, evaluations = int(res.nit), int(res.nfev)
-    theta = np.asarray(space.to_theta(jnp.asarray(res.x)), dtype=float)
-    snapped, _ = _snap_to_floor(theta, -float(res.fun), space, objective.log_density)
-    if not np.array_equal(snapped, theta):
-        again = search(space.to_u(snapped))
-        iterations, evaluations = iterations + int(again.nit), evaluations + int(again.nfev)
-        if again.fun <= res.fun:
-            res = again
-    value, grad = value_and_grad(jnp.asarray(res.x))
-    value = float(value)
-    log_post = -value if np.isfinite(value) else -math.inf
-    projected = _projected_gradient(np.asarray(res.x), np.asarray(grad, dtype=float), bounds)
-    converged = (
-        bool(res.success) and np.isfinite(log_post) and projected <= 1e-3 * max(1.0, abs(log_post))
-    )
-    message = res.message if isinstance(res.message, str) else str(res.message)
-    return StartResult(
-        start=np.asarray(theta0, dtype=float),
-        theta=np.asarray(space.to_theta(jnp.asarray(res.x)), dtype=float),
-        log_posterior=log_post,
-        success=converged,
-        message=message,
-        num_iterations=iterations,
-        num_evaluations=evaluations,
-        seconds=time.perf_counter() - t0,
-        projected_gradient=projected,
-    )
-
-
-def _judge_with_hessian(
-    result: StartResult, hessian: np.ndarray, objective: _Objective
-) -> StartResult:
-    """Convergence by the Newton decrement ½ gᵀH⁻¹g over the parameters off the bounds.
-
-    The decrement is the log-posterior gain a Newton step would promise: scale-free, unlike
-    the gradient, and robust to the small-scale roughness a filter with almost no process
-    noise can show. A start converged when the decrement is < 1e-3 and L-BFGS-B stopped by
-    its own test or because its line search could gain nothing more ("ABNORMAL" termination:
-    at the optimum the objective's rounding-level roughness is all a line search sees);
-    a start stopped by the iteration limit has not converged.
-    """
-    space = objective.space
-    u = space.to_u(result.theta)
-    grad_u = np.asarray(objective.value_and_grad(jnp.asarray(u))[1], dtype=float)
-    scale = np.where(space.log, result.theta - np.where(space.log, space.lower, 0.0), 1.0)
-    free = ~space.at_bounds(u)
-    decrement = math.inf
-    if np.all(np.isfinite(grad_u)) and np.all(np.isfinite(hessian)):
-        g = -(grad_u / scale)[free]  # gradient of log π in θ
-        decrement = newton_decrement(g, hessian[np.ix_(free, free)])
-    message = result.message.upper()
-    stopped_itself = "CONVERGENCE" in message or "ABNORMAL" in message
-    lbfgs_ok = stopped_itself and np.isfinite(result.log_posterior)
-    return dataclasses.replace(
-        result, success=bool(lbfgs_ok and decrement < 1e-3), newton_decrement=decrement
-    )
-
-
-def _projected_gradient(
-    u: np.ndarray, grad: np.ndarray, bounds: Sequence[tuple[float | None, float | None]]
-) -> float:
-    """Largest component of the gradient of −log π that a move inside the bounds can use."""
-    if not np.all(np.isfinite(grad)):
-        return math.inf
-    g = grad.copy()
-    for i, (lo, hi) in enumerate(bounds):
-        if lo is not None and u[i] <= lo and g[i] > 0:
-            g[i] = 0.0
-        if hi is not None and u[i] >= hi and g[i] < 0:
-            g[i] = 0.0
-    return float(np.max(np.abs(g))) if g.size else 0.0
+    if failure:
+        warnings.warn(failure_message(failure), MapConvergenceWarning, stacklevel=3)
 
 
 __all__ = [

@@ -96,7 +96,9 @@ class MapResult:
     log_posterior
         log π(θ*) + log L(θ*), the unnormalised log posterior at the MAP.
     success, message
-        Convergence of the best start, as reported by L-BFGS-B.
+        Whether the best point is a MAP to report: it converged, moved from its start, is a
+        maximum, and its noise does not contradict the data (``failure`` empty); and
+        L-BFGS-B's message for the best start.
     num_starts, starts
         How many starts were run, and each one's result (best first is *not* implied: in
         the order they were run).
@@ -125,6 +127,9 @@ class MapResult:
         The distinct optima the starts ended in, best first
         (:func:`~symplid.inference.map_starts.distinct_optima`); more than one means the log
         posterior has several local maxima within reach of the starts.
+    failure
+        Why the search failed ("" when it did not; :mod:`symplid.inference.map_checks`).
+        Where the best point is no optimum, ``log_evidence`` is NaN.
     """
 
     theta: np.ndarray
@@ -146,6 +151,7 @@ class MapResult:
     evidence_method: str = "laplace"
     evidence: dict[str, Any] = field(default_factory=dict)
     optima: tuple[Optimum, ...] = ()
+    failure: str = ""
 
     @property
     def optima_spread(self) -> float:
@@ -187,6 +193,7 @@ class MapResult:
             "evidence_method": str(self.evidence_method),
             "evidence": dict(self.evidence),
             "optima": [o.to_dict() for o in self.optima],
+            "failure": str(self.failure),
             "at_bounds": list(self.at_bounds),
             "seed": int(self.seed),
             "seconds": float(self.seconds),
@@ -235,6 +242,7 @@ class MapResult:
             evidence_method=str(d.get("evidence_method", "laplace")),
             evidence=dict(d.get("evidence", {})),
             optima=tuple(Optimum.from_dict(o) for o in d.get("optima", ())),
+            failure=str(d.get("failure", "")),
         )
 
     def __repr__(self) -> str:
@@ -242,6 +250,8 @@ class MapResult:
             f"MapResult(log_posterior={self.log_posterior:.6g}, success={self.success}, "
             f"starts={self.num_starts}, log_evidence={self.log_evidence:.6g})"
         ]
+        if self.failure:
+            lines.append(f"  failed: the best point {self.failure}")
         std = self.std
         for i, name in enumerate(self.param_names):
             sd = "" if std is None else f" ± {std[i]:.3g}"

@@ -195,4 +195,45 @@ def warn_optima(optima: Sequence[Optimum], num_starts: int) -> None:
     )
 
 
-__all__ = ["as_theta", "default_start", "distinct_optima", "perturbed_start", "warn_optima"]
+
+
+def scaled_start(
+    key: Array,
+    space: SearchSpace,
+    base: np.ndarray,
+    scale: np.ndarray,
+    is_finite: Callable[[np.ndarray], bool],
+    max_halvings: int = 8,
+) -> np.ndarray:
+    """``base`` perturbed on each parameter's own scale: θ_i + scale_i · N(0, 1) for a
+    parameter searched as itself, θ_i · exp(N(0, 1)) for one searched on a log scale (the
+    variances); redrawn with half the step while the log posterior is not finite."""
+    d = base.shape[0]
+    noise = np.asarray(jax.random.normal(key, (d,), dtype=jnp.float64))
+    scale = np.where(np.isfinite(scale) & (scale > 0), scale, np.maximum(np.abs(base), 1e-8))
+    u_base = space.to_u(base)
+    step = np.where(space.log, 1.0, scale) * noise
+    bounds = space.bounds()
+    lo = np.array([-np.inf if b[0] is None else b[0] for b in bounds])
+    hi = np.array([np.inf if b[1] is None else b[1] for b in bounds])
+    for _ in range(max_halvings + 1):
+        theta = np.asarray(space.to_theta(jnp.asarray(np.clip(u_base + step, lo, hi))))
+        if is_finite(theta):
+            return theta
+        step = 0.5 * step
+    return base.copy()
+
+
+def homotopy_start(posterior: Any, base: np.ndarray, default: np.ndarray) -> np.ndarray:
+    """``base`` with the variances of the default start (a process variance as large as the
+    data's): the filter then follows the data whatever the dynamics, and the search lowers
+    the process noise towards the deterministic fit (module docstring of :mod:`.map`)."""
+    groups = np.asarray(getattr(posterior, "param_groups", ("",) * base.size))
+    variance = np.isin(groups, ("process_var", "obs_var", "obs_rel_var"))
+    return np.where(variance, default, base)
+
+
+__all__ = [
+    "as_theta", "default_start", "distinct_optima", "homotopy_start", "perturbed_start",
+    "scaled_start", "warn_optima",
+]

@@ -31,10 +31,15 @@ UNOBSERVED_SCALE_FACTOR = 3.0
 
 
 class FirstObservation(NamedTuple):
-    """y_1 of a trajectory whose initial state sits at the first observation time."""
+    """y_1 of a trajectory whose initial state sits at the first observation time.
+
+    ``process_noise``: add the model's process-noise covariance Σ to P0 before y_1's update
+    (a learned initial state with the default P0; see :func:`first_observation_update`).
+    """
 
     y: np.ndarray  # observed components of y_1
     index: np.ndarray  # their positions in y
+    process_noise: bool = False
 
 
 def state_names(dim: int) -> tuple[str, ...]:
@@ -91,6 +96,12 @@ def as_P0(value: Any, n: int, k: int) -> np.ndarray:
     if np.min(np.linalg.eigvalsh(P0)) < 0:
         raise ValueError(f"P0 of trajectory {k} must be positive semi-definite")
     return P0
+
+
+def is_point_mass(P0: np.ndarray) -> bool:
+    """Whether P0 describes a point rather than a distribution (every entry ≤ 1e-12, the
+    filter's jitter; the default :data:`KNOWN_P0` is one)."""
+    return bool(np.max(np.abs(P0)) <= 1e-12)
 
 
 def as_x0(value: Any, n: int, K: int, required: bool) -> list[np.ndarray] | None:
@@ -229,6 +240,13 @@ def first_observation_update(
 ) -> tuple[Array, Array, Array]:
     """Condition N(x0, P0) on y_1: (mean, covariance, log p(y_1)), eqs 11–12.
 
+    With ``first.process_noise`` the prior of the update is N(x0, P0 + Σ): y_1 meets the
+    state after one process-noise increment, like every later observation. This is what a
+    *learned* initial state at the first observation time needs: with P0 ≈ 0, p(y_1 | x0)
+    = N(y_1; h(x0), Γ) grows without bound as x0 → y_1 and Γ → 0 while Σ absorbs the noise
+    of the other observations, a degenerate optimum with Γ on its floor and x0 on the
+    datum; with Σ in the update the variance of y_1 is Σ + Γ and that ridge disappears.
+
     The observation operator is used through its matrix when linear (exact), else linearised
     at x0 (ŷ = h(x0), H = ∂h/∂x at x0); the update is the filter's
     :func:`~symplid.filters.gaussian_update` over the observed components of y_1.
@@ -248,7 +266,9 @@ def first_observation_update(
 
         y_hat = h(x0)
         H = jax.jacfwd(h)(x0)
-    _, _, obs_cov = model.split(model_theta)
+    _, proc_cov, obs_cov = model.split(model_theta)
+    if first.process_noise:
+        P0 = P0 + proc_cov
     R = obs_cov[np.ix_(idx, idx)]
     cross = P0 @ H.T
     moments = ObservationMoments(y_hat, H @ cross, cross)
@@ -269,6 +289,7 @@ __all__ = [
     "as_x0",
     "first_observation_update",
     "initial_state_prior",
+    "is_point_mass",
     "per_trajectory",
     "split_first",
     "state_names",

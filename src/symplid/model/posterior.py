@@ -39,7 +39,13 @@ state is a parameter, not a random variable of the filter.
 
 ``t0=None`` puts the initial state at the **first observation time**: the filter starts there
 and y_1 enters through an exact Kalman update of N(x0, P0) (the observation operator
-linearised at x0 if it is a function; exact for a linear one). This is the natural choice for
+linearised at x0 if it is a function; exact for a linear one). A *learned* initial state
+with the default P0 (any P0 ≤ 1e-12·I: a point, not a distribution) is updated from
+N(x0, P0 + Σ) instead, Σ the process-noise covariance: y_1 then meets the state after one
+process-noise increment like every later observation, and enters the likelihood once, with
+the variance Σ + Γ. With P0 ≈ 0 alone, x0 would sit on y_1 with Γ on its floor (a
+likelihood that grows without bound there while Σ carries the other observations' noise);
+a P0 larger than 1e-12 is used as given. This is the natural choice for
 measured data with an unknown initial state, because the prior's centre y_1 then refers to the
 same time as the state. The default ``t0=0.0`` is the paper's convention (the first datum one
 gap after t = 0).
@@ -67,6 +73,7 @@ from symplid.model.initial_state import (
     data_scale,
     first_observation_update,
     initial_state_prior,
+    is_point_mass,
     per_trajectory,
     split_first,
     state_names,
@@ -206,6 +213,8 @@ class Posterior:
         self._static: list[tuple] = []
         for k, obs in enumerate(self.datasets):
             rest, start, first = split_first(obs, self.t0[k], k)
+            if first is not None and self.learn_initial_state and is_point_mass(self.P0[k]):
+                first = first._replace(process_noise=True)
             leaves, treedef = jax.tree_util.tree_flatten(self.model.prepare(rest, start))
             arrays = tuple(jnp.asarray(v) for v in leaves if _is_array_leaf(v))
             static = tuple((i, v) for i, v in enumerate(leaves) if not _is_array_leaf(v))

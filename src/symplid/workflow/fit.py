@@ -25,6 +25,8 @@ from symplid.dynamics.families import build_family, family_of
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.homotopy import filter_start
 from symplid.inference.map import find_map
+from symplid.inference.map_checks import MapFailedError, failure_message
+from symplid.inference.map_result import MapConvergenceWarning
 from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
 from symplid.io import as_list, observation_layout
 from symplid.model.data import Observations
@@ -120,8 +122,16 @@ def find_map_for(settings: Settings, posterior) -> Any:
         # without process noise: start from the filter's MAP (symplid.inference.homotopy);
         # otherwise from a user model's declared starts, if any
         init = filter_start(posterior, seed=m.seed, num_starts=m.num_starts)
-        return find_map(posterior, seed=m.seed, num_starts=m.num_starts, evidence=m.evidence,
-                        init=map_start(settings) if init is None else init)
+        # a failed search is raised by the caller in one line: its warnings would only repeat
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = find_map(posterior, seed=m.seed, num_starts=m.num_starts,
+                              evidence=m.evidence,
+                              init=map_start(settings) if init is None else init)
+        for w in caught if not result.failure else ():
+            if not issubclass(w.category, MapConvergenceWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return result
     from symplid.inference.neural_fit import find_map_neural
 
     start = time.perf_counter()
@@ -190,7 +200,9 @@ def fit(
     with Ctrl-C (or SIGTERM, see :mod:`symplid.workflow.interrupts`) keeps the draws it made:
     they are saved, with SIGINT and SIGTERM held while the files are written, and the folder
     is marked ``interrupted`` (readers refuse it with a message that says what to do). A
-    failure or an interruption before sampling records its reason in the marker. ``warn``
+    failure or an interruption before sampling records its reason in the marker; a MAP
+    search that failed (:mod:`symplid.inference.map_checks`) raises
+    :class:`~symplid.inference.map_checks.MapFailedError` before any sampling. ``warn``
     issues :class:`~symplid.inference.diagnostics.ConvergenceWarning` for R-hat and ESS;
     ``status`` receives a one-line message before the (silent) MAP search and compilation.
     """
@@ -232,6 +244,8 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     model = build_model(fit_settings, fit_obs)
     posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior)
+    if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map_checks)
+        raise MapFailedError(failure_message(map_fit.failure))
     groups = posterior.param_groups
     map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
     timings["map_s"] = time.perf_counter() - start

@@ -1,0 +1,353 @@
+"""Starting values and scales of the MAP search from the data (a smoothed path and collocation).
+
+The MAP search needs a start near the answer and steps on each parameter's own scale. Neither
+can come from the prior alone: a default prior such as Laplace(0, 10) knows nothing of the
+units, and a gravitational parameter is 3e-4 in AU³/day² but 39.5 in AU³/yr². This module
+reads both from the data, in three cheap steps that use no filter:
+
+1. **Smoothed path.** Each measured component's noise variance is estimated without a model,
+   by difference estimators (:func:`difference_variance`: mean((Δᵏy)²)/C(2k, k), the
+   smallest over k = 2, 3, 4). Each measured position component of each trajectory is then
+   fitted by a cubic smoothing spline (:func:`scipy.interpolate.make_smoothing_spline`) whose
+   roughness penalty is set so that its mean squared residual equals that variance (the
+   discrepancy principle; cross-validation interpolates a coarsely sampled orbit). The
+   spline gives the path q(t) and the velocity q̇(t) at the observation times.
+2. **Collocation fit.** With the smoothed q_i and q̇_i at the observation times t_i held
+   fixed, the dynamic parameters φ (the potential's or Hamiltonian's coefficients and a
+   damping rate) and the unobserved momenta p_i are fitted together by nonlinear least
+   squares (trust-region reflective, exact Jacobian by JAX) to Hamilton's equations::
+
+       q̇_i − ∂H/∂p(q_i, p_i; φ)                                  (velocity residual)
+       p_{i+1} − p_i − ½ h_i [g(q_i, p_i) + g(q_{i+1}, p_{i+1})]   (trapezoidal momentum step)
+
+   with g = −∂H/∂q − γ ∂H/∂p (γ: the damping rate of a damped model), h_i = t_{i+1} − t_i,
+   each residual divided by the typical size of its term; measured momenta add
+   p_i − y_i residuals. A long record is thinned evenly to at most :data:`MAX_NODES` nodes.
+   The fit starts at the prior medians and p_i = q̇_i. The positions being held fixed, a
+   separable H whose potential is linear in its parameters (Kepler's GM, a polynomial)
+   makes every residual linear in (φ, p): one linear least-squares problem; a general H
+   gives a small nonlinear one.
+3. **Scales.** The least-squares covariance s²(JᵀJ)⁻¹ gives each parameter's standard error.
+   Starts after the first are spread by max(3 × that error, 10 % of the value) for the dynamic
+   parameters, by the noise's standard deviation (positions) and the momenta's standard
+   error (momenta) for a learned initial state, and by a factor exp(N(0, 1)) for the
+   variances.
+
+The noise variances start from the data: each observation variance at its difference
+estimate, the process variance at the mean squared defect of the collocation's momentum step
+(what the fitted dynamics leave unexplained over one gap). A learned initial state starts on
+the smoothed path at t0 with the fitted momentum (one trapezoidal step back when t0 < t_1).
+
+The method needs a linear observation operator that measures every position directly (rows
+of the form y_j = c·q_i), at least five observations per trajectory, and a separable or
+non-separable H that the model can evaluate; otherwise :func:`data_start` returns None and
+:func:`~symplid.inference.map_starts.default_start` is used.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.optimize
+from scipy.interpolate import make_smoothing_spline
+
+Array = jax.Array
+MIN_POINTS = 5
+"""Fewest observations of a trajectory the smoothing spline is fitted to."""
+MAX_NODES = 300
+"""Most collocation nodes over all trajectories (a longer record is thinned evenly)."""
+DYNAMIC_GROUPS = ("coefficients", "damping")
+
+
+@dataclass(frozen=True)
+class DataStart:
+    """A start of the MAP search read from the data.
+
+    Attributes
+    ----------
+    theta
+        The start (every parameter of the posterior).
+    scale
+        Spread of the further starts per parameter, in θ's units (NaN for the variances,
+        which are perturbed by a factor).
+    noise_var
+        Model-free observation-noise variance per observed component (mean over the
+        trajectories), by :func:`difference_variance`.
+    data_var
+        Variance of the data over time, averaged over the components.
+    """
+
+    theta: np.ndarray
+    scale: np.ndarray
+    noise_var: np.ndarray
+    data_var: float
+
+
+@dataclass(frozen=True)
+class _Smoothed:
+    times: np.ndarray  # (n,)
+    q: np.ndarray  # (n, d)
+    qdot: np.ndarray  # (n, d)
+    p_obs: np.ndarray  # (n, d), NaN where a momentum is not measured
+    t0: float  # time of the initial state
+
+
+def position_rows(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """For each state component, the observation row that measures it alone and its factor
+    c (−1 where none does); None when a position is not measured or h is a function."""
+    matrix = getattr(model, "observation_matrix", None)
+    if matrix is None:
+        return None
+    H = np.asarray(matrix, dtype=float)
+    n = H.shape[1]
+    rows, factors = -np.ones(n, dtype=int), np.ones(n)
+    for j in range(H.shape[0]):
+        nz = np.flatnonzero(H[j])
+        if nz.size == 1 and rows[nz[0]] < 0:
+            rows[nz[0]], factors[nz[0]] = j, H[j, nz[0]]
+    return (rows, factors) if np.all(rows[: n // 2] >= 0) else None
+
+
+def difference_variance(y: np.ndarray) -> float:
+    """A model-free noise variance of a sampled smooth signal: the smallest of the
+    difference estimators mean((Δᵏy)²) / C(2k, k), k = 2, 3, 4 (each is unbiased for white
+    noise and biased upward by the signal, so the smallest is the least contaminated)."""
+    y = y[np.isfinite(y)]
+    values = [float(np.mean(np.diff(y, k) ** 2)) / math.comb(2 * k, k)
+              for k in (2, 3, 4) if y.size > k + 1]
+    return min(values) if values else math.nan
+
+
+def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
+    """A smoothing spline of y(t) over the finite values whose mean squared residual matches
+    the difference estimate of the noise (the discrepancy principle), and that variance."""
+    ok = np.isfinite(y)
+    if ok.sum() < MIN_POINTS:
+        return None
+    t, y = t[ok], y[ok]
+    target = difference_variance(y)
+    if not (math.isfinite(target) and target > 0):
+        return None
+    span = float(t[-1] - t[0])
+    lo, hi = math.log(1e-12 * span**3), math.log(1e6 * span**3)
+
+    def fit(log_lam: float) -> tuple[Any, float]:
+        spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
+        return spline, float(np.mean((y - spline(t)) ** 2))
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            for _ in range(40):  # residual variance grows with λ: bisect on log λ
+                mid = 0.5 * (lo + hi)
+                if fit(mid)[1] > target:
+                    hi = mid
+                else:
+                    lo = mid
+            spline, _ = fit(lo)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+    return spline, target
+
+
+def _smooth(posterior: Any, rows: np.ndarray, factors: np.ndarray):
+    """Each trajectory's smoothed path, and the noise variance per observed component."""
+    d = rows.size // 2
+    paths, noise = [], []
+    for k, obs in enumerate(posterior.datasets):
+        t = np.asarray(obs.times, dtype=float)
+        values = np.where(obs.mask, obs.values, np.nan)
+        q, qdot = np.empty((t.size, d)), np.empty((t.size, d))
+        p_obs = np.full((t.size, d), np.nan)
+        var = np.full(obs.dim, np.nan)
+        for i in range(d):
+            fitted = _spline(t, values[:, rows[i]] / factors[i])
+            if fitted is None:
+                return None
+            q[:, i], qdot[:, i] = fitted[0](t), fitted[0].derivative()(t)
+            var[rows[i]] = fitted[1] * factors[i] ** 2
+        for i in range(d):
+            if rows[d + i] >= 0:
+                p_obs[:, i] = values[:, rows[d + i]] / factors[d + i]
+                var[rows[d + i]] = difference_variance(p_obs[:, i]) * factors[d + i] ** 2
+        t0 = getattr(posterior, "t0", [None] * len(posterior.datasets))[k]
+        keep = _nodes(t.size, max(MIN_POINTS, MAX_NODES // len(posterior.datasets)))
+        paths.append(_Smoothed(t[keep], q[keep], qdot[keep], p_obs[keep],
+                               float(t[0] if t0 is None else t0)))
+        noise.append(var)
+    return paths, np.nanmean(np.vstack(noise), axis=0)
+
+
+def _nodes(n: int, most: int) -> np.ndarray:
+    """At most ``most`` evenly spread indices of n times, the first one always included."""
+    if n <= most:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, most)).astype(int))
+
+
+# ----------------------------------------------------------------------------- collocation
+def _vector_field(model: Any):
+    """(∂H/∂p, g = −∂H/∂q − γ ∂H/∂p) at a batch of states, for model parameters θ_m."""
+
+    def field(theta_m: Array, x: Array) -> tuple[Array, Array]:
+        grad = jax.vmap(jax.grad(lambda s: model.hamiltonian(theta_m, s)))(x)
+        d = x.shape[-1] // 2
+        velocity = grad[:, d:]
+        gamma = model.damping_rate(theta_m) if getattr(model, "damping", False) else 0.0
+        return velocity, -grad[:, :d] - gamma * velocity
+
+    return field
+
+
+def _residual_fn(posterior: Any, paths: list[_Smoothed], dyn: np.ndarray, base: np.ndarray):
+    """The stacked, scaled collocation residuals as a function of z = (φ, p of every path)."""
+    model = posterior.model
+    field = _vector_field(model)
+    d = paths[0].q.shape[1]
+    v_scale = max(float(np.sqrt(np.mean(np.concatenate([p.qdot for p in paths]) ** 2))), 1e-300)
+    a_scale = max(v_scale / float(np.median(np.concatenate([np.diff(p.times) for p in paths]))),
+                  1e-300)
+    sizes = [p.times.size * d for p in paths]
+    num_dyn = dyn.size
+    base_m = jnp.asarray(base[: model.num_params])
+    consts = [(jnp.asarray(p.q), jnp.asarray(p.qdot), jnp.asarray(np.diff(p.times))[:, None],
+               np.isfinite(p.p_obs), jnp.asarray(np.nan_to_num(p.p_obs))) for p in paths]
+
+    def residuals(z: Array) -> Array:
+        theta_m = base_m.at[dyn].set(z[:num_dyn])
+        out, offset = [], num_dyn
+        for (q, qdot, h, measured, p_obs), size in zip(consts, sizes, strict=True):
+            p = z[offset: offset + size].reshape(-1, d)
+            offset += size
+            velocity, g = field(theta_m, jnp.concatenate([q, p], axis=1))
+            out.append(((qdot - velocity) / v_scale).ravel())
+            step = p[1:] - p[:-1] - 0.5 * h * (g[1:] + g[:-1])
+            out.append((step / (h * a_scale)).ravel())
+            if measured.any():
+                out.append(((p - p_obs) / v_scale)[measured])
+        return jnp.concatenate(out)
+
+    return jax.jit(residuals), jax.jit(jax.jacfwd(residuals)), field, a_scale
+
+
+def _collocate(posterior: Any, paths: list[_Smoothed], base: np.ndarray):
+    """(φ, momenta per path, standard errors of z, momentum-step defect variance) or None."""
+    groups = tuple(posterior.param_groups)
+    dyn = np.array([i for i, g in enumerate(groups) if g in DYNAMIC_GROUPS], dtype=int)
+    fun, jac, field, _ = _residual_fn(posterior, paths, dyn, base)
+    z0 = np.concatenate([base[dyn]] + [p.qdot.ravel() for p in paths])
+    lower = np.concatenate([posterior.lower[dyn], np.full(z0.size - dyn.size, -np.inf)])
+    upper = np.concatenate([posterior.upper[dyn], np.full(z0.size - dyn.size, np.inf)])
+    with np.errstate(all="ignore"):
+        try:
+            fit = scipy.optimize.least_squares(
+                lambda z: np.asarray(fun(jnp.asarray(z))),
+                np.clip(z0, lower, upper), jac=lambda z: np.asarray(jac(jnp.asarray(z))),
+                bounds=(lower, upper), method="trf", x_scale="jac", max_nfev=200)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+    if not (np.all(np.isfinite(fit.x)) and np.isfinite(fit.cost)):
+        return None
+    z = fit.x
+    dof = max(fit.fun.size - z.size, 1)
+    s2 = 2.0 * fit.cost / dof
+    with np.errstate(all="ignore"):
+        cov = s2 * np.linalg.pinv(fit.jac.T @ fit.jac)
+    stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    theta_m = jnp.asarray(base[: posterior.model.num_params]).at[dyn].set(z[: dyn.size])
+    momenta, defects, offset = [], [], dyn.size
+    for p in paths:
+        size = p.q.size
+        mom = z[offset: offset + size].reshape(-1, p.q.shape[1])
+        offset += size
+        _, g = field(theta_m, jnp.concatenate([jnp.asarray(p.q), jnp.asarray(mom)], axis=1))
+        h = np.diff(p.times)[:, None]
+        g = np.asarray(g)
+        defects.append((mom[1:] - mom[:-1] - 0.5 * h * (g[1:] + g[:-1])).ravel())
+        momenta.append((mom, g))
+    return dyn, z[: dyn.size], momenta, stderr, float(np.mean(np.concatenate(defects) ** 2))
+
+
+# ----------------------------------------------------------------------------- the start
+def data_start(posterior: Any, default: np.ndarray) -> DataStart | None:
+    """A MAP start and per-parameter scales read from the data (module docstring), or None
+    when the model or the data do not allow it. ``default`` supplies what the data cannot
+    (e.g. relative variances) and the centre of the collocation's first step."""
+    model = getattr(posterior, "model", None)
+    if model is None or not getattr(posterior, "datasets", None) or not hasattr(
+            model, "hamiltonian"):
+        return None
+    found = position_rows(model)
+    if found is None:
+        return None
+    smoothed = _smooth(posterior, *found)
+    if smoothed is None:
+        return None
+    paths, noise_var = smoothed
+    try:  # a start is a heuristic: a model it cannot read falls back to the default start
+        colloc = _collocate(posterior, paths, np.asarray(default, dtype=float))
+    except (TypeError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
+    if colloc is None:
+        return None
+    dyn, phi, momenta, stderr, defect = colloc
+    data_var = _data_var(posterior)
+    theta = np.array(default, dtype=float)
+    scale = np.full(theta.size, np.nan)
+    theta[dyn] = phi
+    scale[dyn] = np.maximum(3.0 * stderr[: dyn.size], 0.1 * np.abs(phi))
+    _set_variances(posterior, theta, noise_var, defect, data_var)
+    if getattr(posterior, "learn_initial_state", False):
+        _set_initial_states(posterior, theta, scale, paths, momenta, noise_var)
+    lower, upper = np.asarray(posterior.lower), np.asarray(posterior.upper)
+    theta = np.clip(theta, lower, upper)
+    if not np.all(np.isfinite(theta)):
+        return None
+    return DataStart(theta, scale, noise_var, data_var)
+
+
+def _data_var(posterior: Any) -> float:
+    with np.errstate(all="ignore"):
+        values = [np.where(o.mask, o.values, np.nan) for o in posterior.datasets]
+        v = float(np.nanmean([np.nanvar(x, axis=0) for x in values]))
+    return v if math.isfinite(v) and v > 0 else 1.0
+
+
+def _set_variances(posterior: Any, theta: np.ndarray, noise_var: np.ndarray, defect: float,
+                   data_var: float) -> None:
+    """Observation variances at the spline's residual variance (per component, or their mean
+    for a shared variance), the process variance at the collocation's defect variance."""
+    groups = np.asarray(posterior.param_groups)
+    floor = 1e-10 * data_var
+    obs = np.flatnonzero(groups == "obs_var")
+    noise = np.where(np.isfinite(noise_var), noise_var, np.nanmean(noise_var))
+    if obs.size == noise.size:
+        theta[obs] = np.maximum(noise, floor)
+    elif obs.size:
+        theta[obs] = max(float(np.mean(noise)), floor)
+    proc = np.flatnonzero(groups == "process_var")
+    if proc.size and math.isfinite(defect):
+        theta[proc] = max(defect, floor)
+
+
+def _set_initial_states(posterior: Any, theta: np.ndarray, scale: np.ndarray,
+                        paths: list[_Smoothed], momenta: list, noise_var: np.ndarray) -> None:
+    """Each learned x0 on the smoothed path at t0 with the fitted momentum there."""
+    for k, (path, (mom, g)) in enumerate(zip(paths, momenta, strict=True)):
+        sl = posterior.initial_state_slice(k)
+        back = path.times[0] - path.t0
+        q0 = path.q[0] - back * path.qdot[0]
+        p0 = mom[0] - back * g[0]
+        theta[sl] = np.concatenate([q0, p0])
+        sd_q = float(np.sqrt(np.nanmean(noise_var)))
+        sd_p = float(np.std(mom)) / max(path.times.size ** 0.5, 1.0)
+        scale[sl] = np.concatenate([np.full(q0.size, sd_q), np.full(p0.size, sd_p)])
+
+
+__all__ = ["MIN_POINTS", "DataStart", "data_start", "difference_variance", "position_rows"]
