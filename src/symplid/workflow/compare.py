@@ -655,7 +655,7 @@ def compare_models(
         one per coefficient name (NaN where a candidate lacks that coefficient).
     """
     fits = fit_candidates(obs, settings, orders, integrators, progress, source, dampings,
-                          process_noises)
+                          process_noises=process_noises)
     table = comparison_table(fits)
     if out is not None:
         n = _num_measured(fits[0])
