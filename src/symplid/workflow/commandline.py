@@ -54,6 +54,12 @@ class UserError(click.ClickException):
         click.echo(f"symplid: error: {self.format_message()}", err=True)
 
 
+class EnvironmentFault(UserError):
+    """One line like a user error, but exit code 1: the disk failed, not the user."""
+
+    exit_code = 1
+
+
 class Interrupted(Exception):
     """A command that was interrupted but kept (and reported) what it had done."""
 
@@ -64,6 +70,7 @@ def user_errors(fn: Callable) -> Callable:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from symplid.io.files import StorageError
         from symplid.model.data import DataError
         from symplid.workflow.interrupts import terminate_as_interrupt
         from symplid.workflow.settings import SettingsError
@@ -75,6 +82,8 @@ def user_errors(fn: Callable) -> Callable:
                 raise UserError(str(err)) from None
             except (ValueError, NotADirectoryError) as err:  # the library's argument checks
                 raise UserError(str(err)) from None
+            except StorageError as err:  # a full disk, a file-size limit: not the user's
+                raise EnvironmentFault(str(err)) from None
             except KeyboardInterrupt as err:
                 kept = ("; the chains' state is kept: continue with 'symplid fit --resume'"
                         if hasattr(err, "checkpoint") else "")

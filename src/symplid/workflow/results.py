@@ -38,6 +38,7 @@ are :mod:`symplid.io.runfiles`; their names are re-exported here.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import os
 import shutil
@@ -48,11 +49,19 @@ from typing import Any, Literal
 import numpy as np
 
 from symplid.io import read_trajectories, write_trajectories
+from symplid.io.files import (
+    StorageError,
+    make_folder,
+    read_with,
+    write_bytes,
+    write_fault,
+    write_text,
+    write_with,
+)
 from symplid.io.runfiles import (
     RunFolderError,
-    atomic_write_text,
     format_summary,
-    netcdf_attrs,
+    netcdf_bytes,
     numeric_arrays,
     read_json,
     restore_attrs,
@@ -170,13 +179,16 @@ class RunFolder:
                     "refusing to overwrite it"
                 )
             self._write_marker("run started (overwriting an earlier run)")
-            for name in self.RUN_FILES:
-                target = path / name
-                if target.is_dir():
-                    shutil.rmtree(target)
-                elif target.exists():
-                    target.unlink()
-        path.mkdir(parents=True, exist_ok=True)
+            try:
+                for name in self.RUN_FILES:
+                    target = path / name
+                    if target.is_dir():
+                        shutil.rmtree(target)
+                    elif target.exists():
+                        target.unlink()
+            except OSError as err:
+                raise write_fault(path, err) from None
+        make_folder(path)
         self._write_marker("run started")
 
     def _looks_like_run(self) -> bool:
@@ -217,8 +229,7 @@ class RunFolder:
 
     def _write_marker(self, reason: str) -> None:
         stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-        self.path.mkdir(parents=True, exist_ok=True)
-        (self.path / self.MARKER).write_text(f"{reason}\n{stamp} pid {os.getpid()}\n")
+        write_text(self.path / self.MARKER, f"{reason}\n{stamp} pid {os.getpid()}\n")
 
     @property
     def is_complete(self) -> bool:
@@ -260,10 +271,13 @@ class RunFolder:
         if self.mode in ("r", "c"):
             return  # "c": the interrupted run's files are untouched until it saves
         if self.mode == "a":
-            (self.path / self.MARKER).unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                (self.path / self.MARKER).unlink(missing_ok=True)
             return
         first_line = (str(reason).strip().splitlines() or ["failed"])[0]
-        self._write_marker(f"failed: {first_line}")
+        # best effort: on a full or read-only disk the marker stays "run started"
+        with contextlib.suppress(RunFolderError, StorageError):
+            self._write_marker(f"failed: {first_line}")
 
     def __enter__(self) -> RunFolder:
         return self
@@ -298,7 +312,7 @@ class RunFolder:
 
     def figure_path(self, name: str) -> Path:
         """``figures/<name>`` (``.png`` added when there is no extension); creates figures/."""
-        self.figures_dir.mkdir(parents=True, exist_ok=True)
+        make_folder(self.figures_dir)
         path = self.figures_dir / name
         return path if path.suffix else path.with_suffix(".png")
 
@@ -336,20 +350,11 @@ class RunFolder:
 
     def write_posterior(self, idata: Any) -> Path:
         """posterior.nc from ArviZ InferenceData (attributes that netCDF cannot hold, such as
-        dictionaries, booleans, None or matrices, are stored as JSON text and restored by
-        :meth:`read_posterior`)."""
+        lists, dictionaries, booleans or None, are stored as JSON text and restored by
+        :meth:`read_posterior`); made in memory, then written atomically
+        (:mod:`symplid.io.files`)."""
         self._check_writable()
-        path = self.file(self.POSTERIOR)
-        tmp = path.with_name(f".{path.name}.tmp")
-        safe = idata.copy()
-        for group in safe.groups():
-            dataset = getattr(safe, group)
-            dataset.attrs = netcdf_attrs(dataset.attrs)
-        if hasattr(safe, "attrs"):
-            safe.attrs = netcdf_attrs(dict(safe.attrs))
-        safe.to_netcdf(str(tmp))
-        os.replace(tmp, path)
-        return path
+        return write_bytes(self.file(self.POSTERIOR), netcdf_bytes(idata))
 
     def write_summary(self, summary: Mapping[str, Any], table: str | None = None) -> Path:
         """summary.json, and summary.txt: :func:`format_summary` plus an optional extra table
@@ -358,50 +363,53 @@ class RunFolder:
         text = format_summary(summary)
         if table:
             text += "\n" + table.rstrip() + "\n"
-        atomic_write_text(self.file(self.SUMMARY_TEXT), text)
+        write_text(self.file(self.SUMMARY_TEXT), text)
         return path
 
     def write_npz(self, name: str, **arrays: Any) -> Path:
         """A compressed NumPy archive in the folder, written atomically."""
         self._check_writable()
-        path = self.file(name)
-        tmp = path.with_name(f".{path.stem}.tmp.npz")
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, path)
-        return path
+        return write_with(self.file(name), lambda buffer: np.savez_compressed(buffer, **arrays))
 
     def save_figure(self, figure: Any, name: str, dpi: int = 150) -> Path:
         """Save a matplotlib figure as ``figures/<name>`` (PNG unless ``name`` has a suffix)."""
         self._check_writable()
         path = self.figure_path(name)
-        tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-        figure.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.replace(tmp, path)
-        return path
+        return write_with(path, lambda buffer: figure.savefig(
+            buffer, format=path.suffix.lstrip(".") or "png", dpi=dpi, bbox_inches="tight"))
 
     def write_report(self, text: str) -> Path:
         """report.md (Markdown; refer to figures as ``figures/<name>.png``)."""
         self._check_writable()
         path = self.file(self.REPORT)
-        atomic_write_text(path, text if text.endswith("\n") else text + "\n")
+        write_text(path, text if text.endswith("\n") else text + "\n")
         return path
 
     # ------------------------------------------------------------------ readers
-    def _need(self, name: str) -> Path:
+    @property
+    def remedy(self) -> str:
+        """What to do about a damaged file of this run (the end of the one-line error)."""
+        if self.mode == "c":
+            return "--resume is impossible: fit again with --overwrite"
+        return "the run is damaged: fit it again (symplid fit ... --overwrite)"
+
+    def _read(self, name: str, reader: Any) -> Any:
+        """``reader(path)`` of the file ``name``; a missing, empty or unreadable file is one
+        :class:`RunFolderError` line naming it and :attr:`remedy`."""
         path = self.file(name)
         if not path.exists():
             raise RunFolderError(f"{self.path}: this run has no {name}")
-        return path
+        return read_with(path, reader, self.remedy)
 
     def read_settings(self) -> Settings:
-        return load_settings(self._need(self.SETTINGS))
+        return self._read(self.SETTINGS, load_settings)
 
     def read_data(self) -> Observations | list[Observations]:
         """The run's data: one :class:`Observations`, or a list for several trajectories."""
-        return read_trajectories([self._need(self.DATA)])
+        return self._read(self.DATA, lambda path: read_trajectories([path]))
 
     def read_json(self, name: str) -> Any:
-        return read_json(self._need(name))
+        return self._read(name, lambda path: read_json(path, self.remedy))
 
     def read_map(self) -> dict[str, Any]:
         """map.json, with every list of numbers turned into a float array."""
@@ -411,21 +419,35 @@ class RunFolder:
         return self.read_json(self.SUMMARY)
 
     def read_report(self) -> str:
-        return self._need(self.REPORT).read_text(encoding="utf-8")
+        return self._read(self.REPORT, lambda path: path.read_text(encoding="utf-8"))
+
+    def read_npz(self, name: str) -> dict[str, np.ndarray]:
+        """Every array of a NumPy archive in the folder (e.g. the sampler state)."""
+
+        def load(path: Path) -> dict[str, np.ndarray]:
+            with np.load(path) as stored:
+                return {key: stored[key] for key in stored.files}
+
+        return self._read(name, load)
 
     def read_posterior(self) -> Any:
         """posterior.nc as InferenceData, loaded into memory (the file is closed)."""
-        import arviz as az
+        return self._read(self.POSTERIOR, _load_posterior)
 
-        path = self._need(self.POSTERIOR)
-        with az.rc_context({"data.load": "eager"}):
-            idata = az.from_netcdf(str(path))
-        for group in idata.groups():
-            dataset = getattr(idata, group)
-            dataset.attrs = restore_attrs(dict(dataset.attrs))
-        if hasattr(idata, "attrs"):
-            idata.attrs = restore_attrs(dict(idata.attrs))
-        return idata
+
+def _load_posterior(path: Path) -> Any:
+    import arviz as az
+
+    with az.rc_context({"data.load": "eager"}):
+        idata = az.from_netcdf(str(path))
+    for group in idata.groups():
+        dataset = getattr(idata, group)
+        dataset.attrs = restore_attrs(dict(dataset.attrs))
+    if hasattr(idata, "attrs"):
+        idata.attrs = restore_attrs(dict(idata.attrs))
+    if not idata.groups():
+        raise ValueError("no groups: not a posterior file")
+    return idata
 
 
 def _check_parents(path: Path) -> None:

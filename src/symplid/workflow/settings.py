@@ -120,6 +120,7 @@ from typing import Any
 import tomli_w
 
 from symplid.dynamics.families import family_of
+from symplid.io.files import write_text
 from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
 from symplid.workflow.settings_schema import (
@@ -413,12 +414,7 @@ _HEADER = (
 
 def dump_settings(settings: Settings, path: str | os.PathLike) -> Path:
     """Write every setting (defaults included) as TOML, atomically; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(_HEADER + tomli_w.dumps(settings_to_dict(settings)), encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_text(path, _HEADER + tomli_w.dumps(settings_to_dict(settings)))
 
 
 # ----------------------------------------------------------------------------- overrides
