@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import io
 import json
 import os
@@ -44,6 +45,8 @@ from typing import BinaryIO, TypeVar
 from symplid.model.data import DataError
 
 __all__ = [
+    "FolderLock",
+    "FolderLockedError",
     "RunFolderError",
     "StorageError",
     "UnwritableError",
@@ -190,3 +193,100 @@ def _first_line(err: BaseException, path: Path) -> str:
     text = str(err).strip().splitlines()
     line = text[0].rstrip(" (") if text else type(err).__name__
     return line.removeprefix(f"{path}: ").split(". ")[0]  # its first sentence
+
+
+# ----------------------------------------------------------------------------- the folder lock
+class FolderLockedError(RunFolderError):
+    """Another process holds the folder's lock (a run is writing it now)."""
+
+
+class FolderLock:
+    """An exclusive ``flock`` on ``<folder>/.lock``, held while one process writes the folder.
+
+    The kernel releases it when the holder closes it or dies (even by SIGKILL), so a lock is
+    never stale. The holder's pid is written into the file, for the message of those refused;
+    the holder removes the file when it is done (a process that opened it just before checks,
+    once it holds the lock, that the file it locked is still the one in the folder).
+    """
+
+    NAME = ".lock"
+
+    def __init__(self, folder: str | os.PathLike) -> None:
+        self.folder = Path(folder)
+        self.path = self.folder / self.NAME
+        self._fd: int | None = None
+
+    @property
+    def held(self) -> bool:
+        """True while this object holds the lock."""
+        return self._fd is not None
+
+    def acquire(self) -> None:
+        """Take the lock now, or raise :class:`FolderLockedError` (one line) at once."""
+        for _ in range(5):
+            if self._fd is not None:
+                return
+            self._try_acquire()
+        raise FolderLockedError(f"{self.folder}: its lock file keeps changing; another "
+                                "process is writing this run folder")
+
+    def _try_acquire(self) -> None:
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as err:
+            raise write_fault(self.folder, err) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise FolderLockedError(
+                f"{self.folder}: another symplid process{self._holder()} is writing this run "
+                "folder now; wait until it ends, or choose another output folder") from None
+        try:  # the holder before us may have removed the file after we opened it
+            current = os.stat(self.path)
+        except FileNotFoundError:
+            current = None
+        mine = os.fstat(fd)
+        if current is None or (current.st_ino, current.st_dev) != (mine.st_ino, mine.st_dev):
+            os.close(fd)
+            return
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+
+    def release(self) -> None:
+        """Give the lock up: the file is removed, then closed (which releases it)."""
+        if self._fd is not None:
+            fd, self._fd = self._fd, None
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+            os.close(fd)
+
+    def held_elsewhere(self) -> bool:
+        """True when another process (or another :class:`FolderLock`) holds the lock."""
+        if self._fd is not None:
+            return False
+        try:
+            fd = os.open(self.path, os.O_RDONLY)
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        finally:
+            os.close(fd)  # closing releases the shared lock taken to probe
+        return False
+
+    def holder(self) -> int | None:
+        """The pid written by the holder (None when unknown)."""
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            return int(self.path.read_text().split()[0])
+        return None
+
+    def _holder(self) -> str:
+        pid = self.holder()
+        return "" if pid is None else f" (pid {pid})"
+
+    def __del__(self) -> None:
+        self.release()

@@ -50,6 +50,8 @@ import numpy as np
 
 from symplid.io import read_trajectories, write_trajectories
 from symplid.io.files import (
+    FolderLock,
+    FolderLockedError,
     StorageError,
     make_folder,
     read_with,
@@ -151,15 +153,18 @@ class RunFolder:
         self.path = Path(path)
         self.mode: Mode = mode
         self._finished = False
+        self._lock = FolderLock(self.path)
         if mode == "w":
             _check_parents(self.path)
             self._create(overwrite)
         elif mode == "c":
             self._check_existing(allow_incomplete=True)
+            self._lock.acquire()
             self._check_resumable()
         else:
             self._check_existing(allow_incomplete)
             if mode == "a":
+                self._lock.acquire()
                 self._write_marker(f"{self.UPDATE} started")
 
     # ------------------------------------------------------------------ state
@@ -167,7 +172,8 @@ class RunFolder:
         path = self.path
         if path.exists() and not path.is_dir():
             raise RunFolderError(f"{path}: exists and is not a folder")
-        if path.is_dir() and any(path.iterdir()):
+        overwriting = path.is_dir() and any(p.name != FolderLock.NAME for p in path.iterdir())
+        if overwriting:
             if not overwrite:
                 raise RunFolderError(
                     f"{path}: the folder already exists and is not empty; choose another "
@@ -178,6 +184,9 @@ class RunFolder:
                     f"{path}: not a run folder (no {self.SETTINGS} or {self.MARKER}); "
                     "refusing to overwrite it"
                 )
+        make_folder(path)
+        self._lock.acquire()  # held until the run is finished, marked or failed
+        if overwriting:
             self._write_marker("run started (overwriting an earlier run)")
             try:
                 for name in self.RUN_FILES:
@@ -188,7 +197,6 @@ class RunFolder:
                         target.unlink()
             except OSError as err:
                 raise write_fault(path, err) from None
-        make_folder(path)
         self._write_marker("run started")
 
     def _looks_like_run(self) -> bool:
@@ -204,6 +212,9 @@ class RunFolder:
             raise RunFolderError(f"{path}: not a run folder (no {self.SETTINGS})")
         if allow_incomplete or self.is_complete:
             return
+        if self._lock.held_elsewhere() and self._lock.holder() != os.getpid():
+            raise FolderLockedError(f"{path}: a symplid process is writing this run folder "
+                                    "now; wait until it ends")
         reason = self.incomplete_reason or "unknown reason"
         if reason.startswith(self.UPDATE):
             return  # an update (predict, report) in progress or killed: the run is finished
@@ -254,6 +265,7 @@ class RunFolder:
             (self.path / name).unlink(missing_ok=True)
         (self.path / self.MARKER).unlink(missing_ok=True)
         self._finished = True
+        self.release()
 
     def mark_interrupted(self, detail: str) -> None:
         """Mark a run whose sampler was stopped (Ctrl-C, SIGTERM): its files are written but
@@ -261,6 +273,7 @@ class RunFolder:
         self._check_writable()
         self._write_marker(f"{self.INTERRUPTED} {detail}")
         self._finished = True
+        self.release()
 
     def fail(self, reason: str) -> None:
         """Record why the run stopped (first line of the marker); the folder stays unfinished.
@@ -268,16 +281,25 @@ class RunFolder:
         For an update of a finished run (``mode="a"``) the marker is removed instead: the
         files it replaced were replaced atomically, so the run is still the finished run.
         """
-        if self.mode in ("r", "c"):
-            return  # "c": the interrupted run's files are untouched until it saves
-        if self.mode == "a":
-            with contextlib.suppress(OSError):
-                (self.path / self.MARKER).unlink(missing_ok=True)
-            return
-        first_line = (str(reason).strip().splitlines() or ["failed"])[0]
-        # best effort: on a full or read-only disk the marker stays "run started"
-        with contextlib.suppress(RunFolderError, StorageError):
-            self._write_marker(f"failed: {first_line}")
+        try:
+            if self.mode in ("r", "c"):
+                return  # "c": the interrupted run's files are untouched until it saves
+            if self.mode == "a":
+                with contextlib.suppress(OSError):
+                    (self.path / self.MARKER).unlink(missing_ok=True)
+                return
+            first_line = (str(reason).strip().splitlines() or ["failed"])[0]
+            # best effort: on a full or read-only disk the marker stays "run started"
+            with contextlib.suppress(RunFolderError, StorageError):
+                self._write_marker(f"failed: {first_line}")
+        finally:
+            self.release()
+
+    def release(self) -> None:
+        """Give up the folder's lock (:class:`~symplid.io.files.FolderLock`, taken by modes
+        ``"w"``, ``"a"`` and ``"c"``): done by :meth:`finish`, :meth:`mark_interrupted` and
+        :meth:`fail`, and by the end of the process whatever ends it."""
+        self._lock.release()
 
     def __enter__(self) -> RunFolder:
         return self
