@@ -7,6 +7,8 @@ against what real samplers record (an upper bound of the bytes of their draws).
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -82,3 +84,67 @@ def test_the_estimate_bounds_what_the_samplers_record(method):
                                             "sampler.burn_in": burn_in}, source="test")
     estimate = settings_data.run_memory(settings, num_params=2, num_times=0, state_dim=0)
     assert 3 * recorded <= estimate
+
+
+# ----------------------------------------------------------------------------- class 7: one line
+def symplid(*args, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "symplid.cli", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+def stderr_is_one_line(result, *words) -> None:
+    """Exactly one line on stderr (no warning before it, nothing after), exit code 2."""
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("symplid: error:"), result.stderr
+    for word in words:
+        assert word in lines[0], lines[0]
+
+
+TWO_NAMES = {
+    "options": ["--samples", "400", "--iterations", "400"],
+    "set": ["--set", "sampler.num_samples=400", "--set", "sampler.num_iterations=400"],
+    "toml": ["--config", "{dir}/both.toml"],
+}
+
+
+@pytest.mark.parametrize("how", list(TWO_NAMES))
+def test_old_and_new_name_together_are_one_line(data_csv, tmp_path, how):
+    (tmp_path / "both.toml").write_text("[sampler]\nnum_samples = 400\nnum_iterations = 400\n")
+    args = [a.format(dir=tmp_path) for a in TWO_NAMES[how]]
+    result = symplid("fit", data_csv, "--out", tmp_path / "run", "--no-progress", *args)
+    stderr_is_one_line(result, "same")
+    assert "deprecated" not in result.stderr
+
+
+@pytest.mark.parametrize("where", [
+    "[base]\nnum_samples = 100\nnum_iterations = 100\n",
+    "[sweep]\ncells = [{num_samples = 100, num_iterations = 100}]\n",
+])
+def test_old_and_new_name_in_a_sweep_are_one_line(tmp_path, where):
+    spec = tmp_path / "sweep.toml"
+    spec.write_text(where)
+    stderr_is_one_line(symplid("sweep", spec, "--out", tmp_path / "out", "--no-progress"),
+                       "num_samples and num_iterations", "same setting")
+
+
+def test_a_sweep_cell_with_burn_in_beyond_its_iterations_is_one_line(tmp_path):
+    spec = tmp_path / "sweep.toml"
+    spec.write_text("[base]\nnum_iterations = 100\nburn_in = 50\n"
+                    "[sweep]\ngrid = { burn_in = [10, 200] }\n")
+    stderr_is_one_line(symplid("sweep", spec, "--out", tmp_path / "out", "--no-progress"),
+                       "burn_in = 200", "must be greater than sampler.burn_in (200)")
+
+
+def test_data_values_of_1e200_are_one_line(tmp_path):
+    t = np.arange(1, 13.0)
+    q = np.cos(t)
+    q[3] = 1e200
+    data = tmp_path / "big.csv"
+    data.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
+                                          zip(t.tolist(), q.tolist(), (-np.sin(t)).tolist(),
+                                              strict=True)))
+    result = symplid("fit", data, "--out", tmp_path / "run", "--order", "2", "--x0", "1,0",
+                     "--no-progress")
+    stderr_is_one_line(result, "1e+200", "q1", "t = 4")
+    assert not (tmp_path / "run").exists()

@@ -53,7 +53,7 @@ def test_two_fits_into_one_folder_one_runs_one_is_refused(data_csv, tmp_path):
     codes = sorted(p.returncode for p, _, _ in results)
     assert codes == [0, 2], [(p.returncode, err) for p, _, err in results]
     (winner, _, _), (_, _, lost) = sorted(results, key=lambda r: r[0].returncode)
-    line, = errors(lost)
+    line, = lost.strip().splitlines()  # exactly one line on stderr
     assert line.startswith("symplid: error:") and "another symplid process" in line
     assert f"pid {winner.pid}" in line
     # The folder is the winner's alone: the seed of its settings is the one of its draws.

@@ -222,10 +222,10 @@ def _upgrade(data: dict[str, Any], source: str) -> dict[str, Any]:
         table = data.get(section)
         if not isinstance(table, Mapping) or old_key not in table:
             continue
-        _warn_renamed(old, new, source)
         new_key = new.split(".")[1]
-        if new_key in table:
+        if new_key in table:  # refused before any warning: one line
             raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
+        _warn_renamed(old, new, source)
         table = dict(table)
         table[new_key] = table.pop(old_key)
         data[section] = table
@@ -448,9 +448,9 @@ def merge_overrides(
     overrides = {k: v for k, v in overrides.items() if v is not None}
     for old, new in RENAMED.items():
         if old in overrides:
-            _warn_renamed(old, new, source)
-            if new in overrides:
+            if new in overrides:  # refused before any warning: one line
                 raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
+            _warn_renamed(old, new, source)
             overrides[new] = overrides.pop(old)
     if "seed" in overrides:
         for section in _SEEDED_SECTIONS:

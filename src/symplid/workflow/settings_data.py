@@ -23,12 +23,17 @@ from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.settings_schema import Settings, check_model_family
 from symplid.workflow.validate import SettingsError
 
-__all__ = ["MAX_SUBSTEPS_PER_GAP", "available_memory", "resolve_for_data", "run_memory"]
+__all__ = ["MAX_DATA_MAGNITUDE", "MAX_SUBSTEPS_PER_GAP", "available_memory", "resolve_for_data",
+           "run_memory"]
 
 #: The most integrator steps one gap between observations may take (⌈gap/dt⌉, eq. 14). The
 #: filter unrolls every gap into the same number of steps, so one huge gap (a time of 1e9 in a
 #: file) would otherwise ask for billions of steps and terabytes of memory.
 MAX_SUBSTEPS_PER_GAP = 1_000_000
+
+#: The largest magnitude a data value may have: the filter works with squares and products of
+#: the data (covariances, eq. (11)–(13)), which must stay far from float64's overflow (1.8e308).
+MAX_DATA_MAGNITUDE = 1e100
 
 
 def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> Settings:
@@ -110,6 +115,7 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
             f"{', '.join(empty)} {'has' if len(empty) == 1 else 'have'} no values (every "
             "entry is missing); remove the column or give its values"
         )
+    _check_magnitude(obs, times, names)
     first = float(times[0])
     if init.at_first_observation:
         starts = times[:-1]
@@ -140,6 +146,18 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
                 UserWarning,
                 stacklevel=3,
             )
+
+
+def _check_magnitude(obs: Any, times: np.ndarray, names: tuple[str, ...]) -> None:
+    """Refuse (one line) a value whose square (in the filter's covariances) would overflow."""
+    values = np.where(obs.mask, np.asarray(obs.values, dtype=float), 0.0)
+    big = np.abs(values) > MAX_DATA_MAGNITUDE
+    if np.any(big):
+        k, j = (int(i[0]) for i in np.nonzero(big))
+        raise DataError(
+            f"the value {values[k, j]:g} of {names[j]} at t = {times[k]:g} is too large: the "
+            f"filter squares the data, so values must stay within ±{MAX_DATA_MAGNITUDE:g} "
+            "(check the file, or change the units)")
 
 
 def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -> None:
