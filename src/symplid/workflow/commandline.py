@@ -2,7 +2,8 @@
 
 Kept apart from :mod:`symplid.cli` (the commands only). Every user mistake becomes one line on
 stderr and exit code 2 (:func:`user_errors`, :class:`OneLineErrors` for click's own usage
-errors); Ctrl-C and SIGTERM become "interrupted" and exit code 128 + the signal's number.
+errors); Ctrl-C, SIGTERM and SIGHUP become "interrupted" and exit code 128 + the signal's
+number; a full disk or a file-size limit is one line and exit code 1 (not the user's fault).
 """
 
 from __future__ import annotations
@@ -65,8 +66,10 @@ class Interrupted(Exception):
 
 
 def user_errors(fn: Callable) -> Callable:
-    """Turn the library's validation errors into one line and exit code 2; Ctrl-C and SIGTERM
-    into "interrupted" and exit code 128 + the signal's number."""
+    """Turn the library's validation errors into one line and exit code 2, a failing disk
+    into one line and exit code 1; Ctrl-C, SIGTERM and SIGHUP into "interrupted" and exit code
+    128 + the signal's number (also when a library swallowed the signal and the command went
+    on to finish)."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -77,7 +80,12 @@ def user_errors(fn: Callable) -> Callable:
 
         with terminate_as_interrupt() as signals:
             try:
-                return fn(*args, **kwargs)
+                result = fn(*args, **kwargs)
+                if signals:  # raised inside a library's callback, which swallowed it
+                    click.echo("symplid: interrupted (the command finished first; its results "
+                               "are kept)", err=True)
+                    sys.exit(128 + signals[-1])
+                return result
             except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
                 raise UserError(str(err)) from None
             except (ValueError, NotADirectoryError) as err:  # the library's argument checks
