@@ -32,8 +32,18 @@ one-line message that says what to do. ``mode="c"`` opens such a run to continue
 (``symplid fit --resume``): the marker stays as it is until the continuation saves (a failed or
 killed continuation leaves the interrupted run as it was, resumable).
 
-The files' formats (strict JSON with non-finite floats, netCDF attributes, the summary table)
-are :mod:`symplid.io.runfiles`; their names are re-exported here.
+One writer at a time
+--------------------
+Modes ``"w"``, ``"a"`` and ``"c"`` hold an exclusive lock on ``.lock``
+(:class:`symplid.io.files.FolderLock`) until the run is finished, marked or failed (or the
+process ends, however it ends): a second writer is refused in one line naming the holder,
+and a reader of an unfinished folder being written is told so.
+
+Every file is read through one reader and written through one writer
+(:mod:`symplid.io.files`): a damaged file is one line naming it and what to do
+(:attr:`RunFolder.remedy`), a failing disk one line and no temporary file. The files' formats
+(strict JSON with non-finite floats, netCDF attributes, the summary table) are
+:mod:`symplid.io.runfiles`; their names are re-exported here.
 """
 
 from __future__ import annotations
