@@ -63,6 +63,15 @@ def resume_fit(
     a kill while continuing leaves the interrupted run as it was.
     """
     folder = RunFolder(out, "c")
+    try:
+        return _resume(folder, out, progress, warn, status, expected)
+    finally:  # saved or not, the folder's lock is given up (a refusal keeps the run as it was)
+        folder.release()
+
+
+def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
+            status: Callable[[str], None] | None,
+            expected: Callable[[Settings, Any], Settings | None] | None) -> FitOutcome:
     settings, obs = folder.read_settings(), folder.read_data()
     if expected is not None:
         asked = expected(settings, obs)
