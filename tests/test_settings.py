@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+import warnings
 
 import numpy as np
 import pytest
@@ -403,8 +404,11 @@ def test_old_num_samples_key_is_read_with_a_future_warning(tmp_path):
     with pytest.warns(FutureWarning, match="use sampler.num_iterations"):
         s = merge_overrides(Settings(), {"sampler.num_samples": 300_000})
     assert s.sampler.num_iterations == 300_000
-    with pytest.warns(FutureWarning), pytest.raises(SettingsError, match="give only"):
-        settings_from_dict({"sampler": {"num_samples": 10, "num_iterations": 10}})
+    # Both names: refused, and without the deprecation warning first (one line, issue 23).
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(SettingsError, match="give only"):
+            settings_from_dict({"sampler": {"num_samples": 10, "num_iterations": 10}})
 
 
 def test_written_settings_use_the_new_key(tmp_path):

@@ -274,10 +274,10 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
     `symplid fit --resume --out RUN` continues it.
     """
     if samples is not None:
+        if iterations is not None:  # refused before the warning: one line
+            raise UserError("--samples and --iterations are the same option; give --iterations")
         warnings.warn("--samples is deprecated; use --iterations",
                       FutureWarning, stacklevel=1)
-        if iterations is not None:
-            raise UserError("--samples and --iterations are the same option; give --iterations")
         iterations = samples
     overrides = {
         "model.order": order,

@@ -35,6 +35,7 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from symplid.io.files import write_text, write_with
 from symplid.model.data import DataError, Observations
 
 __all__ = [
@@ -42,6 +43,7 @@ __all__ = [
     "column_names",
     "observation_kind",
     "observation_layout",
+    "observations_csv",
     "positions_only",
     "read_observations",
     "write_observations",
@@ -426,19 +428,19 @@ def write_observations(obs: Observations, path: str | os.PathLike) -> Path:
         raise DataError(f"{path}: unknown data file type {path.suffix!r}; use .csv or .npz")
     layout = observation_layout(obs)
     names = column_names(layout.dim, layout.kind)
-    tmp = path.with_name(f".{path.name}.tmp")
-    path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".csv":
-        lines = [",".join(("t", *names))]
-        for t, row in zip(obs.times, obs.values, strict=True):
-            lines.append(",".join(_format(x) for x in (t, *row)))
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    else:
-        columns = {name: np.asarray(obs.values[:, j]) for j, name in enumerate(names)}
-        with open(tmp, "wb") as handle:
-            np.savez(handle, t=np.asarray(obs.times), **columns)
-    os.replace(tmp, path)
-    return path
+        return write_text(path, observations_csv(obs))
+    columns = {name: np.asarray(obs.values[:, j]) for j, name in enumerate(names)}
+    return write_with(path, lambda handle: np.savez(handle, t=np.asarray(obs.times), **columns))
+
+
+def observations_csv(obs: Observations) -> str:
+    """The CSV text :func:`write_observations` writes (``t`` then the layout's columns)."""
+    layout = observation_layout(obs)
+    lines = [",".join(("t", *column_names(layout.dim, layout.kind)))]
+    for t, row in zip(obs.times, obs.values, strict=True):
+        lines.append(",".join(_format(x) for x in (t, *row)))
+    return "\n".join(lines) + "\n"
 
 
 def _format(x: float) -> str:

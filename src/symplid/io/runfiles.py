@@ -12,14 +12,19 @@ strings ``"nan"``, ``"inf"`` and ``"-inf"`` (not ``null``, which would lose whic
 
 netCDF attributes
 -----------------
-netCDF holds strings, numbers and 1-D numeric arrays as attributes; anything else (a dict,
-a boolean, None, a matrix) is written as JSON text by :func:`netcdf_attrs`, its key listed in
-one extra attribute, and restored by :func:`restore_attrs`.
+netCDF attributes are written as they are when they are strings or numbers; anything else (a
+list or an array of any shape, a dict, a boolean, None) is written as JSON text by
+:func:`netcdf_attrs`, its key listed in one extra attribute, and restored by
+:func:`restore_attrs` (lists of numbers as arrays). Lists and arrays take the same path, so an
+attribute has one format whether a fresh run wrote it (a list) or a resumed one (an array read
+back). :func:`netcdf_bytes` makes the whole file in memory, for
+:func:`symplid.io.files.write_bytes`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io as _io
 import json
 import os
 from collections.abc import Mapping
@@ -29,25 +34,20 @@ from typing import Any
 import numpy as np
 
 from symplid.inference.jsonfloat import decode, encode_float
-from symplid.model.data import DataError
+from symplid.io.files import RunFolderError, read_with, write_text
 
 __all__ = [
     "RunFolderError",
-    "atomic_write_text",
     "flatten",
     "format_summary",
     "netcdf_attrs",
+    "netcdf_bytes",
     "numeric_arrays",
     "read_json",
     "restore_attrs",
     "to_jsonable",
     "write_json",
 ]
-
-
-class RunFolderError(DataError):
-    """A run folder that cannot be used (missing, unfinished, not a run folder, ...)."""
-
 
 
 # ----------------------------------------------------------------------------- JSON
@@ -97,19 +97,20 @@ def write_json(obj: Any, path: str | os.PathLike) -> Path:
     """Write ``obj`` as strict, indented JSON (atomically); returns the path."""
     path = Path(path)
     text = json.dumps(to_jsonable(obj), indent=2, allow_nan=False)
-    atomic_write_text(path, text + "\n")
-    return path
+    return write_text(path, text + "\n")
 
 
-def read_json(path: str | os.PathLike) -> Any:
-    """Read JSON written by :func:`write_json`; ``"nan"``/``"inf"``/``"-inf"`` become floats."""
-    path = Path(path)
-    try:
-        return decode(json.loads(path.read_text(encoding="utf-8")))
-    except FileNotFoundError:
-        raise RunFolderError(f"{path}: no such file") from None
-    except json.JSONDecodeError as err:
-        raise RunFolderError(f"{path}: not valid JSON ({err})") from None
+def read_json(path: str | os.PathLike, remedy: str = "write it again") -> Any:
+    """Read JSON written by :func:`write_json`; ``"nan"``/``"inf"``/``"-inf"`` become floats.
+    A missing, empty or damaged file is one :class:`RunFolderError` line ending in ``remedy``."""
+
+    def parse(path: Path) -> Any:
+        try:
+            return decode(json.loads(path.read_text(encoding="utf-8")))
+        except json.JSONDecodeError as err:
+            raise ValueError(f"not valid JSON: {err}") from None
+
+    return read_with(path, parse, remedy)
 
 
 def numeric_arrays(value: Any) -> Any:
@@ -125,13 +126,6 @@ def numeric_arrays(value: Any) -> Any:
             return array
         return [numeric_arrays(v) for v in value]
     return value
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 # ----------------------------------------------------------------------------- summary table
@@ -214,11 +208,8 @@ def netcdf_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
 def _netcdf_ok(value: Any) -> bool:
     if isinstance(value, bool | np.bool_):
         return False
-    if isinstance(value, str | int | float | np.integer | np.floating):
-        return True
-    if isinstance(value, np.ndarray):
-        return value.ndim == 1 and value.dtype.kind in "iuf" and value.size > 0
-    return False
+    # lists and arrays alike as JSON text: one format however they came
+    return isinstance(value, str | int | float | np.integer | np.floating)
 
 
 def restore_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
@@ -229,3 +220,25 @@ def restore_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
         if key in attrs:
             attrs[key] = numeric_arrays(decode(json.loads(attrs[key])))
     return attrs
+
+
+def netcdf_bytes(idata: Any) -> bytes:
+    """ArviZ ``InferenceData`` as the bytes of a netCDF-4 file (h5netcdf, zlib-compressed
+    variables), made in memory: its attributes through :func:`netcdf_attrs`, its groups as
+    ``InferenceData.to_netcdf`` writes them, so ``arviz.from_netcdf`` reads it back."""
+    import xarray as xr
+
+    buffer = _io.BytesIO()
+    mode = "w"
+    top = dict(getattr(idata, "attrs", None) or {})
+    if top:
+        xr.Dataset(attrs=netcdf_attrs(top)).to_netcdf(buffer, mode=mode, engine="h5netcdf")
+        mode = "a"
+    for group in idata.groups():
+        dataset = getattr(idata, group).copy()
+        dataset.attrs = netcdf_attrs(dict(dataset.attrs))
+        encoding = {name: {"zlib": True} for name, v in dataset.variables.items()
+                    if v.dtype.kind in "biuf"}
+        dataset.to_netcdf(buffer, mode=mode, group=group, engine="h5netcdf", encoding=encoding)
+        mode = "a"
+    return buffer.getvalue()

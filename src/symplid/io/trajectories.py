@@ -26,11 +26,13 @@ from pathlib import Path
 from symplid.io.datafiles import (
     TRAJECTORY_COLUMN,
     check_data_file,
+    observations_csv,
     parse_csv,
     read_observations,
     read_text,
     write_observations,
 )
+from symplid.io.files import write_text
 from symplid.model.data import DataError, Observations
 
 __all__ = ["as_list", "num_trajectories", "read_trajectories", "write_trajectories"]
@@ -114,16 +116,12 @@ def write_trajectories(data: Observations | Sequence[Observations],
     path = Path(path)
     if path.suffix.lower() != ".csv":
         raise DataError(f"{path}: several trajectories are written as CSV")
-    tmp = path.with_name(f".{path.stem}.parts.csv")
     blocks = []
     for k, obs in enumerate(data):
-        write_observations(obs, tmp)
-        head, *rows = tmp.read_text(encoding="utf-8").splitlines()
+        head, *rows = observations_csv(obs).splitlines()
         blocks += [f"{head},{TRAJECTORY_COLUMN}"] if k == 0 else []
         blocks += [f"{row},{k}" for row in rows]
-    tmp.write_text("\n".join(blocks) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_text(path, "\n".join(blocks) + "\n")
 
 
 def num_trajectories(data: Observations | Sequence[Observations]) -> int:

@@ -2,7 +2,8 @@
 
 Kept apart from :mod:`symplid.cli` (the commands only). Every user mistake becomes one line on
 stderr and exit code 2 (:func:`user_errors`, :class:`OneLineErrors` for click's own usage
-errors); Ctrl-C and SIGTERM become "interrupted" and exit code 128 + the signal's number.
+errors); Ctrl-C, SIGTERM and SIGHUP become "interrupted" and exit code 128 + the signal's
+number; a full disk or a file-size limit is one line and exit code 1 (not the user's fault).
 """
 
 from __future__ import annotations
@@ -57,27 +58,43 @@ class UserError(click.ClickException):
         click.echo(f"symplid: error: {self.format_message()}", err=True)
 
 
+class EnvironmentFault(UserError):
+    """One line like a user error, but exit code 1: the disk failed, not the user."""
+
+    exit_code = 1
+
+
 class Interrupted(Exception):
     """A command that was interrupted but kept (and reported) what it had done."""
 
 
 def user_errors(fn: Callable) -> Callable:
-    """Turn the library's validation errors into one line and exit code 2; Ctrl-C and SIGTERM
-    into "interrupted" and exit code 128 + the signal's number."""
+    """Turn the library's validation errors into one line and exit code 2, a failing disk
+    into one line and exit code 1; Ctrl-C, SIGTERM and SIGHUP into "interrupted" and exit code
+    128 + the signal's number (also when a library swallowed the signal and the command went
+    on to finish)."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from symplid.io.files import StorageError
         from symplid.model.data import DataError
         from symplid.workflow.interrupts import terminate_as_interrupt
         from symplid.workflow.settings import SettingsError
 
         with terminate_as_interrupt() as signals:
             try:
-                return fn(*args, **kwargs)
+                result = fn(*args, **kwargs)
+                if signals:  # raised inside a library's callback, which swallowed it
+                    click.echo("symplid: interrupted (the command finished first; its results "
+                               "are kept)", err=True)
+                    sys.exit(128 + signals[-1])
+                return result
             except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
                 raise UserError(str(err)) from None
             except (ValueError, NotADirectoryError) as err:  # the library's argument checks
                 raise UserError(str(err)) from None
+            except StorageError as err:  # a full disk, a file-size limit: not the user's
+                raise EnvironmentFault(str(err)) from None
             except KeyboardInterrupt as err:
                 kept = ("; the chains' state is kept: continue with 'symplid fit --resume'"
                         if hasattr(err, "checkpoint") else "")

@@ -220,6 +220,9 @@ def fit(
                 err, KeyboardInterrupt) else f"{type(err).__name__}: {err}"
             folder.fail(what)
         raise
+    finally:
+        if folder is not None:
+            folder.release()  # the run folder's lock (symplid.io.files.FolderLock)
 
 
 def _marked(folder: RunFolder) -> bool:

@@ -32,12 +32,23 @@ one-line message that says what to do. ``mode="c"`` opens such a run to continue
 (``symplid fit --resume``): the marker stays as it is until the continuation saves (a failed or
 killed continuation leaves the interrupted run as it was, resumable).
 
-The files' formats (strict JSON with non-finite floats, netCDF attributes, the summary table)
-are :mod:`symplid.io.runfiles`; their names are re-exported here.
+One writer at a time
+--------------------
+Modes ``"w"``, ``"a"`` and ``"c"`` hold an exclusive lock on ``.lock``
+(:class:`symplid.io.files.FolderLock`) until the run is finished, marked or failed (or the
+process ends, however it ends): a second writer is refused in one line naming the holder,
+and a reader of an unfinished folder being written is told so.
+
+Every file is read through one reader and written through one writer
+(:mod:`symplid.io.files`): a damaged file is one line naming it and what to do
+(:attr:`RunFolder.remedy`), a failing disk one line and no temporary file. The files' formats
+(strict JSON with non-finite floats, netCDF attributes, the summary table) are
+:mod:`symplid.io.runfiles`; their names are re-exported here.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import os
 import shutil
@@ -48,11 +59,21 @@ from typing import Any, Literal
 import numpy as np
 
 from symplid.io import read_trajectories, write_trajectories
+from symplid.io.files import (
+    FolderLock,
+    FolderLockedError,
+    StorageError,
+    make_folder,
+    read_with,
+    write_bytes,
+    write_fault,
+    write_text,
+    write_with,
+)
 from symplid.io.runfiles import (
     RunFolderError,
-    atomic_write_text,
     format_summary,
-    netcdf_attrs,
+    netcdf_bytes,
     numeric_arrays,
     read_json,
     restore_attrs,
@@ -142,15 +163,18 @@ class RunFolder:
         self.path = Path(path)
         self.mode: Mode = mode
         self._finished = False
+        self._lock = FolderLock(self.path)
         if mode == "w":
             _check_parents(self.path)
             self._create(overwrite)
         elif mode == "c":
             self._check_existing(allow_incomplete=True)
+            self._lock.acquire()
             self._check_resumable()
         else:
             self._check_existing(allow_incomplete)
             if mode == "a":
+                self._lock.acquire()
                 self._write_marker(f"{self.UPDATE} started")
 
     # ------------------------------------------------------------------ state
@@ -158,7 +182,8 @@ class RunFolder:
         path = self.path
         if path.exists() and not path.is_dir():
             raise RunFolderError(f"{path}: exists and is not a folder")
-        if path.is_dir() and any(path.iterdir()):
+        overwriting = path.is_dir() and any(p.name != FolderLock.NAME for p in path.iterdir())
+        if overwriting:
             if not overwrite:
                 raise RunFolderError(
                     f"{path}: the folder already exists and is not empty; choose another "
@@ -169,14 +194,19 @@ class RunFolder:
                     f"{path}: not a run folder (no {self.SETTINGS} or {self.MARKER}); "
                     "refusing to overwrite it"
                 )
+        make_folder(path)
+        self._lock.acquire()  # held until the run is finished, marked or failed
+        if overwriting:
             self._write_marker("run started (overwriting an earlier run)")
-            for name in self.RUN_FILES:
-                target = path / name
-                if target.is_dir():
-                    shutil.rmtree(target)
-                elif target.exists():
-                    target.unlink()
-        path.mkdir(parents=True, exist_ok=True)
+            try:
+                for name in self.RUN_FILES:
+                    target = path / name
+                    if target.is_dir():
+                        shutil.rmtree(target)
+                    elif target.exists():
+                        target.unlink()
+            except OSError as err:
+                raise write_fault(path, err) from None
         self._write_marker("run started")
 
     def _looks_like_run(self) -> bool:
@@ -192,6 +222,9 @@ class RunFolder:
             raise RunFolderError(f"{path}: not a run folder (no {self.SETTINGS})")
         if allow_incomplete or self.is_complete:
             return
+        if self._lock.held_elsewhere() and self._lock.holder() != os.getpid():
+            raise FolderLockedError(f"{path}: a symplid process is writing this run folder "
+                                    "now; wait until it ends")
         reason = self.incomplete_reason or "unknown reason"
         if reason.startswith(self.UPDATE):
             return  # an update (predict, report) in progress or killed: the run is finished
@@ -217,8 +250,7 @@ class RunFolder:
 
     def _write_marker(self, reason: str) -> None:
         stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-        self.path.mkdir(parents=True, exist_ok=True)
-        (self.path / self.MARKER).write_text(f"{reason}\n{stamp} pid {os.getpid()}\n")
+        write_text(self.path / self.MARKER, f"{reason}\n{stamp} pid {os.getpid()}\n")
 
     @property
     def is_complete(self) -> bool:
@@ -243,6 +275,7 @@ class RunFolder:
             (self.path / name).unlink(missing_ok=True)
         (self.path / self.MARKER).unlink(missing_ok=True)
         self._finished = True
+        self.release()
 
     def mark_interrupted(self, detail: str) -> None:
         """Mark a run whose sampler was stopped (Ctrl-C, SIGTERM): its files are written but
@@ -250,6 +283,7 @@ class RunFolder:
         self._check_writable()
         self._write_marker(f"{self.INTERRUPTED} {detail}")
         self._finished = True
+        self.release()
 
     def fail(self, reason: str) -> None:
         """Record why the run stopped (first line of the marker); the folder stays unfinished.
@@ -257,13 +291,25 @@ class RunFolder:
         For an update of a finished run (``mode="a"``) the marker is removed instead: the
         files it replaced were replaced atomically, so the run is still the finished run.
         """
-        if self.mode in ("r", "c"):
-            return  # "c": the interrupted run's files are untouched until it saves
-        if self.mode == "a":
-            (self.path / self.MARKER).unlink(missing_ok=True)
-            return
-        first_line = (str(reason).strip().splitlines() or ["failed"])[0]
-        self._write_marker(f"failed: {first_line}")
+        try:
+            if self.mode in ("r", "c"):
+                return  # "c": the interrupted run's files are untouched until it saves
+            if self.mode == "a":
+                with contextlib.suppress(OSError):
+                    (self.path / self.MARKER).unlink(missing_ok=True)
+                return
+            first_line = (str(reason).strip().splitlines() or ["failed"])[0]
+            # best effort: on a full or read-only disk the marker stays "run started"
+            with contextlib.suppress(RunFolderError, StorageError):
+                self._write_marker(f"failed: {first_line}")
+        finally:
+            self.release()
+
+    def release(self) -> None:
+        """Give up the folder's lock (:class:`~symplid.io.files.FolderLock`, taken by modes
+        ``"w"``, ``"a"`` and ``"c"``): done by :meth:`finish`, :meth:`mark_interrupted` and
+        :meth:`fail`, and by the end of the process whatever ends it."""
+        self._lock.release()
 
     def __enter__(self) -> RunFolder:
         return self
@@ -298,7 +344,7 @@ class RunFolder:
 
     def figure_path(self, name: str) -> Path:
         """``figures/<name>`` (``.png`` added when there is no extension); creates figures/."""
-        self.figures_dir.mkdir(parents=True, exist_ok=True)
+        make_folder(self.figures_dir)
         path = self.figures_dir / name
         return path if path.suffix else path.with_suffix(".png")
 
@@ -336,20 +382,11 @@ class RunFolder:
 
     def write_posterior(self, idata: Any) -> Path:
         """posterior.nc from ArviZ InferenceData (attributes that netCDF cannot hold, such as
-        dictionaries, booleans, None or matrices, are stored as JSON text and restored by
-        :meth:`read_posterior`)."""
+        lists, dictionaries, booleans or None, are stored as JSON text and restored by
+        :meth:`read_posterior`); made in memory, then written atomically
+        (:mod:`symplid.io.files`)."""
         self._check_writable()
-        path = self.file(self.POSTERIOR)
-        tmp = path.with_name(f".{path.name}.tmp")
-        safe = idata.copy()
-        for group in safe.groups():
-            dataset = getattr(safe, group)
-            dataset.attrs = netcdf_attrs(dataset.attrs)
-        if hasattr(safe, "attrs"):
-            safe.attrs = netcdf_attrs(dict(safe.attrs))
-        safe.to_netcdf(str(tmp))
-        os.replace(tmp, path)
-        return path
+        return write_bytes(self.file(self.POSTERIOR), netcdf_bytes(idata))
 
     def write_summary(self, summary: Mapping[str, Any], table: str | None = None) -> Path:
         """summary.json, and summary.txt: :func:`format_summary` plus an optional extra table
@@ -358,50 +395,53 @@ class RunFolder:
         text = format_summary(summary)
         if table:
             text += "\n" + table.rstrip() + "\n"
-        atomic_write_text(self.file(self.SUMMARY_TEXT), text)
+        write_text(self.file(self.SUMMARY_TEXT), text)
         return path
 
     def write_npz(self, name: str, **arrays: Any) -> Path:
         """A compressed NumPy archive in the folder, written atomically."""
         self._check_writable()
-        path = self.file(name)
-        tmp = path.with_name(f".{path.stem}.tmp.npz")
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, path)
-        return path
+        return write_with(self.file(name), lambda buffer: np.savez_compressed(buffer, **arrays))
 
     def save_figure(self, figure: Any, name: str, dpi: int = 150) -> Path:
         """Save a matplotlib figure as ``figures/<name>`` (PNG unless ``name`` has a suffix)."""
         self._check_writable()
         path = self.figure_path(name)
-        tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-        figure.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.replace(tmp, path)
-        return path
+        return write_with(path, lambda buffer: figure.savefig(
+            buffer, format=path.suffix.lstrip(".") or "png", dpi=dpi, bbox_inches="tight"))
 
     def write_report(self, text: str) -> Path:
         """report.md (Markdown; refer to figures as ``figures/<name>.png``)."""
         self._check_writable()
         path = self.file(self.REPORT)
-        atomic_write_text(path, text if text.endswith("\n") else text + "\n")
+        write_text(path, text if text.endswith("\n") else text + "\n")
         return path
 
     # ------------------------------------------------------------------ readers
-    def _need(self, name: str) -> Path:
+    @property
+    def remedy(self) -> str:
+        """What to do about a damaged file of this run (the end of the one-line error)."""
+        if self.mode == "c":
+            return "--resume is impossible: fit again with --overwrite"
+        return "the run is damaged: fit it again (symplid fit ... --overwrite)"
+
+    def _read(self, name: str, reader: Any) -> Any:
+        """``reader(path)`` of the file ``name``; a missing, empty or unreadable file is one
+        :class:`RunFolderError` line naming it and :attr:`remedy`."""
         path = self.file(name)
         if not path.exists():
             raise RunFolderError(f"{self.path}: this run has no {name}")
-        return path
+        return read_with(path, reader, self.remedy)
 
     def read_settings(self) -> Settings:
-        return load_settings(self._need(self.SETTINGS))
+        return self._read(self.SETTINGS, load_settings)
 
     def read_data(self) -> Observations | list[Observations]:
         """The run's data: one :class:`Observations`, or a list for several trajectories."""
-        return read_trajectories([self._need(self.DATA)])
+        return self._read(self.DATA, lambda path: read_trajectories([path]))
 
     def read_json(self, name: str) -> Any:
-        return read_json(self._need(name))
+        return self._read(name, lambda path: read_json(path, self.remedy))
 
     def read_map(self) -> dict[str, Any]:
         """map.json, with every list of numbers turned into a float array."""
@@ -411,21 +451,35 @@ class RunFolder:
         return self.read_json(self.SUMMARY)
 
     def read_report(self) -> str:
-        return self._need(self.REPORT).read_text(encoding="utf-8")
+        return self._read(self.REPORT, lambda path: path.read_text(encoding="utf-8"))
+
+    def read_npz(self, name: str) -> dict[str, np.ndarray]:
+        """Every array of a NumPy archive in the folder (e.g. the sampler state)."""
+
+        def load(path: Path) -> dict[str, np.ndarray]:
+            with np.load(path) as stored:
+                return {key: stored[key] for key in stored.files}
+
+        return self._read(name, load)
 
     def read_posterior(self) -> Any:
         """posterior.nc as InferenceData, loaded into memory (the file is closed)."""
-        import arviz as az
+        return self._read(self.POSTERIOR, _load_posterior)
 
-        path = self._need(self.POSTERIOR)
-        with az.rc_context({"data.load": "eager"}):
-            idata = az.from_netcdf(str(path))
-        for group in idata.groups():
-            dataset = getattr(idata, group)
-            dataset.attrs = restore_attrs(dict(dataset.attrs))
-        if hasattr(idata, "attrs"):
-            idata.attrs = restore_attrs(dict(idata.attrs))
-        return idata
+
+def _load_posterior(path: Path) -> Any:
+    import arviz as az
+
+    with az.rc_context({"data.load": "eager"}):
+        idata = az.from_netcdf(str(path))
+    for group in idata.groups():
+        dataset = getattr(idata, group)
+        dataset.attrs = restore_attrs(dict(dataset.attrs))
+    if hasattr(idata, "attrs"):
+        idata.attrs = restore_attrs(dict(idata.attrs))
+    if not idata.groups():
+        raise ValueError("no groups: not a posterior file")
+    return idata
 
 
 def _check_parents(path: Path) -> None:

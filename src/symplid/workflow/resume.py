@@ -20,8 +20,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from symplid.inference.map_result import MapResult
 from symplid.inference.samplers import InterruptedInBurnIn
 from symplid.inference.samplers.resume import resume_sampling
@@ -65,6 +63,15 @@ def resume_fit(
     a kill while continuing leaves the interrupted run as it was.
     """
     folder = RunFolder(out, "c")
+    try:
+        return _resume(folder, out, progress, warn, status, expected)
+    finally:  # saved or not, the folder's lock is given up (a refusal keeps the run as it was)
+        folder.release()
+
+
+def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
+            status: Callable[[str], None] | None,
+            expected: Callable[[Settings, Any], Settings | None] | None) -> FitOutcome:
     settings, obs = folder.read_settings(), folder.read_data()
     if expected is not None:
         asked = expected(settings, obs)
@@ -76,8 +83,10 @@ def resume_fit(
             f"{out}: this run was fitted in standardised coordinates (model.standardise), "
             "which --resume does not continue yet; fit again with --overwrite"
         )
-    with np.load(folder.file(RunFolder.SAMPLER_STATE)) as stored:
-        arrays = {name: stored[name] for name in stored.files}
+    arrays = folder.read_npz(RunFolder.SAMPLER_STATE)
+    if "iterations_done" not in arrays:
+        raise RunFolderError(f"{folder.file(RunFolder.SAMPLER_STATE)}: not a sampler state "
+                             f"(no iterations_done); {folder.remedy}")
     if status is not None:
         status(f"resuming {out} at iteration {int(arrays['iterations_done']):,} of "
                f"{settings.sampler.num_iterations:,} per chain (compiling first)...")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import warnings
 from pathlib import Path
 from typing import Any
@@ -14,7 +13,9 @@ from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map_result import MapResult
 from symplid.inference.samplers import draws_array
 from symplid.io import as_list
-from symplid.plotting import plot_predictive, save_figure
+from symplid.io.files import write_with
+from symplid.plotting import plot_predictive
+from symplid.plotting.style import DPI
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder, format_summary
 from symplid.workflow.run_figures import ReportFigure, report_figures, trajectory_paths
@@ -45,11 +46,13 @@ def _draws(folder: RunFolder, wanted: bool, what: str) -> np.ndarray | None:
 
 
 def save_atomically(figure: Any, path: Path) -> Path:
-    """Write a figure under a hidden name and rename it (never a half-written PNG)."""
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    save_figure(figure, tmp)
-    os.replace(tmp, path)
-    return path
+    """Write a figure as :func:`symplid.plotting.save_figure` does, made in memory and
+    written atomically (:func:`symplid.io.files.write_with`: never a half-written PNG)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(figure)
+    return write_with(path, lambda buffer: figure.savefig(
+        buffer, format=path.suffix.lstrip(".") or "png", dpi=DPI, facecolor="white"))
 
 
 def _prediction_args(settings, obs, t_end, dt, num_paths) -> tuple[float, float, int, float]:

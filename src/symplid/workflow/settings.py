@@ -125,6 +125,7 @@ from typing import Any
 import tomli_w
 
 from symplid.dynamics.families import family_of
+from symplid.io.files import write_text
 from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
 from symplid.workflow.settings_schema import (
@@ -229,10 +230,10 @@ def _upgrade(data: dict[str, Any], source: str) -> dict[str, Any]:
         table = data.get(section)
         if not isinstance(table, Mapping) or old_key not in table:
             continue
-        _warn_renamed(old, new, source)
         new_key = new.split(".")[1]
-        if new_key in table:
+        if new_key in table:  # refused before any warning: one line
             raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
+        _warn_renamed(old, new, source)
         table = dict(table)
         table[new_key] = table.pop(old_key)
         data[section] = table
@@ -423,12 +424,7 @@ _HEADER = (
 
 def dump_settings(settings: Settings, path: str | os.PathLike) -> Path:
     """Write every setting (defaults included) as TOML, atomically; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(_HEADER + tomli_w.dumps(settings_to_dict(settings)), encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_text(path, _HEADER + tomli_w.dumps(settings_to_dict(settings)))
 
 
 # ----------------------------------------------------------------------------- overrides
@@ -462,9 +458,9 @@ def merge_overrides(
     overrides = {k: v for k, v in overrides.items() if v is not None}
     for old, new in RENAMED.items():
         if old in overrides:
-            _warn_renamed(old, new, source)
-            if new in overrides:
+            if new in overrides:  # refused before any warning: one line
                 raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
+            _warn_renamed(old, new, source)
             overrides[new] = overrides.pop(old)
     if "seed" in overrides:
         for section in _SEEDED_SECTIONS:

@@ -8,6 +8,7 @@ offer the model (two times, no empty column, gaps the integrator can cross).
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 from typing import Any
 
@@ -22,12 +23,17 @@ from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.settings_schema import Settings, check_model_family, follow_model
 from symplid.workflow.validate import SettingsError
 
-__all__ = ["MAX_SUBSTEPS_PER_GAP", "resolve_for_data"]
+__all__ = ["MAX_DATA_MAGNITUDE", "MAX_SUBSTEPS_PER_GAP", "available_memory", "resolve_for_data",
+           "run_memory"]
 
 #: The most integrator steps one gap between observations may take (⌈gap/dt⌉, eq. 14). The
 #: filter unrolls every gap into the same number of steps, so one huge gap (a time of 1e9 in a
 #: file) would otherwise ask for billions of steps and terabytes of memory.
 MAX_SUBSTEPS_PER_GAP = 1_000_000
+
+#: The largest magnitude a data value may have: the filter works with squares and products of
+#: the data (covariances, eq. (11)–(13)), which must stay far from float64's overflow (1.8e308).
+MAX_DATA_MAGNITUDE = 1e100
 
 
 def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> Settings:
@@ -111,6 +117,7 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
             f"{', '.join(empty)} {'has' if len(empty) == 1 else 'have'} no values (every "
             "entry is missing); remove the column or give its values"
         )
+    _check_magnitude(obs, times, names)
     first = float(times[0])
     if init.at_first_observation:
         starts = times[:-1]
@@ -143,6 +150,18 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
             )
 
 
+def _check_magnitude(obs: Any, times: np.ndarray, names: tuple[str, ...]) -> None:
+    """Refuse (one line) a value whose square (in the filter's covariances) would overflow."""
+    values = np.where(obs.mask, np.asarray(obs.values, dtype=float), 0.0)
+    big = np.abs(values) > MAX_DATA_MAGNITUDE
+    if np.any(big):
+        k, j = (int(i[0]) for i in np.nonzero(big))
+        raise DataError(
+            f"the value {values[k, j]:g} of {names[j]} at t = {times[k]:g} is too large: the "
+            f"filter squares the data, so values must stay within ±{MAX_DATA_MAGNITUDE:g} "
+            "(check the file, or change the units)")
+
+
 def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -> None:
     """One line when θ has more entries than the data have values (all trajectories); a
     model the integrator cannot take (a non-separable H with leapfrog) is refused here."""
@@ -159,6 +178,8 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -
     except ValueError as err:
         raise SettingsError(source, "model.integrator", f"({model.integrator!r}): {err}") from None
     num_params = built.num_params + (2 * d * len(trajectories) if init.mode == "learned" else 0)
+    num_times = sum(int(np.asarray(obs.times).size) for obs in trajectories)
+    _check_memory(settings, num_params, num_times, built.state_dim, source)
     if num_params > values:
         name = family_of(model).name
         what = f"order {model.order}" if name == "polynomial" else f"{name!r}"
@@ -170,3 +191,54 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -
 def _dim(obs: Any) -> int:
     """The configuration dimension d of the system the data observe."""
     return observation_layout(obs).dim
+
+
+#: Floats the samplers record per draw besides θ (log posterior, acceptance, step sizes, ...).
+_STATS_PER_DRAW = 8
+
+
+def run_memory(settings: Settings, num_params: int, num_times: int, state_dim: int) -> int:
+    """Bytes a fit's sampler needs, as an estimate from above (float64 throughout).
+
+    Per chain: its kept draws of θ and their statistics, held three times (the chains'
+    arrays, ArviZ's dataset, the netCDF file made in memory); the sampler's own state (a few
+    P × P matrices: proposal and adaptation); the filter's working arrays along the data (eq.
+    (9)–(13): per time, the 2n + 1 sigma points and n × n covariances, kept for a gradient).
+    """
+    s = settings.sampler
+    draws = 3 * s.num_draws * (num_params + _STATS_PER_DRAW)
+    sampler = 4 * num_params**2
+    n = state_dim
+    filter_ = 4 * num_times * n * (3 * n + 1)
+    return 8 * s.num_chains * (draws + sampler + filter_)
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this machine can give now (``MemAvailable``; the physical memory where
+    that is unknown; None where neither is)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _check_memory(settings: Settings, num_params: int, num_times: int, state_dim: int,
+                  source: str) -> None:
+    """Refuse (one line) before anything is allocated a sampler whose chains × draws ×
+    parameters cannot fit in this machine's memory (as gaps needing too many substeps are)."""
+    need, have = run_memory(settings, num_params, num_times, state_dim), available_memory()
+    if have is None or need <= have:
+        return
+    s = settings.sampler
+    raise SettingsError(
+        source, "sampler.num_chains",
+        f"({s.num_chains:,}) × {s.num_draws:,} draws kept per chain × {num_params} parameters "
+        f"need about {need / 2**30:,.1f} GiB of memory, more than the {have / 2**30:,.1f} GiB "
+        "available; use fewer chains or iterations, or thin (sampler.thin)")

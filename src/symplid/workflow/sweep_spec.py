@@ -259,6 +259,12 @@ class _Checker:
         self.mapped = experiment.mapped
 
     def table(self, table: Mapping[str, Any], where: str) -> dict[str, Any]:
+        for key in table:  # an old and a new name together: refused before any warning
+            new = self.exp.renamed.get(key) or RENAMED.get(key)
+            if new is not None and self.mapped.get(new, new) in table:
+                new = self.mapped.get(new, new)
+                raise SweepError(self.source, None, f"{key} and {new} in {where} are the same "
+                                 f"setting; give only {new}")
         return dict(self.value(k, v, where) for k, v in table.items())
 
     def value(self, key: str, value: Any, where: str) -> tuple[str, Any]:
