@@ -105,3 +105,17 @@ def small_loglik(hh_model, small_data, small_x0, small_P0):
 def small_grad(hh_model, small_data, small_x0, small_P0):
     """θ ↦ ∇ log-likelihood of the small problem, jitted once."""
     return jax.jit(jax.grad(hh_model.log_likelihood_fn(small_data, small_x0, small_P0)))
+
+
+@pytest.fixture(scope="module")
+def data_csv(tmp_path_factory):
+    """A noisy unit-frequency oscillator, 12 full-state observations at t = 1..12 (CSV): the
+    small data set of the command-line tests of run files, resume, locks, limits, signals
+    and disk faults."""
+    t = np.arange(1, 13.0)
+    rng = np.random.default_rng(0)
+    q, p = np.cos(t) + 0.02 * rng.normal(size=t.size), -np.sin(t) + 0.02 * rng.normal(size=t.size)
+    path = tmp_path_factory.mktemp("d") / "h.csv"
+    path.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
+                                         zip(t.tolist(), q.tolist(), p.tolist(), strict=True)))
+    return path

@@ -18,7 +18,6 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 FIT = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
@@ -106,16 +105,6 @@ def tiny_file_system(folder: Path, size: str) -> Iterator[Path]:
     finally:
         _run("umount", str(folder))
 
-
-@pytest.fixture(scope="module")
-def data_csv(tmp_path_factory) -> Path:
-    t = np.arange(1, 13.0)
-    rng = np.random.default_rng(0)
-    q, p = np.cos(t) + 0.02 * rng.normal(size=t.size), -np.sin(t) + 0.02 * rng.normal(size=t.size)
-    path = tmp_path_factory.mktemp("d") / "h.csv"
-    path.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
-                                         zip(t.tolist(), q.tolist(), p.tolist(), strict=True)))
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -35,16 +35,6 @@ def one_line(result, *words, code=2) -> str:
     return lines[0]
 
 
-@pytest.fixture(scope="module")
-def data_csv(tmp_path_factory) -> Path:
-    t = np.arange(1, 13.0)
-    rng = np.random.default_rng(0)
-    q, p = np.cos(t) + 0.02 * rng.normal(size=t.size), -np.sin(t) + 0.02 * rng.normal(size=t.size)
-    path = tmp_path_factory.mktemp("d") / "h.csv"
-    path.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
-                                         zip(t.tolist(), q.tolist(), p.tolist(), strict=True)))
-    return path
-
 
 # ----------------------------------------------------------------------------- class 6: memory
 def test_a_hundred_thousand_chains_are_one_line_before_any_allocation(data_csv, tmp_path):

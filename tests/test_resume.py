@@ -102,16 +102,6 @@ def _chunks_of_100(monkeypatch, stop_at: int | None = None):
     monkeypatch.setattr(fit_module, "sample", functools.partial(sample, **extra))
 
 
-@pytest.fixture(scope="module")
-def data_csv(tmp_path_factory) -> Path:
-    t = np.arange(1, 13.0)
-    rng = np.random.default_rng(0)
-    q, p = np.cos(t) + 0.02 * rng.normal(size=t.size), -np.sin(t) + 0.02 * rng.normal(size=t.size)
-    path = tmp_path_factory.mktemp("d") / "h.csv"
-    path.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
-                                         zip(t.tolist(), q.tolist(), p.tolist(), strict=True)))
-    return path
-
 
 @pytest.fixture(scope="module")
 def reference_run(data_csv, tmp_path_factory) -> Path:

@@ -16,7 +16,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from symplid.io.files import FolderLock, FolderLockedError
@@ -33,16 +32,6 @@ def start(*args) -> subprocess.Popen:
 def errors(stderr: str) -> list[str]:
     return [line for line in stderr.splitlines() if not line.startswith("symplid: warning:")]
 
-
-@pytest.fixture(scope="module")
-def data_csv(tmp_path_factory) -> Path:
-    t = np.arange(1, 13.0)
-    rng = np.random.default_rng(0)
-    q, p = np.cos(t) + 0.02 * rng.normal(size=t.size), -np.sin(t) + 0.02 * rng.normal(size=t.size)
-    path = tmp_path_factory.mktemp("d") / "h.csv"
-    path.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
-                                         zip(t.tolist(), q.tolist(), p.tolist(), strict=True)))
-    return path
 
 
 def test_two_fits_into_one_folder_one_runs_one_is_refused(data_csv, tmp_path):

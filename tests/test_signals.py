@@ -16,22 +16,11 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 FIT = ["--order", "2", "--x0", "1,0", "--burn-in", "100", "--chains", "2", "--no-progress",
        "--no-report", "--set", "map.num_starts=1", "--iterations", "2000000"]
 
-
-@pytest.fixture(scope="module")
-def data_csv(tmp_path_factory) -> Path:
-    t = np.arange(1, 13.0)
-    rng = np.random.default_rng(0)
-    q, p = np.cos(t) + 0.02 * rng.normal(size=t.size), -np.sin(t) + 0.02 * rng.normal(size=t.size)
-    path = tmp_path_factory.mktemp("d") / "h.csv"
-    path.write_text("t,q1,p1\n" + "".join(f"{a!r},{b!r},{c!r}\n" for a, b, c in
-                                         zip(t.tolist(), q.tolist(), p.tolist(), strict=True)))
-    return path
 
 
 def _default_sigint() -> None:  # a suite run as a background job ignores SIGINT
