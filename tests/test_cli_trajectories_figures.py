@@ -1,4 +1,4 @@
-"""The command line's second round (issue 11): several trajectories, figures, quiet short runs,
+"""The command line: several trajectories, figures, quiet short runs,
 a fast ``--version``.
 
 Several trajectories, from two files or from one file with a ``trajectory`` column, must give
