@@ -29,25 +29,12 @@ from symplid import runtime  # noqa: E402  (sets the small-loop flag before JAX 
 
 runtime.limit_threads()  # one XLA thread
 
-import time  # noqa: E402
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import symplid  # noqa: E402
-
-
-def best_time(fn, *args, number: int, repeats: int = 30) -> float:
-    """Smallest mean wall time per call over ``repeats`` batches of ``number`` calls (seconds)."""
-    jax.block_until_ready(fn(*args))
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(number):
-            out = fn(*args)
-        jax.block_until_ready(out)
-        best = min(best, (time.perf_counter() - start) / number)
-    return best
+from likelihood import best_time  # noqa: E402  (the same timing as the filter's benchmark)
 
 
 def _timings(model, theta, data, x0, number: int) -> tuple[float, float, float]:
@@ -56,8 +43,8 @@ def _timings(model, theta, data, x0, number: int) -> tuple[float, float, float]:
     value = jax.jit(loglik)
     value_grad = jax.jit(jax.value_and_grad(loglik))
     ll = float(value(theta))
-    return (ll, 1e6 * best_time(value, theta, number=number),
-            1e6 * best_time(value_grad, theta, number=number))
+    return (ll, 1e6 * best_time(value, theta, number=number, repeats=30),
+            1e6 * best_time(value_grad, theta, number=number, repeats=30))
 
 
 def main() -> None:
