@@ -30,7 +30,6 @@ A few minutes on one core, nearly all of it compiling the likelihood's gradient 
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
@@ -44,7 +43,6 @@ from symplid.plotting import save_figure
 
 DT = 0.025
 T_END = 20.0
-QUICK = os.environ.get("SYMPLID_EXAMPLE_BUDGET", "full") == "quick"  # the docs build's budget
 
 
 def fit(system: symplid.System, data: symplid.Observations) -> tuple:
