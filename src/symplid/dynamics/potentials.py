@@ -293,6 +293,12 @@ def kinetic_energy(p: Array, inv_mass: Array | None = None) -> Array:
     return 0.5 * jnp.einsum("...i,ij,...j->...", p, inv_mass, p)
 
 
+def has_kinetic(obj: object) -> bool:
+    """Whether ``obj`` carries its own kinetic energy T(p; θ) with its gradient ``velocity``
+    (a :class:`~symplid.dynamics.separable.SeparablePotential`) instead of ½pᵀM⁻¹p."""
+    return callable(getattr(obj, "velocity", None)) and callable(getattr(obj, "kinetic", None))
+
+
 def hamiltonian(
     potential: Potential, coefficients: Array, state: Array, inv_mass: Array | None = None
 ) -> Array:
@@ -311,7 +317,7 @@ def hamiltonian(
             lambda qq, pp: potential.value(qq, pp, coefficients), signature="(d),(d)->()"
         )(q, p)
     u = jnp.vectorize(lambda qq: potential.value(qq, coefficients), signature="(d)->()")(q)
-    if callable(getattr(potential, "kinetic", None)):  # its own T(p), a SeparablePotential
+    if has_kinetic(potential):  # its own T(p), a SeparablePotential
         if inv_mass is not None:
             raise ValueError("a constant mass matrix applies to H = ½pᵀM⁻¹p + U(q) only")
         t = jnp.vectorize(lambda pp: potential.kinetic(pp, coefficients), signature="(d)->()")

@@ -23,16 +23,11 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from symplid.dynamics.potentials import over_points
+from symplid.dynamics.potentials import has_kinetic, over_points
 
 Array = jax.Array
 
 __all__ = ["SeparablePotential", "has_kinetic"]
-
-
-def has_kinetic(obj: object) -> bool:
-    """Whether ``obj`` carries its own kinetic energy T(p; θ) (a :class:`SeparablePotential`)."""
-    return callable(getattr(obj, "velocity", None)) and callable(getattr(obj, "kinetic", None))
 
 
 @dataclass(frozen=True, eq=False)

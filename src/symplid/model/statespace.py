@@ -51,6 +51,7 @@ from symplid.dynamics.potentials import (
     Potential,
     coefficient_name,
     hamiltonian,
+    has_kinetic,
     inverse_mass,
     mass_matrix,
 )
@@ -156,7 +157,7 @@ class HamiltonianModel:
         object.__setattr__(self, "integrator", integrator)
         self._check_hamiltonian()
         if self.damping:
-            if callable(getattr(self.potential, "kinetic", None)):
+            if has_kinetic(self.potential):
                 raise ValueError("damping=True needs T = ½pᵀM⁻¹p (the friction is −γM⁻¹p); "
                                  "the model has its own kinetic energy T(p)")
             if not self.separable:
