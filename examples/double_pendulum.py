@@ -106,14 +106,14 @@ def main() -> None:
     truth = symplid.true_trajectory(system.potential, system.coefficients,
                                     system.initial_state, times[1:], dt=1e-3, integrator="rk4")
     truth = np.vstack([system.initial_state, truth])
-    energy = np.asarray(model.hamiltonian(result.theta, path)) - float(
-        model.hamiltonian(result.theta, path[0]))
+    energy = np.asarray(model.energy(result.theta, path)) - float(
+        model.energy(result.theta, path[0]))
     deviation = np.abs(path[:, :2] - truth[:, :2]).max(axis=1)
     horizon = times[np.argmax(deviation > 0.1)] if np.any(deviation > 0.1) else times[-1]
     print(f"prediction: largest angle error {deviation[times <= data.times[-1]].max():.3f} rad "
           f"over the data's 10 s; within 0.1 rad of the truth until t = {horizon:.1f} s; "
           f"largest energy error {np.abs(energy).max():.1e} (H(0) = "
-          f"{float(model.hamiltonian(result.theta, path[0])):.2f})")
+          f"{float(model.energy(result.theta, path[0])):.2f})")
     print(f"figure: {figure(system, data, times, path, truth, energy, out)}")
 
 

@@ -40,7 +40,7 @@ def loglik_at_truth(cell: dict) -> float:
     """Log-likelihood of the cell's data at the true θ, with the cell's integrator and dt."""
     system, data = cell_data(cell)
     model = _model(system.dim, cell["order"], cell["integrator"], cell["dt"])
-    coefficients = model.potential.coefficients_from(
+    coefficients = model.hamiltonian.coefficients_from(
         dict(zip(system.potential.param_names, system.coefficients, strict=True))
     )
     theta = model.pack(coefficients, 1e-6, cell["noise_std"] ** 2)

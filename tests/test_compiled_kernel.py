@@ -66,7 +66,7 @@ def _problem(case, rng: np.random.Generator, num_theta: int = 9):
 
 def _random_thetas(model, rng: np.random.Generator, count: int) -> jax.Array:
     """Random coefficients around a confining quadratic bowl, random positive variances."""
-    potential = model.potential
+    potential = model.hamiltonian
     bowl = np.array([0.5 if sum(e) == 2 and max(e) == 2 else 0.0 for e in potential.exponents])
     thetas = [
         model.pack(

@@ -77,7 +77,7 @@ def hh_numpy_ukf(model, theta, data, x0, P0, **kwargs):
     coeffs, proc, obs = (np.asarray(a) for a in model.split(theta))
     inv_mass = None if model.mass is None else np.linalg.inv(model.mass)
     step = numpy_leapfrog(
-        polynomial_gradient(np.array(model.potential.exponents), coeffs), inv_mass
+        polynomial_gradient(np.array(model.hamiltonian.exponents), coeffs), inv_mass
     )
     num, sizes = numpy_substeps(data.times, model.dt)
     return numpy_ukf_loglik(
@@ -163,7 +163,7 @@ def test_exact_kalman_reference_is_itself_consistent():
 def filterpy_loglik(model, theta, data, x0, P0):
     """filterpy's UKF with the model's α, β, κ, over gaps of ⌈gap/dt⌉ leapfrog substeps."""
     coeffs, proc, obs = (np.asarray(a) for a in model.split(theta))
-    step = numpy_leapfrog(polynomial_gradient(np.array(model.potential.exponents), coeffs))
+    step = numpy_leapfrog(polynomial_gradient(np.array(model.hamiltonian.exponents), coeffs))
 
     def fx(x, dt, num):
         x = x[None, :]

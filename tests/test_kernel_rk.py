@@ -57,7 +57,7 @@ def _problem(case, rng: np.random.Generator):
     values = 0.3 * rng.standard_normal((TIMES.size, model.obs_dim))
     values[1, 0] = np.nan  # one missing component
     prepared = model.prepare(symplid.Observations(TIMES, values))
-    potential = model.potential
+    potential = model.hamiltonian
     bowl = np.array([0.5 if sum(e) == 2 and max(e) == 2 else 0.0 for e in potential.exponents])
     thetas = [
         model.pack(

@@ -49,7 +49,7 @@ def _problem(case):
     )
     rng = np.random.default_rng(d * 100 + order)
     data = symplid.Observations(TIMES, 0.3 * rng.standard_normal((TIMES.size, 2 * d)))
-    exponents = model.potential.exponents  # a confining quadratic bowl, perturbed
+    exponents = model.hamiltonian.exponents  # a confining quadratic bowl, perturbed
     bowl = np.array([0.5 if sum(e) == 2 and max(e) == 2 else 0.0 for e in exponents])
     coefficients = bowl + 0.05 * rng.standard_normal(bowl.size)
     theta = np.asarray(model.pack(coefficients, 1e-3, 0.05**2))

@@ -252,7 +252,7 @@ def test_the_model_takes_a_hamiltonian_and_the_kernel_declines_it(pendulum):
     tao_on_polynomial = symplid.HamiltonianModel(symplid.Polynomial(2, 3), integrator="tao")
     assert kernel.unsupported_reason(tao_on_polynomial) is not None
     x = np.array([[1.0, 0.5, 0.2, -0.1]])
-    h = model.hamiltonian(pendulum.coefficients, x)
+    h = model.energy(pendulum.coefficients, x)
     assert float(h[0]) == pytest.approx(
         float(pendulum.potential.value(x[0, :2], x[0, 2:], pendulum.coefficients)))
 
@@ -315,7 +315,7 @@ def test_settings_name_the_hamiltonian_and_its_integrators(pendulum_data):
         "prediction": {"integrator": "tao4"},
     })
     model = build_model(resolve_for_data(good, pendulum_data), pendulum_data)
-    assert isinstance(model.potential, DoublePendulum) and model.integrator.binding == 5.0
+    assert isinstance(model.hamiltonian, DoublePendulum) and model.integrator.binding == 5.0
     assert model.observation == "positions"
     leapfrog = settings_from_dict({**base, "model": {"hamiltonian": "double-pendulum"}})
     with pytest.raises(SettingsError, match=r"model\.integrator 'leapfrog' needs a separable H"):

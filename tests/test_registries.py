@@ -177,7 +177,7 @@ def test_toys_registered_here_drive_a_fit_from_the_command_line(toys, tmp_path):
     coeff_grad = np.asarray(grad)[:nc]
     assert np.max(np.abs(coeff_grad)) < 1e-3 * max(1.0, float(np.max(np.abs(theta[:nc]))))
     assert free.any()
-    leapfrog = HamiltonianModel(model.potential, integrator="leapfrog", dt=0.1,
+    leapfrog = HamiltonianModel(model.hamiltonian, integrator="leapfrog", dt=0.1,
                                 observation=model.observation, noise=model.noise)
     x0 = np.array([1.0, 0.0])
     toy_ll = float(model.log_likelihood(theta, obs, x0))

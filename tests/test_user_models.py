@@ -207,7 +207,7 @@ def test_a_fit_recovers_a_non_quadratic_kinetic_parameter():
                   "parameters": {"a": {"prior": "log-normal", "mu": 0.0, "sigma": 1.0}}},
         "initial_state": {"x0": [0.5, 0.0]}, "map": {"num_starts": 2}}), obs)
     model = build_model(s, obs)
-    assert isinstance(model.potential, SeparablePotential)
+    assert isinstance(model.hamiltonian, SeparablePotential)
     assert s.model.integrator == "leapfrog"  # separable: explicit leapfrog, no Tao
     result = find_map_for(s, build_posterior(s, obs, model))
     a, sd = result.theta[0], math.sqrt(result.covariance[0, 0])

@@ -170,7 +170,7 @@ def fit_method(cell: Mapping[str, Any], data: Observations) -> tuple[Any, np.nda
     result = find_map_for(settings, posterior)
     nc = potential.num_params
     cov = None if result.covariance is None else np.asarray(result.covariance)[:nc, :nc]
-    return model.potential, np.asarray(result.theta[:nc], dtype=float), cov
+    return model.hamiltonian, np.asarray(result.theta[:nc], dtype=float), cov
 
 
 def _energy(potential: Any, coefficients: np.ndarray, x0: np.ndarray) -> np.ndarray:

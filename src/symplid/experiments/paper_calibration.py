@@ -93,8 +93,8 @@ def true_values(system: Any, model: Any, noise_std: float) -> dict[str, float]:
     system lacks is 0); the observation-noise variance is ``noise_std``² (isotropic noise).
     """
     terms = dict(zip(system.potential.param_names, system.coefficients, strict=True))
-    coefficients = model.potential.coefficients_from(terms)
-    names = [coefficient_name(n) for n in model.potential.param_names]  # as in θ's names
+    coefficients = model.hamiltonian.coefficients_from(terms)
+    names = [coefficient_name(n) for n in model.hamiltonian.param_names]  # as in θ's names
     truth = dict(zip(names, map(float, coefficients), strict=True))
     if "obs_var" in model.param_names:
         truth["obs_var"] = float(noise_std) ** 2

@@ -102,7 +102,7 @@ def forecast_from_filter(
     t_last = float(data.times[-1])
     if not t_end > t_last:
         raise ValueError(f"t_end = {t_end:g} must be after the last observation t = {t_last:g}")
-    x0 = check_state(x0, model.potential.dim)
+    x0 = check_state(x0, model.hamiltonian.dim)
     key, seed_int = key_and_seed(seed)
     key_select, key_state = jax.random.split(key)
     order = np.asarray(jax.random.permutation(key_select, theta.shape[0]))
@@ -112,12 +112,12 @@ def forecast_from_filter(
     # which costs less than compiling a vmapped filter for a one-off forecast.
     z = np.asarray(jax.random.normal(key_state, (used.shape[0], model.state_dim)))
     starts = _sample_filtered(model, theta[used], prepared, [x0] * used.shape[0], P0, z)
-    inv_mass = inverse_mass(model.mass, model.potential.dim)
+    inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
     coefficients = theta[used, : model.num_dynamics_params]  # θ_Ψ: with γ when damped
     if model.damping:
         integrator = with_damping(integrator)
     return predictive_band(
-        model.potential, inv_mass, coefficients, starts, used, t_last, t_end, dt, integrator,
+        model.hamiltonian, inv_mass, coefficients, starts, used, t_last, t_end, dt, integrator,
         quantiles, num_paths, seed_int, every, batch_size,
     )
 
@@ -278,8 +278,8 @@ def forecast_with_noise(
     noise_scale = np.sqrt(np.maximum(proc, 0.0))
     per_step = model.process_noise_per == "step"
     scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
-    inv_mass = inverse_mass(model.mass, model.potential.dim)
-    run = jit_for(model.potential, _noisy_paths, model.integrator, int(num_steps.max()))
+    inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
+    run = jit_for(model.hamiltonian, _noisy_paths, model.integrator, int(num_steps.max()))
     states = np.array(
         run(
             jnp.asarray(theta[:, :nc]),

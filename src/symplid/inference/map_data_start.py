@@ -196,7 +196,7 @@ def _vector_field(model: Any):
     """(∂H/∂p, g = −∂H/∂q − γ ∂H/∂p) at a batch of states, for model parameters θ_m."""
 
     def field(theta_m: Array, x: Array) -> tuple[Array, Array]:
-        grad = jax.vmap(jax.grad(lambda s: model.hamiltonian(theta_m, s)))(x)
+        grad = jax.vmap(jax.grad(lambda s: model.energy(theta_m, s)))(x)
         d = x.shape[-1] // 2
         velocity = grad[:, d:]
         gamma = model.damping_rate(theta_m) if getattr(model, "damping", False) else 0.0

@@ -208,7 +208,7 @@ def find_map_neural(
 
 def _start(posterior: Posterior) -> np.ndarray:
     theta = default_start(posterior)
-    initial = getattr(posterior.model.potential, "initial_coefficients", None)
+    initial = getattr(posterior.model.hamiltonian, "initial_coefficients", None)
     if callable(initial):
         nc = int(posterior.model.num_coefficients)
         theta[:nc] = np.asarray(initial(), dtype=float)

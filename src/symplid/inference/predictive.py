@@ -99,7 +99,7 @@ def resolve_coefficients(model_or_potential: Any, coefficients: Any, mass: Any =
         coefficients = coefficients[None]
     if isinstance(model_or_potential, HamiltonianModel):
         model = model_or_potential
-        potential = model.potential
+        potential = model.hamiltonian
         n = coefficients.shape[-1]
         if n in (model.num_params, model.num_dynamics_params):
             coefficients = coefficients[..., : model.num_coefficients]

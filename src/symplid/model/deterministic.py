@@ -59,7 +59,7 @@ def build_trajectory_likelihood(
     ``log_likelihood`` is −∞ when a variance is not positive or a term is not finite.
     """
     nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ for a damped model
-    d = model.potential.dim
+    d = model.hamiltonian.dim
     observe = _observer(model)
 
     def trajectory_fn(theta, inputs, ys, masks, x0, p0) -> FilterResult:
@@ -70,7 +70,7 @@ def build_trajectory_likelihood(
         # NaN reaches the gradient through the discarded branch (as in the filter).
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
         inv_mass = inverse_mass(model.mass, d)
-        dynamics = bind_dynamics(model.integrator, model.potential, theta[:nc], inv_mass)
+        dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
 
         def gap(x, inp):
             q, p = propagate(model.integrator, dynamics, x[:d], x[d:], inp.step_size,

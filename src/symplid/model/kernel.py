@@ -136,8 +136,8 @@ def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = N
         return "no process noise: the deterministic-trajectory likelihood needs no filter"
     if getattr(model, "damping", False):
         return "the model is damped (γ); the kernel propagates undamped dynamics only"
-    if not isinstance(model.potential, Polynomial):
-        return f"the potential is a {type(model.potential).__name__}, not a Polynomial"
+    if not isinstance(model.hamiltonian, Polynomial):
+        return f"the potential is a {type(model.hamiltonian).__name__}, not a Polynomial"
     if model.integrator.scheme is None:
         return (f"the integrator {model.integrator.name!r} is a step function without a "
                 "composition or Butcher tableau")
@@ -167,7 +167,7 @@ def describe(model: StateSpaceModel, prepared: PreparedData | None = None) -> di
 
 def _attributes(model: StateSpaceModel, prepared: PreparedData) -> dict[str, Any]:
     """The model's static settings as FFI attributes (numbers and 1-D arrays)."""
-    potential = model.potential
+    potential = model.hamiltonian
     d = potential.dim
     kind, *numbers = model.integrator.scheme
     weights = unscented_weights(model.state_dim, model.alpha, model.beta, model.kappa)

@@ -82,7 +82,7 @@ class PreparedData(NamedTuple):
 class StateSpaceModel(Protocol):
     """What the likelihood reads from a model (:class:`symplid.HamiltonianModel` has it all)."""
 
-    potential: Any
+    hamiltonian: Any
     integrator: Any
     mass: Any
     observation: Any
@@ -173,8 +173,8 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         variances_ok = jnp.all(variances > 0)
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
         _, proc, obs = model.split(theta)
-        inv_mass = inverse_mass(model.mass, model.potential.dim)
-        dynamics = bind_dynamics(model.integrator, model.potential, theta[:nc], inv_mass)
+        inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
+        dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
         predict = _prediction(model, dynamics, proc, weights, max_steps, uniform_steps)
         if _multiplicative(model):  # Γ replaced by R_k(ŷ, S_h) (symplid.filters.noise)
             obs = model.noise_covariance(theta)
@@ -226,7 +226,7 @@ def _prediction(
     are pushed through all the gap's substeps and Σ is added once; with ``"step"`` the
     unscented prediction (and Σ) is repeated after every substep.
     """
-    d = model.potential.dim
+    d = model.hamiltonian.dim
     integrator = model.integrator
     jitter = model.jitter
 

@@ -44,17 +44,17 @@ import numpy as np
 
 from symplid.compiled import cached
 from symplid.dynamics.damping import is_damped, with_damping
-from symplid.dynamics.hamiltonians import is_hamiltonian
+from symplid.dynamics.hamiltonians import Hamiltonian, is_hamiltonian
 from symplid.dynamics.integrators import Integrator, get_integrator, separable_only_error
 from symplid.dynamics.nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, with_binding
 from symplid.dynamics.potentials import (
     Potential,
     coefficient_name,
-    hamiltonian,
     has_kinetic,
     inverse_mass,
     mass_matrix,
 )
+from symplid.dynamics.potentials import hamiltonian as hamiltonian_value
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult, unscented_weights
 from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
@@ -77,9 +77,10 @@ class HamiltonianModel:
 
     Parameters
     ----------
-    potential
-        A :class:`~symplid.dynamics.potentials.Polynomial`, a
-        :class:`~.potentials.FunctionPotential`, or anything with the same interface; or a
+    hamiltonian
+        The model's Hamiltonian: a potential U(q) (then H = ½pᵀM⁻¹p + U(q)) — a
+        :class:`~symplid.dynamics.potentials.Polynomial`, a
+        :class:`~.potentials.FunctionPotential`, or anything with the same interface — or a
         whole, possibly non-separable Hamiltonian H(q, p; θ)
         (:class:`~symplid.dynamics.hamiltonians.Hamiltonian`: ``FunctionHamiltonian``,
         ``DoublePendulum``, ...), whose parameters then lead θ in place of U's coefficients.
@@ -132,7 +133,7 @@ class HamiltonianModel:
         None: ω = 1/dt. An error with any other integrator.
     """
 
-    potential: Potential
+    hamiltonian: Potential | Hamiltonian
     integrator: str | Integrator = "leapfrog"
     dt: float = 0.25
     observation: ObservationSpec = "full"
@@ -157,7 +158,7 @@ class HamiltonianModel:
         object.__setattr__(self, "integrator", integrator)
         self._check_hamiltonian()
         if self.damping:
-            if has_kinetic(self.potential):
+            if has_kinetic(self.hamiltonian):
                 raise ValueError("damping=True needs T = ½pᵀM⁻¹p (the friction is −γM⁻¹p); "
                                  "the model has its own kinetic energy T(p)")
             if not self.separable:
@@ -181,7 +182,7 @@ class HamiltonianModel:
         if self.jitter < 0:
             raise ValueError("jitter must be ≥ 0")
         unscented_weights(self.state_dim, self.alpha, self.beta, self.kappa)  # validates
-        object.__setattr__(self, "mass", mass_matrix(self.mass, self.potential.dim))
+        object.__setattr__(self, "mass", mass_matrix(self.mass, self.hamiltonian.dim))
         obs = self.observation
         if isinstance(obs, str):
             if obs not in ("full", "positions"):
@@ -222,18 +223,18 @@ class HamiltonianModel:
     @property
     def separable(self) -> bool:
         """Whether H = ½pᵀM⁻¹p + U(q) (a potential), not a whole H(q, p; θ)."""
-        return not is_hamiltonian(self.potential)
+        return not is_hamiltonian(self.hamiltonian)
 
     # ------------------------------------------------------------------ layout of θ
     @property
     def state_dim(self) -> int:
-        return 2 * self.potential.dim
+        return 2 * self.hamiltonian.dim
 
     @property
     def observation_matrix(self) -> np.ndarray | None:
         """H for a linear observation operator, None for a function."""
         obs = self.observation
-        d = self.potential.dim
+        d = self.hamiltonian.dim
         if isinstance(obs, str):
             return np.eye(2 * d) if obs == "full" else np.eye(d, 2 * d)
         if callable(obs):
@@ -250,7 +251,7 @@ class HamiltonianModel:
 
     @property
     def num_coefficients(self) -> int:
-        return self.potential.num_params
+        return self.hamiltonian.num_params
 
     @property
     def num_damping(self) -> int:
@@ -298,7 +299,7 @@ class HamiltonianModel:
             return np.zeros(d_y, dtype=int)
         if self.noise == "diagonal":
             return np.arange(d_y)
-        return np.arange(d_y) // self.potential.dim  # q1..qd → 0, p1..pd → 1
+        return np.arange(d_y) // self.hamiltonian.dim  # q1..qd → 0, p1..pd → 1
 
     @property
     def num_obs_noise(self) -> int:
@@ -322,7 +323,7 @@ class HamiltonianModel:
         """Coefficient names (``c[q1^2]``: :func:`~symplid.dynamics.potentials.coefficient_name`),
         ``gamma`` when damped, then ``process_var``, ``obs_var`` and ``obs_rel_var`` (indexed
         by component when diagonal, by kind when per-kind)."""
-        names = [coefficient_name(n) for n in self.potential.param_names]
+        names = [coefficient_name(n) for n in self.hamiltonian.param_names]
         names += ["gamma"] * self.num_damping
         if self.noise == "diagonal":
             names += [f"process_var[{i}]" for i in range(self.num_process_noise)]
@@ -339,7 +340,7 @@ class HamiltonianModel:
         ``obs_var``, ``obs_rel_var``); a user model's declared parameters are ``parameters``
         (the potential's ``parameter_group``)."""
         return tuple(
-            [getattr(self.potential, "parameter_group", "coefficients")] * self.num_coefficients
+            [getattr(self.hamiltonian, "parameter_group", "coefficients")] * self.num_coefficients
             + ["damping"] * self.num_damping
             + ["process_var"] * self.num_process_noise
             + ["obs_var"] * self.num_obs_noise
@@ -535,11 +536,12 @@ class HamiltonianModel:
         fn = self._loglik_program(prepared)
         return partial(_bound_loglik, fn, prepared, x0, P0)
 
-    def hamiltonian(self, theta_or_coefficients: Array, state: Array) -> Array:
+    def energy(self, theta_or_coefficients: Array, state: Array) -> Array:
         """H(q, p) under the model's potential and mass (or its whole H), for θ or bare
         coefficients."""
         c = jnp.asarray(theta_or_coefficients)[..., : self.num_coefficients]
-        return hamiltonian(self.potential, c, state, inverse_mass(self.mass, self.potential.dim))
+        inv_mass = inverse_mass(self.mass, self.hamiltonian.dim)
+        return hamiltonian_value(self.hamiltonian, c, state, inv_mass)
 
 
 def _only_loglik(fn: Callable[..., FilterResult], *args: Array) -> Array:

@@ -48,8 +48,8 @@ def truth_values(settings: Any, model: Any) -> tuple[Any, dict[str, float]] | No
     system = get_system(name)
     true = dict(zip(map(coefficient_name, system.potential.param_names),
                     np.asarray(system.coefficients, float), strict=True))
-    names = [coefficient_name(n) for n in model.potential.param_names]
-    if system.potential.dim != model.potential.dim or not set(true) <= set(names):
+    names = [coefficient_name(n) for n in model.hamiltonian.param_names]
+    if system.potential.dim != model.hamiltonian.dim or not set(true) <= set(names):
         return system, {}
     return system, {n: float(true.get(n, 0.0)) for n in names}
 
@@ -66,7 +66,7 @@ def potential_figure(settings: Any, data: Any, model: Any, flat: np.ndarray,
     data: the posterior's 95 % band and median, the MAP and the truth (``plots.truth``).
     None when the model has no potential U(q; c): a whole, non-separable H(q, p; θ)
     (``polynomial-qp``, a user's H that mixes q and p) has no U(q) to draw."""
-    potential = getattr(model, "potential", None)
+    potential = getattr(model, "hamiltonian", None)
     if potential is None or not hasattr(potential, "value") or is_hamiltonian(potential):
         return None
     nc = model.num_coefficients
@@ -126,7 +126,7 @@ def fit_figures(settings: Any, data: Any, model: Any, posterior: Any, theta_map:
     the span of the data."""
     out = []
     trajectories = as_list(data)
-    d = model.potential.dim if hasattr(model, "potential") else observation_layout(
+    d = model.hamiltonian.dim if hasattr(model, "hamiltonian") else observation_layout(
         trajectories[0]).dim
     num_paths = min(settings.prediction.num_paths, 100) or 50
     for k, obs in enumerate(trajectories):
