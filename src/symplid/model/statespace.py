@@ -33,8 +33,8 @@ multiplicative model does not have::
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
 from functools import partial
 from typing import Any, Literal
 
@@ -42,37 +42,28 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.compiled import cached
-from symplid.dynamics.damping import is_damped, with_damping
 from symplid.dynamics.hamiltonians import Hamiltonian, is_hamiltonian
-from symplid.dynamics.integrators import Integrator, get_integrator, separable_only_error
-from symplid.dynamics.nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, with_binding
-from symplid.dynamics.potentials import (
-    Potential,
-    coefficient_name,
-    has_kinetic,
-    inverse_mass,
-    mass_matrix,
-)
+from symplid.dynamics.integrators import Integrator
+from symplid.dynamics.potentials import Potential, coefficient_name, inverse_mass
 from symplid.dynamics.potentials import hamiltonian as hamiltonian_value
 from symplid.dynamics.trajectory import substeps
-from symplid.filters import FilterResult, unscented_weights
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
+from symplid.filters import FilterResult
 from symplid.filters.noise import ObservationNoise, get_observation_noise
 from symplid.model import kernel  # noqa: F401  (registers the compiled backend)
+from symplid.model.construction import NOISE_LAYOUTS as NOISE_LAYOUTS  # the choices, also here
+from symplid.model.construction import PROCESS_NOISE_CHOICES as PROCESS_NOISE_CHOICES
+from symplid.model.construction import ModelFields, normalise_fields
 from symplid.model.data import DataError, Observations
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
+from symplid.model.programs import check_backend, compiled, loglik_program, select
 
 Array = jax.Array
-#: Where the process noise enters (``HamiltonianModel.process_noise_per``); ``"none"``: nowhere.
-PROCESS_NOISE_CHOICES = ("gap", "step", "none")
-#: The layouts of the noise variances (``HamiltonianModel.noise``).
-NOISE_LAYOUTS = ("isotropic", "diagonal", "per-kind")
+_POTENTIAL_RENAMED = ("HamiltonianModel's 'potential' is now 'hamiltonian' (it may hold a whole "
+                      "H(q, p; θ)); the old name will be removed")
 ObservationSpec = str | np.ndarray | Callable[[Array], Array]
 
 
-@dataclass(frozen=True, eq=False)
-class HamiltonianModel:
+class HamiltonianModel(ModelFields):
     """A Hamiltonian state-space model with a UKF marginal likelihood (Theorem 1).
 
     Parameters
@@ -133,92 +124,39 @@ class HamiltonianModel:
         None: ω = 1/dt. An error with any other integrator.
     """
 
-    hamiltonian: Potential | Hamiltonian
-    integrator: str | Integrator = "leapfrog"
-    dt: float = 0.25
-    observation: ObservationSpec = "full"
-    process_noise_per: Literal["gap", "step", "none"] = "gap"
-    noise: Literal["isotropic", "diagonal", "per-kind"] = "isotropic"
-    mass: Any = None
-    alpha: float = 1.0
-    beta: float = 2.0
-    kappa: float = 0.0
-    jitter: float = 1e-12
-    unroll: int = 1
-    backend: str = "auto"
-    damping: bool = False
-    observation_noise: str = "additive"
-    binding: float | None = None
+    def __init__(
+        self,
+        hamiltonian: Potential | Hamiltonian | None = None,
+        integrator: str | Integrator = "leapfrog",
+        dt: float = 0.25,
+        observation: ObservationSpec = "full",
+        process_noise_per: Literal["gap", "step", "none"] = "gap",
+        noise: Literal["isotropic", "diagonal", "per-kind"] = "isotropic",
+        mass: Any = None,
+        alpha: float = 1.0,
+        beta: float = 2.0,
+        kappa: float = 0.0,
+        jitter: float = 1e-12,
+        unroll: int = 1,
+        backend: str = "auto",
+        damping: bool = False,
+        observation_noise: str = "additive",
+        binding: float | None = None,
+        *,
+        potential: Potential | None = None,
+    ) -> None:
+        super().__init__(**normalise_fields(
+            _renamed_potential(hamiltonian, potential), integrator, dt, observation,
+            process_noise_per, noise, mass, alpha, beta, kappa, jitter, unroll, backend,
+            damping, observation_noise, binding,
+        ))
+        check_backend(self)  # a forced backend must support the model
 
-    def __post_init__(self) -> None:
-        integrator = get_integrator(self.integrator)
-        if is_damped(integrator) and not self.damping:
-            raise ValueError(f"the integrator {integrator.name!r} is damped: pass damping=True")
-        object.__setattr__(self, "damping", bool(self.damping))
-        object.__setattr__(self, "integrator", integrator)
-        self._check_hamiltonian()
-        if self.damping:
-            if has_kinetic(self.hamiltonian):
-                raise ValueError("damping=True needs T = ½pᵀM⁻¹p (the friction is −γM⁻¹p); "
-                                 "the model has its own kinetic energy T(p)")
-            if not self.separable:
-                raise ValueError("damping=True needs a separable H = ½pᵀM⁻¹p + U(q) (the "
-                                 "friction is −γM⁻¹p); a non-separable H cannot be damped")
-            object.__setattr__(self, "integrator", with_damping(self.integrator))
-        if not np.isfinite(self.dt) or self.dt <= 0:
-            raise ValueError(f"dt must be a positive number, got {self.dt}")
-        if self.process_noise_per not in PROCESS_NOISE_CHOICES:
-            raise ValueError(
-                "process_noise_per must be 'gap', 'step' or 'none', got "
-                f"{self.process_noise_per!r}"
-            )
-        if self.noise not in NOISE_LAYOUTS:
-            raise ValueError(
-                f"noise must be 'isotropic', 'diagonal' or 'per-kind', got {self.noise!r}"
-            )
-        object.__setattr__(
-            self, "observation_noise", get_observation_noise(self.observation_noise).name
-        )
-        if self.jitter < 0:
-            raise ValueError("jitter must be ≥ 0")
-        unscented_weights(self.state_dim, self.alpha, self.beta, self.kappa)  # validates
-        object.__setattr__(self, "mass", mass_matrix(self.mass, self.hamiltonian.dim))
-        obs = self.observation
-        if isinstance(obs, str):
-            if obs not in ("full", "positions"):
-                raise ValueError(
-                    f"observation must be 'full', 'positions', a matrix or a function, got {obs!r}"
-                )
-        elif not callable(obs):
-            matrix = np.atleast_2d(np.asarray(obs, dtype=float))
-            if matrix.shape[1] != self.state_dim:
-                raise ValueError(
-                    f"observation matrix must have {self.state_dim} columns, got {matrix.shape}"
-                )
-            object.__setattr__(self, "observation", matrix)
-        if self.noise == "per-kind" and not isinstance(self.observation, str):
-            raise ValueError(
-                "noise='per-kind' needs observation='full' or 'positions' (the kinds of the "
-                "observed components); use 'diagonal' for a matrix or a function"
-            )
-        object.__setattr__(self, "backend", check_backend_name(self.backend))
-        if self.backend != "auto":
-            select_backend(self.backend, self)  # a forced backend must support the model
-
-    def _check_hamiltonian(self) -> None:
-        """A non-separable H needs a method that accepts it, and no constant mass; ω for Tao."""
-        integrator = self.integrator
-        if isinstance(integrator, TaoIntegrator):
-            binding = DEFAULT_BINDING_STEPS / self.dt if self.binding is None else self.binding
-            object.__setattr__(self, "integrator", with_binding(integrator, binding))
-        elif self.binding is not None:
-            with_binding(integrator, self.binding)  # raises: ω is Tao's
-        if not self.separable:
-            if not integrator.nonseparable:
-                raise separable_only_error(f"the integrator {integrator.name!r}")
-            if self.mass is not None:
-                raise ValueError("mass applies to a separable H only; write the mass into the "
-                                 "Hamiltonian (e.g. symplid.PositionDependentMass)")
+    @property
+    def potential(self) -> Potential | Hamiltonian:
+        """Deprecated: the field is :attr:`hamiltonian`."""
+        warnings.warn(_POTENTIAL_RENAMED, FutureWarning, stacklevel=2)
+        return self.hamiltonian
 
     @property
     def separable(self) -> bool:
@@ -443,21 +381,10 @@ class HamiltonianModel:
         """The backend that computes this model's log-likelihood (``backend="auto"`` resolved).
 
         Chosen among :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS` for the model
-        alone; a backend that declines a particular data set hands it to the next one.
+        alone (:func:`symplid.model.programs.select`); a backend that declines a particular
+        data set hands it to the next one.
         """
-        return select_backend(self.backend, self).name
-
-    def _compiled(self, prepared: PreparedData, backend: str = "jax") -> Callable[..., Any]:
-        """The jitted ``fn(theta, inputs, ys, masks, x0, P0)`` of ``backend``, cached on self."""
-        key = ("likelihood", backend, prepared.max_steps, prepared.uniform_steps)
-        entry = LIKELIHOOD_BACKENDS.get_entry(backend)
-        return cached(self, key, lambda: jax.jit(entry.build(self, prepared)))
-
-    def _loglik_program(self, prepared: PreparedData) -> Callable[..., Array]:
-        """The selected backend's compiled ``fn(theta, inputs, ys, masks, x0, P0) -> ll``."""
-        backend = select_backend(self.backend, self, prepared)
-        fn = self._compiled(prepared, backend.name)
-        return partial(_only_loglik, fn) if backend.filtered_moments else fn
+        return select(self).name
 
     def _check_initial(self, x0, P0) -> tuple[Array, Array]:
         n = self.state_dim
@@ -503,7 +430,7 @@ class HamiltonianModel:
         prepared = data if isinstance(data, PreparedData) else self.prepare(data, t0)
         x0, P0 = self._check_initial(x0, P0)
         theta = self._check_theta(theta)
-        fn = self._compiled(prepared, JAX_BACKEND.name)  # the moments: always the reference
+        fn = compiled(self, prepared, JAX_BACKEND.name)  # the moments: the reference
         return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
 
     def log_likelihood(
@@ -524,7 +451,7 @@ class HamiltonianModel:
         prepared = data if isinstance(data, PreparedData) else self.prepare(data, t0)
         x0, P0 = self._check_initial(x0, P0)
         theta = self._check_theta(theta)
-        fn = self._loglik_program(prepared)
+        fn = loglik_program(self, prepared)
         return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
 
     def log_likelihood_fn(
@@ -533,7 +460,7 @@ class HamiltonianModel:
         """A pure function θ ↦ log-likelihood with the data bound (prepared once)."""
         prepared = self.prepare(data, t0)
         x0, P0 = self._check_initial(x0, P0)
-        fn = self._loglik_program(prepared)
+        fn = loglik_program(self, prepared)
         return partial(_bound_loglik, fn, prepared, x0, P0)
 
     def energy(self, theta_or_coefficients: Array, state: Array) -> Array:
@@ -544,8 +471,16 @@ class HamiltonianModel:
         return hamiltonian_value(self.hamiltonian, c, state, inv_mass)
 
 
-def _only_loglik(fn: Callable[..., FilterResult], *args: Array) -> Array:
-    return fn(*args).log_likelihood
+def _renamed_potential(hamiltonian: Any, potential: Any) -> Any:
+    """The ``hamiltonian`` argument, or the deprecated keyword ``potential`` with a warning."""
+    if potential is None:
+        if hamiltonian is None:
+            raise TypeError("HamiltonianModel() missing required argument: 'hamiltonian'")
+        return hamiltonian
+    if hamiltonian is not None:
+        raise TypeError("HamiltonianModel() got both 'hamiltonian' and its old name 'potential'")
+    warnings.warn(_POTENTIAL_RENAMED, FutureWarning, stacklevel=3)
+    return potential
 
 
 def _bound_loglik(fn: Callable[..., Array], prepared: PreparedData, x0, P0, theta) -> Array:

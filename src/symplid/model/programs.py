@@ -1,0 +1,90 @@
+"""Which backend computes a model's likelihood, and its compiled programs, shared by structure.
+
+A model holds settings; this module decides what runs them. :func:`select` picks the
+likelihood backend from :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS` (``"auto"``:
+the supporting one of highest priority), and :func:`compiled` returns its jitted program
+``fn(theta, inputs, ys, masks, x0, P0)``, built once per **structure**: the model's normal
+fields that a backend's ``build`` may read (:func:`structure_key`), the backend and the two
+facts of the prepared data that shape the program (the most substeps in a gap, whether all
+gaps have as many). Two models with equal structure therefore share one compiled program,
+and so does every posterior built on them.
+
+The programs are kept on the model's Hamiltonian (:func:`symplid.compiled.cached`), the one
+setting that is an arbitrary user object: they live as long as it does, and no module-level
+table keeps models or data alive. A Hamiltonian without a ``__dict__`` keeps nothing: its
+models then each keep their own programs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable
+from functools import partial
+from typing import Any
+
+import jax
+import numpy as np
+
+from symplid.compiled import cached
+from symplid.dynamics.nonseparable import TaoIntegrator
+from symplid.filters import FilterResult
+from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend, select_backend
+from symplid.model.construction import ModelFields
+from symplid.model.likelihood import JAX_BACKEND, PreparedData
+
+__all__ = ["check_backend", "compiled", "loglik_program", "select", "structure_key"]
+
+#: The fields that are not part of a program's structure: the Hamiltonian owns the programs
+#: (it is the cache itself), and the ``backend`` setting only chooses among them.
+_NOT_STRUCTURE = ("hamiltonian", "backend")
+
+
+def structure_key(model: ModelFields) -> tuple[Hashable, ...]:
+    """The model's normal fields, but its Hamiltonian and backend setting, as a hashable key.
+
+    Arrays (mass, observation matrix) enter by shape and value, an observation function by
+    identity, Tao's integrator by its method and binding constant ω (it is rebuilt for each
+    model), every other integrator as itself.
+    """
+    fields = [name for name in ModelFields.__dataclass_fields__ if name not in _NOT_STRUCTURE]
+    return tuple((name, _hashable(getattr(model, name))) for name in fields)
+
+
+def check_backend(model: ModelFields) -> None:
+    """``ValueError`` when the model forces a backend that does not support it."""
+    if model.backend != "auto":
+        select_backend(model.backend, model)
+
+
+def select(model: ModelFields, prepared: PreparedData | None = None) -> LikelihoodBackend:
+    """The backend that computes ``model``'s log-likelihood on ``prepared`` (None: any data)."""
+    return select_backend(model.backend, model, prepared)
+
+
+def compiled(model: ModelFields, prepared: PreparedData,
+             backend: str = JAX_BACKEND.name) -> Callable[..., Any]:
+    """The jitted ``fn(theta, inputs, ys, masks, x0, P0)`` of ``backend`` for ``model``'s
+    structure on data shaped like ``prepared`` (built on first use, then shared)."""
+    key = ("likelihood", backend, structure_key(model), prepared.max_steps,
+           prepared.uniform_steps)
+    entry = LIKELIHOOD_BACKENDS.get_entry(backend)
+    owner = model.hamiltonian if hasattr(model.hamiltonian, "__dict__") else model
+    return cached(owner, key, lambda: jax.jit(entry.build(model, prepared)))
+
+
+def loglik_program(model: ModelFields, prepared: PreparedData) -> Callable[..., jax.Array]:
+    """The selected backend's compiled ``fn(theta, inputs, ys, masks, x0, P0) -> ll``."""
+    backend = select(model, prepared)
+    fn = compiled(model, prepared, backend.name)
+    return partial(_only_loglik, fn) if backend.filtered_moments else fn
+
+
+def _only_loglik(fn: Callable[..., FilterResult], *args: jax.Array) -> jax.Array:
+    return fn(*args).log_likelihood
+
+
+def _hashable(value: Any) -> Hashable:
+    if isinstance(value, np.ndarray):
+        return ("array", value.shape, value.dtype.str, value.tobytes())
+    if isinstance(value, TaoIntegrator):
+        return ("tao", value.name, value.order, value.weights, value.binding)
+    return value
