@@ -1,8 +1,9 @@
 """The one cache of compiled programs: stored on the object that owns them.
 
-A model compiles its filter once per data layout, a posterior its log density and gradient,
-a sampler its chunk. Each keeps what it compiled **on itself**, under a key of the static
-choices that shaped the program::
+A model compiles its filter once per structure and data layout (kept on its Hamiltonian, so
+that models of equal structure share it), a posterior its log density and gradient, a
+sampler its chunk. Each keeps what it compiled **on the object that owns it**, under a key of
+the static choices that shaped the program::
 
     fn = cached(self, ("filter", max_steps, uniform), lambda: jax.jit(build()))
 
