@@ -4,8 +4,10 @@ __post_init__ (kept here as the reference), programs shared by structure, the re
 from __future__ import annotations
 
 import dataclasses
+import gc
 import itertools
 import warnings
+import weakref
 
 import jax.numpy as jnp
 import numpy as np
@@ -233,3 +235,17 @@ def test_tao_models_with_the_same_binding_share_their_program(prepared):
     assert hash(programs.structure_key(a)) == hash(programs.structure_key(b))
     assert programs.compiled(a, prep) is programs.compiled(b, prep)
     assert programs.compiled(c, prep) is not programs.compiled(a, prep)
+
+
+def test_a_hamiltonian_and_the_programs_kept_on_it_are_freed_with_its_models(prepared):
+    """The programs live on the Hamiltonian, not in a module-level table: dropping the
+    Hamiltonian and its models frees them all."""
+    prep, hh = prepared
+    pot = symplid.Polynomial(dim=2, order=3)
+    model = symplid.HamiltonianModel(pot, backend="jax")
+    theta = model.pack(hh.coefficients, 1e-6, 2.5e-3)
+    assert np.isfinite(float(model.log_likelihood(theta, prep, hh.initial_state)))
+    refs = weakref.ref(pot), weakref.ref(model)
+    del pot, model
+    gc.collect()
+    assert all(ref() is None for ref in refs), "something keeps the Hamiltonian alive"

@@ -44,6 +44,7 @@ from symplid.model.likelihood import (
     StateSpaceModel,
     build_filter,
 )
+from symplid.model.programs import compiled
 
 Array = jax.Array
 
@@ -255,8 +256,8 @@ def _build_kernel(model: StateSpaceModel, prepared: PreparedData) -> KernelFn:
 
 
 def _build_backend(model: StateSpaceModel, prepared: PreparedData) -> Callable[..., Array]:
-    """The backend's ``fn(θ, inputs, ys, masks, x0, P0) -> log L`` (jitted and cached by the
-    model like every backend's program)."""
+    """The backend's ``fn(θ, inputs, ys, masks, x0, P0) -> log L`` (jitted and cached by
+    :func:`symplid.model.programs.compiled` like every backend's program)."""
     kernel = _build_kernel(model, prepared)
 
     def fn(theta, inputs, ys, masks, x0, p0):
@@ -302,7 +303,7 @@ def log_likelihood(
     if theta.shape[-1] != model.num_params:
         raise ValueError(f"θ must have {model.num_params} entries, got {theta.shape[-1]}")
     backend = "compiled" if _supports(model, prepared) is None else "jax"
-    fn = model._compiled(prepared, backend)
+    fn = compiled(model, prepared, backend)
     value = fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
     return value if backend == "compiled" else value.log_likelihood
 

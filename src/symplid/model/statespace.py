@@ -122,6 +122,15 @@ class HamiltonianModel(ModelFields):
     binding
         Tao's binding constant ω for ``"tao"``/``"tao4"`` (:mod:`symplid.dynamics.nonseparable`);
         None: ω = 1/dt. An error with any other integrator.
+    potential
+        Deprecated keyword for ``hamiltonian`` (a ``FutureWarning``); so is the attribute
+        ``model.potential``.
+
+    The settings are checked and made normal by
+    :func:`~symplid.model.construction.normalise_fields` before they are stored: the fields
+    read back are the normal ones (:attr:`integrator` an ``Integrator``, :attr:`mass` a matrix
+    or None, a matrix :attr:`observation` as floats, canonical names). Backend selection and
+    the compiled programs are :mod:`symplid.model.programs`'.
     """
 
     def __init__(
