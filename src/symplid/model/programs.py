@@ -43,10 +43,12 @@ def structure_key(model: ModelFields) -> tuple[Hashable, ...]:
 
     Arrays (mass, observation matrix) enter by shape and value, an observation function by
     identity, Tao's integrator by its method and binding constant ω (it is rebuilt for each
-    model), every other integrator as itself.
+    model), every other integrator as itself. Computed once per model (its fields are frozen).
     """
-    fields = [name for name in ModelFields.__dataclass_fields__ if name not in _NOT_STRUCTURE]
-    return tuple((name, _hashable(getattr(model, name))) for name in fields)
+    return cached(model, "structure-key", lambda: tuple(
+        (name, _hashable(getattr(model, name)))
+        for name in ModelFields.__dataclass_fields__ if name not in _NOT_STRUCTURE
+    ))
 
 
 def check_backend(model: ModelFields) -> None:
