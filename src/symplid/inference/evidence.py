@@ -128,9 +128,7 @@ class _Profile:
 
     def u_of_theta(self, theta: np.ndarray) -> np.ndarray:
         """θ ↦ u of the search space without its floor (s may lie below it)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            logged = np.log(theta - np.where(self.space.log, self.space.lower, 0.0))
-        return np.where(self.space.log, logged, theta)
+        return self.space.to_u(theta, floor=False)
 
     def log_density(self, theta: np.ndarray) -> float:
         value = float(self.vg(jnp.asarray(self.u_of_theta(theta)))[0])
