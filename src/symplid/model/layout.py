@@ -232,8 +232,8 @@ class ParameterLayout:
         ``layout.pack(**{"x0[0]": x0})``.
         """
         if ("damping" in self) != (blocks.get("damping") is not None):
-            need = "needs" if "damping" in self else "has no"
-            raise ValueError(f"this model {need} a damping rate: pass gamma accordingly")
+            need = "needs a" if "damping" in self else "has no"
+            raise ValueError(f"this model {need} damping rate: pass gamma accordingly")
         values = {k: np.ravel(np.asarray(v, dtype=float)) for k, v in blocks.items()
                   if v is not None}
         total = sum(v.size for v in values.values())

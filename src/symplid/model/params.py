@@ -163,6 +163,18 @@ class Reparameterisation:
         total = xp.sum(terms, axis=-1)
         return total if self.scale is None else total + float(np.sum(np.log(np.abs(self.scale))))
 
+    def jacobian_diagonal(self, z: Any) -> Any:
+        """∂θ_i/∂z_i, entry by entry (the Jacobian is diagonal): D·(eᶻ, −eᶻ, (b − a)·σ(1 − σ)
+        or 1)."""
+        xp = _array_module(z)
+        ez = xp.exp(xp.where(self.log_lower | self.log_upper, z, 0.0))
+        out = xp.where(self.log_lower, ez, 1.0)
+        out = xp.where(self.log_upper, -ez, out)
+        if self.logit.any():
+            sig = _sigmoid(xp, z)
+            out = xp.where(self.logit, (self._hi - self._lo) * sig * (1.0 - sig), out)
+        return out if self.scale is None else out * self.scale
+
     def __repr__(self) -> str:
         return f"Reparameterisation({int(self.transformed.sum())} of {self.size} entries mapped)"
 
