@@ -134,9 +134,8 @@ class Reparameterisation:
         ez = xp.exp(xp.where(one_sided, z, 0.0))
         theta = xp.where(self.log_lower, self._lo + ez, z)
         theta = xp.where(self.log_upper, self._hi - ez, theta)
-        if self.logit.any():
-            width = self._hi - self._lo
-            theta = xp.where(self.logit, self._lo + width * _sigmoid(xp, z), theta)
+        width = self._hi - self._lo
+        theta = xp.where(self.logit, self._lo + width * _sigmoid(xp, z), theta)
         return theta if self.scale is None else theta * self.scale
 
     def to_unconstrained(self, theta: Any) -> Any:
@@ -147,19 +146,17 @@ class Reparameterisation:
         lo, hi = self._lo, self._hi
         z = xp.where(self.log_lower, xp.log(xp.where(self.log_lower, theta - lo, 1.0)), theta)
         z = xp.where(self.log_upper, xp.log(xp.where(self.log_upper, hi - theta, 1.0)), z)
-        if self.logit.any():
-            u = xp.where(self.logit, (theta - lo) / np.where(self.logit, hi - lo, 1.0), 0.5)
-            z = xp.where(self.logit, xp.log(u) - xp.log1p(-u), z)
+        u = xp.where(self.logit, (theta - lo) / np.where(self.logit, hi - lo, 1.0), 0.5)
+        z = xp.where(self.logit, xp.log(u) - xp.log1p(-u), z)
         return z
 
     def log_abs_det_jacobian(self, z: Any) -> Any:
         """log |det ∂θ/∂z|, a sum over the entries (along the last axis)."""
         xp = _array_module(z)
         terms = xp.where(self.log_lower | self.log_upper, z, 0.0)
-        if self.logit.any():
-            width = np.where(self.logit, self.upper - self.lower, 1.0)
-            logistic = np.log(width) - _softplus(xp, z) - _softplus(xp, -z)
-            terms = xp.where(self.logit, logistic, terms)
+        width = np.where(self.logit, self.upper - self.lower, 1.0)
+        logistic = np.log(width) - _softplus(xp, z) - _softplus(xp, -z)
+        terms = xp.where(self.logit, logistic, terms)
         total = xp.sum(terms, axis=-1)
         return total if self.scale is None else total + float(np.sum(np.log(np.abs(self.scale))))
 
@@ -170,9 +167,8 @@ class Reparameterisation:
         ez = xp.exp(xp.where(self.log_lower | self.log_upper, z, 0.0))
         out = xp.where(self.log_lower, ez, 1.0)
         out = xp.where(self.log_upper, -ez, out)
-        if self.logit.any():
-            sig = _sigmoid(xp, z)
-            out = xp.where(self.logit, (self._hi - self._lo) * sig * (1.0 - sig), out)
+        sig = _sigmoid(xp, z)
+        out = xp.where(self.logit, (self._hi - self._lo) * sig * (1.0 - sig), out)
         return out if self.scale is None else out * self.scale
 
     def __repr__(self) -> str:

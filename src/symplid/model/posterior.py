@@ -200,9 +200,7 @@ class Posterior:
         model = self.model
         base = getattr(model, "layout", None)
         if not isinstance(base, ParameterLayout):  # a model that states names and groups only
-            names = tuple(model.param_names)
-            groups = getattr(model, "param_groups", None) or _default_groups(model, len(names))
-            base = ParameterLayout.from_groups(names, groups)
+            base = ParameterLayout.from_groups(tuple(model.param_names), model.param_groups)
         self.num_model_params = base.size
         initial = [
             Block(f"x0[{k}]", "initial_state", tuple(f"x0[{k}].{s}" for s in self.state_names))
@@ -471,14 +469,6 @@ class Posterior:
             f"Posterior({self.num_params} parameters, {self.num_trajectories} "
             f"trajectory(ies){learned})"
         )
-
-
-def _default_groups(model: Any, num: int) -> tuple[str, ...]:
-    """The groups of a model that states none: coefficients, γ, process and obs variances."""
-    nc, nq = int(model.num_coefficients), int(model.num_process_noise)
-    nd = int(getattr(model, "num_damping", 0))
-    return (("coefficients",) * nc + ("damping",) * nd + ("process_var",) * nq
-            + ("obs_var",) * (num - nc - nd - nq))
 
 
 def _check_point_start(model: Any, P0s: list[np.ndarray], datasets: list[Observations]) -> None:
