@@ -128,9 +128,7 @@ class _Profile:
 
     def u_of_theta(self, theta: np.ndarray) -> np.ndarray:
         """θ ↦ u of the search space without its floor (s may lie below it)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            logged = np.log(theta - np.where(self.space.log, self.space.lower, 0.0))
-        return np.where(self.space.log, logged, theta)
+        return self.space.to_u(theta, floor=False)
 
     def log_density(self, theta: np.ndarray) -> float:
         value = float(self.vg(jnp.asarray(self.u_of_theta(theta)))[0])
@@ -246,7 +244,7 @@ def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.nd
     # ∇²_u(−log π) = D H_θ D + diag(∂(−log π)/∂u on the log coordinates), D = ∂θ/∂u.
     h_theta = np.asarray(profile.hessian(jnp.asarray(theta)), dtype=float)
     grad_u = np.asarray(vg(jnp.asarray(u))[1], dtype=float)
-    scale = np.where(space.log, np.exp(np.where(space.log, u, 0.0)), 1.0)
+    scale = space.reparameterisation.jacobian_diagonal(u)  # D = ∂θ/∂u
     h_u = scale[:, None] * h_theta * scale[None, :] + np.diag(np.where(space.log, grad_u, 0.0))
     cov_s = np.eye(var.size)
     if np.all(np.isfinite(h_u)):

@@ -133,7 +133,7 @@ def judge_with_hessian(
     space = objective.space
     u = space.to_u(result.theta)
     grad_u = np.asarray(objective.value_and_grad(jnp.asarray(u))[1], dtype=float)
-    scale = np.where(space.log, result.theta - np.where(space.log, space.lower, 0.0), 1.0)
+    scale = space.reparameterisation.jacobian_diagonal(space.to_u(result.theta, floor=False))
     free = ~space.at_bounds(u)
     decrement = math.inf
     if np.all(np.isfinite(grad_u)) and np.all(np.isfinite(hessian)):

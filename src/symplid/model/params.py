@@ -70,6 +70,126 @@ class ParameterProperties:
         return ("identity", "log-upper", "log", "logit")[2 * lo + hi]
 
 
+class Reparameterisation:
+    """θ = D·f(z) entry by entry: the one map between θ and the space a method moves in.
+
+    Each selected entry goes through the bijector its bounds ``(a, b)`` give (module
+    docstring: a + eᶻ, b − eᶻ, a + (b − a)·σ(z), or z when unbounded); the others are the
+    identity. D is an optional diagonal scale (1 by default). Every consumer of θ that moves in
+    another space takes one of these, and differs only in what it selects:
+
+    * NUTS and the Laplace push-forward: every entry (:meth:`ParameterSpace.reparameterisation`);
+    * the MAP search: the entries bounded below only (:class:`SearchSpace`), u = log(θ − a);
+    * DRAM with ``variance_scale = "log"``: those of them in :data:`LOG_SCALE_GROUPS`;
+    * standardisation (``symplid.workflow.scaling``): no entry, D the unit factors
+      (:meth:`linear`).
+
+    The methods follow their input: NumPy in, NumPy out; JAX (traced, batched) in, JAX out.
+
+    Parameters
+    ----------
+    lower, upper
+        Bounds of θ (±∞ when unbounded), broadcast to the length of ``select``.
+    select
+        Boolean mask of the entries mapped by their bijector (None: all).
+    scale
+        The diagonal D (None: ones).
+    """
+
+    def __init__(self, lower: Any, upper: Any, select: Any = None, scale: Any = None) -> None:
+        lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+        size = max(lower.size, upper.size, 0 if select is None else np.size(select),
+                   0 if scale is None else np.size(scale))
+        self.lower = np.broadcast_to(lower, (size,)).copy()
+        self.upper = np.broadcast_to(upper, (size,)).copy()
+        chosen = np.ones(size, bool) if select is None else np.asarray(select, dtype=bool)
+        lo_f, hi_f = np.isfinite(self.lower), np.isfinite(self.upper)
+        self.lower_only = lo_f & ~hi_f
+        self.log_lower = chosen & self.lower_only  # θ = a + eᶻ
+        self.log_upper = chosen & ~lo_f & hi_f  # θ = b − eᶻ
+        self.logit = chosen & lo_f & hi_f  # θ = a + (b − a)·σ(z)
+        self._lo = np.where(lo_f, self.lower, 0.0)
+        self._hi = np.where(hi_f, self.upper, 0.0)
+        self.scale = None if scale is None else np.asarray(scale, dtype=float).reshape(size)
+
+    @classmethod
+    def linear(cls, scale: Any) -> Reparameterisation:
+        """θ = D·z for the diagonal ``scale`` D, no bounds (a change of units)."""
+        scale = np.asarray(scale, dtype=float)
+        return cls(np.full(scale.shape, -np.inf), np.full(scale.shape, np.inf), scale=scale)
+
+    @property
+    def size(self) -> int:
+        return self.lower.size
+
+    @property
+    def transformed(self) -> np.ndarray:
+        """Which entries go through a bijector other than the identity (a bool mask)."""
+        return self.log_lower | self.log_upper | self.logit
+
+    def from_unconstrained(self, z: Any) -> Any:
+        """z ↦ θ = D·f(z)."""
+        xp = _array_module(z)
+        one_sided = self.log_lower | self.log_upper
+        ez = xp.exp(xp.where(one_sided, z, 0.0))
+        theta = xp.where(self.log_lower, self._lo + ez, z)
+        theta = xp.where(self.log_upper, self._hi - ez, theta)
+        width = self._hi - self._lo
+        theta = xp.where(self.logit, self._lo + width * _sigmoid(xp, z), theta)
+        return theta if self.scale is None else theta * self.scale
+
+    def to_unconstrained(self, theta: Any) -> Any:
+        """θ ↦ z, the inverse of :meth:`from_unconstrained` (±∞ on a bound, NaN beyond it)."""
+        xp = _array_module(theta)
+        if self.scale is not None:
+            theta = theta / self.scale
+        lo, hi = self._lo, self._hi
+        z = xp.where(self.log_lower, xp.log(xp.where(self.log_lower, theta - lo, 1.0)), theta)
+        z = xp.where(self.log_upper, xp.log(xp.where(self.log_upper, hi - theta, 1.0)), z)
+        u = xp.where(self.logit, (theta - lo) / np.where(self.logit, hi - lo, 1.0), 0.5)
+        z = xp.where(self.logit, xp.log(u) - xp.log1p(-u), z)
+        return z
+
+    def log_abs_det_jacobian(self, z: Any) -> Any:
+        """log |det ∂θ/∂z|, a sum over the entries (along the last axis)."""
+        xp = _array_module(z)
+        terms = xp.where(self.log_lower | self.log_upper, z, 0.0)
+        width = np.where(self.logit, self.upper - self.lower, 1.0)
+        logistic = np.log(width) - _softplus(xp, z) - _softplus(xp, -z)
+        terms = xp.where(self.logit, logistic, terms)
+        total = xp.sum(terms, axis=-1)
+        return total if self.scale is None else total + float(np.sum(np.log(np.abs(self.scale))))
+
+    def jacobian_diagonal(self, z: Any) -> Any:
+        """∂θ_i/∂z_i, entry by entry (the Jacobian is diagonal): D·(eᶻ, −eᶻ, (b − a)·σ(1 − σ)
+        or 1)."""
+        xp = _array_module(z)
+        ez = xp.exp(xp.where(self.log_lower | self.log_upper, z, 0.0))
+        out = xp.where(self.log_lower, ez, 1.0)
+        out = xp.where(self.log_upper, -ez, out)
+        sig = _sigmoid(xp, z)
+        out = xp.where(self.logit, (self._hi - self._lo) * sig * (1.0 - sig), out)
+        return out if self.scale is None else out * self.scale
+
+    def __repr__(self) -> str:
+        return f"Reparameterisation({int(self.transformed.sum())} of {self.size} entries mapped)"
+
+
+def _array_module(x: Any) -> Any:
+    """``jax.numpy`` for a JAX array (or tracer), else NumPy."""
+    return jnp if isinstance(x, jax.Array) else np
+
+
+def _sigmoid(xp: Any, z: Any) -> Any:
+    if xp is jnp:
+        return jax.nn.sigmoid(z)
+    return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(z)))
+
+
+def _softplus(xp: Any, z: Any) -> Any:
+    return jax.nn.softplus(z) if xp is jnp else np.logaddexp(0.0, z)
+
+
 class ParameterSpace:
     """θ as a vector of :class:`ParameterProperties`, with vectorised transforms.
 
@@ -93,11 +213,7 @@ class ParameterSpace:
         self.priors = tuple(p.prior for p in self.properties)
         self.lower = np.array([p.lower for p in self.properties], dtype=float)
         self.upper = np.array([p.upper for p in self.properties], dtype=float)
-        lo_f, hi_f = np.isfinite(self.lower), np.isfinite(self.upper)
-        self._lower_only, self._upper_only = lo_f & ~hi_f, ~lo_f & hi_f
-        self._both = lo_f & hi_f
-        self._lo = np.where(lo_f, self.lower, 0.0)
-        self._hi = np.where(hi_f, self.upper, 0.0)
+        self._bijector = Reparameterisation(self.lower, self.upper)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -158,6 +274,12 @@ class ParameterSpace:
     def bijectors(self) -> tuple[str, ...]:
         return tuple(p.bijector for p in self.properties)
 
+    @property
+    def lower_only(self) -> np.ndarray:
+        """Which parameters are bounded below only (a bool mask): those searched, and moved
+        by DRAM, on the scale log(θ − a)."""
+        return self._bijector.lower_only
+
     def indices(self, group: str) -> np.ndarray:
         """Positions of the parameters of ``group`` in θ."""
         return np.array([i for i, g in enumerate(self.groups) if g == group], dtype=int)
@@ -192,34 +314,22 @@ class ParameterSpace:
         return out
 
     # ------------------------------------------------------------------ bijectors
+    def reparameterisation(self, select: Any = None) -> Reparameterisation:
+        """The map z ↦ θ by each parameter's bounds, on the entries ``select`` picks (a
+        boolean mask; None: all) and the identity on the others (:class:`Reparameterisation`)."""
+        return Reparameterisation(self.lower, self.upper, select)
+
     def from_unconstrained(self, z: Array) -> Array:
         """z ∈ ℝᵈ ↦ θ: a + eᶻ, b − eᶻ, a + (b − a)·σ(z) or z, by each parameter's bounds."""
-        z = jnp.asarray(z, dtype=float)
-        lower_only, upper_only, both = self._lower_only, self._upper_only, self._both
-        ez = jnp.exp(jnp.where(lower_only | upper_only, z, 0.0))
-        theta = jnp.where(lower_only, self._lo + ez, z)
-        theta = jnp.where(upper_only, self._hi - ez, theta)
-        return jnp.where(both, self._lo + (self._hi - self._lo) * jax.nn.sigmoid(z), theta)
+        return self._bijector.from_unconstrained(jnp.asarray(z, dtype=float))
 
     def to_unconstrained(self, theta: Array) -> Array:
         """θ ↦ z, the inverse of :meth:`from_unconstrained` (±∞ on a bound)."""
-        theta = jnp.asarray(theta, dtype=float)
-        lower_only, upper_only, both = self._lower_only, self._upper_only, self._both
-        lo, hi = self._lo, self._hi
-        width = np.where(both, hi - lo, 1.0)
-        z = jnp.where(lower_only, jnp.log(jnp.where(lower_only, theta - lo, 1.0)), theta)
-        z = jnp.where(upper_only, jnp.log(jnp.where(upper_only, hi - theta, 1.0)), z)
-        u = jnp.where(both, (theta - lo) / width, 0.5)
-        return jnp.where(both, jnp.log(u) - jnp.log1p(-u), z)
+        return self._bijector.to_unconstrained(jnp.asarray(theta, dtype=float))
 
     def log_abs_det_jacobian(self, z: Array) -> Array:
         """log |det ∂θ/∂z| of :meth:`from_unconstrained` (a sum over the parameters)."""
-        z = jnp.asarray(z, dtype=float)
-        width = np.where(self._both, self.upper - self.lower, 1.0)
-        terms = jnp.where(self._lower_only | self._upper_only, z, 0.0)
-        logistic = np.log(width) - jax.nn.softplus(z) - jax.nn.softplus(-z)
-        terms = jnp.where(self._both, logistic, terms)
-        return jnp.sum(terms, axis=-1)
+        return self._bijector.log_abs_det_jacobian(jnp.asarray(z, dtype=float))
 
     def pushforward_covariance(self, theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """A covariance of θ at ``theta`` pushed to z (see :func:`pushforward_covariance`)."""
@@ -228,28 +338,43 @@ class ParameterSpace:
     # ------------------------------------------------------------------ the MAP search
     def search(self, floor: float) -> SearchSpace:
         """The space the MAP search runs in (:class:`SearchSpace`), with ``floor``."""
-        return SearchSpace(self.lower, self.upper, self._lower_only.copy(), float(floor))
+        return SearchSpace(self.reparameterisation(self.lower_only), float(floor))
 
 
 @dataclass(frozen=True, eq=False)
 class SearchSpace:
-    """θ ↔ u for the MAP search: u = log(θ − a) for parameters bounded below only (``log``),
-    with the bound u ≥ log(``floor``); the identity, within the bounds, for the others."""
+    """θ ↔ u for the MAP search: u = log(θ − a) for parameters bounded below only (the
+    ``log`` mask of its :class:`Reparameterisation`), with the bound u ≥ log(``floor``); the
+    identity, within the bounds, for the others."""
 
-    lower: np.ndarray
-    upper: np.ndarray
-    log: np.ndarray  # bool mask
+    reparameterisation: Reparameterisation
     floor: float
 
-    def to_theta(self, u: Array) -> Array:
-        lo = np.where(self.log, self.lower, 0.0)
-        return jnp.where(self.log, lo + jnp.exp(jnp.where(self.log, u, 0.0)), u)
+    @property
+    def lower(self) -> np.ndarray:
+        return self.reparameterisation.lower
 
-    def to_u(self, theta: np.ndarray) -> np.ndarray:
+    @property
+    def upper(self) -> np.ndarray:
+        return self.reparameterisation.upper
+
+    @property
+    def log(self) -> np.ndarray:
+        """Which entries are searched on the log scale (a bool mask)."""
+        return self.reparameterisation.log_lower
+
+    def to_theta(self, u: Array) -> Array:
+        return self.reparameterisation.from_unconstrained(jnp.asarray(u))
+
+    def to_u(self, theta: np.ndarray, floor: bool = True) -> np.ndarray:
+        """θ ↦ u on the host; a logged entry on or below its bound goes to log(``floor``)
+        (to −∞ or NaN with ``floor=False``)."""
         theta = np.asarray(theta, dtype=float)
+        if floor:
+            theta = np.where(self.log, np.maximum(theta, self.lower), theta)
         with np.errstate(divide="ignore", invalid="ignore"):
-            logged = np.log(np.maximum(theta - np.where(self.log, self.lower, 0.0), 0.0))
-        return np.where(self.log, np.maximum(logged, math.log(self.floor)), theta)
+            u = self.reparameterisation.to_unconstrained(theta)
+        return np.where(self.log, np.maximum(u, math.log(self.floor)), u) if floor else u
 
     def bounds(self) -> list[tuple[float | None, float | None]]:
         """L-BFGS-B's bounds on u (None where unbounded)."""
@@ -315,6 +440,7 @@ __all__ = [
     "POSITIVE_GROUPS",
     "ParameterProperties",
     "ParameterSpace",
+    "Reparameterisation",
     "SearchSpace",
     "pushforward_covariance",
 ]

@@ -78,6 +78,7 @@ from symplid.model.initial_state import (
     split_first,
     state_names,
 )
+from symplid.model.layout import Block, ParameterLayout
 from symplid.model.params import ParameterSpace
 from symplid.model.priors import Prior, PriorSpec
 
@@ -101,9 +102,9 @@ class Posterior:
     Parameters
     ----------
     model
-        A :class:`~.statespace.HamiltonianModel` (or anything with its ``num_params``,
-        ``param_names``, ``num_coefficients``, ``num_process_noise``, ``num_obs_noise``,
-        ``state_dim``, ``prepare``, ``log_likelihood``, ``split`` and ``observation_matrix``).
+        A :class:`~.statespace.HamiltonianModel` (or anything with its ``layout``, or
+        ``param_names`` and ``param_groups``, and its ``state_dim``, ``prepare``,
+        ``log_likelihood``, ``split`` and ``observation_matrix``).
     data
         One :class:`~symplid.model.data.Observations` or a list of them (trajectories sharing θ).
     prior
@@ -129,6 +130,9 @@ class Posterior:
 
     Attributes
     ----------
+    layout
+        θ's :class:`~symplid.model.layout.ParameterLayout`: the model's blocks, then
+        ``x0[0]``, ``x0[1]``, … when the initial state is learned.
     space
         The :class:`~symplid.model.params.ParameterSpace` of θ: names, groups, priors, bounds
         and the bijectors to the unconstrained space.
@@ -172,7 +176,7 @@ class Posterior:
         x0s = as_x0(x0, n, K, required=not self.learn_initial_state)
 
         names, groups = self._layout()
-        self.prior.check_names(names)
+        self.prior.check_names(list(names))
         self._prepare_trajectories(x0s)
         self.space = ParameterSpace.from_priors(
             names, groups, self._resolve_priors(names, groups, x0s, initial_state_prior)
@@ -190,22 +194,20 @@ class Posterior:
         return Posterior(model, **self._arguments)
 
     # ------------------------------------------------------------------ construction steps
-    def _layout(self) -> tuple[list[str], list[str]]:
-        """Names and groups of θ: the model's parameters, then each learned initial state."""
+    def _layout(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """θ's layout (:mod:`~symplid.model.layout`): the model's blocks, then one block
+        ``x0[k]`` (group ``initial_state``) per trajectory when the initial state is learned."""
         model = self.model
-        self.num_model_params = m = int(model.num_params)
-        nc, nq = int(model.num_coefficients), int(model.num_process_noise)
-        nd = int(getattr(model, "num_damping", 0))
-        groups = list(getattr(model, "param_groups", None) or (
-            ["coefficients"] * nc + ["damping"] * nd + ["process_var"] * nq
-            + ["obs_var"] * (m - nc - nd - nq)
-        ))
-        names = list(model.param_names)
-        if self.learn_initial_state:
-            for k in range(self.num_trajectories):
-                names += [f"x0[{k}].{s}" for s in self.state_names]
-                groups += ["initial_state"] * self.state_dim
-        return names, groups
+        base = getattr(model, "layout", None)
+        if not isinstance(base, ParameterLayout):  # a model that states names and groups only
+            base = ParameterLayout.from_groups(tuple(model.param_names), model.param_groups)
+        self.num_model_params = base.size
+        initial = [
+            Block(f"x0[{k}]", "initial_state", tuple(f"x0[{k}].{s}" for s in self.state_names))
+            for k in range(self.num_trajectories)
+        ] if self.learn_initial_state else []
+        self.layout = base.extend(initial)
+        return self.layout.names, self.layout.groups
 
     def _prepare_trajectories(self, x0s: list[np.ndarray] | None) -> None:
         """Each trajectory's prepared data (array leaves and a static key), y_1 when t0=None."""
@@ -225,7 +227,8 @@ class Posterior:
             )
 
     def _resolve_priors(
-        self, names: list[str], groups: list[str], x0s: list[np.ndarray] | None, spec: Any
+        self, names: Sequence[str], groups: Sequence[str], x0s: list[np.ndarray] | None,
+        spec: Any,
     ) -> list[Prior]:
         """The absolute prior of every entry of θ (group priors, per-name overrides)."""
         m = self.num_model_params
@@ -296,13 +299,12 @@ class Posterior:
         return jnp.asarray(theta)[..., : self.num_model_params]
 
     def initial_state_slice(self, k: int = 0) -> slice:
-        """Where trajectory k's learned initial state sits in θ."""
+        """Where trajectory k's learned initial state sits in θ (its block ``x0[k]``)."""
         if not self.learn_initial_state:
             raise ValueError("the initial state is known, not part of θ")
         if not 0 <= k < self.num_trajectories:
             raise IndexError(f"trajectory {k} of {self.num_trajectories}")
-        start = self.num_model_params + k * self.state_dim
-        return slice(start, start + self.state_dim)
+        return self.layout.slice(f"x0[{k}]")
 
     def initial_state(self, theta: Array, k: int = 0) -> Array:
         """Trajectory k's initial state: from θ when learned, else the known x0."""

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from functools import partial
+from functools import cached_property, partial
 from typing import Any, Literal
 
 import jax
@@ -54,6 +54,7 @@ from symplid.model.construction import NOISE_LAYOUTS as NOISE_LAYOUTS  # the cho
 from symplid.model.construction import PROCESS_NOISE_CHOICES as PROCESS_NOISE_CHOICES
 from symplid.model.construction import ModelFields, normalise_fields
 from symplid.model.data import DataError, Observations
+from symplid.model.layout import ParameterLayout
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 from symplid.model.programs import check_backend, compiled, loglik_program, select
 
@@ -197,31 +198,10 @@ class HamiltonianModel(ModelFields):
         return int(np.prod(out.shape)) if out.shape else 1
 
     @property
-    def num_coefficients(self) -> int:
-        return self.hamiltonian.num_params
-
-    @property
-    def num_damping(self) -> int:
-        """1 when the model learns a damping rate γ, else 0."""
-        return int(self.damping)
-
-    @property
-    def num_dynamics_params(self) -> int:
-        """Size of θ_Ψ, the propagator's parameters: the coefficients, then γ when damped."""
-        return self.num_coefficients + self.num_damping
-
-    @property
     def deterministic(self) -> bool:
         """Whether the model has no process noise (``process_noise_per="none"``): its
         likelihood follows one integrated path (:mod:`symplid.model.deterministic`)."""
         return self.process_noise_per == "none"
-
-    @property
-    def num_process_noise(self) -> int:
-        """How many process variances θ holds (0 without process noise)."""
-        if self.deterministic:
-            return 0
-        return self.state_dim if self.noise == "diagonal" else 1
 
     @property
     def noise_model(self) -> ObservationNoise:
@@ -249,50 +229,69 @@ class HamiltonianModel(ModelFields):
         return np.arange(d_y) // self.hamiltonian.dim  # q1..qd → 0, p1..pd → 1
 
     @property
+    def parameter_group(self) -> str:
+        """The prior group, and layout block, of the Hamiltonian's parameters:
+        ``coefficients``, or ``parameters`` for a user model's declared ones."""
+        return getattr(self.hamiltonian, "parameter_group", "coefficients")
+
+    @cached_property
+    def layout(self) -> ParameterLayout:
+        """θ's blocks (:mod:`symplid.model.layout`): the Hamiltonian's parameters, ``damping``,
+        ``process_var``, ``obs_var``, ``obs_rel_var``; built once."""
+        noise_model = self.noise_model
+        return ParameterLayout.for_model(
+            self.hamiltonian.param_names, self.parameter_group, damping=self.damping,
+            noise=self.noise, state_dim=self.state_dim, obs_noise_labels=self.obs_noise_labels,
+            additive=noise_model.additive, multiplicative=noise_model.multiplicative,
+            deterministic=self.deterministic,
+        )
+
+    @property
+    def num_coefficients(self) -> int:
+        return self.layout.size_of(self.parameter_group)
+
+    @property
+    def num_damping(self) -> int:
+        """1 when the model learns a damping rate γ, else 0."""
+        return self.layout.size_of("damping")
+
+    @property
+    def num_dynamics_params(self) -> int:
+        """Size of θ_Ψ, the propagator's parameters: the coefficients, then γ when damped."""
+        return self.num_coefficients + self.num_damping
+
+    @property
+    def num_process_noise(self) -> int:
+        """How many process variances θ holds (0 without process noise)."""
+        return self.layout.size_of("process_var")
+
+    @property
     def num_obs_noise(self) -> int:
         """How many additive observation variances θ holds (0 for multiplicative noise)."""
-        return len(self.obs_noise_labels) if self.noise_model.additive else 0
+        return self.layout.size_of("obs_var")
 
     @property
     def num_rel_noise(self) -> int:
         """How many relative (multiplicative) observation variances θ holds."""
-        return len(self.obs_noise_labels) if self.noise_model.multiplicative else 0
+        return self.layout.size_of("obs_rel_var")
 
     @property
     def num_params(self) -> int:
-        return (
-            self.num_dynamics_params + self.num_process_noise + self.num_obs_noise
-            + self.num_rel_noise
-        )
+        return self.layout.size
 
     @property
     def param_names(self) -> tuple[str, ...]:
         """Coefficient names (``c[q1^2]``: :func:`~symplid.dynamics.potentials.coefficient_name`),
         ``gamma`` when damped, then ``process_var``, ``obs_var`` and ``obs_rel_var`` (indexed
         by component when diagonal, by kind when per-kind)."""
-        names = [coefficient_name(n) for n in self.hamiltonian.param_names]
-        names += ["gamma"] * self.num_damping
-        if self.noise == "diagonal":
-            names += [f"process_var[{i}]" for i in range(self.num_process_noise)]
-        else:
-            names += ["process_var"] * self.num_process_noise
-        labels = [f"[{label}]" if label else "" for label in self.obs_noise_labels]
-        names += [f"obs_var{label}" for label in labels][: self.num_obs_noise]
-        names += [f"obs_rel_var{label}" for label in labels][: self.num_rel_noise]
-        return tuple(names)
+        return self.layout.names
 
     @property
     def param_groups(self) -> tuple[str, ...]:
         """The prior group of each entry of θ (``coefficients``, ``damping``, ``process_var``,
         ``obs_var``, ``obs_rel_var``); a user model's declared parameters are ``parameters``
         (the potential's ``parameter_group``)."""
-        return tuple(
-            [getattr(self.hamiltonian, "parameter_group", "coefficients")] * self.num_coefficients
-            + ["damping"] * self.num_damping
-            + ["process_var"] * self.num_process_noise
-            + ["obs_var"] * self.num_obs_noise
-            + ["obs_rel_var"] * self.num_rel_noise
-        )
+        return self.layout.groups
 
     @property
     def variance_slice(self) -> slice:
@@ -302,16 +301,16 @@ class HamiltonianModel(ModelFields):
     def split(self, theta: Array) -> tuple[Array, Array, Array]:
         """θ → (coefficients, Σ, Γ) with Σ and Γ as full matrices (γ: :meth:`damping_rate`)."""
         theta = jnp.asarray(theta)
-        nc, nd, nq = self.num_coefficients, self.num_dynamics_params, self.num_process_noise
-        coeffs = theta[:nc]
-        q_var = theta[nd : nd + nq]
-        if nq == 0:  # no process noise: Σ = 0
+        blocks, empty = self.layout.unpack(theta), theta[..., :0]
+        coeffs = blocks.get(self.parameter_group, empty)
+        q_var = blocks.get("process_var")
+        if q_var is None:  # no process noise: Σ = 0
             proc = jnp.zeros((self.state_dim, self.state_dim), theta.dtype)
         else:
-            proc = jnp.eye(self.state_dim) * (q_var[0] if nq == 1 else q_var)
-        if self.num_obs_noise == 0:  # multiplicative noise only: Γ = 0
+            proc = jnp.eye(self.state_dim) * (q_var[0] if q_var.shape[0] == 1 else q_var)
+        r_var = blocks.get("obs_var")
+        if r_var is None:  # multiplicative noise only: Γ = 0
             return coeffs, proc, jnp.zeros((self.obs_dim, self.obs_dim), theta.dtype)
-        r_var = theta[nd + nq : nd + nq + self.num_obs_noise]
         if self.noise == "per-kind":
             r_var = r_var[self.obs_noise_index]
         obs = jnp.eye(self.obs_dim) * (r_var[0] if r_var.shape[0] == 1 else r_var)
@@ -320,16 +319,17 @@ class HamiltonianModel(ModelFields):
     def damping_rate(self, theta: Array) -> Array:
         """γ from θ (0 for an undamped model)."""
         theta = jnp.asarray(theta)
-        return theta[..., self.num_coefficients] if self.damping else jnp.zeros(theta.shape[:-1])
+        if "damping" not in self.layout:
+            return jnp.zeros(theta.shape[:-1])
+        return theta[..., self.layout.slice("damping")][..., 0]
 
     def relative_variances(self, theta: Array) -> Array:
         """The relative variances r of multiplicative noise, one per observed component
         ``(d_y,)`` (zeros when the noise is additive only)."""
         theta = jnp.asarray(theta)
-        if self.num_rel_noise == 0:
+        if "obs_rel_var" not in self.layout:
             return jnp.zeros(self.obs_dim, theta.dtype)
-        start = self.num_params - self.num_rel_noise
-        return theta[..., start:][..., self.obs_noise_index]
+        return theta[..., self.layout.slice("obs_rel_var")][..., self.obs_noise_index]
 
     def noise_covariance(self, theta: Array) -> Array | Callable[..., Array]:
         """What the update adds to S at θ: Γ, or ``moments -> R_k`` for multiplicative noise
@@ -344,20 +344,12 @@ class HamiltonianModel(ModelFields):
     ) -> np.ndarray:
         """(coefficients, process variance(s), observation variance(s), relative
         observation variance(s)) → θ; ``gamma`` (γ) is required for a damped model and refused
-        otherwise; ``process_var`` is ``()`` for a model without process noise."""
-        if (gamma is None) == self.damping:
-            need = "needs" if self.damping else "has no"
-            raise ValueError(f"this model {need} a damping rate: pass gamma accordingly")
-        damping = [] if gamma is None else [np.ravel(gamma)]
-        out = np.concatenate(
-            [np.ravel(coefficients), *damping, np.ravel(process_var), np.ravel(obs_var),
-             np.ravel(obs_rel_var)]
-        ).astype(float)
-        if out.shape[0] != self.num_params:
-            raise ValueError(
-                f"θ has {self.num_params} entries ({self.param_names}), got {out.shape[0]}"
-            )
-        return out
+        otherwise; ``process_var`` is ``()`` for a model without process noise
+        (:meth:`~symplid.model.layout.ParameterLayout.pack`)."""
+        return self.layout.pack(
+            **{self.parameter_group: coefficients}, damping=gamma, process_var=process_var,
+            obs_var=obs_var, obs_rel_var=obs_rel_var,
+        )
 
     # ------------------------------------------------------------------ data
     def prepare(self, data: Observations, t0: float = 0.0) -> PreparedData:

@@ -46,6 +46,7 @@ from symplid.dynamics.potentials import monomial_exponents
 from symplid.inference.map_result import MapResult
 from symplid.io import observation_layout
 from symplid.model.data import Observations
+from symplid.model.params import Reparameterisation
 
 __all__ = [
     "AUTO_RANGE",
@@ -139,6 +140,12 @@ class Scaling:
             # "damping" (γ, 1/time) and "obs_rel_var" (relative) are scale-free: factor 1
         return out
 
+    def reparameterisation(self, groups: Sequence[str]) -> Reparameterisation:
+        """θ_user = D θ' as the one :class:`~symplid.model.params.Reparameterisation` of θ
+        (no bounds, D = :meth:`factors`): its log-Jacobian Σ log D is what the log posterior
+        density loses."""
+        return Reparameterisation.linear(self.factors(groups))
+
     def num_values(self, datasets: Observations | Sequence[Observations]) -> int:
         """N: the measured values of the data (their Jacobian is a^−N)."""
         sets = [datasets] if isinstance(datasets, Observations) else list(datasets)
@@ -150,12 +157,14 @@ class Scaling:
 
     def map_result(self, result: MapResult, groups: Sequence[str], datasets: Any) -> MapResult:
         """A MAP result of the standardised fit in the user's units (module docstring)."""
-        f = self.factors(groups)
+        to_user = self.reparameterisation(groups)
+        f = to_user.scale
         shift = self.log_likelihood_shift(datasets)
-        density_shift = shift - float(np.sum(np.log(f)))
+        density_shift = shift - float(to_user.log_abs_det_jacobian(np.zeros(f.size)))
         starts = tuple(
             dataclasses.replace(
-                s, start=np.asarray(s.start) * f, theta=np.asarray(s.theta) * f,
+                s, start=to_user.from_unconstrained(np.asarray(s.start)),
+                theta=to_user.from_unconstrained(np.asarray(s.theta)),
                 log_posterior=s.log_posterior + density_shift,
             )
             for s in result.starts
@@ -163,7 +172,7 @@ class Scaling:
         outer = np.outer(f, f)
         return dataclasses.replace(
             result,
-            theta=np.asarray(result.theta) * f,
+            theta=to_user.from_unconstrained(np.asarray(result.theta)),
             log_posterior=result.log_posterior + density_shift,
             starts=starts,
             hessian=None if result.hessian is None else np.asarray(result.hessian) / outer,
@@ -176,18 +185,20 @@ class Scaling:
         """Draws of the standardised fit in the user's units (ArviZ ``InferenceData``)."""
         if idata is None:
             return None
-        f = self.factors(groups)
+        to_user = self.reparameterisation(groups)
+        f = to_user.scale
         names = list(idata.attrs["param_names"])
         for name, factor in zip(names, f, strict=True):
             idata.posterior[name] = idata.posterior[name] * factor
-        density_shift = self.log_likelihood_shift(datasets) - float(np.sum(np.log(f)))
+        density_shift = (self.log_likelihood_shift(datasets)
+                         - float(to_user.log_abs_det_jacobian(np.zeros(f.size))))
         if "lp" in idata.sample_stats:
             idata.sample_stats["lp"] = idata.sample_stats["lp"] + density_shift
         attrs = idata.attrs
         outer = np.outer(f, f)
         for key, transform in (
-            ("map_theta", lambda v: v * f),
-            ("initial_positions", lambda v: v * f),
+            ("map_theta", to_user.from_unconstrained),
+            ("initial_positions", to_user.from_unconstrained),
             ("map_covariance", lambda v: v * outer),
             ("hessian", lambda v: v / outer),
         ):

@@ -65,7 +65,7 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None) -> tuple[
     if init is not None:
         start = np.asarray(init, dtype=float)
         if scaling is not None:
-            start = start / scaling.factors(groups)
+            start = scaling.reparameterisation(groups).to_unconstrained(start)
     result = find_map(posterior, seed=settings.map.seed, num_starts=1, init=start,
                       evidence=settings.map.evidence, warn=False)
     if scaling is not None:

@@ -107,24 +107,24 @@ class LogVariances:
     """θ ↔ w with the variances (bounded below only) as w = log(v − a), the rest as is,
     and the log density of w (log π(θ(w)) + Σ w over the variances: the log-Jacobian).
     A user model's declared parameters bounded below only move on the same log scale
-    (:data:`~symplid.model.params.LOG_SCALE_GROUPS`)."""
+    (:data:`~symplid.model.params.LOG_SCALE_GROUPS`). The map is the posterior's
+    :class:`~symplid.model.params.Reparameterisation` restricted to those entries."""
 
     def __init__(self, posterior: Any) -> None:
         space = ParameterSpace.of(posterior)
-        self.mask = np.array([g in LOG_SCALE_GROUPS for g in space.groups], dtype=bool)
-        self.mask &= np.isfinite(space.lower) & ~np.isfinite(space.upper)
-        self.lower = np.where(self.mask, space.lower, 0.0)
+        chosen = np.array([g in LOG_SCALE_GROUPS for g in space.groups], dtype=bool)
+        self.reparameterisation = space.reparameterisation(chosen & space.lower_only)
+        self.mask = self.reparameterisation.transformed  # the bounded-below-only ones
         self._log_density = posterior.log_density
 
     def to_theta(self, w: Array) -> Array:
-        return jnp.where(self.mask, self.lower + jnp.exp(jnp.where(self.mask, w, 0.0)), w)
+        return self.reparameterisation.from_unconstrained(jnp.asarray(w))
 
     def to_w(self, theta: Array) -> Array:
-        inside = jnp.where(self.mask, theta - self.lower, 1.0)
-        return jnp.where(self.mask, jnp.log(jnp.where(inside > 0, inside, jnp.nan)), theta)
+        return self.reparameterisation.to_unconstrained(jnp.asarray(theta))
 
     def log_jacobian(self, w: Array) -> Array:
-        return jnp.sum(jnp.where(self.mask, w, 0.0), axis=-1)
+        return self.reparameterisation.log_abs_det_jacobian(jnp.asarray(w))
 
     def log_density(self, w: Array) -> Array:
         return self._log_density(self.to_theta(w)) + self.log_jacobian(w)
