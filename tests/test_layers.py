@@ -26,7 +26,7 @@ LAYERS = {
     "io": 5,
     "plotting": 5,
     "workflow": 6,
-    "experiments": 7,
+    "studies": 7,
     "cli": 8,
     "": 9,  # symplid/__init__.py: the public facade over everything
 }

@@ -24,8 +24,8 @@ import pytest
 
 import sweep_cells
 import symplid
-from symplid.experiments.paper import CELL_KEYS, cell_data
-from symplid.experiments.paper_study import (
+from symplid.studies.paper import CELL_KEYS, cell_data
+from symplid.studies.paper_study import (
     evaluate_claims,
     paper_claims_spec,
     run_paper_claims,
@@ -448,7 +448,7 @@ PAPER_METRICS = (
 
 def _has_run_cell() -> bool:
     try:
-        from symplid.experiments import paper
+        from symplid.studies import paper
     except ImportError:
         return False
     return callable(getattr(paper, "run_cell", None))
@@ -456,7 +456,7 @@ def _has_run_cell() -> bool:
 
 @pytest.mark.slow
 @pytest.mark.skipif(
-    not _has_run_cell(), reason="symplid.experiments.paper.run_cell not written yet"
+    not _has_run_cell(), reason="symplid.studies.paper.run_cell not written yet"
 )
 def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     """The real cell function (quick budget): seed 0, leapfrog and RK2, on 2 local workers."""
@@ -494,7 +494,7 @@ def test_old_num_samples_key_is_read_with_a_future_warning():
 
 
 def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tmp_path):
-    from symplid.experiments import EXPERIMENTS, Experiment
+    from symplid.studies import EXPERIMENTS, Experiment
     from symplid.workflow.validate import Spec
 
     keys = {

@@ -7,11 +7,11 @@ experiment: a spec names its experiment (``experiment = "paper"``), and its cell
 experiment's keys plus any dotted run setting (``"sampler.gamma" = 0.02``).
 
 The registry object lives in this layer so that the sweep can read it;
-:mod:`symplid.experiments` re-exports it as ``symplid.experiments.EXPERIMENTS`` and its modules
+:mod:`symplid.studies` re-exports it as ``symplid.studies.EXPERIMENTS`` and its modules
 register their entries when imported — which the registry does by itself the first time a
 name is looked up (``load=``), so ``run_sweep(spec)`` finds ``"paper"`` without an import::
 
-    from symplid.experiments import EXPERIMENTS, Experiment
+    from symplid.studies import EXPERIMENTS, Experiment
 
     EXPERIMENTS.register("mine", Experiment("mine", keys, "mypkg.cells:run_cell"))
 """
@@ -77,5 +77,5 @@ class Experiment:
         return {spec.setting: key for key, spec in self.keys.items() if spec.setting}
 
 
-EXPERIMENTS: Registry[Experiment] = Registry("experiment", load=("symplid.experiments",))
-"""Experiments by name; filled by :mod:`symplid.experiments` (``"paper"``) and by users."""
+EXPERIMENTS: Registry[Experiment] = Registry("experiment", load=("symplid.studies",))
+"""Experiments by name; filled by :mod:`symplid.studies` (``"paper"``) and by users."""

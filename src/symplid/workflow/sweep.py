@@ -22,8 +22,8 @@ for a plain list. A cell's settings are, in increasing priority: the defaults, `
 its grid point and its ``cells`` entry (a key may not be in both ``grid`` and ``cells``).
 
 The keys of a cell are those its **experiment** declares (a registered
-:class:`~symplid.workflow.experiment.Experiment`, ``symplid.experiments.EXPERIMENTS``; the
-default is the paper's, whose keys are listed in :mod:`symplid.experiments.paper`), each with
+:class:`~symplid.workflow.experiment.Experiment`, ``symplid.studies.EXPERIMENTS``; the
+default is the paper's, whose keys are listed in :mod:`symplid.studies.paper`), each with
 its type, default, range and the run setting it stands for, plus any key of the run settings in
 dotted form (``"model.process_noise_per" = "step"``, ``"sampler.gamma" = 0.02``, ``"map.seed" =
 7``). Every value is checked by the one validator (:mod:`symplid.workflow.validate`): an

@@ -7,7 +7,7 @@ paper-claims study is :mod:`.paper_study`, and the baselines study, ``"baselines
 (:mod:`.baselines_study`).
 """
 
-from symplid.experiments import baselines_study, paper
+from symplid.studies import baselines_study, paper
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 
 __all__ = ["EXPERIMENTS", "Experiment", "baselines_study", "paper"]

@@ -48,9 +48,9 @@ from typing import Any
 
 import numpy as np
 
-from symplid.experiments.paper import PaperConfig
-from symplid.experiments.paper_claims import CLAIMS, evaluate_claims
-from symplid.experiments.paper_study_report import format_claims_report, plot_claims
+from symplid.studies.paper import PaperConfig
+from symplid.studies.paper_claims import CLAIMS, evaluate_claims
+from symplid.studies.paper_study_report import format_claims_report, plot_claims
 from symplid.workflow.results import read_json, write_json
 from symplid.workflow.sweep import SweepSpec, run_sweep, sweep_spec_from_dict
 from symplid.workflow.sweep_results import CELLS_DIR, load_results

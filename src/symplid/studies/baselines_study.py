@@ -53,18 +53,18 @@ import numpy as np
 from symplid.dynamics.families import build_family
 from symplid.dynamics.potentials import Polynomial
 from symplid.dynamics.systems import get_system
-from symplid.experiments.baselines_methods import METHODS, REFERENCE, Method
-from symplid.experiments.baselines_report import (
-    deciding_numbers,
-    format_report,
-    plot_error_vs_size,
-)
-from symplid.experiments.paper import truth_path
 from symplid.inference import baselines
 from symplid.inference.measures import prediction_horizon
 from symplid.inference.predict import predict_trajectory
 from symplid.model.data import Observations
 from symplid.model.simulate import simulate
+from symplid.studies.baselines_methods import METHODS, REFERENCE, Method
+from symplid.studies.baselines_report import (
+    deciding_numbers,
+    format_report,
+    plot_error_vs_size,
+)
+from symplid.studies.paper import truth_path
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 from symplid.workflow.fit import build_model, build_posterior, find_map_for
 from symplid.workflow.sweep import cell_settings
