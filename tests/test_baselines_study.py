@@ -12,7 +12,6 @@ from click.testing import CliRunner
 import symplid
 from symplid.cli import main
 from symplid.inference import baselines
-from symplid.studies import EXPERIMENTS
 from symplid.studies.baselines_report import (
     deciding_numbers,
     format_report,
@@ -26,6 +25,7 @@ from symplid.studies.baselines_study import (
     cell_data,
     run_cell,
 )
+from symplid.workflow.experiment import EXPERIMENTS
 from symplid.workflow.sweep import SweepError, resolve_cell
 
 TINY = {"num_obs": 12, "t_span": 30.0, "budget": "quick", "t_end": 30.0}

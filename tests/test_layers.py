@@ -120,24 +120,3 @@ def test_no_import_cycles():
         if module not in index:
             visit(module)
     assert not cycles, f"import cycles: {cycles}"
-
-
-def test_a_registry_loads_its_builtin_entries_on_first_lookup(tmp_path, monkeypatch):
-    """``Registry(load=...)``: a lower layer finds entries a higher one registers on import."""
-    import sys
-
-    from symplid.registry import Registry
-
-    plugins = Registry("plugin", load=("symplid_test_builtin_plugins",))
-    (tmp_path / "symplid_test_builtin_plugins.py").write_text(
-        "from test_layers_registry import REGISTRY\nREGISTRY.register('builtin', 42)\n"
-    )
-    holder = type(sys)("test_layers_registry")
-    holder.REGISTRY = plugins
-    monkeypatch.setitem(sys.modules, "test_layers_registry", holder)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    assert "symplid_test_builtin_plugins" not in sys.modules
-    assert plugins.get_entry("builtin") == 42
-    assert "builtin" in plugins and plugins.names() == ("builtin",)
-    with pytest.raises(ValueError, match="unknown plugin 'other'"):
-        plugins.get_entry("other")

@@ -224,14 +224,16 @@ _STOPPED_SWEEP = """
 import signal, sys
 signal.signal(signal.SIGINT, signal.default_int_handler)  # not ignored in a background job
 sys.path.insert(0, {tests!r})
+from symplid.studies.paper import EXPERIMENT
 from symplid.workflow.sweep import run_sweep
 
 if __name__ == "__main__":
     spec = {{"base": {{"num_iterations": 20, "burn_in": 10}},
             "sweep": {{"grid": {{"seed": [0, 1, 2]}}}}}}
     run_sweep(spec, {out!r}, workers=2, cell_fn="sweep_cells:slow_cell", progress=False,
-              figures=False, worker_env={{"PYTHONPATH": {tests!r}, {env!r}: {calls!r},
-                                          "SYMPLID_CACHE_DIR": "off"}})
+              figures=False, experiment=EXPERIMENT,
+              worker_env={{"PYTHONPATH": {tests!r}, {env!r}: {calls!r},
+                          "SYMPLID_CACHE_DIR": "off"}})
 """
 
 
@@ -494,7 +496,7 @@ def test_old_num_samples_key_is_read_with_a_future_warning():
 
 
 def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tmp_path):
-    from symplid.studies import EXPERIMENTS, Experiment
+    from symplid.workflow.experiment import EXPERIMENTS, Experiment
     from symplid.workflow.validate import Spec
 
     keys = {

@@ -492,10 +492,16 @@ def _with_and_without_noise(settings) -> list[str]:
 @user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
-    import symplid.studies  # noqa: F401  (registers the experiments a spec may name)
+    from symplid.studies import register_studies
+    from symplid.workflow.experiment import EXPERIMENTS
     from symplid.workflow.sweep import run_sweep
+    from symplid.workflow.sweep_spec import get_experiment, named_experiment, read_sweep_file
 
-    table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress)
+    register_studies(EXPERIMENTS)  # the studies a spec may name, "paper" the default
+    data = read_sweep_file(spec)
+    experiment = get_experiment(named_experiment(data, str(spec)), str(spec))
+    table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress,
+                      experiment=experiment)
     counts = table["status"].value_counts().to_dict() if "status" in table else {}
     done = ", ".join(f"{v} {k}" for k, v in counts.items())
     click.echo(f"{out}: {len(table)} cells ({done}); results.csv and results.parquet")

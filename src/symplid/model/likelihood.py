@@ -18,8 +18,8 @@ compiled program and picks a backend). The pieces come from the filters layer: t
 (:func:`~symplid.filters.unscented.unscented_predict`), the observation moments, the update and
 the recursion (:func:`~symplid.filters.update.run_filter`).
 
-This module also registers the JAX reference as the likelihood backend ``"jax"`` in
-:data:`symplid.filters.backends.LIKELIHOOD_BACKENDS`.
+This module also defines the JAX reference as a likelihood backend, :data:`JAX_BACKEND`,
+which :mod:`symplid.model.backends` registers as ``"jax"``.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from symplid.filters import (
     unscented_predict,
     unscented_weights,
 )
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
+from symplid.filters.backends import LikelihoodBackend
 from symplid.model.deterministic import build_trajectory_likelihood
 
 Array = jax.Array
@@ -291,15 +291,11 @@ def _jax_build(model: StateSpaceModel, prepared: PreparedData) -> FilterFn:
 
 
 #: The JAX reference: every model, the filtered moments as well as the log-likelihood.
-JAX_BACKEND = LIKELIHOOD_BACKENDS.register(
-    "jax",
-    LikelihoodBackend(
-        name="jax",
-        supports=_jax_supports,
-        build=_jax_build,
-        filtered_moments=True,
-        priority=0,
-        description="the JAX reference UKF (every model; jit, vmap and grad)",
-    ),
-    replace=True,
+JAX_BACKEND = LikelihoodBackend(
+    name="jax",
+    supports=_jax_supports,
+    build=_jax_build,
+    filtered_moments=True,
+    priority=0,
+    description="the JAX reference UKF (every model; jit, vmap and grad)",
 )

@@ -57,9 +57,8 @@ from symplid.dynamics.potentials import (
 )
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult, unscented_weights
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
 from symplid.filters.noise import ObservationNoise, get_observation_noise
-from symplid.model import kernel  # noqa: F401  (registers the compiled backend)
+from symplid.model.backends import LIKELIHOOD_BACKENDS, check_backend_name, select_backend
 from symplid.model.data import DataError, Observations
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 
@@ -118,7 +117,7 @@ class HamiltonianModel:
     unroll
         Unroll factor of the substep loop (``lax.fori_loop(unroll=...)``).
     backend
-        Likelihood backend from :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS`
+        Likelihood backend from :data:`~symplid.model.backends.LIKELIHOOD_BACKENDS`
         (``"jax"``: the reference) or ``"auto"`` (the best one that supports the model; see
         :attr:`likelihood_backend`). :meth:`filter` always runs the JAX reference.
     damping
@@ -441,7 +440,7 @@ class HamiltonianModel:
     def likelihood_backend(self) -> str:
         """The backend that computes this model's log-likelihood (``backend="auto"`` resolved).
 
-        Chosen among :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS` for the model
+        Chosen among :data:`~symplid.model.backends.LIKELIHOOD_BACKENDS` for the model
         alone; a backend that declines a particular data set hands it to the next one.
         """
         return select_backend(self.backend, self).name

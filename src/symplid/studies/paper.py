@@ -45,7 +45,7 @@ from symplid.studies.paper_cells import (
     system_defaults,
 )
 from symplid.studies.paper_figures import draw_figures
-from symplid.workflow.experiment import EXPERIMENTS, Experiment
+from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import fit
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
@@ -463,18 +463,15 @@ def _cached_truth_path(name: str, t_end: float, prediction_dt: float):
     return times, states
 
 
-EXPERIMENT = EXPERIMENTS.register(
+EXPERIMENT = Experiment(
     "paper",
-    Experiment(
-        "paper",
-        CELL_KEYS,
-        run_cell,
-        metrics=SWEEP_METRICS,
-        figures=sweep_figures,
-        description="The seed paper's Hénon–Heiles fit (Section IV), one data set and "
-        "propagator per cell",
-        defaults=system_defaults,
-        base_settings=known_initial_state,
-        renamed={"num_samples": "num_iterations"},
-    ),
+    CELL_KEYS,
+    run_cell,
+    metrics=SWEEP_METRICS,
+    figures=sweep_figures,
+    description="The seed paper's Hénon–Heiles fit (Section IV), one data set and "
+    "propagator per cell",
+    defaults=system_defaults,
+    base_settings=known_initial_state,
+    renamed={"num_samples": "num_iterations"},
 )

@@ -21,9 +21,11 @@ each over three seeds and both propagators. Give only ``grid`` for a plain produ
 for a plain list. A cell's settings are, in increasing priority: the defaults, ``[base]``, then
 its grid point and its ``cells`` entry (a key may not be in both ``grid`` and ``cells``).
 
-The keys of a cell are those its **experiment** declares (a registered
-:class:`~symplid.workflow.experiment.Experiment`, ``symplid.studies.EXPERIMENTS``; the
-default is the paper's, whose keys are listed in :mod:`symplid.studies.paper`), each with
+The keys of a cell are those its **experiment** declares (an
+:class:`~symplid.workflow.experiment.Experiment`, given to :func:`run_sweep` as an object or
+named by the spec and registered in :data:`~symplid.workflow.experiment.EXPERIMENTS`; the
+default name is the paper's, whose keys are listed in :mod:`symplid.studies.paper` and which
+the ``symplid sweep`` command registers with the other studies), each with
 its type, default, range and the run setting it stands for, plus any key of the run settings in
 dotted form (``"model.process_noise_per" = "step"``, ``"sampler.gamma" = 0.02``, ``"map.seed" =
 7``). Every value is checked by the one validator (:mod:`symplid.workflow.validate`): an
@@ -136,6 +138,7 @@ def run_sweep(
     progress: bool = True,
     worker_env: Mapping[str, str] | None = None,
     figures: bool = True,
+    experiment: Experiment | None = None,
 ) -> Any:
     """Run every unfinished cell of a sweep on Dask and gather the results table.
 
@@ -162,6 +165,10 @@ def run_sweep(
     figures
         Draw the experiment's figures into ``out_dir/figures`` (its ``figures`` function, or
         :func:`symplid.plotting.sweep.plot_sweep` of its metrics).
+    experiment
+        The experiment whose cells the spec holds (its keys, cell function and figures); the
+        spec's ``experiment``, if it names one, must be its name. ``None``: the one the spec
+        names, looked up in :data:`~symplid.workflow.experiment.EXPERIMENTS`.
 
     Returns
     -------
@@ -189,8 +196,11 @@ def run_sweep(
             "workers sets the size of the local cluster; do not give it with scheduler"
         )
 
-    spec = _as_spec(spec)
-    experiment = get_experiment(spec.experiment, spec.source)
+    spec = _as_spec(spec, experiment)
+    if experiment is not None and spec.experiment != experiment.name:
+        raise SweepError(spec.source, "sweep.experiment", f"is {spec.experiment!r}, but the "
+                         f"sweep was given the experiment {experiment.name!r}")
+    experiment = experiment or get_experiment(spec.experiment, spec.source)
     fn = cell_fn if cell_fn is not None else (spec.cell_fn or experiment.run_cell)
     fn_name = cell_fn_name(fn)
     resolve_cell_fn(fn)  # fail fast, in the client, on a name that does not resolve
@@ -235,12 +245,14 @@ def run_sweep(
     return table
 
 
-def _as_spec(spec: SweepSpec | Mapping[str, Any] | str | os.PathLike) -> SweepSpec:
+def _as_spec(
+    spec: SweepSpec | Mapping[str, Any] | str | os.PathLike, experiment: Experiment | None
+) -> SweepSpec:
     if isinstance(spec, SweepSpec):
         return spec
     if isinstance(spec, Mapping):
-        return sweep_spec_from_dict(spec)
-    return load_sweep_spec(spec)
+        return sweep_spec_from_dict(spec, experiment=experiment)
+    return load_sweep_spec(spec, experiment)
 
 
 def draw_figures(
