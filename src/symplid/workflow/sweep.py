@@ -59,7 +59,9 @@ function reads a cell the same way.
 
 Workers
 -------
-By default a :class:`dask.distributed.LocalCluster` of processes is started, one worker per core
+Sweeps need Dask and pyarrow, the ``sweeps`` extra (``pip install 'symplid[sweeps]'``); without
+them :func:`run_sweep` raises :class:`symplid.runtime.MissingExtraError`, which says so. By
+default a :class:`dask.distributed.LocalCluster` of processes is started, one worker per core
 with one thread each. Each worker process runs JAX single-threaded (``XLA_FLAGS``, see
 :func:`worker_environment`) and in float64 (the task imports :mod:`symplid`), so that N workers
 use N cores and no more. With ``scheduler="tcp://host:8786"`` the cells go to an existing Dask
@@ -101,6 +103,7 @@ from symplid.workflow.sweep_tasks import (
     cell_fn_name,
     dask_client,
     execute_cells,
+    require_sweep_modules,
     resolve_cell_fn,
     worker_environment,
 )
@@ -183,6 +186,8 @@ def run_sweep(
     ------
     SweepError
         A bad spec, or an out_dir holding a sweep made with another cell function.
+    symplid.runtime.MissingExtraError
+        Dask or pyarrow is not installed (``pip install 'symplid[sweeps]'``).
     ValueError
         A cell function that cannot be resolved, ``workers`` < 1 or given with ``scheduler``, an
         unreachable scheduler.
@@ -196,6 +201,7 @@ def run_sweep(
             "workers sets the size of the local cluster; do not give it with scheduler"
         )
 
+    require_sweep_modules()
     spec = _as_spec(spec, experiment)
     if experiment is not None and spec.experiment != experiment.name:
         raise SweepError(spec.source, "sweep.experiment", f"is {spec.experiment!r}, but the "
