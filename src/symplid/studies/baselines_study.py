@@ -50,7 +50,6 @@ from typing import Any
 
 import numpy as np
 
-from symplid.dynamics.families import build_family
 from symplid.dynamics.potentials import Polynomial
 from symplid.dynamics.systems import get_system
 from symplid.inference import baselines
@@ -67,6 +66,7 @@ from symplid.studies.baselines_report import (
 from symplid.studies.paper import truth_path
 from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import build_model, build_posterior, find_map_for
+from symplid.workflow.model_builder import build_model_family
 from symplid.workflow.sweep import cell_settings
 from symplid.workflow.validate import Spec
 
@@ -160,7 +160,7 @@ def fit_method(cell: Mapping[str, Any], data: Observations) -> tuple[Any, np.nda
     """Fit one cell: ``(potential, coefficients, their Laplace covariance or None)``."""
     settings = cell_settings(cell, experiment=EXPERIMENT)
     method = METHODS.get_entry(cell["method"])
-    potential = build_family(get_system(SYSTEM).dim, settings.model)
+    potential = build_model_family(get_system(SYSTEM).dim, settings.model)
     if not method.bayesian:
         budget = BUDGETS[cell.get("budget", "full")]
         maxiter = 10_000 if isinstance(potential, Polynomial) else budget["baseline_maxiter"]
