@@ -526,3 +526,56 @@ def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tm
         EXPERIMENTS.unregister("toy")
     with pytest.raises(SweepError, match="unknown experiment 'toy'"):
         sweep_spec_from_dict({"sweep": {"experiment": "toy"}})
+
+
+# ----------------------------------------------------------------------------- wiring
+def test_the_sweep_is_given_its_experiment_and_checks_the_name_the_spec_gives(tmp_path):
+    """A spec that names another experiment than the one given is refused before any cell
+    runs; one that names none takes the given experiment's keys (here the baselines')."""
+    from symplid.studies import baselines_study, paper
+
+    with pytest.raises(SweepError, match="is 'paper', but the sweep was given the experiment "
+                                         "'baselines'"):
+        sweep_spec_from_dict({"sweep": {"experiment": "paper"}},
+                             experiment=baselines_study.EXPERIMENT)
+    spec = sweep_spec_from_dict({"sweep": {"grid": {"method": ["hnn", "euler"]}}},
+                                experiment=baselines_study.EXPERIMENT)
+    assert spec.experiment == "baselines"
+    assert list(spec.cells[0].settings) == list(baselines_study.CELL_KEYS)
+    with pytest.raises(SweepError, match="but the sweep was given the experiment 'baselines'"):
+        run_sweep(sweep_spec_from_dict({}, experiment=paper.EXPERIMENT), tmp_path / "out",
+                  experiment=baselines_study.EXPERIMENT, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_register_studies_lists_each_study_once_and_is_idempotent():
+    from symplid.registry import Registry
+    from symplid.studies import STUDIES, baselines_study, paper, register_studies
+    from symplid.workflow.sweep import get_experiment
+
+    assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT)
+    registry = Registry("experiment")
+    with pytest.raises(SweepError, match="no experiment is registered"):
+        get_experiment("paper", "s.toml", registry)
+    register_studies(registry)
+    register_studies(registry)  # again: nothing changes
+    assert registry.names() == ("paper", "baselines")
+    assert registry["paper"] is paper.EXPERIMENT
+    other = Registry("experiment")
+    other.register("paper", baselines_study.EXPERIMENT)
+    with pytest.raises(ValueError, match="named 'paper' is registered already"):
+        register_studies(other)
+
+
+def test_the_sweep_command_names_an_unknown_experiment_in_one_line(tmp_path):
+    from click.testing import CliRunner
+
+    from symplid.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nexperiment = "paperr"\n', encoding="utf-8")
+    result = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip().splitlines() == [
+        f"symplid: error: {spec}: sweep.experiment is 'paperr': unknown experiment 'paperr' "
+        "(did you mean 'paper'?); choose one of paper, baselines"]
