@@ -29,6 +29,12 @@ def pytest_configure(config):
     )
     runtime.enable_compilation_cache(folder)
 
+    # The suite is a top-level user, like the command line: the sweep specs its tests build
+    # may name the studies' experiments ("paper", the default, and "baselines").
+    from symplid.studies import register_studies
+
+    register_studies()
+
 
 # Irregular observation times for the small problems: gaps 0.7, 0.8, 0.5, 1.1, 0.5, 0.9,
 # so with dt = 0.25 the gaps take 3, 4, 2, 5, 2 and 4 substeps (never an exact multiple).

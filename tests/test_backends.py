@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend, select_backend
+from symplid.filters.backends import LikelihoodBackend
 from symplid.model import likelihood
+from symplid.model.backends import LIKELIHOOD_BACKENDS, select_backend
 
 
 @pytest.fixture

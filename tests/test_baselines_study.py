@@ -11,21 +11,21 @@ from click.testing import CliRunner
 
 import symplid
 from symplid.cli import main
-from symplid.experiments import EXPERIMENTS
-from symplid.experiments.baselines_report import (
+from symplid.inference import baselines
+from symplid.studies.baselines_report import (
     deciding_numbers,
     format_report,
     medians,
     plot_error_vs_size,
 )
-from symplid.experiments.baselines_study import (
+from symplid.studies.baselines_study import (
     METHODS,
     _energy,
     baselines_spec,
     cell_data,
     run_cell,
 )
-from symplid.inference import baselines
+from symplid.workflow.experiment import EXPERIMENTS
 from symplid.workflow.sweep import SweepError, resolve_cell
 
 TINY = {"num_obs": 12, "t_span": 30.0, "budget": "quick", "t_end": 30.0}

@@ -35,12 +35,12 @@ from symplid.dynamics.integrators import (
 )
 from symplid.dynamics.systems import damped_pendulum
 from symplid.dynamics.trajectory import solve
-from symplid.experiments.paper import ApproachResult, analyse_approach, cell_data, truth_path
 from symplid.inference.forecast import forecast_with_noise
 from symplid.inference.predict import forecast_from_filter, predict_trajectory
 from symplid.model import kernel
 from symplid.model.priors import PriorSpec
 from symplid.model.simulate import simulate
+from symplid.studies.paper import ApproachResult, analyse_approach, cell_data, truth_path
 from symplid.workflow.compare import comparison_table, fit_candidates
 from symplid.workflow.scaling import Scaling
 from symplid.workflow.settings import settings_from_dict, settings_to_dict

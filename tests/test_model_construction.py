@@ -21,9 +21,9 @@ from symplid.dynamics.nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, 
 from symplid.dynamics.potentials import has_kinetic, mass_matrix
 from symplid.dynamics.separable import SeparablePotential
 from symplid.filters import unscented_weights
-from symplid.filters.backends import check_backend_name
 from symplid.filters.noise import get_observation_noise
 from symplid.model import programs
+from symplid.model.backends import check_backend_name
 from symplid.model.construction import ModelFields, normalise_fields
 
 POLY = symplid.Polynomial(dim=2, order=3)

@@ -11,11 +11,12 @@ from click.testing import CliRunner
 
 import symplid
 from symplid.cli import main
-from symplid.dynamics.families import POTENTIAL_FAMILIES, build_family, family_of
+from symplid.dynamics.families import POTENTIAL_FAMILIES
 from symplid.dynamics.neural import MLPPotential
 from symplid.io import write_observations
 from symplid.model.priors import Laplace, Normal
 from symplid.workflow.fit import build_model, build_posterior, find_map_for
+from symplid.workflow.model_builder import build_model_family, model_family
 from symplid.workflow.settings import (
     Settings,
     SettingsError,
@@ -37,7 +38,7 @@ def mlp_settings(**model) -> Settings:
 
 def test_mlp_family_builds_the_network_the_settings_describe():
     s = mlp_settings(width=5, depth=1, activation="softplus", network_seed=4)
-    U = build_family(2, s.model)
+    U = build_model_family(2, s.model)
     assert isinstance(U, MLPPotential)
     assert (U.width, U.depth, U.activation, U.seed) == (5, 1, "softplus", 4)
     assert U.num_params == 2 * 5 + 5 + 5  # w0, b0, w1 (no final bias)
@@ -47,9 +48,9 @@ def test_mlp_family_builds_the_network_the_settings_describe():
     assert POTENTIAL_FAMILIES.canonical("neural") == "mlp"
     h = settings_from_dict({"model": {"hamiltonian": "mlp", "width": 3, "depth": 1},
                             "sampler": {"method": "nuts"}})
-    H = build_family(2, h.model)
+    H = build_model_family(2, h.model)
     assert isinstance(H, symplid.MLPHamiltonian) and H.num_params == 3 * 4 + 3 + 3
-    assert family_of(h.model).neural and h.priors.coefficients == Normal(0.0, 1.0)
+    assert model_family(h.model).neural and h.priors.coefficients == Normal(0.0, 1.0)
     with pytest.raises(SettingsError, match=r"model\.width"):
         mlp_settings(width=0)
     with pytest.raises(SettingsError, match=r"did you mean 'mlp'\?"):
@@ -117,7 +118,7 @@ def test_a_non_separable_network_needs_a_non_separable_propagator(hh_data):
 def test_fit_path_for_a_network_is_the_scalable_one(hh_data):
     s = merge_overrides(mlp_settings(width=4, depth=1),
                         {"map.adam_steps": 150, "map.lbfgs_steps": 3000})
-    assert family_of(s.model).neural and not family_of(Settings().model).neural
+    assert model_family(s.model).neural and not model_family(Settings().model).neural
     model = build_model(s, hh_data)
     posterior = build_posterior(s, hh_data, model)
     assert model.likelihood_backend == "jax"  # the compiled kernel is for polynomials

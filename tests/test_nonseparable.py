@@ -335,7 +335,7 @@ def test_settings_name_the_hamiltonian_and_its_integrators(pendulum_data):
 
 
 def test_sweep_cells_carry_the_same_keys():
-    from symplid.experiments.paper import cell_data
+    from symplid.studies.paper import cell_data
     from symplid.workflow.sweep_spec import cell_settings, sweep_spec_from_dict
 
     spec = sweep_spec_from_dict({

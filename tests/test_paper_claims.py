@@ -17,23 +17,23 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from symplid.experiments.claims_readme import (
+from symplid.studies.claims_readme import (
     BEGIN,
     END,
     FORMATTERS,
     readme_block,
     update_readme,
 )
-from symplid.experiments.claims_stats import (
+from symplid.studies.claims_stats import (
     bootstrap_median,
     rank_uniformity,
     thin_evenly,
     truth_rank,
     wilson_interval,
 )
-from symplid.experiments.paper_calibration import cell_calibration, evaluate_calibration
-from symplid.experiments.paper_claims import RATIO_THRESHOLD, evaluate_claims, verdict
-from symplid.experiments.paper_study import (
+from symplid.studies.paper_calibration import cell_calibration, evaluate_calibration
+from symplid.studies.paper_claims import RATIO_THRESHOLD, evaluate_claims, verdict
+from symplid.studies.paper_study import (
     PAPER_SETTING,
     VARIANTS,
     estimate_cost,
@@ -41,7 +41,7 @@ from symplid.experiments.paper_study import (
     parse_budget,
     select_variants,
 )
-from symplid.experiments.paper_study_report import calibration_answer, format_claims_report
+from symplid.studies.paper_study_report import calibration_answer, format_claims_report
 from symplid.workflow.sweep_results import _flatten
 
 Z = 1.959963984540054

@@ -77,8 +77,8 @@ def test_defaults_are_the_papers_numbers():
 
 def test_paper_settings_fix_the_auto_defaults(hh_data):
     """The paper's experiment (reproduce, its sweeps) does not depend on the "auto" rules."""
-    from symplid.experiments.paper import PaperConfig, paper_settings
-    from symplid.experiments.paper_cells import known_initial_state
+    from symplid.studies.paper import PaperConfig, paper_settings
+    from symplid.studies.paper_cells import known_initial_state
     from symplid.workflow.settings import resolve_for_data
 
     for approach in ("leapfrog", "rk2"):

@@ -24,8 +24,8 @@ import pytest
 
 import sweep_cells
 import symplid
-from symplid.experiments.paper import CELL_KEYS, cell_data
-from symplid.experiments.paper_study import (
+from symplid.studies.paper import CELL_KEYS, cell_data
+from symplid.studies.paper_study import (
     evaluate_claims,
     paper_claims_spec,
     run_paper_claims,
@@ -224,14 +224,16 @@ _STOPPED_SWEEP = """
 import signal, sys
 signal.signal(signal.SIGINT, signal.default_int_handler)  # not ignored in a background job
 sys.path.insert(0, {tests!r})
+from symplid.studies.paper import EXPERIMENT
 from symplid.workflow.sweep import run_sweep
 
 if __name__ == "__main__":
     spec = {{"base": {{"num_iterations": 20, "burn_in": 10}},
             "sweep": {{"grid": {{"seed": [0, 1, 2]}}}}}}
     run_sweep(spec, {out!r}, workers=2, cell_fn="sweep_cells:slow_cell", progress=False,
-              figures=False, worker_env={{"PYTHONPATH": {tests!r}, {env!r}: {calls!r},
-                                          "SYMPLID_CACHE_DIR": "off"}})
+              figures=False, experiment=EXPERIMENT,
+              worker_env={{"PYTHONPATH": {tests!r}, {env!r}: {calls!r},
+                          "SYMPLID_CACHE_DIR": "off"}})
 """
 
 
@@ -448,7 +450,7 @@ PAPER_METRICS = (
 
 def _has_run_cell() -> bool:
     try:
-        from symplid.experiments import paper
+        from symplid.studies import paper
     except ImportError:
         return False
     return callable(getattr(paper, "run_cell", None))
@@ -456,7 +458,7 @@ def _has_run_cell() -> bool:
 
 @pytest.mark.slow
 @pytest.mark.skipif(
-    not _has_run_cell(), reason="symplid.experiments.paper.run_cell not written yet"
+    not _has_run_cell(), reason="symplid.studies.paper.run_cell not written yet"
 )
 def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     """The real cell function (quick budget): seed 0, leapfrog and RK2, on 2 local workers."""
@@ -494,7 +496,7 @@ def test_old_num_samples_key_is_read_with_a_future_warning():
 
 
 def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tmp_path):
-    from symplid.experiments import EXPERIMENTS, Experiment
+    from symplid.workflow.experiment import EXPERIMENTS, Experiment
     from symplid.workflow.validate import Spec
 
     keys = {
@@ -524,3 +526,56 @@ def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tm
         EXPERIMENTS.unregister("toy")
     with pytest.raises(SweepError, match="unknown experiment 'toy'"):
         sweep_spec_from_dict({"sweep": {"experiment": "toy"}})
+
+
+# ----------------------------------------------------------------------------- wiring
+def test_the_sweep_is_given_its_experiment_and_checks_the_name_the_spec_gives(tmp_path):
+    """A spec that names another experiment than the one given is refused before any cell
+    runs; one that names none takes the given experiment's keys (here the baselines')."""
+    from symplid.studies import baselines_study, paper
+
+    with pytest.raises(SweepError, match="is 'paper', but the sweep was given the experiment "
+                                         "'baselines'"):
+        sweep_spec_from_dict({"sweep": {"experiment": "paper"}},
+                             experiment=baselines_study.EXPERIMENT)
+    spec = sweep_spec_from_dict({"sweep": {"grid": {"method": ["hnn", "euler"]}}},
+                                experiment=baselines_study.EXPERIMENT)
+    assert spec.experiment == "baselines"
+    assert list(spec.cells[0].settings) == list(baselines_study.CELL_KEYS)
+    with pytest.raises(SweepError, match="but the sweep was given the experiment 'baselines'"):
+        run_sweep(sweep_spec_from_dict({}, experiment=paper.EXPERIMENT), tmp_path / "out",
+                  experiment=baselines_study.EXPERIMENT, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_register_studies_lists_each_study_once_and_is_idempotent():
+    from symplid.registry import Registry
+    from symplid.studies import STUDIES, baselines_study, paper, register_studies
+    from symplid.workflow.sweep import get_experiment
+
+    assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT)
+    registry = Registry("experiment")
+    with pytest.raises(SweepError, match="no experiment is registered"):
+        get_experiment("paper", "s.toml", registry)
+    register_studies(registry)
+    register_studies(registry)  # again: nothing changes
+    assert registry.names() == ("paper", "baselines")
+    assert registry["paper"] is paper.EXPERIMENT
+    other = Registry("experiment")
+    other.register("paper", baselines_study.EXPERIMENT)
+    with pytest.raises(ValueError, match="named 'paper' is registered already"):
+        register_studies(other)
+
+
+def test_the_sweep_command_names_an_unknown_experiment_in_one_line(tmp_path):
+    from click.testing import CliRunner
+
+    from symplid.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[sweep]\nexperiment = "paperr"\n', encoding="utf-8")
+    result = CliRunner().invoke(main, ["sweep", str(spec), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip().splitlines() == [
+        f"symplid: error: {spec}: sweep.experiment is 'paperr': unknown experiment 'paperr' "
+        "(did you mean 'paper'?); choose one of paper, baselines"]

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from scipy.integrate import quad, solve_ivp
 
-from symplid.dynamics.families import build_family
 from symplid.dynamics.hamiltonians import is_hamiltonian
 from symplid.dynamics.separable import SeparablePotential
 from symplid.dynamics.user_models import UserModelError, build_user_model, is_user_model
@@ -24,6 +23,7 @@ from symplid.model.data import Observations
 from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal
 from symplid.model.truncated import Truncated
 from symplid.workflow.fit import build_model, build_posterior, find_map_for
+from symplid.workflow.model_builder import build_model_family
 from symplid.workflow.settings import (
     dump_settings,
     load_settings,
@@ -221,7 +221,7 @@ def test_a_non_separable_expression_picks_a_non_separable_integrator():
                   "parameters": {"a": {"prior": "half-normal"}}},
         "initial_state": {"x0": [1.0, 0.0]}}), obs)
     assert s.model.integrator == "tao" and s.prediction.integrator == "tao"
-    assert is_hamiltonian(build_family(1, s.model))
+    assert is_hamiltonian(build_model_family(1, s.model))
     with pytest.raises(SettingsError, match="needs a separable H"):
         resolve_for_data(merge_overrides(s, {"model.integrator": "yoshida4"}), obs)
 

@@ -115,8 +115,8 @@ def main() -> None:
 @user_errors
 def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_progress) -> None:
     """The paper's Hénon–Heiles experiment: leapfrog against RK2, all figures and a table."""
-    from symplid.experiments.paper import PaperConfig
-    from symplid.experiments.paper import reproduce as run
+    from symplid.studies.paper import PaperConfig
+    from symplid.studies.paper import reproduce as run
 
     overrides = {
         "seed": seed,
@@ -492,10 +492,16 @@ def _with_and_without_noise(settings) -> list[str]:
 @user_errors
 def sweep(spec, out, scheduler, workers, no_progress) -> None:
     """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
-    import symplid.experiments  # noqa: F401  (registers the experiments a spec may name)
+    from symplid.studies import register_studies
+    from symplid.workflow.experiment import EXPERIMENTS
     from symplid.workflow.sweep import run_sweep
+    from symplid.workflow.sweep_spec import get_experiment, named_experiment, read_sweep_file
 
-    table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress)
+    register_studies(EXPERIMENTS)  # the studies a spec may name, "paper" the default
+    data = read_sweep_file(spec)
+    experiment = get_experiment(named_experiment(data, str(spec)), str(spec))
+    table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress,
+                      experiment=experiment)
     counts = table["status"].value_counts().to_dict() if "status" in table else {}
     done = ", ".join(f"{v} {k}" for k, v in counts.items())
     click.echo(f"{out}: {len(table)} cells ({done}); results.csv and results.parquet")
@@ -529,7 +535,7 @@ def study() -> None:
 def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, workers,
                  update_readme, report_only, no_progress) -> None:
     """How often the paper's claims hold over many data seeds, per variant; calibration."""
-    from symplid.experiments.paper_study import run_paper_claims
+    from symplid.studies.paper_study import run_paper_claims
 
     claims = run_paper_claims(
         out,
@@ -543,7 +549,7 @@ def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, wo
     )
     click.echo(f"{out}: claims.json, report.md and figures/")
     if update_readme is not None:
-        from symplid.experiments.claims_readme import update_readme as write_block
+        from symplid.studies.claims_readme import update_readme as write_block
 
         write_block(update_readme, claims, Path(out))
         click.echo(f"{update_readme}: claims block rewritten from {out}/claims.json")
@@ -554,7 +560,7 @@ def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, wo
 @user_errors
 def baselines_study(out, no_progress, **options) -> None:
     """The UKF posterior against HNN and one-step least squares over data sizes (a sweep)."""
-    from symplid.experiments.baselines_study import study_from_options
+    from symplid.studies.baselines_study import study_from_options
 
     click.echo(study_from_options(out, progress=not no_progress, **options))
 

@@ -9,13 +9,26 @@ module, a test file or a notebook — is usable everywhere at once::
 
     INTEGRATORS.register("my-method", Integrator("my-method", 2, False, my_step))
 
+How built-in entries are registered (one pattern for every registry):
+
+* **In the registry's own module.** The module that creates a registry ends with the
+  ``register`` calls of its built-in entries, one per entry, importing what they are built
+  from (its own layer or below). Whoever can read the registry has imported that module, so
+  the built-ins are always there, and the list of them is read in one place.
+* **A higher layer registers its own entries by an explicit call.** Entries built from a
+  layer above the registry (the studies' experiments, which the workflow's sweep runs) are
+  registered by a ``register_*()`` function of that layer, called at its entry point: the
+  command line calls :func:`symplid.studies.register_studies` before it reads a sweep spec.
+* **Never by name, never as an import's side effect.** A registry imports nothing by name,
+  and no module is imported only so that it registers something; ``replace=True`` is for a
+  user who means to replace an entry, not for wiring. ``tests/test_layers.py`` holds this.
+
 This module imports nothing from symplid: every layer may use it.
 """
 
 from __future__ import annotations
 
 import difflib
-import importlib
 from collections.abc import Callable, Iterator, Mapping
 from typing import Generic, TypeVar, overload
 
@@ -37,17 +50,12 @@ class Registry(Mapping[str, T], Generic[T]):
     ----------
     kind
         What an entry is, for messages (``"integrator"``, ``"prior family"``).
-    load
-        Modules that register built-in entries, imported (once) the first time a name is
-        looked up and not found — how a registry read by a lower layer (the sweep) finds the
-        entries a higher layer (the paper's experiment) registers, without importing it.
     """
 
-    def __init__(self, kind: str, load: tuple[str, ...] = ()) -> None:
+    def __init__(self, kind: str) -> None:
         self.kind = kind
         self._entries: dict[str, T] = {}
         self._aliases: dict[str, str] = {}
-        self._load = list(load)
 
     @overload
     def register(self, name: str, entry: T, *, aliases: tuple[str, ...] = (),
@@ -89,18 +97,9 @@ class Registry(Mapping[str, T], Generic[T]):
         """The registered name that ``name`` (or an alias) stands for; ``ValueError`` if none."""
         key = normalise(name)
         key = self._aliases.get(key, key)
-        if key not in self._entries and self._load_builtins():
-            key = self._aliases.get(normalise(name), normalise(name))
         if key not in self._entries:
             raise ValueError(self.unknown_message(name))
         return key
-
-    def _load_builtins(self) -> bool:
-        """Import the modules of built-in entries not imported yet; whether any was."""
-        pending, self._load = self._load, []
-        for module in pending:
-            importlib.import_module(module)
-        return bool(pending)
 
     def unknown_message(self, name: object) -> str:
         """``unknown integrator 'lepfrog' (did you mean 'leapfrog'?); choose one of ...``."""
@@ -113,8 +112,7 @@ class Registry(Mapping[str, T], Generic[T]):
         return self._entries[self.canonical(name)]
 
     def names(self) -> tuple[str, ...]:
-        """The canonical names, in registration order (built-in entries loaded first)."""
-        self._load_builtins()
+        """The canonical names, in registration order (built-in entries first)."""
         return tuple(self._entries)
 
     def __getitem__(self, name: str) -> T:
@@ -127,8 +125,6 @@ class Registry(Mapping[str, T], Generic[T]):
         if not isinstance(name, str):
             return False
         key = normalise(name)
-        if self._aliases.get(key, key) not in self._entries and self._load_builtins():
-            key = normalise(name)
         return self._aliases.get(key, key) in self._entries
 
     def __iter__(self) -> Iterator[str]:

@@ -26,14 +26,42 @@ start with ``--`` (such as ``intra_op_parallelism_threads=1``): everything after
 silently dropped. :func:`merge_xla_flags` therefore puts every ``--flag`` first and bare
 tokens last; :func:`single_thread_xla_flags` is the one place that writes the flags of a
 single-threaded worker process.
+
+**Optional dependencies.** What only the sweeps need (Dask, pyarrow) is the ``sweeps`` extra;
+:func:`require_extra` is the one check, which names the command that installs it.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 import warnings
 from pathlib import Path
+
+
+class MissingExtraError(ImportError):
+    """An optional dependency that a feature needs is not installed; the message says how
+    to install it (one line, shown as such by the command line)."""
+
+
+def require_extra(extra: str, feature: str, *modules: str) -> None:
+    """Import ``modules`` (third-party names only), or raise :class:`MissingExtraError`.
+
+    ``require_extra("sweeps", "a sweep", "dask.distributed", "pyarrow")`` raises
+    ``a sweep needs dask.distributed, pyarrow, which are not installed:
+    pip install 'symplid[sweeps]'`` when neither imports.
+    """
+    missing = []
+    for name in modules:
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            missing.append(name)
+    if missing:
+        verb = "is" if len(missing) == 1 else "are"
+        raise MissingExtraError(f"{feature} needs {', '.join(missing)}, which {verb} not "
+                                f"installed: pip install 'symplid[{extra}]'")
 
 
 def default_cache_dir() -> Path | None:

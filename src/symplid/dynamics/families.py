@@ -10,8 +10,10 @@ registries below, and the entry builds the object for the data's dimension::
     POTENTIAL_FAMILIES.register("mine", Family(
         "mine", lambda dim, options: MyPotential(dim, options.order), "U(q) of my kind"))
 
-``options`` is the run's model settings (any object with attributes: ``order``, ``width``,
-``depth``, ...), so a family reads the keys it needs and ignores the rest.
+``options`` is a :class:`FamilyOptions`: the typed values a builder may read (``order``,
+``width``, ``depth``, ...), so a family reads the ones it needs and ignores the rest. This
+module reads no settings: the workflow makes the options from a run's model settings
+(:mod:`symplid.workflow.model_builder`), and a user who builds a family in Python gives them.
 
 * :data:`POTENTIAL_FAMILIES`: U(q; θ) for the separable H = ½pᵀM⁻¹p + U(q) (eq. 2).
 * :data:`HAMILTONIAN_FAMILIES`: the Hamiltonian itself. ``"separable"`` (the default) means
@@ -21,7 +23,7 @@ registries below, and the entry builds the object for the data's dimension::
 A value that is not a name (an expression such as ``"-GM/sqrt(q1^2 + q2^2)"``, or
 ``"file:model.py:U"``) is a user's own model: :func:`family_of` answers it with
 :func:`user_family`, built by :mod:`symplid.dynamics.user_models` with the parameters that
-``options.parameters`` declares.
+``options.parameters`` names.
 """
 
 from __future__ import annotations
@@ -36,19 +38,50 @@ from symplid.dynamics.user_models import QUADRATIC, build_user_model, is_user_mo
 from symplid.registry import Registry
 
 __all__ = [
-    "HAMILTONIAN_FAMILIES", "POTENTIAL_FAMILIES", "SEPARABLE", "Family", "build_family",
-    "family_of", "user_family",
+    "DEFAULT_POTENTIAL", "HAMILTONIAN_FAMILIES", "POTENTIAL_FAMILIES", "SEPARABLE", "Family",
+    "FamilyOptions", "build_family", "family_of", "user_family",
 ]
-
-BuildFn = Callable[[int, Any], Any]
 
 #: The name of the Hamiltonian family ½pᵀM⁻¹p + U(q) with U from ``model.potential``.
 SEPARABLE = "separable"
+#: The potential family when none is named: the polynomial of eq. (13).
+DEFAULT_POTENTIAL = "polynomial"
+
+
+@dataclass(frozen=True)
+class FamilyOptions:
+    """The values a family's builder may read (each family reads its own, ignores the rest).
+
+    Attributes
+    ----------
+    order
+        Polynomial order ℓ (``"polynomial"``: monomials of degree 2..ℓ, eq. 13;
+        ``"polynomial-qp"``: degree 1..ℓ in q and p).
+    width, depth, activation, network_seed
+        An ``"mlp"`` network: units per hidden layer, hidden layers, activation (a name in
+        :data:`~symplid.dynamics.neural.ACTIVATIONS`), seed of the initial weights.
+    parameters
+        The names of a user model's own parameters, in order.
+    kinetic
+        The T(p) of a user's potential: ``"quadratic"`` (½pᵀM⁻¹p) or an expression.
+    """
+
+    order: int = 3
+    width: int = 32
+    depth: int = 2
+    activation: str = "tanh"
+    network_seed: int = 0
+    parameters: tuple[str, ...] = ()
+    kinetic: str = QUADRATIC
+
+
+BuildFn = Callable[[int, FamilyOptions], Any]
 
 
 @dataclass(frozen=True)
 class Family:
-    """A named family: ``build(dim, options)`` returns a potential (or a Hamiltonian).
+    """A named family: ``build(dim, options)`` returns a potential (or a Hamiltonian) of
+    ``dim`` coordinates, ``options`` a :class:`FamilyOptions`.
 
     Attributes
     ----------
@@ -76,9 +109,9 @@ POTENTIAL_FAMILIES: Registry[Family] = Registry("potential family")
 HAMILTONIAN_FAMILIES: Registry[Family] = Registry("Hamiltonian family")
 
 POTENTIAL_FAMILIES.register(
-    "polynomial",
+    DEFAULT_POTENTIAL,
     Family(
-        "polynomial",
+        DEFAULT_POTENTIAL,
         lambda dim, options: Polynomial(dim, options.order),
         "U(q) = Σ c_α q^α over the monomials of degree 2..order (eq. 13)",
     ),
@@ -101,7 +134,7 @@ HAMILTONIAN_FAMILIES.register(
 
 
 
-def _double_pendulum(dim: int, options: Any) -> DoublePendulum:
+def _double_pendulum(dim: int, options: FamilyOptions) -> DoublePendulum:
     if dim != 2:
         raise ValueError(f"the double pendulum has 2 angles; the data's system has {dim} "
                          "coordinates")
@@ -140,50 +173,49 @@ HAMILTONIAN_FAMILIES.register(
 )
 
 
-def _mlp(dim: int, options: Any, hamiltonian: bool = False) -> Any:
+def _mlp(dim: int, options: FamilyOptions, hamiltonian: bool = False) -> Any:
     from symplid.dynamics.neural import MLPHamiltonian, MLPPotential  # Equinox only now
 
     return (MLPHamiltonian if hamiltonian else MLPPotential)(
         dim,
-        width=int(getattr(options, "width", 32)),
-        depth=int(getattr(options, "depth", 2)),
-        seed=int(getattr(options, "network_seed", 0)),
-        activation=getattr(options, "activation", "tanh"),
+        width=options.width,
+        depth=options.depth,
+        seed=options.network_seed,
+        activation=options.activation,
     )
 
 
 def user_family(text: str, kind: str) -> Family:
     """The family of a user's own model (:mod:`symplid.dynamics.user_models`): the expression
-    or ``file:PATH:NAME`` ``text`` as ``model.<kind>``, its parameters those that
-    ``options.parameters`` declare (objects with a ``name``), ``options.kinetic`` its T(p)."""
+    or ``file:PATH:NAME`` ``text`` as ``model.<kind>``, its parameters named by
+    ``options.parameters``, ``options.kinetic`` its T(p)."""
 
-    def build(dim: int, options: Any) -> Any:
-        names = [p.name for p in getattr(options, "parameters", ())]
-        return build_user_model(text, kind, dim, names, getattr(options, "kinetic", QUADRATIC))
+    def build(dim: int, options: FamilyOptions) -> Any:
+        return build_user_model(text, kind, dim, list(options.parameters), options.kinetic)
 
     return Family("user", build, f"the user's {kind} {text}")
 
 
-def family_of(options: Any) -> Family:
-    """The family entry that ``options`` (model settings) build: a Hamiltonian family other
-    than ``"separable"``, else the potential family; a user's expression or file for either
-    (:func:`user_family`)."""
-    hamiltonian = getattr(options, "hamiltonian", SEPARABLE)
+def family_of(hamiltonian: str = SEPARABLE, potential: str = DEFAULT_POTENTIAL) -> Family:
+    """The family that a model's ``hamiltonian`` and ``potential`` name: a Hamiltonian family
+    other than ``"separable"``, else the potential family; a user's expression or file for
+    either (:func:`user_family`). ``ValueError`` for an unknown name."""
     if is_user_model(hamiltonian):
         return user_family(hamiltonian, "hamiltonian")
     entry = HAMILTONIAN_FAMILIES.get_entry(hamiltonian)
     if entry.name != SEPARABLE:
         return entry
-    potential = getattr(options, "potential", "polynomial")
     if is_user_model(potential):
         return user_family(potential, "potential")
     return POTENTIAL_FAMILIES.get_entry(potential)
 
 
-def build_family(dim: int, options: Any) -> Any:
-    """The potential or Hamiltonian that ``options.hamiltonian`` / ``options.potential`` name.
-
-    ``options.hamiltonian`` other than ``"separable"`` wins; otherwise the potential family
-    ``options.potential`` (``"polynomial"`` when the attribute is absent) is built.
-    """
-    return family_of(options).build(dim, options)
+def build_family(
+    dim: int,
+    hamiltonian: str = SEPARABLE,
+    potential: str = DEFAULT_POTENTIAL,
+    options: FamilyOptions | None = None,
+) -> Any:
+    """The potential or Hamiltonian of ``dim`` coordinates that the names give
+    (:func:`family_of`), built with ``options`` (default :class:`FamilyOptions`)."""
+    return family_of(hamiltonian, potential).build(dim, options or FamilyOptions())

@@ -26,118 +26,44 @@ read the registry.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import NamedTuple
-
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from symplid.dynamics.separable import has_kinetic
+from symplid.dynamics.nonseparable import implicit_midpoint_integrator, tao_integrator
+from symplid.dynamics.onestep import (
+    Dynamics,
+    ForceStepFn,
+    GeneralDynamics,
+    Integrator,
+    StepFn,
+    as_general,
+    make_dynamics,
+)
 from symplid.registry import Registry
 
 Array = jax.Array
 
-
-class Dynamics(NamedTuple):
-    """The right-hand side of Hamilton's equations (3) for a separable H = T(p) + U(q).
-
-    ``grad_potential(q)`` is ∂U/∂q and ``velocity(p)`` is ∂T/∂p (M⁻¹p for the quadratic
-    T = ½pᵀM⁻¹p of eq. 2), so q̇ = velocity(p) and ṗ = −grad_potential(q). ``linear`` says
-    that ``velocity`` is linear in p (a quadratic T): leapfrog then uses the integer-step form
-    of eqs (5)–(6); otherwise its kick–drift–kick form (:mod:`symplid.dynamics.separable`).
-    """
-
-    grad_potential: Callable[[Array], Array]
-    velocity: Callable[[Array], Array]
-    linear: bool = True
-
-
-class GeneralDynamics(NamedTuple):
-    """Hamilton's equations (3) for any H(q, p): q̇ = ∂H/∂p, ṗ = −∂H/∂q.
-
-    ``grad_q(q, p)`` is ∂H/∂q and ``grad_p(q, p)`` is ∂H/∂p, for one point ``(d,)`` or a batch
-    ``(d, ...)``. What a non-separable Hamiltonian gives the integrators.
-    """
-
-    grad_q: Callable[[Array, Array], Array]
-    grad_p: Callable[[Array, Array], Array]
+__all__ = [
+    "INTEGRATORS",
+    "Dynamics",
+    "ForceStepFn",
+    "GeneralDynamics",
+    "Integrator",
+    "StepFn",
+    "as_general",
+    "get_integrator",
+    "leapfrog_force_step",
+    "leapfrog_step",
+    "make_dynamics",
+    "require_separable",
+    "runge_kutta",
+    "runge_kutta_integrator",
+    "separable_only_error",
+    "symplectic_composition",
+    "symplectic_integrator",
+]
 
 
-def as_general(dynamics: Dynamics | GeneralDynamics) -> GeneralDynamics:
-    """``dynamics`` as :class:`GeneralDynamics` (a separable one is a special case)."""
-    if isinstance(dynamics, GeneralDynamics):
-        return dynamics
-    return GeneralDynamics(
-        lambda q, p: dynamics.grad_potential(q), lambda q, p: dynamics.velocity(p)
-    )
-
-
-def make_dynamics(
-    potential, coefficients: Array, inv_mass: Array | None = None
-) -> Dynamics | GeneralDynamics:
-    """Bind a potential's coefficients and the inverse mass matrix into :class:`Dynamics`.
-
-    For a whole Hamiltonian H(q, p; θ) (an object with ``grad_q`` and ``grad_p``, see
-    :mod:`symplid.dynamics.hamiltonians`) the result is :class:`GeneralDynamics`; a constant
-    mass matrix does not apply to it (M belongs inside H).
-    """
-    if hasattr(potential, "grad_q") and hasattr(potential, "grad_p"):
-        if inv_mass is not None:
-            raise ValueError("a constant mass matrix applies to a separable H only; "
-                             "write the mass into the Hamiltonian")
-        return GeneralDynamics(
-            lambda q, p: potential.grad_q(q, p, coefficients),
-            lambda q, p: potential.grad_p(q, p, coefficients),
-        )
-    if has_kinetic(potential):  # H = T(p) + U(q) with its own T
-        if inv_mass is not None:
-            raise ValueError("a constant mass matrix applies to H = ½pᵀM⁻¹p + U(q) only; the "
-                             "model's own kinetic energy T(p) replaces it")
-        return Dynamics(lambda q: potential.gradient(q, coefficients),
-                        lambda p: potential.velocity(p, coefficients), linear=False)
-    if inv_mass is None:
-        velocity = _identity
-    else:
-        inv_mass = jnp.asarray(inv_mass)
-
-        def velocity(p: Array) -> Array:
-            return jnp.tensordot(inv_mass, p, axes=1)  # works for p of shape (d, ...)
-
-    return Dynamics(lambda q: potential.gradient(q, coefficients), velocity)
-
-
-def _identity(p: Array) -> Array:
-    return p
-
-
-StepFn = Callable[[Dynamics, Array, Array, Array], tuple[Array, Array]]
-ForceStepFn = Callable[[Dynamics, Array, Array, Array, Array], tuple[Array, Array, Array]]
-
-
-@dataclass(frozen=True)
-class Integrator:
-    """A one-step method: its name, its order of accuracy, whether it is symplectic."""
-
-    name: str
-    order: int
-    symplectic: bool
-    step: StepFn
-    description: str = ""
-    force_step: ForceStepFn | None = None
-    """Optional ``(dynamics, q, p, ∂U(q), dt) -> (q⁺, p⁺, ∂U(q⁺))``: the same step, reusing the
-    force at the start (first-same-as-last), so a run of steps costs one force per step."""
-    scheme: tuple | None = None
-    """The method as data, for compiled backends: ``("composition", weights)`` (leapfrog
-    sub-steps of ``w·Δt``) or ``("runge-kutta", a, b)`` (a Butcher tableau); None when the
-    step is only a function."""
-    nonseparable: bool = False
-    """Whether ``step`` also accepts :class:`~symplid.dynamics.integrators.GeneralDynamics` (a
-    non-separable H)."""
-    start: Callable[[GeneralDynamics, Array, Array], Array] | None = None
-    """Optional ``(dynamics, q, p) -> aux``: what ``force_step`` carries in its third slot at
-    the start of a run, when that is not the force ∂U(q) (Tao's copies of the state)."""
 
 
 def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
@@ -248,11 +174,12 @@ _CBRT2 = 2.0 ** (1.0 / 3.0)
 _YOSHIDA_W1 = 1.0 / (2.0 - _CBRT2)
 _YOSHIDA_W0 = -_CBRT2 / (2.0 - _CBRT2)
 
-INTEGRATORS: Registry[Integrator] = Registry("integrator", load=("symplid.dynamics.nonseparable",))
+INTEGRATORS: Registry[Integrator] = Registry("integrator")
 """Every one-step method by name; ``INTEGRATORS.register(name, Integrator(...))`` adds one.
 
-Tao's methods and the implicit midpoint rule register from :mod:`symplid.dynamics.nonseparable`
-(loaded on the first lookup)."""
+The built-in methods are registered just below, all of them: the separable ones of this
+module, then Tao's methods and the implicit midpoint rule of
+:mod:`symplid.dynamics.nonseparable`."""
 
 INTEGRATORS.register(
     "leapfrog",
@@ -302,6 +229,13 @@ INTEGRATORS.register(
         (1 / 6, 1 / 3, 1 / 3, 1 / 6),
         "classical Runge–Kutta",
     ),
+)
+INTEGRATORS.register("tao", tao_integrator("tao", 2, (1.0,)))
+INTEGRATORS.register(
+    "tao4", tao_integrator("tao4", 4, (_YOSHIDA_W1, _YOSHIDA_W0, _YOSHIDA_W1))
+)
+INTEGRATORS.register(
+    "implicit-midpoint", implicit_midpoint_integrator(), aliases=("midpoint-implicit",)
 )
 
 

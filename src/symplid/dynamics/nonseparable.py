@@ -1,7 +1,7 @@
 """Structure-preserving one-step methods that need no separability of H(q, p).
 
-Registered in :data:`~symplid.dynamics.integrators.INTEGRATORS` (this module is loaded on the
-registry's first lookup):
+Registered in :data:`~symplid.dynamics.integrators.INTEGRATORS` by that registry's module,
+which lists every built-in method:
 
 * ``"tao"``, ``"tao4"``: Tao's explicit symplectic methods (Tao 2016, Phys. Rev. E 94,
   043303). The phase space is doubled to ``(q, p, x, y)`` with the augmented Hamiltonian
@@ -46,8 +46,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from symplid.dynamics.integrators import (
-    INTEGRATORS,
+from symplid.dynamics.onestep import (
     Dynamics,
     GeneralDynamics,
     Integrator,
@@ -69,9 +68,6 @@ __all__ = [
 DEFAULT_BINDING = 10.0
 #: A model's default ω is this number over its learning step ``dt``.
 DEFAULT_BINDING_STEPS = 1.0
-
-_CBRT2 = 2.0 ** (1.0 / 3.0)
-_TRIPLE_JUMP = (1.0 / (2.0 - _CBRT2), -_CBRT2 / (2.0 - _CBRT2), 1.0 / (2.0 - _CBRT2))
 
 Extended = tuple[Array, Array, Array, Array]
 
@@ -239,13 +235,6 @@ def _small_solve(a: Array, b: Array) -> Array:
             acc = acc - m[i][j] * x[j]
         x[i] = acc / m[i][i]
     return jnp.stack(x)
-
-
-INTEGRATORS.register("tao", tao_integrator("tao", 2, (1.0,)))
-INTEGRATORS.register("tao4", tao_integrator("tao4", 4, _TRIPLE_JUMP))
-INTEGRATORS.register(
-    "implicit-midpoint", implicit_midpoint_integrator(), aliases=("midpoint-implicit",)
-)
 
 
 def with_binding(integrator: Integrator, binding: float | None) -> Integrator:

@@ -3,11 +3,11 @@
 Layer 2 of the package (above :mod:`symplid.dynamics`): small-matrix linear algebra
 (:mod:`~symplid.filters.linalg`), the unscented transform (:mod:`~symplid.filters.unscented`),
 the Gaussian update and the recursion (:mod:`~symplid.filters.update`), the observation-noise
-models (:mod:`~symplid.filters.noise`) and the registry of likelihood backends
-(:mod:`~symplid.filters.backends`).
+models (:mod:`~symplid.filters.noise`) and what a likelihood backend is
+(:mod:`~symplid.filters.backends`; their registry is :mod:`symplid.model.backends`).
 """
 
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
+from symplid.filters.backends import LikelihoodBackend
 from symplid.filters.linalg import (
     SMALL_DIM,
     cholesky,
@@ -29,7 +29,6 @@ from symplid.filters.unscented import (
 from symplid.filters.update import FilterResult, gaussian_update, run_filter
 
 __all__ = [
-    "LIKELIHOOD_BACKENDS",
     "SMALL_DIM",
     "FilterResult",
     "LikelihoodBackend",

@@ -1,11 +1,13 @@
-"""Likelihood backends: the one place where a new filter implementation is added.
+"""What a likelihood backend is: a way to compute the UKF log marginal likelihood.
 
 A backend computes the UKF log marginal likelihood (Theorem 1) of a state-space model on
-prepared data. The JAX reference ``"jax"`` (registered by :mod:`symplid.model.likelihood`)
-handles every model and also returns the filtered moments; a faster backend, such as a
-compiled kernel for the common models, is added with one call::
+prepared data. The registry of backends, :data:`symplid.model.backends.LIKELIHOOD_BACKENDS`,
+lives in the model layer beside its two built-in entries (the JAX reference ``"jax"``, which
+handles every model and also returns the filtered moments, and the compiled kernel); a faster
+backend is added with one call::
 
-    from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
+    from symplid.filters.backends import LikelihoodBackend
+    from symplid.model.backends import LIKELIHOOD_BACKENDS
 
     LIKELIHOOD_BACKENDS.register("kernel", LikelihoodBackend(
         name="kernel",
@@ -19,7 +21,8 @@ backend of highest ``priority`` (ties: the first registered); ``backend="kernel"
 ``HamiltonianModel.filter`` (the moments) always runs the JAX reference.
 
 This module lives in the filters layer and imports nothing from :mod:`symplid.model`: the
-model and the prepared data are only named in type hints (as Protocols).
+model and the prepared data are only named in type hints (as Protocols). The selection
+(:func:`symplid.model.backends.select_backend`) is in the model layer with the registry.
 """
 
 from __future__ import annotations
@@ -28,17 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from symplid.registry import Registry
-
-__all__ = [
-    "LIKELIHOOD_BACKENDS",
-    "LikelihoodBackend",
-    "backend_names",
-    "check_backend_name",
-    "select_backend",
-]
-
-AUTO = "auto"
+__all__ = ["BuildFn", "LikelihoodBackend", "ModelLike", "SupportsFn"]
 
 
 class ModelLike(Protocol):
@@ -93,52 +86,3 @@ class LikelihoodBackend:
     batch_width: int = 1
     custom_call: bool = False
     description: str = ""
-
-
-#: Every likelihood backend, by name. ``"jax"`` (the reference) is always there once
-#: :mod:`symplid.model` is imported.
-LIKELIHOOD_BACKENDS: Registry[LikelihoodBackend] = Registry("likelihood backend")
-
-
-def backend_names() -> tuple[str, ...]:
-    """The choices of a model's ``backend`` setting: ``"auto"`` and every registered name."""
-    return (AUTO, *LIKELIHOOD_BACKENDS.names())
-
-
-def check_backend_name(name: str) -> str:
-    """``"auto"`` or the canonical registered name; ``ValueError`` listing the choices."""
-    if str(name).strip().lower() == AUTO:
-        return AUTO
-    if name not in LIKELIHOOD_BACKENDS:
-        raise ValueError(
-            LIKELIHOOD_BACKENDS.unknown_message(name).replace(
-                "choose one of ", f"choose one of {AUTO}, "
-            )
-        )
-    return LIKELIHOOD_BACKENDS.canonical(name)
-
-
-def select_backend(name: str, model: ModelLike, prepared: Any = None) -> LikelihoodBackend:
-    """The backend that computes ``model``'s likelihood on ``prepared`` (None: any data).
-
-    ``name="auto"``: the supporting backend of highest priority (registration order breaks
-    ties). A named backend that does not support the model is a ``ValueError`` with its reason.
-    """
-    name = check_backend_name(name)
-    if name != AUTO:
-        backend = LIKELIHOOD_BACKENDS.get_entry(name)
-        reason = backend.supports(model, prepared)
-        if reason is not None:
-            raise ValueError(f"the likelihood backend {name!r} does not apply: {reason}")
-        return backend
-    candidates = sorted(
-        enumerate(LIKELIHOOD_BACKENDS.values()), key=lambda item: (-item[1].priority, item[0])
-    )
-    reasons = []
-    for _, backend in candidates:
-        reason = backend.supports(model, prepared)
-        if reason is None:
-            return backend
-        reasons.append(f"{backend.name}: {reason}")
-    detail = "; ".join(reasons) or "none is registered (import symplid.model)"
-    raise ValueError(f"no likelihood backend applies to this model ({detail})")

@@ -33,8 +33,8 @@ from symplid.dynamics.integrators import Integrator, get_integrator, separable_o
 from symplid.dynamics.nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, with_binding
 from symplid.dynamics.potentials import has_kinetic, mass_matrix
 from symplid.filters import unscented_weights
-from symplid.filters.backends import check_backend_name
 from symplid.filters.noise import get_observation_noise
+from symplid.model.backends import check_backend_name
 
 __all__ = ["NOISE_LAYOUTS", "PROCESS_NOISE_CHOICES", "ModelFields", "normalise_fields"]
 

@@ -37,7 +37,7 @@ from jax.custom_derivatives import SymbolicZero
 
 from symplid.dynamics.potentials import Polynomial, inverse_mass
 from symplid.filters import unscented_weights
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
+from symplid.filters.backends import LikelihoodBackend
 from symplid.model.likelihood import (
     GapInputs,
     PreparedData,
@@ -332,21 +332,18 @@ __all__ = [
     "unsupported_reason",
 ]
 
-#: The compiled kernel as a likelihood backend: preferred by ``backend="auto"`` wherever it
-#: applies (see :func:`unsupported_reason`) and is built.
-COMPILED_BACKEND = LIKELIHOOD_BACKENDS.register(
-    "compiled",
-    LikelihoodBackend(
-        name="compiled",
-        supports=_supports,
-        build=_build_backend,
-        filtered_moments=False,
-        priority=10,
-        # One θ per lane of an eight-wide vector: eight θ cost about 3.5 times one
-        # (benchmarks/speed_tiers.py); fewer than eight are evaluated one at a time.
-        batch_width=8,
-        custom_call=True,
-        description="the C++ UKF kernel through XLA's FFI (polynomial U, linear observation)",
-    ),
-    replace=True,
+#: The compiled kernel as a likelihood backend (registered as ``"compiled"`` by
+#: :mod:`symplid.model.backends`): preferred by ``backend="auto"`` wherever it applies (see
+#: :func:`unsupported_reason`) and is built.
+COMPILED_BACKEND = LikelihoodBackend(
+    name="compiled",
+    supports=_supports,
+    build=_build_backend,
+    filtered_moments=False,
+    priority=10,
+    # One θ per lane of an eight-wide vector: eight θ cost about 3.5 times one
+    # (benchmarks/speed_tiers.py); fewer than eight are evaluated one at a time.
+    batch_width=8,
+    custom_call=True,
+    description="the C++ UKF kernel through XLA's FFI (polynomial U, linear observation)",
 )

@@ -18,8 +18,8 @@ compiled program and picks a backend). The pieces come from the filters layer: t
 (:func:`~symplid.filters.unscented.unscented_predict`), the observation moments, the update and
 the recursion (:func:`~symplid.filters.update.run_filter`).
 
-This module also registers the JAX reference as the likelihood backend ``"jax"`` in
-:data:`symplid.filters.backends.LIKELIHOOD_BACKENDS`.
+This module also defines the JAX reference as a likelihood backend, :data:`JAX_BACKEND`,
+which :mod:`symplid.model.backends` registers as ``"jax"``.
 """
 
 from __future__ import annotations
@@ -45,7 +45,8 @@ from symplid.filters import (
     unscented_predict,
     unscented_weights,
 )
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend
+from symplid.filters.backends import LikelihoodBackend
+from symplid.filters.noise import ObservationNoise
 from symplid.model.deterministic import build_trajectory_likelihood
 
 Array = jax.Array
@@ -105,10 +106,18 @@ class StateSpaceModel(Protocol):
     @property
     def observation_matrix(self) -> np.ndarray | None: ...
 
+    @property
+    def noise_model(self) -> ObservationNoise:
+        """The observation-noise model (:mod:`symplid.filters.noise`): additive Γ, or with a
+        multiplicative term R_k = Γ + diag(r ∘ E[h∘h])."""
+        ...
+
     def split(self, theta: Array) -> tuple[Array, Array, Array]: ...
 
-    # Models with an observation-noise model other than additive (symplid.filters.noise) also
-    # have ``noise_model`` and ``noise_covariance(theta)``; the likelihood reads them by name.
+    def noise_covariance(self, theta: Array) -> Array | Callable[..., Array]:
+        """The update's observation covariance at θ: Γ, or for a multiplicative
+        :attr:`noise_model` a function of the predicted observation moments giving R_k."""
+        ...
 
 
 
@@ -187,8 +196,7 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
 
 def _multiplicative(model: StateSpaceModel) -> bool:
     """Whether the model's observation noise has a multiplicative term."""
-    noise = getattr(model, "noise_model", None)
-    return bool(noise is not None and noise.multiplicative)
+    return bool(model.noise_model.multiplicative)
 
 
 def _observation_moments(
@@ -291,15 +299,11 @@ def _jax_build(model: StateSpaceModel, prepared: PreparedData) -> FilterFn:
 
 
 #: The JAX reference: every model, the filtered moments as well as the log-likelihood.
-JAX_BACKEND = LIKELIHOOD_BACKENDS.register(
-    "jax",
-    LikelihoodBackend(
-        name="jax",
-        supports=_jax_supports,
-        build=_jax_build,
-        filtered_moments=True,
-        priority=0,
-        description="the JAX reference UKF (every model; jit, vmap and grad)",
-    ),
-    replace=True,
+JAX_BACKEND = LikelihoodBackend(
+    name="jax",
+    supports=_jax_supports,
+    build=_jax_build,
+    filtered_moments=True,
+    priority=0,
+    description="the JAX reference UKF (every model; jit, vmap and grad)",
 )

@@ -1,7 +1,7 @@
 """Which backend computes a model's likelihood, and its compiled programs, shared by structure.
 
 A model holds settings; this module decides what runs them. :func:`select` picks the
-likelihood backend from :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS` (``"auto"``:
+likelihood backend from :data:`~symplid.model.backends.LIKELIHOOD_BACKENDS` (``"auto"``:
 the supporting one of highest priority), and :func:`compiled` returns its jitted program
 ``fn(theta, inputs, ys, masks, x0, P0)``, built once per **structure**: the model's normal
 fields that a backend's ``build`` may read (:func:`structure_key`), the backend and the two
@@ -27,7 +27,8 @@ import numpy as np
 from symplid.compiled import cached
 from symplid.dynamics.nonseparable import TaoIntegrator
 from symplid.filters import FilterResult
-from symplid.filters.backends import LIKELIHOOD_BACKENDS, LikelihoodBackend, select_backend
+from symplid.filters.backends import LikelihoodBackend
+from symplid.model.backends import LIKELIHOOD_BACKENDS, select_backend
 from symplid.model.construction import ModelFields
 from symplid.model.likelihood import JAX_BACKEND, PreparedData
 

@@ -44,12 +44,11 @@ import numpy as np
 
 from symplid.dynamics.hamiltonians import Hamiltonian, is_hamiltonian
 from symplid.dynamics.integrators import Integrator
-from symplid.dynamics.potentials import Potential, coefficient_name, inverse_mass
+from symplid.dynamics.potentials import Potential, inverse_mass
 from symplid.dynamics.potentials import hamiltonian as hamiltonian_value
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult
 from symplid.filters.noise import ObservationNoise, get_observation_noise
-from symplid.model import kernel  # noqa: F401  (registers the compiled backend)
 from symplid.model.construction import NOISE_LAYOUTS as NOISE_LAYOUTS  # the choices, also here
 from symplid.model.construction import PROCESS_NOISE_CHOICES as PROCESS_NOISE_CHOICES
 from symplid.model.construction import ModelFields, normalise_fields
@@ -111,7 +110,7 @@ class HamiltonianModel(ModelFields):
     unroll
         Unroll factor of the substep loop (``lax.fori_loop(unroll=...)``).
     backend
-        Likelihood backend from :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS`
+        Likelihood backend from :data:`~symplid.model.backends.LIKELIHOOD_BACKENDS`
         (``"jax"``: the reference) or ``"auto"`` (the best one that supports the model; see
         :attr:`likelihood_backend`). :meth:`filter` always runs the JAX reference.
     damping
@@ -381,7 +380,7 @@ class HamiltonianModel(ModelFields):
     def likelihood_backend(self) -> str:
         """The backend that computes this model's log-likelihood (``backend="auto"`` resolved).
 
-        Chosen among :data:`~symplid.filters.backends.LIKELIHOOD_BACKENDS` for the model
+        Chosen among :data:`~symplid.model.backends.LIKELIHOOD_BACKENDS` for the model
         alone (:func:`symplid.model.programs.select`); a backend that declines a particular
         data set hands it to the next one.
         """

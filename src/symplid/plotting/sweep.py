@@ -1,7 +1,7 @@
 """Figures of a sweep's results table: every cell's value of a metric, grouped by setting.
 
 The helpers (the distinct settings of a table, the rows of one setting, a box with its points)
-are shared with the studies' own figures (:mod:`symplid.experiments.paper_study_report`).
+are shared with the studies' own figures (:mod:`symplid.studies.paper_study_report`).
 """
 
 from __future__ import annotations

@@ -78,6 +78,7 @@ def user_errors(fn: Callable) -> Callable:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         from symplid.io.files import StorageError
         from symplid.model.data import DataError
+        from symplid.runtime import MissingExtraError
         from symplid.workflow.interrupts import terminate_as_interrupt
         from symplid.workflow.settings import SettingsError
 
@@ -90,6 +91,8 @@ def user_errors(fn: Callable) -> Callable:
                     sys.exit(128 + signals[-1])
                 return result
             except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
+                raise UserError(str(err)) from None
+            except MissingExtraError as err:  # e.g. a sweep without the "sweeps" extra
                 raise UserError(str(err)) from None
             except (ValueError, NotADirectoryError) as err:  # the library's argument checks
                 raise UserError(str(err)) from None

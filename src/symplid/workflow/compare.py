@@ -47,7 +47,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from symplid.dynamics.families import family_of
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
 from symplid.inference.homotopy import filter_start, without_process_var
 from symplid.inference.map import find_map
@@ -63,6 +62,7 @@ from symplid.workflow.compare_table import (
     write_comparison,
 )
 from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.model_builder import model_family
 from symplid.workflow.scaling import resolve_standardise, scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
 from symplid.workflow.settings_schema import map_start
@@ -281,7 +281,7 @@ def fit_candidates(
             fits.append(
                 CandidateFit(
                     order, integrator, s, posterior, result, log_likelihood, seconds, damping,
-                    label or family_of(s.model).name,
+                    label or model_family(s.model).name,
                     noise,
                 )
             )

@@ -14,7 +14,6 @@ from collections.abc import Sequence
 
 import pandas as pd
 
-from symplid.dynamics.families import family_of
 from symplid.model.data import Observations
 from symplid.workflow.compare import (
     CandidateFit,
@@ -23,6 +22,7 @@ from symplid.workflow.compare import (
     parse_orders,
     write_comparison,
 )
+from symplid.workflow.model_builder import model_family
 from symplid.workflow.settings import Settings
 
 __all__ = ["candidate_orders", "compare_settings"]
@@ -32,7 +32,7 @@ def candidate_orders(settings: Settings, orders: str | None) -> list[int] | None
     """The orders a comparison tries: ``orders`` (text for :func:`parse_orders`) for the
     polynomial family, 2..5 when not given; None (the model itself) for any other family,
     whose ``model.order`` is not read. Orders given for another family are an error."""
-    family = family_of(settings.model).name
+    family = model_family(settings.model).name
     if family == "polynomial":
         return parse_orders(orders if orders is not None else "2..5")
     if orders is not None:

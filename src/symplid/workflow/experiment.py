@@ -6,12 +6,13 @@ function that runs one cell, the metrics it returns and how they are drawn. The 
 experiment: a spec names its experiment (``experiment = "paper"``), and its cells are the
 experiment's keys plus any dotted run setting (``"sampler.gamma" = 0.02``).
 
-The registry object lives in this layer so that the sweep can read it;
-:mod:`symplid.experiments` re-exports it as ``symplid.experiments.EXPERIMENTS`` and its modules
-register their entries when imported — which the registry does by itself the first time a
-name is looked up (``load=``), so ``run_sweep(spec)`` finds ``"paper"`` without an import::
+The sweep takes its experiment as an object (``run_sweep(spec, out, experiment=...)``).
+The registry below maps a spec's ``experiment = "..."`` to one; the core registers nothing in
+it. The studies beside the library (:mod:`symplid.studies`: ``"paper"``, ``"baselines"``)
+are registered by :func:`symplid.studies.register_studies`, which the command line calls
+before it reads a spec; a user registers their own::
 
-    from symplid.experiments import EXPERIMENTS, Experiment
+    from symplid.workflow.experiment import EXPERIMENTS, Experiment
 
     EXPERIMENTS.register("mine", Experiment("mine", keys, "mypkg.cells:run_cell"))
 """
@@ -77,5 +78,6 @@ class Experiment:
         return {spec.setting: key for key, spec in self.keys.items() if spec.setting}
 
 
-EXPERIMENTS: Registry[Experiment] = Registry("experiment", load=("symplid.experiments",))
-"""Experiments by name; filled by :mod:`symplid.experiments` (``"paper"``) and by users."""
+EXPERIMENTS: Registry[Experiment] = Registry("experiment")
+"""Experiments by name: none built in; filled by :func:`symplid.studies.register_studies`
+(``"paper"``, ``"baselines"``) and by users."""

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from symplid.dynamics.families import build_family, family_of
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.homotopy import filter_start
 from symplid.inference.map import find_map
@@ -34,6 +33,7 @@ from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.auto import auto_notes, resolve_noise
 from symplid.workflow.interrupts import deferred_interrupts
+from symplid.workflow.model_builder import build_model_family, model_family
 from symplid.workflow.results import RunFolder
 from symplid.workflow.scaling import scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
@@ -48,7 +48,7 @@ def build_model(settings: Settings, obs: Observations | list[Observations]) -> H
     layout = observation_layout(as_list(obs)[0])
     observation = layout.kind if m.observation == "auto" else m.observation
     return HamiltonianModel(
-        build_family(layout.dim, m),
+        build_model_family(layout.dim, m),
         integrator=m.integrator,
         binding=m.binding or None,
         dt=m.dt,
@@ -118,7 +118,7 @@ def find_map_for(settings: Settings, posterior) -> Any:
     """
 
     m = settings.map
-    if not family_of(settings.model).neural:
+    if not model_family(settings.model).neural:
         # without process noise: start from the filter's MAP (symplid.inference.homotopy);
         # otherwise from a user model's declared starts, if any
         init = filter_start(posterior, seed=m.seed, num_starts=m.num_starts)

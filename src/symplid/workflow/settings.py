@@ -124,9 +124,9 @@ from typing import Any
 
 import tomli_w
 
-from symplid.dynamics.families import family_of
 from symplid.io.files import write_text
 from symplid.model.priors import PRIOR_FAMILIES, Prior
+from symplid.workflow.model_builder import family_prior, model_family, with_family_prior
 from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
 from symplid.workflow.settings_schema import (
     PRIOR_DEFAULTS,
@@ -141,8 +141,6 @@ from symplid.workflow.settings_schema import (
     PriorSettings,
     SamplerSettings,
     Settings,
-    family_prior,
-    with_family_prior,
 )
 from symplid.workflow.user_parameters import parameters_from_table, with_model_paths
 from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
@@ -341,7 +339,7 @@ def _build_prior(data: Mapping[str, Any], prefix: str, source: str) -> Prior:
 def _check_cross(s: Settings, source: str) -> None:
     """Checks that involve more than one key."""
     _check_sampler(s.sampler, source)
-    family = family_of(s.model)
+    family = model_family(s.model)
     if family.neural and s.sampler.method == "dram":
         raise SettingsError(
             source,

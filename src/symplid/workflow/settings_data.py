@@ -14,13 +14,18 @@ from typing import Any
 
 import numpy as np
 
-from symplid.dynamics.families import build_family, family_of
 from symplid.io import observation_layout
 from symplid.model.data import DataError
 from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.auto import resolve_noise
+from symplid.workflow.model_builder import (
+    build_model_family,
+    check_model_family,
+    follow_model,
+    model_family,
+)
 from symplid.workflow.scaling import resolve_standardise
-from symplid.workflow.settings_schema import Settings, check_model_family, follow_model
+from symplid.workflow.settings_schema import Settings
 from symplid.workflow.validate import SettingsError
 
 __all__ = ["MAX_DATA_MAGNITUDE", "MAX_SUBSTEPS_PER_GAP", "available_memory", "resolve_for_data",
@@ -170,7 +175,7 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -
     layout = observation_layout(trajectories[0])
     d = layout.dim
     try:  # the model itself: its size, and whether the integrator can take its H
-        built = HamiltonianModel(build_family(d, model), model.integrator,
+        built = HamiltonianModel(build_model_family(d, model), model.integrator,
                                  observation=layout.kind,
                                  noise=resolve_noise(model.noise, layout.kind),
                                  observation_noise=model.observation_noise,
@@ -181,7 +186,7 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -
     num_times = sum(int(np.asarray(obs.times).size) for obs in trajectories)
     _check_memory(settings, num_params, num_times, built.state_dim, source)
     if num_params > values:
-        name = family_of(model).name
+        name = model_family(model).name
         what = f"order {model.order}" if name == "polynomial" else f"{name!r}"
         warnings.warn(f"{source}: the model has {num_params} parameters ({what}) for {values} "
                       "data values; the priors decide most of the posterior (a smaller model, "

@@ -9,35 +9,27 @@ loading and the overrides are in :mod:`symplid.workflow.settings`.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import SimpleNamespace
-from typing import Any
 
 from symplid.dynamics.families import (
     HAMILTONIAN_FAMILIES,
     POTENTIAL_FAMILIES,
-    build_family,
-    family_of,
 )
-from symplid.dynamics.hamiltonians import is_hamiltonian
-from symplid.dynamics.integrators import INTEGRATORS, get_integrator
+from symplid.dynamics.integrators import INTEGRATORS
 from symplid.dynamics.neural import ACTIVATIONS
-from symplid.dynamics.nonseparable import TaoIntegrator
-from symplid.dynamics.separable import has_kinetic
 from symplid.dynamics.user_models import QUADRATIC, is_user_model
 from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
-from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec, as_prior
+from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
 from symplid.model.statespace import PROCESS_NOISE_CHOICES
 from symplid.workflow.user_parameters import (
     UserParameter,
     initial_values,
     parameter_priors,
 )
-from symplid.workflow.validate import SettingsError, Spec, setting
+from symplid.workflow.validate import Spec, setting
 
 __all__ = [
     "RENAMED",
@@ -49,12 +41,8 @@ __all__ = [
     "PriorSettings",
     "SamplerSettings",
     "Settings",
-    "check_model_family",
-    "family_prior",
-    "follow_model",
     "map_start",
     "prior_spec",
-    "with_family_prior",
 ]
 
 
@@ -391,32 +379,6 @@ def map_start(settings: Settings) -> dict[str, float] | None:
     return initial_values(settings.model.parameters) or None
 
 
-def family_prior(model: Any) -> Prior:
-    """The default coefficient prior of the family that model settings name.
-
-    The family's :attr:`~symplid.dynamics.families.Family.coefficient_prior` (``"mlp"``:
-    Normal(0, 1) on every weight), else the paper's Laplace(0, 10). A settings file or
-    ``--set`` that gives ``priors.coefficients`` overrides it.
-    """
-    prior = family_of(model).coefficient_prior
-    return as_prior(prior, "coefficient prior") if prior else PriorSettings().coefficients
-
-
-def with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
-    """``priors.coefficients`` left out: the model family's default prior."""
-    priors = data.get("priors", {})
-    model = data.get("model", {})
-    if not isinstance(priors, Mapping) or "coefficients" in priors or not isinstance(
-            model, Mapping):
-        return data
-    names = {k: model[k] for k in ("potential", "hamiltonian") if isinstance(model.get(k), str)}
-    try:
-        prior = family_prior(SimpleNamespace(**names))
-    except (KeyError, ValueError):  # an unknown family: the validator says so, with a suggestion
-        return data
-    return {**data, "priors": {**priors, "coefficients": prior.to_dict()}}
-
-
 #: Renamed keys: old dotted key → new dotted key (the old one is read with a FutureWarning).
 RENAMED = {"sampler.num_samples": "sampler.num_iterations"}
 #: Values of prior parameters a settings file leaves out (the family's class decides others).
@@ -426,78 +388,3 @@ PRIOR_SPECS = {
     "sigma": Spec(float, minimum=0.0, strict=True),
 }
 PRIOR_SYNONYMS = {"log-normal": {"loc": "mu", "scale": "sigma"}}
-
-
-#: The integrator a user's non-separable H gets when the settings keep the default leapfrog.
-NONSEPARABLE_DEFAULT = "tao"
-
-
-def follow_model(settings: Settings, dim: int) -> Settings:
-    """A user's non-separable H with the default leapfrog: ``model.integrator`` becomes
-    :data:`NONSEPARABLE_DEFAULT` (explicit, symplectic in the extended phase space), and
-    ``prediction.integrator`` left at leapfrog follows ``model.integrator``."""
-    model = settings.model
-    if family_of(model).name != "user" or not is_user_model(model.hamiltonian):
-        return settings
-    try:
-        family = build_family(dim, model)
-    except ValueError:  # check_model_family says what is wrong
-        return settings
-    if not is_hamiltonian(family):
-        return settings
-    integrator = NONSEPARABLE_DEFAULT if model.integrator == "leapfrog" else model.integrator
-    prediction = settings.prediction
-    if prediction.integrator == "leapfrog":
-        prediction = dataclasses.replace(prediction, integrator=integrator)
-    return dataclasses.replace(settings, model=dataclasses.replace(model, integrator=integrator),
-                               prediction=prediction)
-
-
-def check_model_family(settings: Settings, dim: int, source: str) -> int:
-    """Check the model's U or H against the integrators; its number of parameters.
-
-    The family of ``model.hamiltonian``/``model.potential`` is built for the data's dimension
-    ``dim``. A non-separable H needs a learning and a prediction integrator that accept it
-    (not leapfrog or Yoshida), no constant mass and no damping; ``model.binding`` is Tao's ω
-    only.
-    """
-    model = settings.model
-    user = family_of(model).name == "user"
-    if model.kinetic != QUADRATIC and not (user and model.hamiltonian == "separable"):
-        raise SettingsError(source, "model.kinetic", "is the T(p) of a user's potential "
-                            "(model.potential = an expression or file:PATH:NAME); a whole H "
-                            "carries its own")
-    if model.parameters and not user:
-        raise SettingsError(source, "model.parameters", "declares parameters of a user's "
-                            "model, but the model is the family "
-                            f"{family_of(model).name!r}; write model.potential or "
-                            "model.hamiltonian as an expression or file:PATH:NAME")
-    try:
-        family = build_family(dim, model)
-    except ValueError as err:
-        if user:
-            raise SettingsError(source, None, str(err)) from None
-        key = "model.hamiltonian" if model.hamiltonian != "separable" else "model.potential"
-        raise SettingsError(source, key, f"({model.hamiltonian}): {err}") from None
-    if model.binding and not isinstance(get_integrator(model.integrator), TaoIntegrator):
-        raise SettingsError(source, "model.binding", f"is Tao's ω; model.integrator is "
-                            f"{model.integrator!r} (set binding = 0, or use 'tao'/'tao4')")
-    if has_kinetic(family) and (model.damping or model.mass):
-        raise SettingsError(source, "model.damping" if model.damping else "model.mass",
-                            "needs T = ½pᵀM⁻¹p; the model has its own kinetic energy T(p)")
-    if is_hamiltonian(family):
-        if model.damping:
-            raise SettingsError(source, "model.damping", f"is true but the Hamiltonian "
-                                f"{model.hamiltonian!r} is not separable: the friction "
-                                "−γM⁻¹p needs H = ½pᵀM⁻¹p + U(q)")
-        for key, name in (("model.integrator", model.integrator),
-                          ("prediction.integrator", settings.prediction.integrator)):
-            if not get_integrator(name).nonseparable:
-                choices = [n for n, e in INTEGRATORS.items() if e.nonseparable]
-                raise SettingsError(source, key, f"{name!r} needs a separable H; the model's "
-                                    f"Hamiltonian {model.hamiltonian!r} is not: choose one of "
-                                    f"{', '.join(choices)}")
-        if model.mass:
-            raise SettingsError(source, "model.mass", "applies to a separable H only; "
-                                f"{model.hamiltonian!r} carries its own mass")
-    return int(family.num_params)

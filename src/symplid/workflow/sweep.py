@@ -21,9 +21,11 @@ each over three seeds and both propagators. Give only ``grid`` for a plain produ
 for a plain list. A cell's settings are, in increasing priority: the defaults, ``[base]``, then
 its grid point and its ``cells`` entry (a key may not be in both ``grid`` and ``cells``).
 
-The keys of a cell are those its **experiment** declares (a registered
-:class:`~symplid.workflow.experiment.Experiment`, ``symplid.experiments.EXPERIMENTS``; the
-default is the paper's, whose keys are listed in :mod:`symplid.experiments.paper`), each with
+The keys of a cell are those its **experiment** declares (an
+:class:`~symplid.workflow.experiment.Experiment`, given to :func:`run_sweep` as an object or
+named by the spec and registered in :data:`~symplid.workflow.experiment.EXPERIMENTS`; the
+default name is the paper's, whose keys are listed in :mod:`symplid.studies.paper` and which
+the ``symplid sweep`` command registers with the other studies), each with
 its type, default, range and the run setting it stands for, plus any key of the run settings in
 dotted form (``"model.process_noise_per" = "step"``, ``"sampler.gamma" = 0.02``, ``"map.seed" =
 7``). Every value is checked by the one validator (:mod:`symplid.workflow.validate`): an
@@ -57,7 +59,9 @@ function reads a cell the same way.
 
 Workers
 -------
-By default a :class:`dask.distributed.LocalCluster` of processes is started, one worker per core
+Sweeps need Dask and pyarrow, the ``sweeps`` extra (``pip install 'symplid[sweeps]'``); without
+them :func:`run_sweep` raises :class:`symplid.runtime.MissingExtraError`, which says so. By
+default a :class:`dask.distributed.LocalCluster` of processes is started, one worker per core
 with one thread each. Each worker process runs JAX single-threaded (``XLA_FLAGS``, see
 :func:`worker_environment`) and in float64 (the task imports :mod:`symplid`), so that N workers
 use N cores and no more. With ``scheduler="tcp://host:8786"`` the cells go to an existing Dask
@@ -99,6 +103,7 @@ from symplid.workflow.sweep_tasks import (
     cell_fn_name,
     dask_client,
     execute_cells,
+    require_sweep_modules,
     resolve_cell_fn,
     worker_environment,
 )
@@ -136,6 +141,7 @@ def run_sweep(
     progress: bool = True,
     worker_env: Mapping[str, str] | None = None,
     figures: bool = True,
+    experiment: Experiment | None = None,
 ) -> Any:
     """Run every unfinished cell of a sweep on Dask and gather the results table.
 
@@ -162,6 +168,10 @@ def run_sweep(
     figures
         Draw the experiment's figures into ``out_dir/figures`` (its ``figures`` function, or
         :func:`symplid.plotting.sweep.plot_sweep` of its metrics).
+    experiment
+        The experiment whose cells the spec holds (its keys, cell function and figures); the
+        spec's ``experiment``, if it names one, must be its name. ``None``: the one the spec
+        names, looked up in :data:`~symplid.workflow.experiment.EXPERIMENTS`.
 
     Returns
     -------
@@ -176,6 +186,8 @@ def run_sweep(
     ------
     SweepError
         A bad spec, or an out_dir holding a sweep made with another cell function.
+    symplid.runtime.MissingExtraError
+        Dask or pyarrow is not installed (``pip install 'symplid[sweeps]'``).
     ValueError
         A cell function that cannot be resolved, ``workers`` < 1 or given with ``scheduler``, an
         unreachable scheduler.
@@ -189,8 +201,12 @@ def run_sweep(
             "workers sets the size of the local cluster; do not give it with scheduler"
         )
 
-    spec = _as_spec(spec)
-    experiment = get_experiment(spec.experiment, spec.source)
+    require_sweep_modules()
+    spec = _as_spec(spec, experiment)
+    if experiment is not None and spec.experiment != experiment.name:
+        raise SweepError(spec.source, "sweep.experiment", f"is {spec.experiment!r}, but the "
+                         f"sweep was given the experiment {experiment.name!r}")
+    experiment = experiment or get_experiment(spec.experiment, spec.source)
     fn = cell_fn if cell_fn is not None else (spec.cell_fn or experiment.run_cell)
     fn_name = cell_fn_name(fn)
     resolve_cell_fn(fn)  # fail fast, in the client, on a name that does not resolve
@@ -235,12 +251,14 @@ def run_sweep(
     return table
 
 
-def _as_spec(spec: SweepSpec | Mapping[str, Any] | str | os.PathLike) -> SweepSpec:
+def _as_spec(
+    spec: SweepSpec | Mapping[str, Any] | str | os.PathLike, experiment: Experiment | None
+) -> SweepSpec:
     if isinstance(spec, SweepSpec):
         return spec
     if isinstance(spec, Mapping):
-        return sweep_spec_from_dict(spec)
-    return load_sweep_spec(spec)
+        return sweep_spec_from_dict(spec, experiment=experiment)
+    return load_sweep_spec(spec, experiment)
 
 
 def draw_figures(

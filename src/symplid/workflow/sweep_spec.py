@@ -4,6 +4,11 @@ A cell is the keys of its experiment (:class:`~symplid.workflow.experiment.Exper
 any dotted run setting; every value is checked by the one validator
 (:mod:`symplid.workflow.validate`) against the experiment's key specs or, for dotted keys,
 by building the cell's run settings. See :mod:`symplid.workflow.sweep` for the format.
+
+The experiment is given as an object (``experiment=``) by the caller that knows it — the
+command line, which registers the studies and resolves a spec's ``experiment = "..."``, or a
+study that builds its own spec; only when none is given is the spec's name looked up in
+:data:`~symplid.workflow.experiment.EXPERIMENTS`, which holds what has been registered there.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from symplid.registry import Registry
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 from symplid.workflow.results import to_jsonable
 from symplid.workflow.settings import (
@@ -39,6 +45,8 @@ __all__ = [
     "cell_settings",
     "get_experiment",
     "load_sweep_spec",
+    "named_experiment",
+    "read_sweep_file",
     "resolve_cell",
     "sweep_spec_from_dict",
 ]
@@ -101,18 +109,37 @@ class SweepSpec:
         return list(dict.fromkeys(k for c in self.cells for k in c.settings))
 
 
-def get_experiment(name: str | Experiment, source: str = "sweep spec") -> Experiment:
-    """The registered experiment ``name`` (:data:`~.experiment.EXPERIMENTS`), or the one given."""
+def get_experiment(
+    name: str | Experiment,
+    source: str = "sweep spec",
+    registry: Mapping[str, Experiment] = EXPERIMENTS,
+) -> Experiment:
+    """The experiment registered as ``name`` in ``registry``, or the one given."""
     if isinstance(name, Experiment):
         return name
+    if not registry:
+        raise SweepError(source, "sweep.experiment", f"is {name!r}, but no experiment is "
+                         "registered (the studies' are registered by "
+                         "symplid.studies.register_studies(); or pass the experiment itself)")
     try:
-        return EXPERIMENTS.get_entry(name)
-    except ValueError as err:
-        raise SweepError(source, "sweep.experiment", f"is {name!r}: {err}") from None
+        return registry[name]
+    except KeyError:
+        message = (registry.unknown_message(name) if isinstance(registry, Registry)
+                   else f"unknown experiment {name!r}")
+        raise SweepError(source, "sweep.experiment", f"is {name!r}: {message}") from None
 
 
-def load_sweep_spec(path: str | os.PathLike) -> SweepSpec:
-    """Read and validate a sweep spec from a TOML file.
+def named_experiment(data: Mapping[str, Any], source: str = "sweep spec") -> str:
+    """The experiment a spec's data names (``[sweep] experiment``; default
+    :data:`DEFAULT_EXPERIMENT`), read without checking the rest of the spec."""
+    sweep = data.get("sweep", {}) if isinstance(data, Mapping) else {}
+    return _string(sweep, "experiment", DEFAULT_EXPERIMENT, source) if isinstance(
+        sweep, Mapping) else DEFAULT_EXPERIMENT
+
+
+def load_sweep_spec(path: str | os.PathLike, experiment: Experiment | None = None) -> SweepSpec:
+    """Read and validate a sweep spec from a TOML file (``experiment``: see
+    :func:`sweep_spec_from_dict`).
 
     Raises
     ------
@@ -120,6 +147,11 @@ def load_sweep_spec(path: str | os.PathLike) -> SweepSpec:
         Missing file, invalid TOML, or any problem :func:`sweep_spec_from_dict` finds; the
         message starts with the file name.
     """
+    return sweep_spec_from_dict(read_sweep_file(path), str(path), experiment)
+
+
+def read_sweep_file(path: str | os.PathLike) -> dict[str, Any]:
+    """The TOML of a sweep spec file, not yet checked; :class:`SweepError` if unreadable."""
     path = Path(path)
     source = str(path)
     if not path.exists():
@@ -132,10 +164,14 @@ def load_sweep_spec(path: str | os.PathLike) -> SweepSpec:
         raise SweepError(source, None, "not a UTF-8 text file") from None
     except tomllib.TOMLDecodeError as err:
         raise SweepError(source, None, f"not valid TOML: {err}") from None
-    return sweep_spec_from_dict(data, source=source)
+    return data
 
 
-def sweep_spec_from_dict(data: Mapping[str, Any], source: str = "sweep spec") -> SweepSpec:
+def sweep_spec_from_dict(
+    data: Mapping[str, Any],
+    source: str = "sweep spec",
+    experiment: Experiment | None = None,
+) -> SweepSpec:
     """Validate a sweep spec given as nested data (e.g. parsed TOML) and resolve its cells.
 
     Parameters
@@ -145,6 +181,10 @@ def sweep_spec_from_dict(data: Mapping[str, Any], source: str = "sweep spec") ->
         "cell_fn": ..., "name": ...}}``.
     source
         Where the data came from (a file name); every error message starts with it.
+    experiment
+        The experiment whose cells these are; the spec's ``experiment``, if it names one, must
+        be its name. ``None``: the experiment the spec names, looked up in
+        :data:`~symplid.workflow.experiment.EXPERIMENTS`.
 
     Raises
     ------
@@ -164,8 +204,7 @@ def sweep_spec_from_dict(data: Mapping[str, Any], source: str = "sweep spec") ->
             raise SweepError(
                 source, None, f"unknown key '{key}' in [sweep]" + suggest(key, _SWEEP_KEYS)
             )
-    experiment = _string(sweep, "experiment", DEFAULT_EXPERIMENT, source)
-    exp = get_experiment(experiment, source)
+    exp = _spec_experiment(sweep, source, experiment)
     check = _Checker(exp, source)
     base = check.table(_table(data.get("base", {}), "[base]", source), "[base]")
     grid = _grid(_table(sweep.get("grid", {}), "sweep.grid", source), check, source)
@@ -195,6 +234,20 @@ def sweep_spec_from_dict(data: Mapping[str, Any], source: str = "sweep spec") ->
             seen[cid] = where
             cells.append(Cell(cid, settings))
     return SweepSpec(base, grid, entries, cell_fn, name, source, tuple(cells), exp.name)
+
+
+def _spec_experiment(
+    sweep: Mapping[str, Any], source: str, experiment: Experiment | None
+) -> Experiment:
+    """The experiment of a spec's ``[sweep]``: the one given (checked against the name the
+    spec gives, if any), else the one the spec names."""
+    if experiment is None:
+        return get_experiment(_string(sweep, "experiment", DEFAULT_EXPERIMENT, source), source)
+    named = _string(sweep, "experiment", experiment.name, source)
+    if named != experiment.name:
+        raise SweepError(source, "sweep.experiment", f"is {named!r}, but the sweep was given "
+                         f"the experiment {experiment.name!r}")
+    return experiment
 
 
 def _string(sweep: Mapping[str, Any], key: str, default: str, source: str) -> str:

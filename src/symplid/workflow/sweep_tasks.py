@@ -27,10 +27,12 @@ from symplid.workflow.results import to_jsonable, write_json
 from symplid.workflow.sweep_spec import Cell
 
 __all__ = [
+    "SWEEP_MODULES",
     "XLA_SINGLE_THREAD",
     "cell_fn_name",
     "dask_client",
     "execute_cells",
+    "require_sweep_modules",
     "resolve_cell_fn",
     "worker_environment",
 ]
@@ -38,6 +40,15 @@ __all__ = [
 #: XLA flags that keep a JAX process on one CPU thread.
 XLA_SINGLE_THREAD = runtime.single_thread_xla_flags()  # bare token last (see runtime)
 MAX_WARNINGS = 20  # distinct warning messages kept per cell
+#: What a sweep needs beyond the core: its workers (Dask) and its table's Parquet file
+#: (pyarrow), both the ``sweeps`` extra.
+SWEEP_MODULES = ("dask.distributed", "pyarrow")
+
+
+def require_sweep_modules() -> None:
+    """:class:`symplid.runtime.MissingExtraError` (``pip install 'symplid[sweeps]'``) unless
+    Dask and pyarrow are installed."""
+    runtime.require_extra("sweeps", "a sweep", *SWEEP_MODULES)
 
 
 def resolve_cell_fn(cell_fn: str | Callable[[dict], Mapping[str, Any]]) -> Callable:

@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from symplid.experiments.paper_study_report import calibration_answer
+from symplid.studies.paper_study_report import calibration_answer
 
 __all__ = ["BEGIN", "END", "FIGURES_DIR", "readme_block", "update_readme"]
 

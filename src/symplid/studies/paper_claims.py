@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from symplid.experiments.claims_stats import LEVEL, bootstrap_median, wilson_interval
-from symplid.experiments.paper_calibration import evaluate_calibration
 from symplid.plotting.sweep import rows_matching
+from symplid.studies.claims_stats import LEVEL, bootstrap_median, wilson_interval
+from symplid.studies.paper_calibration import evaluate_calibration
 
 __all__ = ["CLAIMS", "RATIO_THRESHOLD", "VERDICT_SPLIT", "evaluate_claims", "verdict"]
 

@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from symplid.experiments.baselines_methods import METHODS, REFERENCE
 from symplid.plotting.sweep import PALETTE
+from symplid.studies.baselines_methods import METHODS, REFERENCE
 
 __all__ = ["deciding_numbers", "format_report", "medians", "plot_error_vs_size"]
 

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from symplid.dynamics.potentials import coefficient_name
-from symplid.experiments.claims_stats import (
+from symplid.studies.claims_stats import (
     LEVEL,
     RANK_DRAWS,
     rank_uniformity,

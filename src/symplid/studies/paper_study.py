@@ -48,9 +48,9 @@ from typing import Any
 
 import numpy as np
 
-from symplid.experiments.paper import PaperConfig
-from symplid.experiments.paper_claims import CLAIMS, evaluate_claims
-from symplid.experiments.paper_study_report import format_claims_report, plot_claims
+from symplid.studies.paper import EXPERIMENT, PaperConfig
+from symplid.studies.paper_claims import CLAIMS, evaluate_claims
+from symplid.studies.paper_study_report import format_claims_report, plot_claims
 from symplid.workflow.results import read_json, write_json
 from symplid.workflow.sweep import SweepSpec, run_sweep, sweep_spec_from_dict
 from symplid.workflow.sweep_results import CELLS_DIR, load_results
@@ -224,7 +224,8 @@ def paper_claims_spec(
     if cell_fn is not None:
         sweep["cell_fn"] = cell_fn
     return sweep_spec_from_dict(
-        {"base": {**PAPER_SETTING, **keys}, "sweep": sweep}, source="paper-claims study"
+        {"base": {**PAPER_SETTING, **keys}, "sweep": sweep}, source="paper-claims study",
+        experiment=EXPERIMENT,
     )
 
 
@@ -288,7 +289,7 @@ def run_paper_claims(
         table = load_results(out_dir, spec)
     else:
         table = run_sweep(spec, out_dir, scheduler, workers, cell_fn, progress=progress,
-                          figures=False)
+                          figures=False, experiment=EXPERIMENT)
     wall = time.perf_counter() - t0
     claims = evaluate_claims(table, chosen, symplectic=SYMPLECTIC)
     claims["study"] = _study_record(table, seeds, label, keys, chosen, wall, workers, scheduler)

@@ -3,7 +3,7 @@
 A cell is one data set (a named system, a noise seed, a schedule) fitted with one propagator;
 :data:`CELL_KEYS` are its keys, checked by the one validator
 (:mod:`symplid.workflow.validate`). The experiment is registered, with its cell function, in
-:mod:`symplid.experiments.paper`.
+:mod:`symplid.studies.paper`.
 """
 
 from __future__ import annotations

@@ -27,8 +27,14 @@ from symplid import runtime
 from symplid.dynamics.damping import with_damping
 from symplid.dynamics.potentials import hamiltonian
 from symplid.dynamics.systems import get_system
-from symplid.experiments.paper_calibration import cell_calibration, true_values
-from symplid.experiments.paper_cells import (
+from symplid.inference.predict import predict_trajectory, prediction_horizon
+from symplid.inference.samplers import draws_array
+from symplid.model.data import Observations
+from symplid.model.simulate import simulate, true_trajectory
+from symplid.plotting import COLORS
+from symplid.plotting.sweep import plot_sweep
+from symplid.studies.paper_calibration import cell_calibration, true_values
+from symplid.studies.paper_cells import (
     CELL_KEYS,
     PAPER_MAP,
     PAPER_MODEL,
@@ -38,14 +44,8 @@ from symplid.experiments.paper_cells import (
     known_initial_state,
     system_defaults,
 )
-from symplid.experiments.paper_figures import draw_figures
-from symplid.inference.predict import predict_trajectory, prediction_horizon
-from symplid.inference.samplers import draws_array
-from symplid.model.data import Observations
-from symplid.model.simulate import simulate, true_trajectory
-from symplid.plotting import COLORS
-from symplid.plotting.sweep import plot_sweep
-from symplid.workflow.experiment import EXPERIMENTS, Experiment
+from symplid.studies.paper_figures import draw_figures
+from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import fit
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
@@ -463,18 +463,15 @@ def _cached_truth_path(name: str, t_end: float, prediction_dt: float):
     return times, states
 
 
-EXPERIMENT = EXPERIMENTS.register(
+EXPERIMENT = Experiment(
     "paper",
-    Experiment(
-        "paper",
-        CELL_KEYS,
-        run_cell,
-        metrics=SWEEP_METRICS,
-        figures=sweep_figures,
-        description="The seed paper's Hénon–Heiles fit (Section IV), one data set and "
-        "propagator per cell",
-        defaults=system_defaults,
-        base_settings=known_initial_state,
-        renamed={"num_samples": "num_iterations"},
-    ),
+    CELL_KEYS,
+    run_cell,
+    metrics=SWEEP_METRICS,
+    figures=sweep_figures,
+    description="The seed paper's Hénon–Heiles fit (Section IV), one data set and "
+    "propagator per cell",
+    defaults=system_defaults,
+    base_settings=known_initial_state,
+    renamed={"num_samples": "num_iterations"},
 )

@@ -50,23 +50,23 @@ from typing import Any
 
 import numpy as np
 
-from symplid.dynamics.families import build_family
 from symplid.dynamics.potentials import Polynomial
 from symplid.dynamics.systems import get_system
-from symplid.experiments.baselines_methods import METHODS, REFERENCE, Method
-from symplid.experiments.baselines_report import (
-    deciding_numbers,
-    format_report,
-    plot_error_vs_size,
-)
-from symplid.experiments.paper import truth_path
 from symplid.inference import baselines
 from symplid.inference.measures import prediction_horizon
 from symplid.inference.predict import predict_trajectory
 from symplid.model.data import Observations
 from symplid.model.simulate import simulate
-from symplid.workflow.experiment import EXPERIMENTS, Experiment
+from symplid.studies.baselines_methods import METHODS, REFERENCE, Method
+from symplid.studies.baselines_report import (
+    deciding_numbers,
+    format_report,
+    plot_error_vs_size,
+)
+from symplid.studies.paper import truth_path
+from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import build_model, build_posterior, find_map_for
+from symplid.workflow.model_builder import build_model_family
 from symplid.workflow.sweep import cell_settings
 from symplid.workflow.validate import Spec
 
@@ -160,7 +160,7 @@ def fit_method(cell: Mapping[str, Any], data: Observations) -> tuple[Any, np.nda
     """Fit one cell: ``(potential, coefficients, their Laplace covariance or None)``."""
     settings = cell_settings(cell, experiment=EXPERIMENT)
     method = METHODS.get_entry(cell["method"])
-    potential = build_family(get_system(SYSTEM).dim, settings.model)
+    potential = build_model_family(get_system(SYSTEM).dim, settings.model)
     if not method.bayesian:
         budget = BUDGETS[cell.get("budget", "full")]
         maxiter = 10_000 if isinstance(potential, Polynomial) else budget["baseline_maxiter"]
@@ -312,7 +312,7 @@ def baselines_spec(
     name = "baselines" + (" (quick)" if quick else "")
     return sweep_spec_from_dict({"base": base, "sweep": {"name": name, "experiment": "baselines",
                                                          "cells": cells}},
-                                source="baselines study")
+                                source="baselines study", experiment=EXPERIMENT)
 
 
 def run_baselines_study(out_dir: Any, *, scheduler: Any = None, workers: int | None = None,
@@ -325,7 +325,8 @@ def run_baselines_study(out_dir: Any, *, scheduler: Any = None, workers: int | N
 
     spec = baselines_spec(**spec_options)
     start = time.perf_counter()
-    table = run_sweep(spec, out_dir, scheduler, workers, progress=progress, figures=False)
+    table = run_sweep(spec, out_dir, scheduler, workers, progress=progress, figures=False,
+                      experiment=EXPERIMENT)
     return write_study_report(out_dir, table, wall_time_s=time.perf_counter() - start,
                               quick=bool(spec_options.get("quick")))
 
@@ -379,16 +380,13 @@ def _figures(table: Any, folder: Any, settings: list[str]) -> Mapping[str, Any]:
     return plot_error_vs_size(table, folder)
 
 
-EXPERIMENT = EXPERIMENTS.register(
+EXPERIMENT = Experiment(
     "baselines",
-    Experiment(
-        "baselines",
-        CELL_KEYS,
-        run_cell,
-        metrics=METRICS,
-        figures=_figures,
-        description="Hénon–Heiles: the UKF posterior against HNN and one-step least squares, "
-        "over data sizes, seeds and potential families",
-        base_settings=_base_settings,
-    ),
+    CELL_KEYS,
+    run_cell,
+    metrics=METRICS,
+    figures=_figures,
+    description="Hénon–Heiles: the UKF posterior against HNN and one-step least squares, "
+    "over data sizes, seeds and potential families",
+    base_settings=_base_settings,
 )

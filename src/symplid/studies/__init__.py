@@ -1,0 +1,43 @@
+"""The research studies, beside the library: the paper, its claims, the baselines.
+
+This package sits above the workflow layer, and nothing in the core (``dynamics`` up to
+``workflow``) imports it; the command line (``symplid reproduce``, ``symplid study ...``,
+``symplid sweep``) and the top-level lazy table are its only users. Each study is an
+:class:`~symplid.workflow.experiment.Experiment` (its sweep keys, cell function, metrics and
+figures) in its own module:
+
+* ``"paper"`` (:mod:`.paper`): the seed paper's Hénon–Heiles fit; its paper-claims study is
+  :mod:`.paper_study` (claims :mod:`.paper_claims`, calibration :mod:`.paper_calibration`,
+  statistics :mod:`.claims_stats`, report :mod:`.paper_study_report`, README block
+  :mod:`.claims_readme`);
+* ``"baselines"`` (:mod:`.baselines_study`): the UKF posterior against HNN and one-step least
+  squares.
+
+A new study is a module here that defines ``EXPERIMENT = Experiment(...)`` (without
+registering it), added to :data:`STUDIES` below, the one list of the studies; its command, if
+any, goes in :mod:`symplid.cli` under ``symplid study``.
+"""
+
+from __future__ import annotations
+
+from symplid.registry import Registry
+from symplid.studies import baselines_study, paper
+from symplid.workflow.experiment import EXPERIMENTS, Experiment
+
+__all__ = ["STUDIES", "baselines_study", "paper", "register_studies"]
+
+#: Every study's experiment, in the order ``symplid sweep`` lists them.
+STUDIES: tuple[Experiment, ...] = (paper.EXPERIMENT, baselines_study.EXPERIMENT)
+
+
+def register_studies(registry: Registry[Experiment] | None = None) -> None:
+    """Register every study of :data:`STUDIES` in ``registry`` (default
+    :data:`~symplid.workflow.experiment.EXPERIMENTS`), so that a sweep spec may name them.
+
+    Called by the command line before it reads a sweep spec. Registering again is a no-op;
+    a name taken by another experiment is a ``ValueError``.
+    """
+    registry = EXPERIMENTS if registry is None else registry
+    for experiment in STUDIES:
+        if registry.get(experiment.name) is not experiment:
+            registry.register(experiment.name, experiment)
