@@ -19,6 +19,8 @@ import importlib
 from collections.abc import Callable, Iterator, Mapping
 from typing import Generic, TypeVar, overload
 
+__all__ = ["Registry"]
+
 T = TypeVar("T")
 
 

@@ -35,6 +35,18 @@ import sys
 import warnings
 from pathlib import Path
 
+__all__ = [
+    "XlaFlagsWarning",
+    "configure_xla",
+    "default_cache_dir",
+    "enable_compilation_cache",
+    "limit_threads",
+    "merge_xla_flags",
+    "one_line_warnings",
+    "single_thread_xla_flags",
+    "small_loop_flag",
+]
+
 
 def default_cache_dir() -> Path | None:
     """Where the cache lives, or None when disabled by ``SYMPLID_CACHE_DIR=off``."""

@@ -37,6 +37,26 @@ import numpy as np
 from symplid.dynamics.separable import has_kinetic
 from symplid.registry import Registry
 
+__all__ = [
+    "INTEGRATORS",
+    "Dynamics",
+    "ForceStepFn",
+    "GeneralDynamics",
+    "Integrator",
+    "StepFn",
+    "as_general",
+    "get_integrator",
+    "leapfrog_force_step",
+    "leapfrog_step",
+    "make_dynamics",
+    "require_separable",
+    "runge_kutta",
+    "runge_kutta_integrator",
+    "separable_only_error",
+    "symplectic_composition",
+    "symplectic_integrator",
+]
+
 Array = jax.Array
 
 

@@ -63,6 +63,8 @@ from symplid.model import kernel  # noqa: F401  (registers the compiled backend)
 from symplid.model.data import DataError, Observations
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 
+__all__ = ["NOISE_LAYOUTS", "PROCESS_NOISE_CHOICES", "HamiltonianModel"]
+
 Array = jax.Array
 #: Where the process noise enters (``HamiltonianModel.process_noise_per``); ``"none"``: nowhere.
 PROCESS_NOISE_CHOICES = ("gap", "step", "none")
