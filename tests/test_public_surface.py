@@ -84,9 +84,16 @@ def test_the_surface_has_no_private_and_no_repeated_names():
 
 
 def _entries(rst: list[str]) -> list[str]:
-    """The dotted names the generated reference has an entry for (modules apart)."""
-    found = (re.fullmatch(r"\.\. (?:auto|py:)(\w+):: (\S+)", line) for line in rst)
-    return [m.group(2) for m in found if m and m.group(1) != "module"]
+    """The dotted names the generated reference has an entry for (modules apart): an autodoc
+    entry names its full path, a written-out one its name and a ``:module:`` option."""
+    out = []
+    for line, after in zip(rst, [*rst[1:], ""], strict=True):
+        found = re.fullmatch(r"\.\. (?:auto|py:)(\w+):: (\S+)", line)
+        if not found or found.group(1) == "module":
+            continue
+        module = re.fullmatch(r"   :module: (\S+)", after)
+        out.append(f"{module.group(1)}.{found.group(2)}" if module else found.group(2))
+    return out
 
 
 def test_the_api_reference_documents_exactly_the_surface():
@@ -107,7 +114,7 @@ def test_the_api_reference_documents_exactly_the_surface():
     # a constant's entry carries its doc comment (autodoc would show its type's docstring)
     for i, line in enumerate(rst):
         if line.startswith(".. py:data:: "):
-            assert rst[i + 2].strip(), f"{line}: no text"
+            assert rst[i + 3].strip(), f"{line}: no text"
 
 
 def _has_attribute_doc(module: types.ModuleType, name: str) -> bool:

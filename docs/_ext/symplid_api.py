@@ -79,11 +79,16 @@ def attribute_doc(obj: Any, name: str, package: str = "symplid") -> list[str]:
     return []
 
 
+def _plain(kind: str, path: str, text: list[str]) -> list[str]:
+    """A Python-domain entry written out (no autodoc): ``name`` with its ``:module:``."""
+    module, _, name = path.rpartition(".")
+    return [f".. py:{kind}:: {name}", f"   :module: {module}", "", *(f"   {t}" for t in text), ""]
+
+
 def _entry(path: str, obj: Any, first: dict[int, str]) -> list[str]:
     kind = _kind(obj)
     if id(obj) in first:  # public at an earlier path too: one entry, one link
-        return [f".. py:{'exception' if kind == 'exception' else kind}:: {path}", "",
-                f"   The same object as :{_ROLE[kind]}:`{first[id(obj)]}`.", ""]
+        return _plain(kind, path, [f"The same object as :{_ROLE[kind]}:`{first[id(obj)]}`."])
     first[id(obj)] = path
     if kind == "class":
         return [f".. autoclass:: {path}", "   :members:", ""]
@@ -91,8 +96,7 @@ def _entry(path: str, obj: Any, first: dict[int, str]) -> list[str]:
         return [f".. autoexception:: {path}", ""]
     if kind == "function":
         return [f".. autofunction:: {path}", ""]
-    doc = attribute_doc(obj, path.rsplit(".", 1)[1])
-    return [f".. py:data:: {path}", "", *(f"   {line}" for line in doc), ""]
+    return _plain("data", path, attribute_doc(obj, path.rsplit(".", 1)[1]))
 
 
 def _section(title: str, lines: list[str], level: str) -> list[str]:
