@@ -1,9 +1,9 @@
 """Check the built site: every public name and CLI option documented, every example's figure shown.
 
 Usage: ``python docs/check_reference.py docs/_build/html`` after ``sphinx-build``. The public
-names are ``symplid.__all__`` and the ``__all__`` of every namespace it names; the entries are
-read from the site's ``objects.inv``. Exit code 1, with the missing names listed, if any is
-missing.
+names are ``symplid.__all__``, the namespaces it names and their ``__all__``
+(``symplid_api.public_names``, the generator's own list); the entries are read from the
+site's ``objects.inv``. Exit code 1, with the missing names listed, if any is missing.
 """
 
 from __future__ import annotations
@@ -13,23 +13,8 @@ from pathlib import Path
 
 from sphinx.util.inventory import InventoryFile
 
-
-def public_names() -> list[str]:
-    """``symplid.X`` for X in ``symplid.__all__``, and ``symplid.M.Y`` for a namespace M."""
-    import types
-
-    import symplid
-
-    names = []
-    for name in symplid.__all__:
-        if name.startswith("__"):
-            continue
-        names.append(f"symplid.{name}")
-        obj = getattr(symplid, name)
-        if isinstance(obj, types.ModuleType):
-            names += [f"symplid.{name}.{n}" for n in getattr(obj, "__all__", [])
-                      if not n.startswith("_")]
-    return names
+sys.path.insert(0, str(Path(__file__).resolve().parent / "_ext"))
+from symplid_api import public_names
 
 
 def documented(html: Path) -> set[str]:

@@ -37,9 +37,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import symplid
-from symplid.inference.predict import predict_trajectory
 from symplid.model import kernel
 from symplid.plotting import save_figure
+from symplid.predict import predict_trajectory
 
 DT = 0.025
 T_END = 20.0

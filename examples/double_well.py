@@ -35,10 +35,10 @@ from matplotlib.figure import Figure
 
 import symplid
 from symplid import runtime
-from symplid.inference.predict import posterior_predictive
-from symplid.inference.samplers import draws_array
 from symplid.io import read_observations
 from symplid.plotting import plot_predictive, save_figure
+from symplid.predict import posterior_predictive
+from symplid.samplers import draws_array
 from symplid.workflow.compare import compare_models, format_table
 from symplid.workflow.fit import fit
 from symplid.workflow.settings import load_settings

@@ -36,8 +36,8 @@ from matplotlib.figure import Figure
 
 import symplid
 from symplid import runtime
-from symplid.inference.predict import hamiltonian_along, predict_trajectory, prediction_horizon
 from symplid.plotting import save_figure
+from symplid.predict import hamiltonian_along, predict_trajectory, prediction_horizon
 
 T_PREDICT = 80.0
 NOISE = 0.02

@@ -40,7 +40,6 @@ from matplotlib.figure import Figure
 
 import symplid
 from symplid import runtime
-from symplid.inference.predict import predict_trajectory, prediction_horizon, time_grid
 from symplid.io import positions_only
 from symplid.plotting import (
     Curves,
@@ -48,6 +47,7 @@ from symplid.plotting import (
     plot_trajectory_bands,
     save_figure,
 )
+from symplid.predict import predict_trajectory, prediction_horizon, time_grid
 
 T_END = 200.0
 QUICK = os.environ.get("SYMPLID_EXAMPLE_BUDGET", "full") == "quick"  # the docs build's budget

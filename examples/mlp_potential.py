@@ -39,10 +39,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import symplid
-from symplid import runtime
-from symplid.inference.neural_fit import find_map_neural, neural_posterior
-from symplid.inference.predict import predict_trajectory, prediction_horizon
+from symplid import find_map_neural, neural_posterior, runtime
 from symplid.plotting import save_figure
+from symplid.predict import predict_trajectory, prediction_horizon
 
 T_END = 200.0
 QUICK = os.environ.get("SYMPLID_EXAMPLE_BUDGET", "full") == "quick"  # the docs build's budget

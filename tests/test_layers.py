@@ -43,6 +43,20 @@ LAYERS = {
 }
 
 
+def _namespaces() -> tuple[str, ...]:
+    """``symplid._NAMESPACES``, read from the source: the public namespaces."""
+    tree = ast.parse((SRC / "symplid" / "__init__.py").read_text(encoding="utf-8"))
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "_NAMESPACES":
+            return ast.literal_eval(node.value)
+    return ()
+
+
+#: A public namespace without a layer of its own (``symplid/priors.py``, re-exporting from the
+#: layers) is part of the facade.
+LAYERS |= {name: 9 for name in _namespaces() if name not in LAYERS}
+
+
 def _modules() -> dict[str, Path]:
     out = {}
     for path in (SRC / "symplid").rglob("*.py"):

@@ -10,11 +10,13 @@ setting the package touches. Before JAX is imported, :func:`symplid.runtime.conf
 asks XLA to compile small loops whole (merged with the user's ``XLA_FLAGS``; the numbers agree
 to rounding, the filter runs several times faster; ``SYMPLID_XLA_FLAGS=off`` opts out).
 
-The public names below are imported when first used (PEP 562), so that ``import symplid``
-(and ``symplid --version``, ``symplid --help``) does not start JAX. Float64 holds all the
-same: when JAX is already imported it is switched on at once; otherwise ``JAX_ENABLE_X64`` is
-set, which JAX reads when it starts, so any ``symplid`` module that imports JAX computes in
-float64 from its first array.
+The public surface is ``__all__`` below: the names of the top level and the public namespaces
+(``symplid.integrators``, ``symplid.priors``, ``symplid.samplers``, ...), each with its own
+``__all__``; everything else is internal and may change. The public names are imported when
+first used (PEP 562), so that ``import symplid`` (and ``symplid --version``, ``symplid --help``)
+does not start JAX. Float64 holds all the same: when JAX is already imported it is switched on
+at once; otherwise ``JAX_ENABLE_X64`` is set, which JAX reads when it starts, so any
+``symplid`` module that imports JAX computes in float64 from its first array.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ if "jax" in sys.modules:
 else:
     os.environ["JAX_ENABLE_X64"] = "1"  # read by JAX when it starts
 
-#: public name -> the module that defines it (imported on first access)
+#: The top level's public names: name -> the module that defines it (imported on first access).
+#: Making a name public here is this one entry (``__all__`` below is built from it).
 _PUBLIC = {
     "INTEGRATORS": "symplid.dynamics.integrators",
     "Integrator": "symplid.dynamics.integrators",
@@ -46,6 +49,9 @@ _PUBLIC = {
     "SeparableHamiltonian": "symplid.dynamics.hamiltonians",
     "MLPHamiltonian": "symplid.dynamics.neural",
     "MLPPotential": "symplid.dynamics.neural",
+    "NeuralMapResult": "symplid.inference.neural_fit",
+    "find_map_neural": "symplid.inference.neural_fit",
+    "neural_posterior": "symplid.inference.neural_fit",
     "FunctionPotential": "symplid.dynamics.potentials",
     "Polynomial": "symplid.dynamics.potentials",
     "Potential": "symplid.dynamics.potentials",
@@ -72,16 +78,28 @@ _PUBLIC = {
     "true_trajectory": "symplid.model.simulate",
     "HamiltonianModel": "symplid.model.statespace",
 }
-_SUBMODULES = {
-    "baselines": "symplid.inference.baselines",
-    "predict": "symplid.inference.predict",
-    "samplers": "symplid.inference.samplers",
-}
+#: The public namespaces (``symplid.priors``, ...): modules whose ``__all__`` is public too, under
+#: the namespace's path (``symplid.priors.Prior``). Most are thin modules beside this file that
+#: re-export names from the layers. The docs' API reference and ``tests/test_public_surface.py``
+#: read the whole surface from ``__all__`` below and these modules' ``__all__``.
+_NAMESPACES = (
+    "backends",
+    "baselines",
+    "integrators",
+    "io",
+    "noise",
+    "plotting",
+    "predict",
+    "priors",
+    "runtime",
+    "samplers",
+    "systems",
+)
 
 
 def __getattr__(name: str) -> Any:
-    if name in _SUBMODULES:
-        value = importlib.import_module(_SUBMODULES[name])
+    if name in _NAMESPACES:
+        value = importlib.import_module(f"symplid.{name}")
     elif name in _PUBLIC:
         value = getattr(importlib.import_module(_PUBLIC[name]), name)
     else:
@@ -96,45 +114,4 @@ def __dir__() -> list[str]:
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "INTEGRATORS",
-    "OBSERVATION_NOISE",
-    "SYSTEMS",
-    "BoundWarning",
-    "DataError",
-    "DoublePendulum",
-    "FunctionHamiltonian",
-    "FunctionPotential",
-    "HalfNormal",
-    "Hamiltonian",
-    "HamiltonianModel",
-    "Integrator",
-    "Laplace",
-    "LogNormal",
-    "MLPHamiltonian",
-    "MLPPotential",
-    "MapResult",
-    "MultipleOptimaWarning",
-    "Normal",
-    "Observations",
-    "Polynomial",
-    "PolynomialHamiltonian",
-    "PositionDependentMass",
-    "Posterior",
-    "Potential",
-    "SeparableHamiltonian",
-    "System",
-    "Uniform",
-    "__version__",
-    "baselines",
-    "find_map",
-    "get_integrator",
-    "get_system",
-    "hamiltonian",
-    "predict",
-    "sample",
-    "samplers",
-    "simulate",
-    "summary",
-    "true_trajectory",
-]
+__all__ = ["__version__", *_PUBLIC, *_NAMESPACES]

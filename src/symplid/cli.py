@@ -42,6 +42,8 @@ from symplid.workflow.commandline import (
     user_errors,
 )
 
+__all__ = ["main"]
+
 
 @click.group(
     cls=OneLineErrors,

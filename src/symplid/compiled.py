@@ -25,6 +25,13 @@ import functools
 from collections.abc import Callable, Hashable
 from typing import Any, TypeVar
 
+__all__ = [
+    "cached",
+    "cached_or_built",
+    "clear",
+    "jit_for",
+]
+
 F = TypeVar("F")
 
 _STORE = "_symplid_compiled"

@@ -32,6 +32,8 @@ import difflib
 from collections.abc import Callable, Iterator, Mapping
 from typing import Generic, TypeVar, overload
 
+__all__ = ["Registry"]
+
 T = TypeVar("T")
 
 

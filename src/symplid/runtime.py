@@ -39,6 +39,18 @@ import sys
 import warnings
 from pathlib import Path
 
+__all__ = [
+    "XlaFlagsWarning",
+    "configure_xla",
+    "default_cache_dir",
+    "enable_compilation_cache",
+    "limit_threads",
+    "merge_xla_flags",
+    "one_line_warnings",
+    "single_thread_xla_flags",
+    "small_loop_flag",
+]
+
 
 class MissingExtraError(ImportError):
     """An optional dependency that a feature needs is not installed; the message says how

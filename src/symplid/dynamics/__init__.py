@@ -5,3 +5,5 @@ Nothing here knows about noise, data or inference: :mod:`~symplid.dynamics.poten
 one-step methods, eqs 5–6), :mod:`~symplid.dynamics.trajectory` (Ψ over a gap, eq. 14, and
 fixed-step paths) and :mod:`~symplid.dynamics.systems` (the registry of named systems).
 """
+
+__all__ = []

@@ -41,6 +41,26 @@ from symplid.dynamics.onestep import (
 )
 from symplid.registry import Registry
 
+__all__ = [
+    "INTEGRATORS",
+    "Dynamics",
+    "ForceStepFn",
+    "GeneralDynamics",
+    "Integrator",
+    "StepFn",
+    "as_general",
+    "get_integrator",
+    "leapfrog_force_step",
+    "leapfrog_step",
+    "make_dynamics",
+    "require_separable",
+    "runge_kutta",
+    "runge_kutta_integrator",
+    "separable_only_error",
+    "symplectic_composition",
+    "symplectic_integrator",
+]
+
 Array = jax.Array
 
 __all__ = [
@@ -118,6 +138,25 @@ def symplectic_composition(weights: tuple[float, ...]) -> tuple[StepFn, ForceSte
 def symplectic_integrator(
     name: str, order: int, weights: tuple[float, ...], description: str
 ) -> Integrator:
+    """A symplectic composition of leapfrog sub-steps of sizes ``w_i·Δt`` (eqs 5–6).
+
+    Parameters
+    ----------
+    name
+        The name it is registered under in :data:`INTEGRATORS`.
+    order
+        Its order of accuracy (2 for leapfrog, 4 for Yoshida's triple jump).
+    weights
+        The sub-step fractions ``w_i`` (symmetric, summing to 1); ``(1.0,)`` is leapfrog.
+    description
+        One line for help texts.
+
+    Returns
+    -------
+    Integrator
+        A separable-only integrator that carries its weights as data (``scheme``), so the
+        compiled likelihood kernel runs it too.
+    """
     step, force_step = symplectic_composition(weights)
     scheme = ("composition", tuple(float(w) for w in weights))
     return Integrator(name, order, True, step, description, force_step, scheme)

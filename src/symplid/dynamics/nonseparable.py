@@ -62,6 +62,7 @@ __all__ = [
     "TaoIntegrator",
     "implicit_midpoint_integrator",
     "tao_integrator",
+    "with_binding",
 ]
 
 #: ω of a registry entry used on its own (time units of the problem; ω·δ = 1 at δ = 0.1).

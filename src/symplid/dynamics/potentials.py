@@ -32,6 +32,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+__all__ = [
+    "FunctionPotential",
+    "Polynomial",
+    "Potential",
+    "coefficient_name",
+    "hamiltonian",
+    "has_kinetic",
+    "inverse_mass",
+    "kinetic_energy",
+    "mass_matrix",
+    "monomial_exponents",
+    "over_points",
+]
+
 Array = jax.Array
 
 

@@ -25,6 +25,18 @@ from symplid.dynamics.hamiltonians import DoublePendulum, Hamiltonian
 from symplid.dynamics.potentials import FunctionPotential, Polynomial, Potential
 from symplid.registry import Registry
 
+__all__ = [
+    "SYSTEMS",
+    "System",
+    "damped_pendulum",
+    "double_pendulum",
+    "double_well",
+    "fpu_chain",
+    "get_system",
+    "harmonic",
+    "henon_heiles",
+]
+
 
 @dataclass(frozen=True)
 class System:

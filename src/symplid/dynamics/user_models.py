@@ -41,8 +41,18 @@ from symplid.dynamics.separable import SeparablePotential
 
 Array = jax.Array
 
-__all__ = ["FUNCTIONS", "QUADRATIC", "UserHamiltonian", "UserModelError", "UserPotential",
-           "build_user_model", "is_user_model", "load_function", "parse_expression"]
+__all__ = [
+    "CONSTANTS",
+    "FUNCTIONS",
+    "QUADRATIC",
+    "UserHamiltonian",
+    "UserModelError",
+    "UserPotential",
+    "build_user_model",
+    "is_user_model",
+    "load_function",
+    "parse_expression",
+]
 
 #: The kinetic energy ½pᵀM⁻¹p (``model.kinetic``'s default).
 QUADRATIC = "quadratic"

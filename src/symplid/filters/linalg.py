@@ -13,6 +13,16 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+__all__ = [
+    "MAX_UNROLLED_DIM",
+    "SMALL_DIM",
+    "cholesky",
+    "cholesky_columns",
+    "matmul",
+    "solve_lower",
+    "symmetrize",
+]
+
 Array = jax.Array
 
 SMALL_DIM = 8

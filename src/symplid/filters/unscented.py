@@ -24,6 +24,17 @@ import numpy as np
 
 from symplid.filters.linalg import cholesky, matmul, symmetrize
 
+__all__ = [
+    "ObservationMoments",
+    "UnscentedWeights",
+    "observation_moments_linear",
+    "observation_moments_unscented",
+    "sigma_points",
+    "unscented_predict",
+    "unscented_weights",
+    "weighted_moments",
+]
+
 Array = jax.Array
 
 

@@ -44,6 +44,8 @@ import jax.numpy as jnp
 from symplid.filters.linalg import cholesky, cholesky_columns, matmul, symmetrize
 from symplid.filters.unscented import ObservationMoments
 
+__all__ = ["FilterResult", "gaussian_update", "run_filter"]
+
 Array = jax.Array
 
 _LOG_2PI = math.log(2.0 * math.pi)

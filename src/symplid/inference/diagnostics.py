@@ -17,7 +17,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ConvergenceWarning", "import_arviz", "summary"]
+__all__ = [
+    "ESS_THRESHOLD",
+    "RHAT_THRESHOLD",
+    "ConvergenceWarning",
+    "import_arviz",
+    "quiet_arviz",
+    "summary",
+]
 
 RHAT_THRESHOLD = 1.01
 ESS_THRESHOLD = 400.0

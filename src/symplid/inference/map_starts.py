@@ -234,6 +234,12 @@ def homotopy_start(posterior: Any, base: np.ndarray, default: np.ndarray) -> np.
 
 
 __all__ = [
-    "as_theta", "default_start", "distinct_optima", "homotopy_start", "perturbed_start",
-    "scaled_start", "warn_optima",
+    "OPTIMUM_LOG_POSTERIOR_TOL",
+    "as_theta",
+    "default_start",
+    "distinct_optima",
+    "homotopy_start",
+    "perturbed_start",
+    "scaled_start",
+    "warn_optima",
 ]

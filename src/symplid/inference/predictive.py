@@ -27,7 +27,19 @@ from symplid.model.statespace import HamiltonianModel
 
 Array = jax.Array
 
-__all__ = ["DEFAULT_STORED_POINTS", "PosteriorPredictive", "integrate_paths", "time_grid"]
+__all__ = [
+    "DEFAULT_STORED_POINTS",
+    "PosteriorPredictive",
+    "check_state",
+    "flatten_draws",
+    "integrate_paths",
+    "key_and_seed",
+    "positive_int",
+    "predictive_band",
+    "resolve_coefficients",
+    "resolve_propagator",
+    "time_grid",
+]
 
 #: Default number of stored time points of a posterior predictive (``every`` is chosen to fit).
 DEFAULT_STORED_POINTS = 2000

@@ -39,13 +39,17 @@ from symplid.io.files import write_text, write_with
 from symplid.model.data import DataError, Observations
 
 __all__ = [
+    "TRAJECTORY_COLUMN",
     "Layout",
+    "check_data_file",
     "column_names",
     "observation_kind",
     "observation_layout",
     "observations_csv",
+    "parse_csv",
     "positions_only",
     "read_observations",
+    "read_text",
     "write_observations",
 ]
 

@@ -53,6 +53,7 @@ __all__ = [
     "make_folder",
     "read_with",
     "write_bytes",
+    "write_fault",
     "write_text",
     "write_with",
 ]

@@ -3,3 +3,5 @@
 Builds on :mod:`symplid.dynamics` and :mod:`symplid.filters`; knows nothing of optimisers,
 samplers, files or figures.
 """
+
+__all__ = []

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = ["DataError", "Observations"]
+
 
 class DataError(ValueError):
     """Bad input data: the message says what is wrong and where."""

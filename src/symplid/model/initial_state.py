@@ -287,6 +287,7 @@ __all__ = [
     "as_P0",
     "as_datasets",
     "as_x0",
+    "data_scale",
     "first_observation_update",
     "initial_state_prior",
     "is_point_mass",

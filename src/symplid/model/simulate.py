@@ -22,6 +22,8 @@ from symplid.dynamics.trajectory import solve_gaps, substeps
 from symplid.filters.noise import get_observation_noise
 from symplid.model.data import Observations
 
+__all__ = ["simulate", "state_names", "true_trajectory"]
+
 
 def state_names(dim: int, observation: str = "full") -> tuple[str, ...]:
     q = tuple(f"q{i + 1}" for i in range(dim))

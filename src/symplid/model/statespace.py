@@ -57,6 +57,8 @@ from symplid.model.layout import ParameterLayout
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
 from symplid.model.programs import check_backend, compiled, loglik_program, select
 
+__all__ = ["NOISE_LAYOUTS", "PROCESS_NOISE_CHOICES", "HamiltonianModel"]
+
 Array = jax.Array
 _POTENTIAL_RENAMED = ("HamiltonianModel's 'potential' is now 'hamiltonian' (it may hold a whole "
                       "H(q, p; θ)); the old name will be removed")

@@ -18,7 +18,24 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.ticker import Formatter
 
-__all__ = ["COLORS", "DPI", "Curves", "save_figure"]
+__all__ = [
+    "COLORS",
+    "CYCLE",
+    "DPI",
+    "Curves",
+    "as_xy",
+    "color_for",
+    "compact_ticks",
+    "energy_limits",
+    "finish",
+    "legend_above",
+    "mark_end_of_data",
+    "new_figure",
+    "robust_limits",
+    "sample_lines",
+    "save_figure",
+    "time_span",
+]
 
 #: Colours shared by the figures (the paper's: blue for leapfrog, red for RK2, green truth).
 COLORS = {

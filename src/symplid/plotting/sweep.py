@@ -16,6 +16,7 @@ import numpy as np
 
 __all__ = [
     "BOOKKEEPING",
+    "PALETTE",
     "format_value",
     "numeric",
     "plain",

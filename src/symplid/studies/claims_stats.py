@@ -19,6 +19,7 @@ import numpy as np
 
 __all__ = [
     "LEVEL",
+    "RANK_DRAWS",
     "bootstrap_median",
     "rank_uniformity",
     "thin_evenly",

@@ -51,6 +51,19 @@ from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
 from symplid.workflow.sweep import cell_settings
 
+__all__ = [
+    "CELL_KEYS",
+    "EXPERIMENT",
+    "ApproachResult",
+    "PaperConfig",
+    "analyse_approach",
+    "cell_data",
+    "paper_settings",
+    "reproduce",
+    "run_cell",
+    "truth_path",
+]
+
 # What the paper reports (Section IV, Figs 2–4), for the table printed beside ours.
 PAPER = {
     "true_hamiltonian": 0.1227,

@@ -18,6 +18,8 @@ from symplid.plotting import (
     plot_trajectory_bands,
 )
 
+__all__ = ["draw_figures"]
+
 LABELS = {"leapfrog": "leapfrog", "rk2": "RK2"}
 EVERY = 10  # keep every 10th fine step (0.1 s) in the stored paths
 

@@ -34,6 +34,7 @@ __all__ = [
     "integrator_registry",
     "model_text",
     "no_progress_option",
+    "noise_model_names",
     "potential_registry",
     "quiet_option",
     "report_after_fit",

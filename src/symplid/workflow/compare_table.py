@@ -60,7 +60,14 @@ from symplid.io.files import write_text
 from symplid.model.params import POSITIVE_GROUPS
 from symplid.workflow.settings import Settings
 
-__all__ = ["COLUMNS", "CandidateFit", "comparison_table", "format_table", "write_comparison"]
+__all__ = [
+    "COLUMNS",
+    "CandidateFit",
+    "comparison_table",
+    "format_table",
+    "num_measured",
+    "write_comparison",
+]
 
 COLUMNS = (
     "rank",

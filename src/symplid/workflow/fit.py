@@ -39,6 +39,16 @@ from symplid.workflow.scaling import scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
 from symplid.workflow.settings_schema import map_start, prior_spec
 
+__all__ = [
+    "FitOutcome",
+    "build_model",
+    "build_posterior",
+    "find_map_for",
+    "fit",
+    "save_burn_in",
+    "save_run",
+]
+
 
 def build_model(settings: Settings, obs: Observations | list[Observations]) -> HamiltonianModel:
     """The state-space model of eq. (7) that ``settings.model`` describes, for these data

@@ -21,6 +21,8 @@ from symplid.workflow.results import RunFolder, format_summary
 from symplid.workflow.run_figures import ReportFigure, report_figures, trajectory_paths
 from symplid.workflow.sensitivity import sensitivity_checks, sensitivity_lines
 
+__all__ = ["predict_run", "report_run", "save_atomically"]
+
 #: The most integrator steps a prediction may take ((t_end − t0)/dt), so that a mistyped
 #: horizon (1e9) is a one-line error rather than hours of work or an exhausted memory.
 MAX_PREDICTION_STEPS = 10_000_000

@@ -32,6 +32,9 @@ from symplid.workflow.user_parameters import (
 from symplid.workflow.validate import Spec, setting
 
 __all__ = [
+    "PRIOR_DEFAULTS",
+    "PRIOR_SPECS",
+    "PRIOR_SYNONYMS",
     "RENAMED",
     "InitialStateSettings",
     "MapSettings",

@@ -1,0 +1,28 @@
+"""Integrators: the registry of one-step methods (eqs 5–6) and the pieces to add one.
+
+A model's ``integrator`` (and the settings' ``model.integrator``, the CLI's ``--integrator``)
+is a name in :data:`INTEGRATORS` or an :class:`Integrator`. A new method is one registration:
+a symplectic composition from its weights (:func:`symplectic_integrator`), a Runge–Kutta
+method from its tableau (:func:`runge_kutta_integrator`), or any step
+``step(dynamics, q, p, dt) -> (q⁺, p⁺)`` that reads the :class:`Dynamics` it is given.
+"""
+
+from symplid.dynamics.integrators import (
+    INTEGRATORS,
+    Dynamics,
+    GeneralDynamics,
+    Integrator,
+    get_integrator,
+    runge_kutta_integrator,
+    symplectic_integrator,
+)
+
+__all__ = [
+    "INTEGRATORS",
+    "Dynamics",
+    "GeneralDynamics",
+    "Integrator",
+    "get_integrator",
+    "runge_kutta_integrator",
+    "symplectic_integrator",
+]
