@@ -40,6 +40,7 @@ import warnings
 from pathlib import Path
 
 __all__ = [
+    "MissingExtraError",
     "XlaFlagsWarning",
     "configure_xla",
     "default_cache_dir",
@@ -47,6 +48,7 @@ __all__ = [
     "limit_threads",
     "merge_xla_flags",
     "one_line_warnings",
+    "require_extra",
     "single_thread_xla_flags",
     "small_loop_flag",
 ]

@@ -21,18 +21,24 @@ A user's backend is one more call::
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from symplid.filters.backends import LikelihoodBackend, ModelLike
 from symplid.model.kernel import COMPILED_BACKEND
 from symplid.model.likelihood import JAX_BACKEND
+from symplid.model.programs import compiled
 from symplid.registry import Registry
 
 __all__ = [
     "AUTO",
     "LIKELIHOOD_BACKENDS",
     "backend_names",
+    "check_backend",
     "check_backend_name",
+    "loglik_program",
+    "select",
     "select_backend",
 ]
 
@@ -86,6 +92,30 @@ def select_backend(name: str, model: ModelLike, prepared: Any = None) -> Likelih
         reasons.append(f"{backend.name}: {reason}")
     detail = "; ".join(reasons) or "none is registered"
     raise ValueError(f"no likelihood backend applies to this model ({detail})")
+
+
+def check_backend(model: ModelLike) -> None:
+    """``ValueError`` when the model forces a backend that does not support it."""
+    if model.backend != AUTO:
+        select_backend(model.backend, model)
+
+
+def select(model: ModelLike, prepared: Any = None) -> LikelihoodBackend:
+    """The backend that computes ``model``'s log-likelihood on ``prepared`` (None: any data),
+    from the model's ``backend`` setting."""
+    return select_backend(model.backend, model, prepared)
+
+
+def loglik_program(model: ModelLike, prepared: Any) -> Callable[..., Any]:
+    """The selected backend's compiled ``fn(theta, inputs, ys, masks, x0, P0) -> ll``
+    (:func:`symplid.model.programs.compiled`: shared by equal-structure models)."""
+    backend = select(model, prepared)
+    fn = compiled(model, prepared, backend)
+    return partial(_only_loglik, fn) if backend.filtered_moments else fn
+
+
+def _only_loglik(fn: Callable[..., Any], *args: Any) -> Any:
+    return fn(*args).log_likelihood
 
 
 LIKELIHOOD_BACKENDS.register(JAX_BACKEND.name, JAX_BACKEND)

@@ -16,7 +16,7 @@ normalises first. Normalising is idempotent: ``normalise_fields(**normal) == nor
 fields that are already normal, so ``dataclasses.replace(model, dt=0.1)`` works as before.
 
 What needs a model to answer — whether a forced backend supports it — is asked after
-construction (:func:`symplid.model.programs.check_backend`).
+construction (:func:`symplid.model.backends.check_backend`).
 """
 
 from __future__ import annotations

@@ -39,6 +39,7 @@ from symplid.dynamics.potentials import Polynomial, inverse_mass
 from symplid.filters import unscented_weights
 from symplid.filters.backends import LikelihoodBackend
 from symplid.model.likelihood import (
+    JAX_BACKEND,
     GapInputs,
     PreparedData,
     StateSpaceModel,
@@ -302,10 +303,10 @@ def log_likelihood(
     theta = jnp.asarray(theta, dtype=jnp.float64)
     if theta.shape[-1] != model.num_params:
         raise ValueError(f"θ must have {model.num_params} entries, got {theta.shape[-1]}")
-    backend = "compiled" if _supports(model, prepared) is None else "jax"
+    backend = COMPILED_BACKEND if _supports(model, prepared) is None else JAX_BACKEND
     fn = compiled(model, prepared, backend)
     value = fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
-    return value if backend == "compiled" else value.log_likelihood
+    return value if backend is COMPILED_BACKEND else value.log_likelihood
 
 
 def log_likelihood_fn(

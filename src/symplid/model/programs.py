@@ -1,8 +1,7 @@
-"""Which backend computes a model's likelihood, and its compiled programs, shared by structure.
+"""A model's compiled likelihood programs, shared by structure.
 
-A model holds settings; this module decides what runs them. :func:`select` picks the
-likelihood backend from :data:`~symplid.model.backends.LIKELIHOOD_BACKENDS` (``"auto"``:
-the supporting one of highest priority), and :func:`compiled` returns its jitted program
+A model holds settings; :func:`symplid.model.backends.select` picks the backend that computes
+its likelihood, and :func:`compiled` returns that backend's jitted program
 ``fn(theta, inputs, ys, masks, x0, P0)``, built once per **structure**: the model's normal
 fields that a backend's ``build`` may read (:func:`structure_key`), the backend and the two
 facts of the prepared data that shape the program (the most substeps in a gap, whether all
@@ -17,8 +16,8 @@ models then each keep their own programs.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Hashable
-from functools import partial
 from typing import Any
 
 import jax
@@ -26,20 +25,17 @@ import numpy as np
 
 from symplid.compiled import cached
 from symplid.dynamics.nonseparable import TaoIntegrator
-from symplid.filters import FilterResult
-from symplid.filters.backends import LikelihoodBackend
-from symplid.model.backends import LIKELIHOOD_BACKENDS, select_backend
-from symplid.model.construction import ModelFields
+from symplid.filters.backends import LikelihoodBackend, ModelLike
 from symplid.model.likelihood import JAX_BACKEND, PreparedData
 
-__all__ = ["check_backend", "compiled", "loglik_program", "select", "structure_key"]
+__all__ = ["compiled", "structure_key"]
 
 #: The fields that are not part of a program's structure: the Hamiltonian owns the programs
 #: (it is the cache itself), and the ``backend`` setting only chooses among them.
 _NOT_STRUCTURE = ("hamiltonian", "backend")
 
 
-def structure_key(model: ModelFields) -> tuple[Hashable, ...]:
+def structure_key(model: ModelLike) -> tuple[Hashable, ...]:
     """The model's normal fields, but its Hamiltonian and backend setting, as a hashable key.
 
     Arrays (mass, observation matrix) enter by shape and value, an observation function by
@@ -48,41 +44,19 @@ def structure_key(model: ModelFields) -> tuple[Hashable, ...]:
     """
     return cached(model, "structure-key", lambda: tuple(
         (name, _hashable(getattr(model, name)))
-        for name in ModelFields.__dataclass_fields__ if name not in _NOT_STRUCTURE
+        for name in (f.name for f in dataclasses.fields(model)) if name not in _NOT_STRUCTURE
     ))
 
 
-def check_backend(model: ModelFields) -> None:
-    """``ValueError`` when the model forces a backend that does not support it."""
-    if model.backend != "auto":
-        select_backend(model.backend, model)
-
-
-def select(model: ModelFields, prepared: PreparedData | None = None) -> LikelihoodBackend:
-    """The backend that computes ``model``'s log-likelihood on ``prepared`` (None: any data)."""
-    return select_backend(model.backend, model, prepared)
-
-
-def compiled(model: ModelFields, prepared: PreparedData,
-             backend: str = JAX_BACKEND.name) -> Callable[..., Any]:
+def compiled(model: ModelLike, prepared: PreparedData,
+             backend: LikelihoodBackend = JAX_BACKEND) -> Callable[..., Any]:
     """The jitted ``fn(theta, inputs, ys, masks, x0, P0)`` of ``backend`` for ``model``'s
     structure on data shaped like ``prepared`` (built on first use, then shared)."""
-    key = ("likelihood", backend, structure_key(model), prepared.max_steps,
+    key = ("likelihood", backend.name, structure_key(model), prepared.max_steps,
            prepared.uniform_steps)
-    entry = LIKELIHOOD_BACKENDS.get_entry(backend)
+    entry = backend
     owner = model.hamiltonian if hasattr(model.hamiltonian, "__dict__") else model
     return cached(owner, key, lambda: jax.jit(entry.build(model, prepared)))
-
-
-def loglik_program(model: ModelFields, prepared: PreparedData) -> Callable[..., jax.Array]:
-    """The selected backend's compiled ``fn(theta, inputs, ys, masks, x0, P0) -> ll``."""
-    backend = select(model, prepared)
-    fn = compiled(model, prepared, backend.name)
-    return partial(_only_loglik, fn) if backend.filtered_moments else fn
-
-
-def _only_loglik(fn: Callable[..., FilterResult], *args: jax.Array) -> jax.Array:
-    return fn(*args).log_likelihood
 
 
 def _hashable(value: Any) -> Hashable:

@@ -49,13 +49,14 @@ from symplid.dynamics.potentials import hamiltonian as hamiltonian_value
 from symplid.dynamics.trajectory import substeps
 from symplid.filters import FilterResult
 from symplid.filters.noise import ObservationNoise, get_observation_noise
+from symplid.model.backends import check_backend, loglik_program, select
 from symplid.model.construction import NOISE_LAYOUTS as NOISE_LAYOUTS  # the choices, also here
 from symplid.model.construction import PROCESS_NOISE_CHOICES as PROCESS_NOISE_CHOICES
 from symplid.model.construction import ModelFields, normalise_fields
 from symplid.model.data import DataError, Observations
 from symplid.model.layout import ParameterLayout
 from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
-from symplid.model.programs import check_backend, compiled, loglik_program, select
+from symplid.model.programs import compiled
 
 __all__ = ["NOISE_LAYOUTS", "PROCESS_NOISE_CHOICES", "HamiltonianModel"]
 
@@ -383,7 +384,7 @@ class HamiltonianModel(ModelFields):
         """The backend that computes this model's log-likelihood (``backend="auto"`` resolved).
 
         Chosen among :data:`~symplid.model.backends.LIKELIHOOD_BACKENDS` for the model
-        alone (:func:`symplid.model.programs.select`); a backend that declines a particular
+        alone (:func:`symplid.model.backends.select`); a backend that declines a particular
         data set hands it to the next one.
         """
         return select(self).name
@@ -432,7 +433,7 @@ class HamiltonianModel(ModelFields):
         prepared = data if isinstance(data, PreparedData) else self.prepare(data, t0)
         x0, P0 = self._check_initial(x0, P0)
         theta = self._check_theta(theta)
-        fn = compiled(self, prepared, JAX_BACKEND.name)  # the moments: the reference
+        fn = compiled(self, prepared, JAX_BACKEND)  # the moments: the reference
         return fn(theta, prepared.inputs, prepared.ys, prepared.masks, x0, P0)
 
     def log_likelihood(

@@ -73,6 +73,7 @@ from symplid.workflow.validate import Spec
 __all__ = [
     "BUDGETS",
     "CELL_KEYS",
+    "EXPERIMENT",
     "METHODS",
     "METRICS",
     "Method",
