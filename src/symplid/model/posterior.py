@@ -189,6 +189,11 @@ class Posterior:
         process noise beside one without: :mod:`symplid.inference.homotopy`)."""
         return Posterior(model, **self._arguments)
 
+    def with_prior(self, prior: PriorSpec) -> Posterior:
+        """The same model, data and initial states under other priors (e.g. the paper's
+        HalfNormal(1) on Σ beside a log-uniform one: :mod:`symplid.inference.homotopy`)."""
+        return Posterior(self.model, **{**self._arguments, "prior": prior})
+
     # ------------------------------------------------------------------ construction steps
     def _layout(self) -> tuple[list[str], list[str]]:
         """Names and groups of θ: the model's parameters, then each learned initial state."""
