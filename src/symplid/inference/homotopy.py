@@ -83,7 +83,9 @@ def half_normal_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.
     index = [i for i, g in enumerate(groups) if g == "process_var"]
     if not index or not all(isinstance(posterior.priors[i], LogUniform) for i in index):
         return None
-    prior = dataclasses.replace(posterior.prior, process_var=HalfNormal(1.0))
+    names = {posterior.param_names[i] for i in index}
+    overrides = {k: v for k, v in posterior.prior.overrides.items() if k not in names}
+    prior = dataclasses.replace(posterior.prior, process_var=HalfNormal(1.0), overrides=overrides)
     twin = posterior.with_prior(prior)
     result = find_map(twin, seed=seed, num_starts=num_starts, compute_hessian=False, warn=False)
     start = np.asarray(result.theta, dtype=float).copy()
