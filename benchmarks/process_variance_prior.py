@@ -176,12 +176,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iterations", type=int, default=6000,
                         help="DRAM iterations per chain (2 chains), half of them burn-in")
     parser.add_argument("--out", type=Path, default=Path("process_variance_prior.csv"))
+    parser.add_argument("--rhat-max", type=float, default=1.1,
+                        help="seed/prior pairs with a larger split-R-hat are left out")
     parser.add_argument("--table-only", action="store_true",
                         help="rebuild the table from --out without fitting")
     args = parser.parse_args(argv)
     if args.table_only:
         with args.out.open() as f:
-            print(table(list(csv.DictReader(f))))
+            print(table(list(csv.DictReader(f)), args.rhat_max))
         return 0
     settings = settings_for(args.integrator, args.dt)
     rows: list[dict] = []
@@ -193,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
             writer.writeheader()
             writer.writerows(rows)
         print(f"seed {seed}: {time.perf_counter() - t:.1f} s", file=sys.stderr, flush=True)
-    print(table(rows))
+    print(table(rows, args.rhat_max))
     return 0
 
 
