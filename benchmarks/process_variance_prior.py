@@ -20,7 +20,8 @@ apart. Results go to a CSV (one row per seed, prior and coefficient), rewritten 
 seed, so the table can be rebuilt without refitting (``--table-only``).
 
 Run: ``nice python benchmarks/process_variance_prior.py --seeds 40 --out bench-sigma.csv``
-(about 40 s per seed, both priors, on one core).
+(about 35 s of CPU per seed, both priors; 5–17 minutes of wall time on a machine
+shared at load 15–20).
 """
 
 from __future__ import annotations

@@ -13,7 +13,8 @@ data's variance scale ``b`` (:func:`data_variance_scale`): a process noise with 
 of the whole signal would make the dynamics meaningless, so nothing above it is needed. Its
 low end, ``b·1e-8``, is far below what any record resolves, so most of the prior's mass lies
 where the data cannot tell Σ from zero: the posterior can follow Σ down to where the filter
-is effectively deterministic. The measurement that led to this default is in
+is effectively deterministic. It is opt-in (``priors.process_var = "log-uniform"``): what
+was measured with it on the paper's setting, and why it is not the default, is in
 ``docs/howto/process-noise.md`` (section "The prior of Σ").
 """
 
