@@ -130,6 +130,20 @@ def test_ranks_not_uniform_when_the_posterior_is_too_narrow():
     assert not cal["nominal"] and cal["below_nominal"] == ["a", "b"]
 
 
+def test_non_converged_cells_are_reported_apart():
+    """A cell with R-hat > 1.1 leaves the calibration (its ranks are not counted) and is
+    listed with its seed and R-hat; cells without an R-hat column are all kept."""
+    rows = _conjugate_records(1.0, reps=60)
+    rows["seed"] = range(60)
+    rows["rhat_max"] = 1.002
+    rows.loc[[3, 17], "rhat_max"] = [2.58, 1.8]
+    cal = evaluate_calibration(rows, "with failures")
+    assert all(p["n"] == 58 for p in cal["params"].values())
+    assert cal["not_converged"] == {"n": 2, "seeds": [3, 17], "rhat": [2.58, 1.8]}
+    kept = evaluate_calibration(rows.drop(columns="rhat_max"), "no R-hat")
+    assert kept["not_converged"]["n"] == 0 and kept["params"]["a"]["n"] == 60
+
+
 def test_rank_uniformity_bins_and_range():
     u = rank_uniformity(np.arange(100), 99)
     assert u["bins"] == 10 and u["counts"] == [10] * 10 and u["p_value"] == pytest.approx(1.0)

@@ -15,6 +15,7 @@ from symplid.model.priors import (
     HalfNormal,
     Laplace,
     LogNormal,
+    LogUniform,
     Normal,
     PriorSpec,
     Uniform,
@@ -33,6 +34,8 @@ CASES = [
     (HalfNormal(0.05), stats.halfnorm(scale=0.05)),
     (Uniform(-2.0, 3.0), stats.uniform(loc=-2.0, scale=5.0)),
     (LogNormal(-1.0, 0.5), stats.lognorm(s=0.5, scale=math.exp(-1.0))),
+    (LogUniform(1e-8, 1.0), stats.loguniform(1e-8, 1.0)),
+    (LogUniform(0.3, 7.0), stats.loguniform(0.3, 7.0)),
 ]
 IDS = [repr(p) for p, _ in CASES]
 
@@ -96,6 +99,22 @@ def test_text_and_settings_forms():
     assert prior_from_dict(lognormal) == LogNormal(1.0, 0.2)
     assert prior_from_dict({"family": "LogNormal", "mu": 1.0}) == LogNormal(1.0, 1.0)
     assert Laplace().to_dict() == {"family": "laplace", "loc": 0.0, "scale": 10.0}
+    assert parse_prior("log-uniform(1e-8, 0.01)") == LogUniform(1e-8, 0.01)
+    assert parse_prior("LogUniform(low=1e-6, high=1)") == LogUniform(1e-6, 1.0)
+
+
+def test_log_uniform_bounded_is_the_narrower_log_uniform():
+    """A log-uniform cut to [c, d] inside its range and renormalised is log-uniform on [c, d]:
+    the truncation's CDF and quantile checked against scipy's law of the narrower range."""
+    from symplid.model.truncated import Truncated
+
+    cut = Truncated(LogUniform(1e-8, 1.0), 1e-4, 1e-2)
+    ref = stats.loguniform(1e-4, 1e-2)
+    x = ref.ppf(np.linspace(0.01, 0.99, 17))
+    np.testing.assert_allclose(np.asarray(cut.log_density(jnp.asarray(x))), ref.logpdf(x),
+                               rtol=1e-10)
+    draws = np.asarray(cut.sample(jax.random.key(5), (3000,)))
+    assert stats.kstest(draws, ref.cdf).pvalue > 1e-3
 
 
 @pytest.mark.parametrize(
@@ -106,6 +125,8 @@ def test_text_and_settings_forms():
         (lambda: HalfNormal(math.inf), "scale must be"),
         (lambda: Uniform(1.0, 1.0), "low .* less than high"),
         (lambda: LogNormal(math.nan, 1.0), "mu must be finite"),
+        (lambda: LogUniform(0.0, 1.0), "low must be a finite number > 0"),
+        (lambda: LogUniform(2.0, 1.0), "low .* less than high"),
         (lambda: prior_from_dict({"family": "cauchy"}), "unknown prior family 'cauchy'"),
         (lambda: prior_from_dict({"family": "normal", "sigma": 1.0}), "unknown parameter 'sigma'"),
         (lambda: prior_from_dict({"loc": 1.0}), "'family' key"),

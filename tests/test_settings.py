@@ -173,6 +173,7 @@ def test_dump_writes_every_key(tmp_path):
     expected |= {"priors.coefficients.scale", "priors.variances.family", "priors.variances.scale"}
     expected |= {"priors.initial_state.family", "priors.initial_state.loc"}
     expected |= {"priors.initial_state.scale", "priors.damping.family", "priors.damping.scale"}
+    expected |= {"priors.process_var"}
     assert keys(written) == expected
     assert written["sampler"]["num_iterations"] == 200_000
 
@@ -456,3 +457,29 @@ def test_a_registered_prior_family_is_a_setting():
         assert s.priors.prior_spec(False).coefficients == Wide(0.0, 3.0)
     finally:
         PRIOR_FAMILIES.unregister("wide-normal")
+
+
+def test_process_var_prior_setting_scales_a_log_uniform_to_the_data():
+    """``priors.process_var = "log-uniform"``: Σ's prior is LogUniform(b·1e-8, b), b the mean
+    sample variance of the data's components (computed here with NumPy); Γ keeps the
+    variances' prior; the default keeps the paper's half-normal for both."""
+    from symplid.model.priors import LogUniform
+    from symplid.model.simulate import simulate
+    from symplid.workflow.fit import build_model, build_posterior
+
+    obs = simulate("harmonic", noise_std=0.05, seed=2)
+    b = float(np.mean(np.var(obs.values, axis=0, ddof=1)))
+    for choice, want in (("variances", HalfNormal(1.0)), ("log-uniform", LogUniform(b * 1e-8, b))):
+        settings = merge_overrides(Settings(), {"model.order": 2, "initial_state.x0": [1.0, 0.0],
+                                                "priors.process_var": choice})
+        posterior = build_posterior(settings, obs, build_model(settings, obs))
+        groups = np.asarray(posterior.param_groups)
+        sigma = [p for p, g in zip(posterior.priors, groups, strict=True) if g == "process_var"]
+        gamma = [p for p, g in zip(posterior.priors, groups, strict=True) if g == "obs_var"]
+        assert sigma and gamma
+        for prior in sigma:
+            assert type(prior) is type(want)
+            assert prior.support == pytest.approx(want.support, rel=1e-12)
+        assert all(prior == HalfNormal(1.0) for prior in gamma)
+    with pytest.raises(SettingsError, match=r"priors\.process_var"):
+        merge_overrides(Settings(), {"priors.process_var": "half-cauchy"})

@@ -567,5 +567,28 @@ def baselines_study(out, no_progress, **options) -> None:
     click.echo(study_from_options(out, progress=not no_progress, **options))
 
 
+@study.command("sbc")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Study folder (a rerun skips the finished replications).")
+@click.option("--replications", type=click.IntRange(min=1), default=100, show_default=True)
+@click.option("--likelihoods", default="gap,none", show_default=True,
+              help="gap (process noise once per gap), none (deterministic), or both.")
+@click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
+              show_default=True, help="Sampler budget per replication.")
+@click.option("--workers", type=click.IntRange(min=1), default=None)
+@click.option("--report-only", is_flag=True,
+              help="Run nothing: report the replications OUT holds.")
+@no_progress_option
+@user_errors
+def sbc_study(out, replications, likelihoods, budget, workers, report_only, no_progress) -> None:
+    """Simulation-based calibration: ranks of prior-drawn truths among posterior draws."""
+    from symplid.studies.sbc import run_sbc_study
+
+    chosen = tuple(v.strip() for v in likelihoods.split(",") if v.strip())
+    run_sbc_study(out, replications=replications, likelihoods=chosen, budget=budget,
+                  workers=workers, progress=not no_progress, report_only=report_only)
+    click.echo(f"{out}: report.md, sbc.json, results.csv and figures/")
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

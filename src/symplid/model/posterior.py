@@ -193,6 +193,11 @@ class Posterior:
         process noise beside one without: :mod:`symplid.inference.homotopy`)."""
         return Posterior(model, **self._arguments)
 
+    def with_prior(self, prior: PriorSpec) -> Posterior:
+        """The same model, data and initial states under other priors (e.g. the paper's
+        HalfNormal(1) on Σ beside a log-uniform one: :mod:`symplid.inference.homotopy`)."""
+        return Posterior(self.model, **{**self._arguments, "prior": prior})
+
     # ------------------------------------------------------------------ construction steps
     def _layout(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """θ's layout (:mod:`~symplid.model.layout`): the model's blocks, then one block

@@ -17,7 +17,8 @@ Each prior is a small frozen dataclass with
 
 Family names and keys are those of the settings file: ``laplace`` and ``normal`` (``loc``,
 ``scale``), ``half-normal`` (``scale``), ``uniform`` (``low``, ``high``), ``log-normal``
-(``mu`` and ``sigma`` of log x; ``loc`` and ``scale`` are accepted as synonyms).
+(``mu`` and ``sigma`` of log x; ``loc`` and ``scale`` are accepted as synonyms),
+``log-uniform`` (``low``, ``high``: log x uniform between their logarithms).
 
 To add a family: write a frozen dataclass subclass of :class:`Prior` with ``family``,
 ``log_density``, ``support``, ``sample``, ``mean``, ``std``, ``median``, and list it in
@@ -300,6 +301,60 @@ class LogNormal(Prior):
         return math.exp(self.mu)
 
 
+@dataclass(frozen=True)
+class LogUniform(Prior):
+    """LogUniform(low, high): log x uniform on [log low, log high]; density 1/(x log(high/low)).
+
+    A scale-free prior for a variance whose order of magnitude is unknown: every decade of
+    [low, high] holds the same mass, so a variance the data cannot tell from zero keeps no
+    more mass near ``high`` than near ``low`` (unlike HalfNormal(1), whose mass at 1e-6…1e-4
+    is all the data leave it). ``0 < low < high``.
+    """
+
+    low: float = 1e-8
+    high: float = 1.0
+    family: ClassVar[str] = "log-uniform"
+
+    def __post_init__(self) -> None:
+        low = _positive("low", self.low, self.family)
+        high = _positive("high", self.high, self.family)
+        if not low < high:
+            raise ValueError(f"log-uniform prior: low ({low:g}) must be less than high ({high:g})")
+        object.__setattr__(self, "low", low)
+        object.__setattr__(self, "high", high)
+
+    @property
+    def _width(self) -> float:
+        return math.log(self.high / self.low)
+
+    def log_density(self, x: Array) -> Array:
+        x = jnp.asarray(x, dtype=float)
+        inside = self._inside(x)
+        safe = jnp.where(inside, x, self.low)  # log and its gradient finite off the support
+        return jnp.where(inside, -jnp.log(safe) - math.log(self._width), -jnp.inf)
+
+    @property
+    def support(self) -> tuple[float, float]:
+        return (self.low, self.high)
+
+    def sample(self, key: Array, shape: tuple[int, ...] = ()) -> Array:
+        u = jax.random.uniform(key, shape, dtype=jnp.float64)
+        return jnp.exp(math.log(self.low) + self._width * u)
+
+    @property
+    def mean(self) -> float:
+        return (self.high - self.low) / self._width
+
+    @property
+    def std(self) -> float:
+        second = (self.high**2 - self.low**2) / (2.0 * self._width)
+        return math.sqrt(max(second - self.mean**2, 0.0))
+
+    @property
+    def median(self) -> float:
+        return math.sqrt(self.low * self.high)
+
+
 PRIOR_FAMILIES: Registry[type[Prior]] = Registry("prior family")
 """Family name → class, for :func:`prior_from_dict`, :func:`parse_prior` and settings.
 
@@ -311,6 +366,7 @@ PRIOR_FAMILIES.register("normal", Normal, aliases=("gaussian",))
 PRIOR_FAMILIES.register("half-normal", HalfNormal, aliases=("halfnormal",))
 PRIOR_FAMILIES.register("uniform", Uniform)
 PRIOR_FAMILIES.register("log-normal", LogNormal, aliases=("lognormal",))
+PRIOR_FAMILIES.register("log-uniform", LogUniform, aliases=("loguniform",))
 
 _SYNONYMS = {"log-normal": {"loc": "mu", "scale": "sigma"}}
 
@@ -552,6 +608,7 @@ __all__ = [
     "HalfNormal",
     "Laplace",
     "LogNormal",
+    "LogUniform",
     "Normal",
     "Prior",
     "PriorSpec",

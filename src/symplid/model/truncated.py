@@ -7,7 +7,7 @@ For a base prior with density π and distribution function F, bounded to [a, b],
 
 so the log evidence of a model with bounded parameters stays a proper marginal likelihood.
 F and its inverse are those of :data:`CDFS` (normal, laplace, half-normal, log-normal,
-uniform); draws are F⁻¹ of a uniform on [F(a), F(b)].
+uniform, log-uniform); draws are F⁻¹ of a uniform on [F(a), F(b)].
 """
 
 from __future__ import annotations
@@ -22,7 +22,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtr, ndtri
 
-from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal, Prior, Uniform
+from symplid.model.priors import (
+    HalfNormal,
+    Laplace,
+    LogNormal,
+    LogUniform,
+    Normal,
+    Prior,
+    Uniform,
+)
 
 Array = jax.Array
 
@@ -51,6 +59,10 @@ CDFS: dict[type, tuple[Callable[[Any, Array], Array], Callable[[Any, Array], Arr
                 lambda p, u: jnp.exp(p.mu + p.sigma * ndtri(u))),
     Uniform: (lambda p, x: jnp.clip((x - p.low) / (p.high - p.low), 0.0, 1.0),
               lambda p, u: p.low + (p.high - p.low) * u),
+    LogUniform: (lambda p, x: jnp.clip(
+                     jnp.log(jnp.clip(x, p.low, p.high) / p.low) / math.log(p.high / p.low),
+                     0.0, 1.0),
+                 lambda p, u: p.low * jnp.exp(math.log(p.high / p.low) * u)),
 }
 
 

@@ -11,7 +11,9 @@ figures) in its own module:
   statistics :mod:`.claims_stats`, report :mod:`.paper_study_report`, README block
   :mod:`.claims_readme`);
 * ``"baselines"`` (:mod:`.baselines_study`): the UKF posterior against HNN and one-step least
-  squares.
+  squares;
+* ``"sbc"`` (:mod:`.sbc`, report :mod:`.sbc_report`): simulation-based calibration of MAP +
+  DRAM on data simulated from the model itself.
 
 A new study is a module here that defines ``EXPERIMENT = Experiment(...)`` (without
 registering it), added to :data:`STUDIES` below, the one list of the studies; its command, if
@@ -21,13 +23,13 @@ any, goes in :mod:`symplid.cli` under ``symplid study``.
 from __future__ import annotations
 
 from symplid.registry import Registry
-from symplid.studies import baselines_study, paper
+from symplid.studies import baselines_study, paper, sbc
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 
-__all__ = ["STUDIES", "baselines_study", "paper", "register_studies"]
+__all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc"]
 
 #: Every study's experiment, in the order ``symplid sweep`` lists them.
-STUDIES: tuple[Experiment, ...] = (paper.EXPERIMENT, baselines_study.EXPERIMENT)
+STUDIES: tuple[Experiment, ...] = (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT)
 
 
 def register_studies(registry: Registry[Experiment] | None = None) -> None:

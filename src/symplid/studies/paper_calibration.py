@@ -111,7 +111,11 @@ def calibrated_params(table: Any) -> list[str]:
 
 
 def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
-    """Coverage and rank uniformity over the ok rows of one setting and propagator.
+    """Coverage and rank uniformity over the ok, converged rows of one setting and propagator.
+
+    A row whose ``rhat_max`` exceeds :data:`RHAT_FAILED` is left out and reported apart
+    (``"not_converged"``: its count, seeds and R-hat), so that a sampler failure does not
+    count as a miss or a hit of the posterior.
 
     ``rows``: a results table with the ``calibration.<param>.covered`` and ``.rank`` columns
     of :func:`cell_calibration` (flattened by the sweep). Rows without them (cells run before
@@ -120,6 +124,7 @@ def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
     import pandas as pd
 
     ok = rows[rows["status"] == "ok"] if "status" in rows else rows
+    ok, failed = _split_converged(ok)
     num_draws = RANK_DRAWS
     if f"{_PREFIX}rank_draws" in ok and ok[f"{_PREFIX}rank_draws"].notna().any():
         num_draws = int(ok[f"{_PREFIX}rank_draws"].dropna().iloc[0])
@@ -156,4 +161,25 @@ def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
         "below_nominal": [n for n, p in params.items() if p["below_nominal"]],
         "nominal": bool(judged) and all(p["nominal_inside"] for p in judged),
         "min_coverage": min((p["coverage"] for p in judged), default=None),
+        "not_converged": failed,
     }
+
+
+#: A cell whose chains have a larger R-hat did not converge: it is left out of the
+#: calibration and reported apart (R-hat > 1.1 is the conventional sign of chains that have
+#: not mixed; Gelman et al., BDA3, section 11.5).
+RHAT_FAILED = 1.1
+
+
+def _split_converged(ok: Any) -> tuple[Any, dict[str, Any]]:
+    """The rows whose R-hat is at most :data:`RHAT_FAILED` (or not recorded), and the count
+    and seeds of the others."""
+    if "rhat_max" not in ok:
+        return ok, {"n": 0, "seeds": []}
+    import pandas as pd
+
+    rhat = pd.to_numeric(ok["rhat_max"], errors="coerce")
+    bad = rhat > RHAT_FAILED
+    seeds = [int(v) for v in ok.loc[bad, "seed"]] if "seed" in ok else []
+    return ok[~bad], {"n": int(bad.sum()), "seeds": seeds,
+                      "rhat": [float(v) for v in rhat[bad]]}

@@ -25,6 +25,7 @@ __all__ = [
     "CELL_KEYS",
     "PAPER_MAP",
     "PAPER_MODEL",
+    "PAPER_PRIORS",
     "PAPER_SAMPLER",
     "SWEEP_METRICS",
     "cell_data",
@@ -39,6 +40,8 @@ PAPER_MODEL = {"noise": "isotropic", "standardise": "off"}
 PAPER_SAMPLER = {"variance_scale": "natural"}
 #: The paper reports no evidence: the Laplace value (no extra fits) is recorded.
 PAPER_MAP = {"evidence": "laplace"}
+#: The paper's half-normal(1) on the process variance, whatever a user's fit defaults to.
+PAPER_PRIORS = {"process_var": "variances"}
 
 
 def _mapped(tp: type, dotted: str, doc: str, **kw: Any) -> Spec:
@@ -106,6 +109,7 @@ def known_initial_state(cell: Mapping[str, Any]) -> dict[str, Any]:
         "model": dict(PAPER_MODEL),
         "sampler": dict(PAPER_SAMPLER),
         "map": dict(PAPER_MAP),
+        "priors": dict(PAPER_PRIORS),
     }
 
 

@@ -272,6 +272,13 @@ def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> l
                          f"{_pct(p['coverage'])} ({_range(p['coverage_ci'], _pct)}), "
                          f"p={_num(p['rank_p_value'])}")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    failed = [(g["label"], g.get("not_converged") or {}) for g in groups]
+    failed = [(label, f) for label, f in failed if f.get("n")]
+    if failed:
+        lines += ["", "Not converged (R-hat > 1.1), left out of this table: "
+                  + "; ".join(f"{label}: seed(s) {', '.join(map(str, f['seeds']))} (R-hat "
+                              f"{', '.join(f'{r:.2f}' for r in f['rhat'])})"
+                              for label, f in failed) + "."]
     lines += ["", *_answer_lines(claims), ""]
     for key in ("calibration_coverage", "calibration_ranks"):
         if key in study.get("figures", {}):

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from symplid.inference.diagnostics import summary as diagnostics_summary
-from symplid.inference.homotopy import filter_start
+from symplid.inference.homotopy import filter_start, half_normal_start
 from symplid.inference.map import find_map
 from symplid.inference.map_checks import MapFailedError, failure_message
 from symplid.inference.map_result import MapConvergenceWarning
@@ -31,6 +31,7 @@ from symplid.io import as_list, observation_layout
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
+from symplid.model.variance_prior import process_variance_prior
 from symplid.workflow.auto import auto_notes, resolve_noise
 from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.model_builder import build_model_family, model_family
@@ -80,17 +81,22 @@ def build_posterior(settings: Settings, obs: Observations | list[Observations],
     """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``.
 
     Several trajectories share θ; ``initial_state.x0`` is then one state for all, or one
-    after the other (K·2d numbers)."""
+    after the other (K·2d numbers). With ``priors.process_var = "log-uniform"`` the process
+    variance's prior is :func:`~symplid.model.variance_prior.process_variance_prior` of
+    ``obs``."""
 
     init = settings.initial_state
     learned = init.mode == "learned"
     x0 = np.asarray(init.x0, dtype=float) if init.x0 else None
     if x0 is not None and not isinstance(obs, Observations):
         x0 = np.resize(x0, (len(obs), model.state_dim))  # one for all, or one each
+    spec = prior_spec(settings)  # the groups' priors, and a user model's own
+    if settings.priors.process_var == "log-uniform":  # scaled to these data
+        spec = dataclasses.replace(spec, process_var=process_variance_prior(obs))
     return Posterior(
         model,
         obs,
-        prior=prior_spec(settings),  # the groups' priors, and a user model's own
+        prior=spec,
         x0=x0,
         P0=init.p0_var,
         t0=None if init.at_first_observation else init.t0,  # None: at the first observation
@@ -121,7 +127,9 @@ def find_map_for(settings: Settings, posterior) -> Any:
     A polynomial (or any family with few coefficients): bounded quasi-Newton from
     ``settings.map.num_starts`` seeded starts and the exact Hessian (without process noise,
     ``model.process_noise_per = "none"``, the first start is the MAP with process noise:
-    :func:`~symplid.inference.homotopy.filter_start`). A neural family
+    :func:`~symplid.inference.homotopy.filter_start`; with a log-uniform prior on Σ, the MAP
+    under the half-normal one: :func:`~symplid.inference.homotopy.half_normal_start`). A
+    neural family
     (:attr:`~symplid.dynamics.families.Family.neural`, e.g. ``"mlp"``): Adam then L-BFGS and
     the Gauss–Newton covariance (:func:`~symplid.inference.neural_fit.find_map_neural`),
     returned as a :class:`~symplid.inference.map_result.MapResult`.
@@ -132,6 +140,8 @@ def find_map_for(settings: Settings, posterior) -> Any:
         # without process noise: start from the filter's MAP (symplid.inference.homotopy);
         # otherwise from a user model's declared starts, if any
         init = filter_start(posterior, seed=m.seed, num_starts=m.num_starts)
+        if init is None:  # a log-uniform Σ: from the half-normal MAP (the same homotopy)
+            init = half_normal_start(posterior, seed=m.seed, num_starts=m.num_starts)
         # a failed search is raised by the caller in one line: its warnings would only repeat
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")

@@ -44,6 +44,8 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     p0_var = 1e-16
     t0 = 0.0                      # or "first": the state at the first observation time
 
+    [priors]
+    process_var = "variances"     # Σ's prior: the variances' ("log-uniform": scaled to the data)
     [priors.coefficients]         # one prior per group of θ; left out: the model family's
     family = "laplace"            #   default (polynomial: this one; mlp: normal(0, 1))
     loc = 0.0

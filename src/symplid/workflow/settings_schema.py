@@ -205,6 +205,10 @@ class InitialStateSettings:
         return float(first_observation) if self.at_first_observation else float(self.t0)
 
 
+#: What ``priors.process_var`` may name (:class:`PriorSettings`).
+PROCESS_VAR_PRIORS = ("variances", "log-uniform")
+
+
 @dataclass(frozen=True)
 class PriorSettings:
     """Priors by group of θ: the paper's Laplace(0, 10) and half-normal(1) (Section IV).
@@ -213,7 +217,9 @@ class PriorSettings:
     variance of multiplicative observation noise); ``damping`` that of the damping rate γ of a
     damped model (``model.damping = true``);
     ``initial_state`` (used when the initial state is learned) is the prior of the offset of
-    each component from its centre.
+    each component from its centre. ``process_var = "log-uniform"`` gives the process
+    variance Σ a log-uniform prior scaled to the data instead (resolved with the data by
+    :func:`symplid.workflow.fit.build_posterior`; see :mod:`symplid.model.variance_prior`).
     """
 
     coefficients: Prior = field(default_factory=lambda: Laplace(0.0, 10.0))
@@ -224,6 +230,14 @@ class PriorSettings:
     """Prior of a learned initial state's offset from its centre (the first observation)."""
     damping: Prior = field(default_factory=lambda: HalfNormal(1.0))
     """Prior of the damping rate γ (bounded below by 0 whatever its prior)."""
+    process_var: str = setting(
+        "variances", choices=PROCESS_VAR_PRIORS,
+        doc=(
+            "Prior of the process variance Σ: ``\"variances\"``, the ``variances`` prior (the "
+            "paper's half-normal); ``\"log-uniform\"``, log-uniform from b·1e-8 to b, b the "
+            "data's variance scale (:mod:`symplid.model.variance_prior`)."
+        ),
+    )
 
     def prior_spec(self, learned_initial_state: bool) -> PriorSpec:
         """The :class:`~symplid.model.priors.PriorSpec` of these groups for the posterior."""

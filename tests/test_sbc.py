@@ -1,0 +1,129 @@
+"""Simulation-based calibration: the rank statistics on cases with known answers, the study's
+simulator, and a tiny ``symplid study sbc`` end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import symplid  # noqa: F401  (float64)
+from symplid.model.simulate import true_trajectory
+from symplid.studies.claims_stats import RANK_DRAWS, rank_uniformity, truth_rank
+from symplid.studies.sbc import PRIORS, X0, draw_truth, sbc_spec, simulate_model
+from symplid.studies.sbc_report import ecdf_band, ecdf_inside
+
+
+def _conjugate_ranks(n: int, seed: int, shift: float = 0.0, scale: float = 1.0) -> np.ndarray:
+    """Ranks of θ̃ ~ N(0, 1) among draws from the exact posterior of y ~ N(θ̃, 0.5²)
+    (N(0.8·y, 0.2), Gaussian conjugacy), the posterior moved by ``shift`` posterior sds and
+    its sd scaled by ``scale`` (0, 1: the exact posterior)."""
+    rng = np.random.default_rng(seed)
+    ranks = np.empty(n, dtype=int)
+    for i in range(n):
+        theta = rng.standard_normal()
+        y = theta + 0.5 * rng.standard_normal()
+        mean, sd = 0.8 * y, np.sqrt(0.2)
+        draws = mean + shift * sd + scale * sd * rng.standard_normal(RANK_DRAWS)
+        ranks[i] = truth_rank(draws, theta, RANK_DRAWS)
+    return ranks
+
+
+def test_exact_posterior_gives_uniform_ranks():
+    ranks = _conjugate_ranks(400, seed=1)
+    assert rank_uniformity(ranks, RANK_DRAWS)["p_value"] > 0.01
+    assert ecdf_inside(ranks)
+
+
+@pytest.mark.parametrize(("shift", "scale"), [(0.5, 1.0), (0.0, 0.6), (0.0, 1.6)],
+                         ids=["biased", "overconfident", "underconfident"])
+def test_wrong_posteriors_give_ranks_the_tests_reject(shift, scale):
+    ranks = _conjugate_ranks(400, seed=2, shift=shift, scale=scale)
+    assert rank_uniformity(ranks, RANK_DRAWS)["p_value"] < 1e-3
+    assert not ecdf_inside(ranks)
+
+
+def test_ecdf_band_holds_uniform_ranks_95_percent_of_the_time():
+    """The band is simultaneous: over independent sets of uniform ranks (not those it was
+    simulated from), about 95 % lie wholly inside it; the pointwise binomial band would hold
+    far fewer."""
+    n, sets = 100, 600
+    _, lower, upper = ecdf_band(n)
+    rng = np.random.default_rng(123)
+    inside = 0
+    for _ in range(sets):
+        r = rng.integers(0, RANK_DRAWS + 1, n)
+        ecdf = np.cumsum(np.bincount(r, minlength=RANK_DRAWS + 1))[:RANK_DRAWS] / n
+        inside += bool(np.all((ecdf >= lower - 1e-12) & (ecdf <= upper + 1e-12)))
+    assert 0.92 <= inside / sets <= 0.98
+
+
+def test_truth_is_drawn_from_the_fit_prior():
+    """Each parameter of θ̃ over replications follows its prior (KS against scipy.stats)."""
+    from scipy import stats
+
+    from symplid.model.priors import LogNormal, LogUniform, Normal
+
+    def reference(prior):
+        if isinstance(prior, Normal):
+            return stats.norm(prior.loc, prior.scale)
+        if isinstance(prior, LogUniform):
+            return stats.loguniform(prior.low, prior.high)
+        assert isinstance(prior, LogNormal)
+        return stats.lognorm(s=prior.sigma, scale=np.exp(prior.mu))
+
+    draws = [draw_truth(s) for s in range(300)]
+    for name, prior in PRIORS.items():
+        values = [d[name] for d in draws]
+        assert stats.kstest(values, reference(prior).cdf).pvalue > 1e-3, name
+    assert "process_var" not in draw_truth(0, "none")
+
+
+def test_simulator_without_noise_is_the_models_path():
+    """With Σ = Γ = 0 the gap-by-gap simulation is the propagator's path over all gaps at once
+    (the same leapfrog at the same dt); with Σ > 0 the increments x_k − Ψ(x_{k−1}) have
+    variance Σ."""
+    cell = {"seed": 4, "num_obs": 30, "obs_interval": 1.0, "dt": 0.1}
+    truth = {"c[q1]": 0.01, "c[q1^2]": 0.5, "c[q1^3]": -0.02, "c[q1^4]": 0.1, "obs_var": 0.0}
+    obs = simulate_model(truth, cell)
+    from symplid.dynamics.potentials import Polynomial
+
+    whole = true_trajectory(Polynomial(1, 4), [0.01, 0.5, -0.02, 0.1], X0, obs.times, dt=0.1)
+    np.testing.assert_allclose(obs.values, whole, rtol=0, atol=1e-12)
+    noisy = simulate_model({**truth, "process_var": 1e-4}, {**cell, "num_obs": 400})
+    steps = []
+    for k in range(1, 400):
+        t0, t1 = noisy.times[k - 1], noisy.times[k]
+        ahead = true_trajectory(Polynomial(1, 4), [0.01, 0.5, -0.02, 0.1], noisy.values[k - 1],
+                                [t1], dt=0.1, t0=t0)[0]
+        steps.append(noisy.values[k] - ahead)
+    var = np.var(np.asarray(steps), axis=0)
+    assert np.all(np.abs(var / 1e-4 - 1) < 0.25)
+
+
+def test_spec_rejects_bad_options():
+    with pytest.raises(ValueError, match="replications"):
+        sbc_spec(0)
+    with pytest.raises(ValueError, match="likelihoods"):
+        sbc_spec(2, ("step",))
+    assert len(sbc_spec(3).cells) == 6
+
+
+@pytest.mark.slow
+def test_sbc_study_end_to_end(tmp_path):
+    from click.testing import CliRunner
+
+    from symplid.cli import main
+
+    out = tmp_path / "sbc"
+    result = CliRunner().invoke(main, ["study", "sbc", "--out", str(out), "--replications", "2",
+                                       "--likelihoods", "gap", "--budget", "quick",
+                                       "--workers", "1", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "sbc.json").read_text())["summary"]
+    assert summary["gap"]["replications"] == 2
+    assert set(summary["gap"]["params"]) == set(PRIORS)
+    assert (out / "report.md").exists()
+    bad = CliRunner().invoke(main, ["study", "sbc", "--out", str(out), "--likelihoods", "step"])
+    assert bad.exit_code == 2 and "likelihoods" in bad.output
