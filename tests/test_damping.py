@@ -38,7 +38,7 @@ from symplid.dynamics.trajectory import solve
 from symplid.inference.forecast import forecast_with_noise
 from symplid.inference.predict import forecast_from_filter, predict_trajectory
 from symplid.model import kernel
-from symplid.model.priors import PriorSpec
+from symplid.model.prior_spec import PriorSpec
 from symplid.model.simulate import simulate
 from symplid.studies.paper import ApproachResult, analyse_approach, cell_data, truth_path
 from symplid.workflow.compare import comparison_table, fit_candidates

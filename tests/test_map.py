@@ -18,7 +18,8 @@ import symplid
 from reference_filters import numpy_leapfrog, numpy_substeps, polynomial_gradient
 from symplid.inference.map import BoundWarning, MapResult, default_start, find_map
 from symplid.model.posterior import Posterior
-from symplid.model.priors import PriorSpec, Uniform
+from symplid.model.prior_spec import PriorSpec
+from symplid.model.priors import Uniform
 
 
 # ----------------------------------------------------------------------------- posterior-likes

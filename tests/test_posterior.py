@@ -21,7 +21,8 @@ import symplid
 from reference_filters import kalman_loglik, numpy_leapfrog, numpy_substeps, polynomial_gradient
 from symplid.model.data import DataError
 from symplid.model.posterior import UNOBSERVED_SCALE_FACTOR, Posterior
-from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal, PriorSpec, Uniform
+from symplid.model.prior_spec import PriorSpec
+from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal, Uniform
 
 JITTER = 1e-12  # the model's default, added to every predicted covariance
 

@@ -11,16 +11,15 @@ import pytest
 from scipy import stats
 
 import symplid  # noqa: F401  (float64)
+from symplid.model.prior_spec import PriorSpec, log_density_sum
 from symplid.model.priors import (
     HalfNormal,
     Laplace,
     LogNormal,
     LogUniform,
     Normal,
-    PriorSpec,
     Uniform,
     as_prior,
-    log_density_sum,
     parse_prior,
     prior_from_dict,
 )

@@ -8,7 +8,8 @@ import pytest
 import symplid  # noqa: F401  (float64)
 from symplid.inference.homotopy import half_normal_start
 from symplid.model.data import Observations
-from symplid.model.priors import LogUniform, PriorSpec
+from symplid.model.prior_spec import PriorSpec
+from symplid.model.priors import LogUniform
 from symplid.model.simulate import simulate
 from symplid.model.variance_prior import data_variance_scale, process_variance_prior
 

@@ -6,6 +6,7 @@ per parameter. The families are the registry :data:`PRIOR_FAMILIES` (the setting
 ``family`` names); a new family is a frozen dataclass subclass of :class:`Prior`, registered.
 """
 
+from symplid.model.prior_spec import PriorSpec
 from symplid.model.priors import (
     PRIOR_FAMILIES,
     HalfNormal,
@@ -13,7 +14,6 @@ from symplid.model.priors import (
     LogNormal,
     Normal,
     Prior,
-    PriorSpec,
     Uniform,
     as_prior,
     parse_prior,

@@ -52,7 +52,7 @@ class Block:
     name
         The block's name (``coefficients``, ``damping``, ``process_var``, ``x0[0]``, …).
     group
-        The prior group of its entries (:class:`~symplid.model.priors.PriorSpec`).
+        The prior group of its entries (:class:`~symplid.model.prior_spec.PriorSpec`).
     entries
         The names of its entries, in order.
     """

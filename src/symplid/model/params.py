@@ -36,7 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.model.priors import Prior, log_density_sum
+from symplid.model.prior_spec import log_density_sum
+from symplid.model.priors import Prior
 
 Array = jax.Array
 

@@ -80,7 +80,8 @@ from symplid.model.initial_state import (
 )
 from symplid.model.layout import Block, ParameterLayout
 from symplid.model.params import ParameterSpace
-from symplid.model.priors import Prior, PriorSpec
+from symplid.model.prior_spec import PriorSpec
+from symplid.model.priors import Prior
 
 Array = jax.Array
 
@@ -108,8 +109,8 @@ class Posterior:
     data
         One :class:`~symplid.model.data.Observations` or a list of them (trajectories sharing θ).
     prior
-        A :class:`~symplid.model.priors.PriorSpec`, a mapping read by ``PriorSpec.from_dict``, or
-        None for the paper's Laplace(0, 10) and HalfNormal(1).
+        A :class:`~symplid.model.prior_spec.PriorSpec`, a mapping read by
+        ``PriorSpec.from_dict``, or None for the paper's Laplace(0, 10) and HalfNormal(1).
     x0
         The known initial state, shape ``(2d,)``; for several trajectories a list of them or
         an array ``(K, 2d)``. With ``learn_initial_state=True`` it is optional and is the centre

@@ -44,7 +44,8 @@ from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.samplers import draws_array, sample
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
-from symplid.model.priors import LogNormal, LogUniform, Normal, Prior, PriorSpec
+from symplid.model.prior_spec import PriorSpec
+from symplid.model.priors import LogNormal, LogUniform, Normal, Prior
 from symplid.model.simulate import true_trajectory
 from symplid.studies.claims_stats import RANK_DRAWS, truth_rank
 from symplid.workflow.experiment import Experiment

@@ -99,7 +99,7 @@ the fields of the family's class: ``laplace`` and ``normal`` (``loc``, ``scale``
 of log x; ``loc`` and ``scale`` are read as synonyms). A key that a family does not use is an
 error, so that what is written is what is used. Each group's value in :class:`PriorSettings` is
 a :class:`~symplid.model.priors.Prior`; :meth:`PriorSettings.prior_spec` turns the groups into
-the :class:`~symplid.model.priors.PriorSpec` the posterior takes.
+the :class:`~symplid.model.prior_spec.PriorSpec` the posterior takes.
 
 The key ``sampler.num_samples`` of older files (and ``--set sampler.num_samples=...``) is read
 as ``sampler.num_iterations`` with a ``FutureWarning``; files are written with the new key.

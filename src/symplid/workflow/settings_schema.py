@@ -22,7 +22,8 @@ from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
-from symplid.model.priors import HalfNormal, Laplace, Normal, Prior, PriorSpec
+from symplid.model.prior_spec import PriorSpec
+from symplid.model.priors import HalfNormal, Laplace, Normal, Prior
 from symplid.model.statespace import PROCESS_NOISE_CHOICES
 from symplid.workflow.user_parameters import (
     UserParameter,
@@ -240,7 +241,7 @@ class PriorSettings:
     )
 
     def prior_spec(self, learned_initial_state: bool) -> PriorSpec:
-        """The :class:`~symplid.model.priors.PriorSpec` of these groups for the posterior."""
+        """The :class:`~symplid.model.prior_spec.PriorSpec` of these groups for the posterior."""
         return PriorSpec(
             coefficients=self.coefficients,
             process_var=self.variances,
