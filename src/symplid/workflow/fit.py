@@ -29,9 +29,11 @@ from symplid.inference.map_checks import MapFailedError, failure_message
 from symplid.inference.map_result import MapConvergenceWarning
 from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
 from symplid.io import as_list, observation_layout
+from symplid.io.chunks import ChunkWriter
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
+from symplid.stopping import check as check_stop
 from symplid.workflow.auto import auto_notes, resolve_noise
 from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.results import RunFolder
@@ -152,9 +154,11 @@ def sample_for(
     progress_label: str | None = None,
     progress_position: int = 0,
     return_state: bool = False,
+    sink: Any = None,
 ) -> Any:
     """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``
-    (and the chains' final states with ``return_state``, see ``symplid.sample``)."""
+    (and the chains' final states with ``return_state``, see ``symplid.sample``); ``sink``
+    receives each chunk's draws (:func:`chunk_sink`)."""
 
     s = settings.sampler
     # The [sampler] section's method-specific keys go to the samplers whose settings class
@@ -179,7 +183,20 @@ def sample_for(
         progress_label=progress_label,
         progress_position=progress_position,
         return_state=return_state,
+        chunk_size=s.chunk_size,
+        sink=sink,
     )
+
+
+def chunk_sink(folder: RunFolder, first_index: int = 0, attrs: bool = True) -> ChunkWriter:
+    """The sink that streams a run's draws to ``folder`` chunk by chunk
+    (:mod:`symplid.io.chunks`), writing the draws' attributes (``sampler_attrs.json``) when
+    sampling begins (``attrs``; a continued run has them already)."""
+
+    def begin(values: dict[str, Any]) -> None:
+        folder.write_json(RunFolder.SAMPLER_ATTRS, values)
+
+    return ChunkWriter(folder.file(RunFolder.CHUNKS), first_index, begin if attrs else None)
 
 
 def fit(
@@ -247,6 +264,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     model = build_model(fit_settings, fit_obs)
     posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior)
+    check_stop()  # a safe point between the phases (symplid.stopping)
     if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map_checks)
         raise MapFailedError(failure_message(map_fit.failure))
     groups = posterior.param_groups
@@ -257,7 +275,8 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     start = time.perf_counter()
     try:
         idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
-                                       progress_label, progress_position, return_state=True)
+                                       progress_label, progress_position, return_state=True,
+                                       sink=None if folder is None else chunk_sink(folder))
     except InterruptedInBurnIn as stop:
         if folder is not None:
             save_burn_in(folder, settings, stop)

@@ -1,59 +1,95 @@
-"""Signals during a run: SIGINT, SIGTERM and SIGHUP stop a command alike, and saving is never
-cut short.
+"""Signals during a command: SIGINT, SIGTERM and SIGHUP stop it alike, at a safe point.
 
-A sampler stopped by ``KeyboardInterrupt`` keeps the draws made so far
-(:func:`symplid.inference.samplers.run.run_chains`). Three things could still lose them: a
-SIGTERM (a batch system ending the job) or a SIGHUP (a closed terminal or ssh session), whose
-default actions kill the process at once, and a second signal while those draws are being
-written. :func:`terminate_as_interrupt` turns all three into ``KeyboardInterrupt`` and records
-each, so that a signal a library swallowed (raised inside one of its callbacks) still ends the
-command with 128 + its number; :func:`deferred_interrupts` holds them while the run folder's
-files are written and reports afterwards which arrived. A signal ignored when the block starts
+One policy for every long command (``fit``, ``reproduce``, ``predict``, ``report``,
+``compare``, ``sweep``, the studies): :func:`supervised` installs handlers that only **record**
+the signal (:func:`symplid.stopping.request`) and return. Nothing is raised inside a handler,
+so a signal can no longer land inside a library's callback (JAX's memory callback swallowed
+it), inside SciPy's optimiser or a compilation (where it ended in a segmentation fault), or
+between two compiled sampling blocks (where it lost the draws). The code asks at safe points
+(:mod:`symplid.stopping`): the sampler before each compiled chunk, the optimisers at each
+evaluation, the workflow between phases and between a sweep's cells. There it stops, keeps
+what is finished (every finished chunk of draws is already on disk), marks the run and exits
+with 128 + the signal's number (130, 143, 129) after one line on stderr.
+
+A compilation or a long C call cannot be cut short: the stop comes at the next safe point. A
+second signal while stopping changes nothing (still one line, the draws kept); a **third** of
+the same kind ends the process at once (one line; the finished chunks are on disk and
+``symplid fit --resume`` continues from them). A signal ignored when the block starts
 (``nohup`` ignores SIGHUP; a background job SIGINT) stays ignored.
 
-Signal handlers can be set only in the main thread; elsewhere (a sweep worker thread) both
-context managers do nothing.
+:func:`deferred_interrupts` holds the same signals while a run's files are written, for the
+library used without the command line (where Python's own Ctrl-C raises anywhere); inside
+:func:`supervised` it has nothing to do. Signal handlers can be set only in the main thread;
+elsewhere (a sweep worker thread) both context managers do nothing.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["deferred_interrupts", "terminate_as_interrupt"]
+from symplid import stopping
+
+__all__ = ["FORCE_AFTER", "deferred_interrupts", "supervised"]
 
 _HELD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+#: Signals of one kind after which a supervised command ends at once.
+FORCE_AFTER = 3
+
+_FORCED_LINE = (b"symplid: interrupted three times: stopped at once (the finished chunks of "
+                b"draws are kept; continue with 'symplid fit --resume')\n")
+
+_active = threading.Event()
 
 
 def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-@contextmanager
-def terminate_as_interrupt() -> Iterator[list[int]]:
-    """Within the block, SIGINT, SIGTERM and SIGHUP raise ``KeyboardInterrupt`` as Ctrl-C does.
+def _install(handler) -> dict[int, object]:
+    return {sig: signal.signal(sig, handler) for sig in _HELD
+            if signal.getsignal(sig) is not signal.SIG_IGN}
 
-    Yields a list that receives the numbers of the signals handled this way (so a caller can
-    exit with 128 + the signal's number, and can tell a signal a library swallowed).
+
+def _restore(old: dict[int, object]) -> None:
+    for sig, previous in old.items():
+        signal.signal(sig, previous)
+
+
+@contextmanager
+def supervised() -> Iterator[None]:
+    """Within the block, SIGINT, SIGTERM and SIGHUP only request a stop
+    (:mod:`symplid.stopping`), obeyed at the next safe point; the third signal of one kind
+    ends the process at once with 128 + its number.
+
+    The requests of an earlier block are forgotten on entry. After the block,
+    :func:`symplid.stopping.requested` tells whether (and by which signal) a stop was asked.
     """
-    received: list[int] = []
+    stopping.clear()
     if not _main_thread():
-        yield received
+        yield
         return
+    counts: Counter[int] = Counter()
 
     def handler(signum: int, frame: object) -> None:
-        received.append(signum)
-        raise KeyboardInterrupt(f"signal {signum}")
+        stopping.request(signum)
+        counts[signum] += 1
+        if counts[signum] >= FORCE_AFTER:  # the user insists: finished chunks are on disk
+            os.write(2, _FORCED_LINE)
+            os._exit(128 + signum)
 
-    old = {sig: signal.signal(sig, handler) for sig in _HELD
-           if signal.getsignal(sig) is not signal.SIG_IGN}
+    old = _install(handler)
+    _active.set()
     try:
-        yield received
+        yield
     finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
+        _active.clear()
+        _restore(old)
 
 
 @contextmanager
@@ -63,19 +99,18 @@ def deferred_interrupts() -> Iterator[list[int]]:
 
     Yields a list that receives the numbers of the signals that arrived; they are not
     re-raised afterwards: the caller decides (a run whose files are all written is kept).
+    Inside :func:`supervised` the signals are held already and are recorded there.
     """
     received: list[int] = []
-    if not _main_thread():
+    if not _main_thread() or _active.is_set():
         yield received
         return
 
     def handler(signum: int, frame: object) -> None:
         received.append(signum)
 
-    old = {sig: signal.signal(sig, handler) for sig in _HELD
-           if signal.getsignal(sig) is not signal.SIG_IGN}
+    old = _install(handler)
     try:
         yield received
     finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
+        _restore(old)

@@ -16,19 +16,33 @@ stays the run's).
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from symplid.inference.map_result import MapResult
 from symplid.inference.samplers import InterruptedInBurnIn
-from symplid.inference.samplers.resume import resume_sampling
+from symplid.inference.samplers.resume import inference_data, resume_sampling
+from symplid.io.chunks import read_chunks, remove_chunks
 from symplid.io.runfiles import flatten
-from symplid.workflow.fit import FitOutcome, build_model, build_posterior, save_burn_in, save_run
+from symplid.workflow.fit import (
+    FitOutcome,
+    build_model,
+    build_posterior,
+    chunk_sink,
+    save_burn_in,
+    save_run,
+)
 from symplid.workflow.results import RunFolder, RunFolderError
 from symplid.workflow.settings import Settings, SettingsError, settings_to_dict
 
-__all__ = ["check_same_settings", "resume_fit"]
+__all__ = ["ChunkIgnoredWarning", "check_same_settings", "resume_fit"]
+
+
+class ChunkIgnoredWarning(UserWarning):
+    """A chunk file of draws could not continue the run (damaged, out of line) and was
+    ignored; the run continues from the chunk before it."""
 
 
 def check_same_settings(run: Settings, given: Settings, where: str | Path) -> None:
@@ -83,24 +97,17 @@ def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
             f"{out}: this run was fitted in standardised coordinates (model.standardise), "
             "which --resume does not continue yet; fit again with --overwrite"
         )
-    arrays = folder.read_npz(RunFolder.SAMPLER_STATE)
-    if "iterations_done" not in arrays:
-        raise RunFolderError(f"{folder.file(RunFolder.SAMPLER_STATE)}: not a sampler state "
-                             f"(no iterations_done); {folder.remedy}")
+    idata, arrays, sink = _where_sampling_stopped(folder)
     if status is not None:
         status(f"resuming {out} at iteration {int(arrays['iterations_done']):,} of "
                f"{settings.sampler.num_iterations:,} per chain (compiling first)...")
     model = build_model(settings, obs)
     posterior = build_posterior(settings, obs, model)
     map_result = MapResult.from_dict(folder.read_map())
-    if folder.file(RunFolder.POSTERIOR).exists():
-        idata = folder.read_posterior()
-    else:  # stopped in the burn-in: no draws yet, their attributes only
-        idata = folder.read_json(RunFolder.SAMPLER_ATTRS)
     start = time.perf_counter()
     try:
         idata, checkpoint = resume_sampling(posterior, idata, arrays, progress=progress,
-                                            return_state=True)
+                                            return_state=True, sink=sink)
     except InterruptedInBurnIn as stop:
         save_burn_in(folder, settings, stop)
         raise
@@ -109,3 +116,35 @@ def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
     timings["resumed"] = int(timings.get("resumed", 0)) + 1
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings)
     return save_run(folder, outcome, checkpoint, warn)
+
+
+def _where_sampling_stopped(folder: RunFolder) -> tuple[Any, dict[str, Any], Any]:
+    """The draws so far (InferenceData, or their attributes alone before any draw), the
+    chains' state arrays and the sink that goes on writing chunks.
+
+    From the chunk files when there are (:mod:`symplid.io.chunks`: a run stopped, or killed
+    outright, while sampling; a damaged last chunk is named in one warning line and written
+    again); else from ``posterior.nc`` (or ``sampler_attrs.json``) and ``sampler_state.npz``,
+    as a run stopped before its first chunk (or by an older version) left them.
+    """
+    chunks = read_chunks(folder.file(RunFolder.CHUNKS))
+    if chunks.count:
+        if chunks.note:
+            warnings.warn(chunks.note, ChunkIgnoredWarning, stacklevel=3)
+        remove_chunks(folder.file(RunFolder.CHUNKS), keep=chunks.count)  # written again
+        attrs = folder.read_json(RunFolder.SAMPLER_ATTRS)
+        attrs.update(iterations=chunks.iterations_done, interrupted=1,
+                     sampling_seconds=chunks.elapsed)
+        idata = inference_data(chunks.draws, attrs) if chunks.draws else attrs
+        return idata, chunks.state, chunk_sink(folder, chunks.count, attrs=False)
+    arrays = folder.read_npz(RunFolder.SAMPLER_STATE)
+    if "iterations_done" not in arrays:
+        raise RunFolderError(f"{folder.file(RunFolder.SAMPLER_STATE)}: not a sampler state "
+                             f"(no iterations_done); {folder.remedy}")
+    if folder.file(RunFolder.POSTERIOR).exists():
+        idata = folder.read_posterior()
+    else:  # stopped in the burn-in: no draws yet, their attributes only
+        idata = folder.read_json(RunFolder.SAMPLER_ATTRS)
+    # Chunks go on from iteration 0 only (a state from an older version: none streamed).
+    fresh = int(arrays["iterations_done"]) == 0
+    return idata, arrays, chunk_sink(folder, 0, attrs=False) if fresh else None
