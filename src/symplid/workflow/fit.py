@@ -213,10 +213,13 @@ def fit(
 ) -> FitOutcome:
     """The whole fit: MAP, Hessian, sampler and the run folder (when ``out`` is given).
 
-    The run folder is marked incomplete until every file is written. A sampler interrupted
-    with Ctrl-C (or SIGTERM, see :mod:`symplid.workflow.interrupts`) keeps the draws it made:
-    they are saved, with SIGINT and SIGTERM held while the files are written, and the folder
-    is marked ``interrupted`` (readers refuse it with a message that says what to do). A
+    The run folder is marked incomplete until every file is written; the sampler streams each
+    chunk's draws and the chains' state to ``draws/`` as it goes (:func:`chunk_sink`), so a
+    killed run keeps them. A sampler stopped by a signal (:mod:`symplid.workflow.interrupts`:
+    at its next chunk) or by Ctrl-C keeps the draws it made: they are saved, with the signals
+    held while the files are written, and the folder is marked ``interrupted`` (readers refuse
+    it with a message that says what to do); a stop asked for during the MAP search comes at
+    its next evaluation (:mod:`symplid.stopping`). A
     failure or an interruption before sampling records its reason in the marker; a MAP
     search that failed (:mod:`symplid.inference.map_checks`) raises
     :class:`~symplid.inference.map_checks.MapFailedError` before any sampling. ``warn``

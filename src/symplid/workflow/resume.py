@@ -1,8 +1,10 @@
 """Continue an interrupted run folder (``symplid fit --resume``).
 
-A run whose sampler was stopped by Ctrl-C or SIGTERM is marked ``interrupted`` and keeps its
-settings, data, MAP, draws and the chains' states (``sampler_state.npz``, see
-:mod:`symplid.workflow.results`). :func:`resume_fit` reloads them, runs the iterations left
+A run whose sampler was stopped by Ctrl-C, SIGTERM or SIGHUP is marked ``interrupted`` and
+keeps its settings, data, MAP, draws and the chains' states (``sampler_state.npz``, see
+:mod:`symplid.workflow.results`); a run killed outright keeps its draws and states in the
+chunk files of ``draws/`` (:mod:`symplid.io.chunks`), which are preferred when present.
+:func:`resume_fit` reloads them, runs the iterations left
 (:func:`symplid.inference.samplers.resume.resume_sampling`: on the whole run's key and chunk
 grid, so the draws are those an uninterrupted run with the same seed makes) and saves the run
 as :func:`symplid.workflow.fit.fit` does: a finished run, or interrupted again.
