@@ -117,3 +117,57 @@ def test_a_second_ctrl_c_while_stopping_keeps_the_draws(data_csv, tmp_path):
         stdout, stderr = _stop(fit, [(0.0, signal.SIGINT), (gap, signal.SIGINT)])
         _check_stopped(fit, stdout, stderr, out, signal.SIGINT, sampling=True)
         assert "interrupted after" in stdout  # the draws were saved, not dropped
+
+
+# ----------------------------------------------------------------------------- the mechanism
+def test_a_signal_under_supervision_only_requests_a_stop():
+    from symplid import stopping
+    from symplid.workflow.interrupts import supervised
+
+    before = signal.getsignal(signal.SIGTERM)
+    with supervised():
+        os.kill(os.getpid(), signal.SIGTERM)  # the handler runs at the next bytecode
+        time.sleep(0.01)
+        assert stopping.requested() == signal.SIGTERM  # recorded; nothing was raised
+        with pytest.raises(stopping.StopRequested) as stop:
+            stopping.check()  # raised by the safe point, not by the handler
+        assert stop.value.signum == signal.SIGTERM
+    assert stopping.requested() is None and signal.getsignal(signal.SIGTERM) is before
+
+
+def test_the_third_signal_of_a_kind_ends_the_process_at_once_in_one_line():
+    script = ("import os, signal, time\n"
+              "from symplid.workflow.interrupts import supervised\n"
+              "with supervised():\n"
+              "    for _ in range(3):\n"
+              "        os.kill(os.getpid(), signal.SIGTERM)\n"
+              "        time.sleep(0.05)\n"
+              "    time.sleep(5)\n"
+              "print('not stopped')\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 128 + signal.SIGTERM and done.stdout == "", done
+    assert len(done.stderr.splitlines()) == 1 and "--resume" in done.stderr, done.stderr
+
+
+def test_the_sampler_stops_before_the_next_chunk_with_the_draws_of_the_whole_run():
+    from sampler_targets import Gaussian2D
+    from symplid import stopping
+    from symplid.inference.samplers import sample
+
+    target = Gaussian2D()
+    budget = {"num_draws": 200, "num_chains": 2, "burn_in": 40, "chunk_size": 30,
+              "progress": False, "init": target.map_result()}
+    full = sample(target, "dram", **budget)
+
+    def ask_to_stop(report):  # as a signal's handler would, after the third chunk
+        if report.chunk == 2:
+            stopping.request(signal.SIGTERM)
+
+    try:
+        with pytest.warns(UserWarning, match="interrupted after 90 of 240"):
+            part = sample(target, "dram", callback=ask_to_stop, **budget)
+    finally:
+        stopping.clear()
+    assert part.attrs["interrupted"] == 1 and part.attrs["iterations"] == 90
+    np.testing.assert_array_equal(draws_array(part), draws_array(full)[:, :50])

@@ -57,11 +57,14 @@ class ChunkWriter:
     begin
         Called with the draws' attributes when the run starts (:func:`~symplid.sample`'s
         ``sink.begin``), e.g. to save them next to the chunks.
+    elapsed
+        Sampling seconds before this writer's first chunk (a continued run's).
     """
 
     def __init__(self, folder: str | Path, first_index: int = 0,
-                 begin: Any = None) -> None:
+                 begin: Any = None, elapsed: float = 0.0) -> None:
         self.folder, self.index, self._begin = Path(folder), int(first_index), begin
+        self.elapsed = float(elapsed)
 
     def begin(self, attrs: Mapping[str, Any]) -> None:
         if self._begin is not None:
@@ -75,7 +78,7 @@ class ChunkWriter:
         arrays = {f"{_DRAW}{name}": np.asarray(value) for name, value in draws.items()}
         arrays.update(checkpoint_arrays(SamplerCheckpoint(states, int(done))))
         arrays.update(start=np.asarray(int(start)), done=np.asarray(int(done)),
-                      elapsed=np.asarray(float(elapsed)))
+                      elapsed=np.asarray(self.elapsed + float(elapsed)))
         write_with(chunk_path(self.folder, self.index),
                    lambda buffer: np.savez(buffer, **arrays))
         self.index += 1

@@ -188,15 +188,18 @@ def sample_for(
     )
 
 
-def chunk_sink(folder: RunFolder, first_index: int = 0, attrs: bool = True) -> ChunkWriter:
+def chunk_sink(folder: RunFolder, first_index: int = 0, attrs: bool = True,
+               elapsed: float = 0.0) -> ChunkWriter:
     """The sink that streams a run's draws to ``folder`` chunk by chunk
     (:mod:`symplid.io.chunks`), writing the draws' attributes (``sampler_attrs.json``) when
-    sampling begins (``attrs``; a continued run has them already)."""
+    sampling begins (``attrs``; a continued run has them already, and ``elapsed`` seconds
+    of sampling)."""
 
     def begin(values: dict[str, Any]) -> None:
         folder.write_json(RunFolder.SAMPLER_ATTRS, values)
 
-    return ChunkWriter(folder.file(RunFolder.CHUNKS), first_index, begin if attrs else None)
+    return ChunkWriter(folder.file(RunFolder.CHUNKS), first_index, begin if attrs else None,
+                       elapsed)
 
 
 def fit(

@@ -21,20 +21,30 @@ the same kind ends the process at once (one line; the finished chunks are on dis
 library used without the command line (where Python's own Ctrl-C raises anywhere); inside
 :func:`supervised` it has nothing to do. Signal handlers can be set only in the main thread;
 elsewhere (a sweep worker thread) both context managers do nothing.
+
+Worker processes (``symplid reproduce`` fits its two approaches in two) follow the same policy:
+:func:`stop_on_signals` is their initializer, and the parent waits for them with
+:func:`results_or_stop`, which passes a stop on to them (a terminal's Ctrl-C reaches them
+anyway; a SIGTERM or SIGHUP only the parent), lets them keep what they finished and then
+stops itself.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
+import multiprocessing
 import os
 import signal
 import threading
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import Any
 
 from symplid import stopping
 
-__all__ = ["FORCE_AFTER", "deferred_interrupts", "supervised"]
+__all__ = ["FORCE_AFTER", "deferred_interrupts", "results_or_stop", "stop_on_signals",
+           "supervised"]
 
 _HELD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -67,7 +77,7 @@ def supervised() -> Iterator[None]:
     (:mod:`symplid.stopping`), obeyed at the next safe point; the third signal of one kind
     ends the process at once with 128 + its number.
 
-    The requests of an earlier block are forgotten on entry. After the block,
+    Requests are forgotten on entry and on exit: inside the block,
     :func:`symplid.stopping.requested` tells whether (and by which signal) a stop was asked.
     """
     stopping.clear()
@@ -90,6 +100,7 @@ def supervised() -> Iterator[None]:
     finally:
         _active.clear()
         _restore(old)
+        stopping.clear()  # the process may go on (a test runner, a notebook): no stale stop
 
 
 @contextmanager
@@ -114,3 +125,27 @@ def deferred_interrupts() -> Iterator[list[int]]:
         yield received
     finally:
         _restore(old)
+
+
+def stop_on_signals() -> None:
+    """For the life of this process, SIGINT, SIGTERM and SIGHUP request a stop
+    (:mod:`symplid.stopping`) instead of raising: the initializer of a worker process."""
+    stopping.clear()
+    if _main_thread():
+        _install(lambda signum, frame: stopping.request(signum))
+
+
+def results_or_stop(futures: Sequence[concurrent.futures.Future]) -> list[Any]:
+    """The futures' results, in order; a stop requested while waiting is passed on to this
+    process's worker processes (which stop at their safe points and keep what they made),
+    and once they have ended, raised here (:class:`symplid.stopping.StopRequested`)."""
+    pending, passed_on = set(futures), False
+    while pending:
+        _, pending = concurrent.futures.wait(pending, timeout=0.1)
+        signum = stopping.requested()
+        if signum is not None and not passed_on:
+            for child in multiprocessing.active_children():
+                os.kill(child.pid, signum)
+            passed_on = True
+    stopping.check()  # the workers' own stops come back as their results or exceptions
+    return [future.result() for future in futures]

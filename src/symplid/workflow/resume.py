@@ -138,7 +138,8 @@ def _where_sampling_stopped(folder: RunFolder) -> tuple[Any, dict[str, Any], Any
         attrs.update(iterations=chunks.iterations_done, interrupted=1,
                      sampling_seconds=chunks.elapsed)
         idata = inference_data(chunks.draws, attrs) if chunks.draws else attrs
-        return idata, chunks.state, chunk_sink(folder, chunks.count, attrs=False)
+        return idata, chunks.state, chunk_sink(folder, chunks.count, attrs=False,
+                                               elapsed=chunks.elapsed)
     arrays = folder.read_npz(RunFolder.SAMPLER_STATE)
     if "iterations_done" not in arrays:
         raise RunFolderError(f"{folder.file(RunFolder.SAMPLER_STATE)}: not a sampler state "
@@ -149,4 +150,4 @@ def _where_sampling_stopped(folder: RunFolder) -> tuple[Any, dict[str, Any], Any
         idata = folder.read_json(RunFolder.SAMPLER_ATTRS)
     # Chunks go on from iteration 0 only (a state from an older version: none streamed).
     fresh = int(arrays["iterations_done"]) == 0
-    return idata, arrays, chunk_sink(folder, 0, attrs=False) if fresh else None
+    return idata, arrays, chunk_sink(folder, attrs=False) if fresh else None
