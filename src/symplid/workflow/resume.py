@@ -130,10 +130,10 @@ def _where_sampling_stopped(folder: RunFolder) -> tuple[Any, dict[str, Any], Any
     as a run stopped before its first chunk (or by an older version) left them.
     """
     chunks = read_chunks(folder.file(RunFolder.CHUNKS))
+    if chunks.note:
+        warnings.warn(chunks.note, ChunkIgnoredWarning, stacklevel=3)
+        remove_chunks(folder.file(RunFolder.CHUNKS), keep=chunks.count)  # made again
     if chunks.count:
-        if chunks.note:
-            warnings.warn(chunks.note, ChunkIgnoredWarning, stacklevel=3)
-        remove_chunks(folder.file(RunFolder.CHUNKS), keep=chunks.count)  # written again
         attrs = folder.read_json(RunFolder.SAMPLER_ATTRS)
         attrs.update(iterations=chunks.iterations_done, interrupted=1,
                      sampling_seconds=chunks.elapsed)

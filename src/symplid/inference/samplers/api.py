@@ -198,9 +198,10 @@ def sample(
         "chain_method": chain_method, "explicit_initial_positions": initial_positions is not None,
         "kernel": dataclasses.asdict(kernel_settings),
     }
-    if hasattr(sink, "begin"):  # the attributes of a run not started yet
+    if hasattr(sink, "begin"):  # the attributes of the run stopped before its first iteration
         sink.begin(_attrs(method, seed, record_settings, names, theta_map, cov_map, starts,
-                          ChainRun({}, states, 0, True, 0.0), dict(extra_attrs), init))
+                          ChainRun({}, states, 0, True, 0.0),
+                          {**extra_attrs, **kernel.final_attrs(states)}, init))
     run = run_chains(kernel.step, states, run_key, num_draws, record=kernel.record,
                      burn_in=burn_in, thin=int(thin), chunk_size=int(chunk_size),
                      chain_method=chain_method, progress=progress, callback=callback,
