@@ -52,7 +52,7 @@ def _wait_for(path: Path, fit: subprocess.Popen) -> None:
 def _one_stop(data: Path, out: Path, phase: str, signum: int, delay: float) -> tuple[float, str]:
     fit = subprocess.Popen([*CLI, "fit", str(data), "--out", str(out), "--x0",
                             "0.2,-0.25,0.3,-0.25", "--no-progress", "--no-report",
-                            "--iterations", "10000000", "--burn-in", "2000"],
+                            "--iterations", "1000000", "--burn-in", "2000"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     trigger = out / "data.csv" if phase == "map" else out / "draws" / "chunk-000000.npz"
     _wait_for(trigger, fit)
