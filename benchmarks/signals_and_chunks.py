@@ -49,11 +49,18 @@ def _wait_for(path: Path, fit: subprocess.Popen) -> None:
         time.sleep(0.005)
 
 
+def _default_sigint() -> None:
+    """SIGINT as in a terminal: a background job starts with it ignored, and a signal ignored
+    when symplid starts stays ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _one_stop(data: Path, out: Path, phase: str, signum: int, delay: float) -> tuple[float, str]:
     fit = subprocess.Popen([*CLI, "fit", str(data), "--out", str(out), "--x0",
                             "0.2,-0.25,0.3,-0.25", "--no-progress", "--no-report",
                             "--iterations", "1000000", "--burn-in", "2000"],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                           preexec_fn=_default_sigint)
     trigger = out / "data.csv" if phase == "map" else out / "draws" / "chunk-000000.npz"
     _wait_for(trigger, fit)
     time.sleep(delay)

@@ -138,19 +138,41 @@ def test_a_signal_under_supervision_only_requests_a_stop():
     assert stopping.requested() is None and signal.getsignal(signal.SIGTERM) is before
 
 
+_LONG_C_CALL = """
+import time, numpy as np
+from symplid.workflow.interrupts import supervised
+a = np.random.default_rng(0).random((1500, 1500))
+t = time.perf_counter()
+np.linalg.svd(a)
+print(time.perf_counter() - t, flush=True)  # how long one call takes here
+with supervised():
+    print("ready", flush=True)
+    for _ in range(20):
+        np.linalg.svd(a)  # one long C call after another: Python handlers wait for each
+print("not stopped")
+"""
+
+
 def test_the_third_signal_of_a_kind_ends_the_process_at_once_in_one_line():
-    script = ("import os, signal, time\n"
-              "from symplid.workflow.interrupts import supervised\n"
-              "with supervised():\n"
-              "    for _ in range(3):\n"
-              "        os.kill(os.getpid(), signal.SIGTERM)\n"
-              "        time.sleep(0.05)\n"
-              "    time.sleep(5)\n"
-              "print('not stopped')\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=60)
-    assert done.returncode == 128 + signal.SIGTERM and done.stdout == "", done
-    assert len(done.stderr.splitlines()) == 1 and "--resume" in done.stderr, done.stderr
+    child = subprocess.Popen([sys.executable, "-c", _LONG_C_CALL], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        one_call = float(child.stdout.readline())
+        assert child.stdout.readline() == "ready\n"
+        time.sleep(0.2 * one_call)  # inside a call
+        sent = time.perf_counter()
+        for _ in range(3):
+            child.send_signal(signal.SIGTERM)
+            time.sleep(0.01)
+        stdout, stderr = child.communicate(timeout=120)
+        took = time.perf_counter() - sent
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.communicate()
+    assert child.returncode == 128 + signal.SIGTERM and stdout == "", (stdout, stderr)
+    assert len(stderr.splitlines()) == 1 and "--resume" in stderr, stderr
+    assert took < 0.5 * one_call, (took, one_call)  # not at the end of the call
 
 
 def test_the_sampler_stops_before_the_next_chunk_with_the_draws_of_the_whole_run():

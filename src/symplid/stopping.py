@@ -44,18 +44,15 @@ _RECEIVED: list[int] = []
 
 
 def request(signum: int) -> None:
-    """Record a request to stop (called by a signal handler: it only appends a number)."""
-    _RECEIVED.append(int(signum))
+    """Record a request to stop by signal ``signum`` (called by a signal handler: it only
+    records the number, once)."""
+    if int(signum) not in _RECEIVED:
+        _RECEIVED.append(int(signum))
 
 
 def requested() -> int | None:
     """The signal number of the first request since the last :func:`clear`, or None."""
     return _RECEIVED[0] if _RECEIVED else None
-
-
-def received() -> tuple[int, ...]:
-    """Every request since the last :func:`clear`, oldest first."""
-    return tuple(_RECEIVED)
 
 
 def check() -> None:

@@ -84,23 +84,88 @@ def supervised() -> Iterator[None]:
     if not _main_thread():
         yield
         return
-    counts: Counter[int] = Counter()
+    watcher = _Watcher()
 
     def handler(signum: int, frame: object) -> None:
-        stopping.request(signum)
-        counts[signum] += 1
-        if counts[signum] >= FORCE_AFTER:  # the user insists: finished chunks are on disk
-            os.write(2, _FORCED_LINE)
-            os._exit(128 + signum)
+        stopping.request(signum)  # the watcher has counted it (or, without one, count here)
+        if not watcher.running:
+            watcher.count(signum)
 
     old = _install(handler)
+    watcher.start()
     _active.set()
     try:
         yield
     finally:
         _active.clear()
+        watcher.stop()
         _restore(old)
         stopping.clear()  # the process may go on (a test runner, a notebook): no stale stop
+
+
+class _Watcher:
+    """Counts the signals the moment they arrive, from the bytes CPython writes to its wakeup
+    file descriptor (:func:`signal.set_wakeup_fd`), in a thread of its own.
+
+    A Python-level handler runs only when the main thread next runs Python code, which a long
+    C call (a compilation, a summary of millions of draws) can put off for minutes; the
+    watcher requests the stop and ends the process on the third signal of one kind at once.
+    Without a wakeup descriptor of its own (another library set one) it does nothing and the
+    handler counts.
+    """
+
+    def __init__(self) -> None:
+        self.counts: Counter[int] = Counter()
+        self.running = False
+        self._fds: tuple[int, int] | None = None
+        self._old_fd = -1
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        self._old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        if self._old_fd != -1:  # someone else's: give it back, count in the handler
+            signal.set_wakeup_fd(self._old_fd)
+            os.close(read_fd)
+            os.close(write_fd)
+            return
+        self._fds, self.running = (read_fd, write_fd), True
+        self._thread = threading.Thread(target=self._run, args=(read_fd,), daemon=True,
+                                        name="symplid-signals")
+        self._thread.start()
+
+    def _run(self, read_fd: int) -> None:
+        held = {int(sig) for sig in _HELD}
+        while True:
+            try:
+                data = os.read(read_fd, 64)
+            except OSError:
+                return
+            if not data:  # the write end was closed: the block is over
+                return
+            for signum in data:
+                if signum in held:
+                    stopping.request(signum)
+                    self.count(signum)
+
+    def count(self, signum: int) -> None:
+        self.counts[signum] += 1
+        if self.counts[signum] >= FORCE_AFTER:  # the user insists: finished chunks are on disk
+            os.write(2, _FORCED_LINE)
+            os._exit(128 + signum)
+
+    def stop(self) -> None:
+        if self._fds is None:
+            return
+        signal.set_wakeup_fd(-1)
+        read_fd, write_fd = self._fds
+        os.close(write_fd)  # the thread reads the end of the pipe and returns
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        if self._thread is None or not self._thread.is_alive():
+            os.close(read_fd)  # (a thread still reading keeps it: a daemon, it ends with us)
+        self.running, self._fds = False, None
 
 
 @contextmanager

@@ -75,8 +75,9 @@ def resume_fit(
     ``expected(settings, data)``, when given, returns the settings the caller asks for (or
     None: the run's own) given the run's; they must equal the run's
     (:func:`check_same_settings`). A finished run, or one that did not stop in sampling, is
-    refused with a one-line :class:`~symplid.workflow.results.RunFolderError`; a failure or
-    a kill while continuing leaves the interrupted run as it was.
+    refused with a one-line :class:`~symplid.workflow.results.RunFolderError`; a failure
+    while continuing leaves the interrupted run as it was, plus the chunks it finished (a
+    kill too: the next ``--resume`` goes on from them).
     """
     folder = RunFolder(out, "c")
     try:
