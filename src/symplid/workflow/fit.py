@@ -259,6 +259,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     if folder is not None:
         folder.write_settings(settings)
         folder.write_data(obs)
+    check_stop()  # a safe point: nothing compiled yet
     if status is not None:
         status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
                "filter: this can take a minute)...")
