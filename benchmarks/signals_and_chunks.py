@@ -58,7 +58,7 @@ def _default_sigint() -> None:
 def _one_stop(data: Path, out: Path, phase: str, signum: int, delay: float) -> tuple[float, str]:
     fit = subprocess.Popen([*CLI, "fit", str(data), "--out", str(out), "--x0",
                             "0.2,-0.25,0.3,-0.25", "--no-progress", "--no-report",
-                            "--iterations", "1000000", "--burn-in", "2000"],
+                            "--iterations", "200000", "--burn-in", "2000"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                            preexec_fn=_default_sigint)
     trigger = out / "data.csv" if phase == "map" else out / "draws" / "chunk-000000.npz"
@@ -74,14 +74,15 @@ def _one_stop(data: Path, out: Path, phase: str, signum: int, delay: float) -> t
     return seconds, "sampling" if marker.startswith("interrupted:") else "before sampling"
 
 
-def latency(repeats: int) -> None:
+def latency(repeats: int, phases: tuple[str, ...] = ("map", "sampling")) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         data = _data(folder)
         print("| signal sent in | stopped in | n | min s | median s | max s |")
         print("|---|---|---|---|---|---|")
-        for phase, delays in (("map", (0.5, 1.0, 2.0, 3.0, 4.0)),
-                              ("sampling", (0.0, 0.1, 0.3, 0.6, 1.0))):
+        delays_of = {"map": (0.5, 1.0, 2.0, 3.0, 4.0), "sampling": (0.0, 0.1, 0.3, 0.6, 1.0)}
+        for phase in phases:
+            delays = delays_of[phase]
             found: dict[str, list[float]] = {}
             for k in range(repeats):
                 signum = SIGNALS[k % len(SIGNALS)]
@@ -133,9 +134,10 @@ def main() -> None:
     parser.add_argument("what", choices=("latency", "overhead"))
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=40_000)
+    parser.add_argument("--phases", default="map,sampling", help="latency: map, sampling or both")
     args = parser.parse_args()
     if args.what == "latency":
-        latency(args.repeats)
+        latency(args.repeats, tuple(args.phases.split(",")))
     else:
         overhead(args.repeats, args.iterations)
 
