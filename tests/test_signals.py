@@ -159,12 +159,12 @@ def test_the_third_signal_of_a_kind_ends_the_process_at_once_in_one_line():
     try:
         one_call = float(child.stdout.readline())
         assert child.stdout.readline() == "ready\n"
-        time.sleep(0.2 * one_call)  # inside a call
-        sent = time.perf_counter()
-        for _ in range(3):
+        time.sleep(0.1 * one_call)  # inside a call
+        for _ in range(3):  # apart: two of a kind pending at once are delivered as one
             child.send_signal(signal.SIGTERM)
-            time.sleep(0.01)
-        stdout, stderr = child.communicate(timeout=120)
+            sent = time.perf_counter()
+            time.sleep(0.3)
+        stdout, stderr = child.communicate(timeout=300)
         took = time.perf_counter() - sent
     finally:
         if child.poll() is None:
@@ -172,7 +172,7 @@ def test_the_third_signal_of_a_kind_ends_the_process_at_once_in_one_line():
             child.communicate()
     assert child.returncode == 128 + signal.SIGTERM and stdout == "", (stdout, stderr)
     assert len(stderr.splitlines()) == 1 and "--resume" in stderr, stderr
-    assert took < 0.5 * one_call, (took, one_call)  # not at the end of the call
+    assert took < max(0.5 * one_call, 0.5), (took, one_call)  # not at the end of the call
 
 
 def test_the_sampler_stops_before_the_next_chunk_with_the_draws_of_the_whole_run():
