@@ -30,6 +30,7 @@ LAYERS = {
     "registry": 0,
     "compiled": 0,
     "runtime": 0,
+    "stopping": 0,
     "dynamics": 1,
     "filters": 2,
     "model": 3,

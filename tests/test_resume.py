@@ -85,7 +85,8 @@ def test_resuming_a_finished_run_or_a_foreign_state_is_refused():
 
 # ----------------------------------------------------------------------------- symplid fit
 TINY = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
-        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1"]
+        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1", "--set",
+        "sampler.chunk_size=100"]
 
 
 def run(*args):
@@ -93,10 +94,11 @@ def run(*args):
 
 
 def _chunks_of_100(monkeypatch, stop_at: int | None = None):
-    """workflow.fit's sampler in chunks of 100 iterations, stopped (Ctrl-C) after ``stop_at``."""
+    """workflow.fit's sampler (in chunks of 100 iterations: TINY) stopped (Ctrl-C) after
+    ``stop_at``."""
     import symplid.workflow.fit as fit_module
 
-    extra = {"chunk_size": 100}
+    extra = {}
     if stop_at is not None:
         extra["callback"] = _stop_at(stop_at)
     monkeypatch.setattr(fit_module, "sample", functools.partial(sample, **extra))

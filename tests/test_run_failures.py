@@ -13,6 +13,7 @@ import json
 import os
 import shutil
 import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +21,11 @@ import pytest
 from click.testing import CliRunner
 
 from symplid.cli import main
-from symplid.workflow.interrupts import deferred_interrupts, terminate_as_interrupt
+from symplid.workflow.interrupts import deferred_interrupts, supervised
 from symplid.workflow.results import RunFolder
 
 TINY = ["--iterations", "400", "--burn-in", "200", "--chains", "2", "--no-progress",
-        "--no-report"]
+        "--no-report", "--set", "sampler.chunk_size=100"]
 
 
 def run(*args):
@@ -145,8 +146,8 @@ def _interrupt_sampler(monkeypatch, action):
         if report.iterations_done == 300:
             action()
 
-    monkeypatch.setattr(fit_module, "sample",
-                        functools.partial(fit_module.sample, callback=callback, chunk_size=100))
+    monkeypatch.setattr(fit_module, "sample",  # chunks of 100: TINY's sampler.chunk_size
+                        functools.partial(fit_module.sample, callback=callback))
 
 
 def _raise():
@@ -191,15 +192,18 @@ def test_a_second_ctrl_c_while_saving_loses_nothing(tmp_path, monkeypatch):
 
 
 def test_signal_helpers():
+    from symplid import stopping
+
     before = signal.getsignal(signal.SIGINT)  # SIG_IGN when the suite runs as a background job
-    with pytest.raises(KeyboardInterrupt), terminate_as_interrupt() as got:
-        os.kill(os.getpid(), signal.SIGTERM)
-    assert got == [signal.SIGTERM]
     with deferred_interrupts() as held:
         os.kill(os.getpid(), signal.SIGINT)
         os.kill(os.getpid(), signal.SIGTERM)
     assert held == [signal.SIGINT, signal.SIGTERM]
     assert signal.getsignal(signal.SIGINT) is before  # the handler of before the block, again
+    with supervised(), deferred_interrupts() as held:  # supervised: the stop is recorded there
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.01)
+        assert held == [] and stopping.requested() == signal.SIGTERM
 
 
 # ----------------------------------------------------------------------------- bad input

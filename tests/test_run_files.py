@@ -23,7 +23,8 @@ from symplid.cli import main
 from symplid.inference.samplers import sample
 
 TINY = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
-        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1"]
+        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1", "--set",
+        "sampler.chunk_size=100"]
 
 
 def run(*args):
@@ -47,7 +48,7 @@ def _fit(data_csv: Path, out: Path, stop_at: int | None = None):
         if report.iterations_done == stop_at:
             raise KeyboardInterrupt
 
-    extra = {"chunk_size": 100, **({"callback": stop} if stop_at else {})}
+    extra = {"callback": stop} if stop_at else {}
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(fit_module, "sample", functools.partial(sample, **extra))
         return run("fit", data_csv, "--out", out, *TINY)
@@ -110,11 +111,14 @@ def test_every_damaged_run_file_is_one_line(finished, tmp_path, name, how):
     one_line(run("report", folder), f"{folder / name}:", "fit it again")
 
 
-@pytest.mark.parametrize("name", ["sampler_state.npz", "posterior.nc", "map.json"])
+@pytest.mark.parametrize("name", ["sampler_state.npz", "posterior.nc", "map.json",
+                                  "sampler_attrs.json"])
 @pytest.mark.parametrize("how", ["empty", "truncated", "garbage"])
 def test_a_damaged_interrupted_run_cannot_be_resumed_in_one_line(interrupted, tmp_path, name,
                                                                  how):
     folder = copy(interrupted, tmp_path)
+    if name in ("sampler_state.npz", "posterior.nc"):  # read when there are no chunk files
+        shutil.rmtree(folder / "draws")  # (a run of an older version)
     damage(folder / name, how)
     result = run("fit", "--out", folder, "--resume", "--no-progress", "--no-report")
     one_line(result, f"{folder / name}:", "--resume is impossible")

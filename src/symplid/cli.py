@@ -271,9 +271,10 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
     Several DATA files, or a `trajectory` column in one, are several trajectories of the same
-    system: they share θ, each has its own initial state. Ctrl-C (or SIGTERM) during sampling
-    keeps the draws made so far, marks the run "interrupted" and exits with code 130 (143);
-    `symplid fit --resume --out RUN` continues it.
+    system: they share θ, each has its own initial state. Ctrl-C (or SIGTERM, SIGHUP) during
+    sampling keeps the draws made so far, marks the run "interrupted" and exits with code 130
+    (143, 129); the draws also go to RUN/draws/ chunk by chunk, so a killed run keeps them too.
+    `symplid fit --resume --out RUN` continues either.
     """
     if samples is not None:
         if iterations is not None:  # refused before the warning: one line

@@ -73,6 +73,7 @@ from scipy.special import logsumexp
 
 from symplid.inference.laplace import laplace_covariance, repaired_eigenvalues, scan_from_bound
 from symplid.model.params import POSITIVE_GROUPS, SearchSpace
+from symplid.stopping import check as check_stop
 
 Warm = tuple[np.ndarray, np.ndarray | None]
 """A warm start: u at a neighbouring node's inner maximum and the Hessian there (or None)."""
@@ -190,6 +191,7 @@ class _Profile:
         penalty = 1e10 + 1e3 * abs(float(self.vg(jnp.asarray(u))[0]))
 
         def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+            check_stop()  # a safe point (symplid.stopping)
             u[self.free] = x
             value, grad = self.vg(jnp.asarray(u))
             value, grad = float(value), np.asarray(grad, dtype=float)[self.free]
@@ -230,6 +232,7 @@ def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.nd
     penalty = 1e10 + 1e3 * abs(float(vg(jnp.asarray(u_map))[0]))
 
     def fun(u: np.ndarray) -> tuple[float, np.ndarray]:
+        check_stop()
         value, grad = vg(jnp.asarray(u))
         value, grad = float(value), np.array(grad, dtype=float)
         if not (np.isfinite(value) and np.all(np.isfinite(grad))):

@@ -19,6 +19,7 @@ import scipy.optimize
 from symplid.inference.laplace import newton_decrement
 from symplid.inference.map_result import StartResult
 from symplid.model.params import SearchSpace
+from symplid.stopping import check as check_stop
 
 
 class Objective:
@@ -71,6 +72,7 @@ def run_start(theta0: np.ndarray, objective: Objective, options: dict[str, Any])
     bounds = space.bounds()
 
     def fun(u: np.ndarray) -> tuple[float, np.ndarray]:
+        check_stop()  # a safe point: a requested stop (symplid.stopping) ends the search here
         value, grad = value_and_grad(jnp.asarray(u))
         value = float(value)
         grad = np.asarray(grad, dtype=float)

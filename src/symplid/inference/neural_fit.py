@@ -53,6 +53,7 @@ from symplid.inference.map import default_start
 from symplid.inference.map_result import MapResult, StartResult
 from symplid.model.posterior import Posterior
 from symplid.model.priors import Normal
+from symplid.stopping import check as check_stop
 
 Array = jax.Array
 
@@ -224,6 +225,7 @@ def _run_adam(optax: Any, posterior: Posterior, z: Array, steps: int, learning_r
     state = opt.init(z)
     best_z, best = z, np.inf
     for _ in range(steps):
+        check_stop()  # a safe point between steps (symplid.stopping)
         value, grad = value_and_grad(z)
         value = -float(value)
         if not np.isfinite(value):
@@ -248,6 +250,7 @@ def _run_lbfgs(optax: Any, loss, z: Array, steps: int, history: list):
 
     state = opt.init(z)
     for _ in range(steps):
+        check_stop()
         new_z, state, value = step(z, state)
         if not np.isfinite(float(loss(new_z))):
             break
@@ -263,6 +266,7 @@ def _run_scipy(posterior: Posterior, z: Array, steps: int, history: list) -> Arr
     value_and_grad = posterior.value_and_grad(unconstrained=True)
 
     def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+        check_stop()
         value, grad = value_and_grad(jnp.asarray(x))
         value = -float(value)
         if not np.isfinite(value):

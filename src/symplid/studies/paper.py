@@ -48,6 +48,7 @@ from symplid.studies.paper_cells import (
 from symplid.studies.paper_figures import draw_figures
 from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import fit
+from symplid.workflow.interrupts import results_or_stop, stop_on_signals
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
 from symplid.workflow.sweep import cell_settings
@@ -190,8 +191,9 @@ def run_fits(
     if workers <= 1:
         return [_fit_one(job) for job in jobs]
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context) as pool:
-        return list(pool.map(_fit_one, jobs))
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
+                             initializer=stop_on_signals) as pool:  # signals: one policy
+        return results_or_stop([pool.submit(_fit_one, job) for job in jobs])
 
 
 @dataclasses.dataclass

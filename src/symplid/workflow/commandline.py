@@ -71,25 +71,30 @@ class Interrupted(Exception):
 
 def user_errors(fn: Callable) -> Callable:
     """Turn the library's validation errors into one line and exit code 2, a failing disk
-    into one line and exit code 1; Ctrl-C, SIGTERM and SIGHUP into "interrupted" and exit code
-    128 + the signal's number (also when a library swallowed the signal and the command went
-    on to finish)."""
+    into one line and exit code 1; Ctrl-C, SIGTERM and SIGHUP into a stop at the next safe
+    point (:func:`symplid.workflow.interrupts.supervised`), "interrupted" and exit code 128 +
+    the signal's number (also when the command finished before reaching a safe point)."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from symplid import stopping
         from symplid.io.files import StorageError
         from symplid.model.data import DataError
         from symplid.runtime import MissingExtraError
-        from symplid.workflow.interrupts import terminate_as_interrupt
+        from symplid.workflow.interrupts import supervised
         from symplid.workflow.settings import SettingsError
 
-        with terminate_as_interrupt() as signals:
+        def exit_code() -> int:
+            signum = stopping.requested()
+            return EXIT_INTERRUPTED if signum is None else 128 + signum
+
+        with supervised():
             try:
                 result = fn(*args, **kwargs)
-                if signals:  # raised inside a library's callback, which swallowed it
+                if stopping.requested() is not None:  # no safe point came after the signal
                     click.echo("symplid: interrupted (the command finished first; its results "
                                "are kept)", err=True)
-                    sys.exit(128 + signals[-1])
+                    sys.exit(exit_code())
                 return result
             except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
                 raise UserError(str(err)) from None
@@ -103,9 +108,9 @@ def user_errors(fn: Callable) -> Callable:
                 kept = ("; the chains' state is kept: continue with 'symplid fit --resume'"
                         if hasattr(err, "checkpoint") else "")
                 click.echo(f"symplid: interrupted{kept}", err=True)
-                sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
+                sys.exit(exit_code())
             except Interrupted:  # the command said so in its result line
-                sys.exit(128 + signals[-1] if signals else EXIT_INTERRUPTED)
+                sys.exit(exit_code())
 
     return wrapper
 

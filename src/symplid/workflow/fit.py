@@ -28,10 +28,12 @@ from symplid.inference.map_checks import MapFailedError, failure_message
 from symplid.inference.map_result import MapConvergenceWarning
 from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
 from symplid.io import as_list, observation_layout
+from symplid.io.chunks import ChunkWriter
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
 from symplid.model.variance_prior import process_variance_prior
+from symplid.stopping import check as check_stop
 from symplid.workflow.auto import auto_notes, resolve_noise
 from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.model_builder import build_model_family, model_family
@@ -172,9 +174,11 @@ def sample_for(
     progress_label: str | None = None,
     progress_position: int = 0,
     return_state: bool = False,
+    sink: Any = None,
 ) -> Any:
     """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``
-    (and the chains' final states with ``return_state``, see ``symplid.sample``)."""
+    (and the chains' final states with ``return_state``, see ``symplid.sample``); ``sink``
+    receives each chunk's draws (:func:`chunk_sink`)."""
 
     s = settings.sampler
     # The [sampler] section's method-specific keys go to the samplers whose settings class
@@ -199,7 +203,23 @@ def sample_for(
         progress_label=progress_label,
         progress_position=progress_position,
         return_state=return_state,
+        chunk_size=s.chunk_size,
+        sink=sink,
     )
+
+
+def chunk_sink(folder: RunFolder, first_index: int = 0, attrs: bool = True,
+               elapsed: float = 0.0) -> ChunkWriter:
+    """The sink that streams a run's draws to ``folder`` chunk by chunk
+    (:mod:`symplid.io.chunks`), writing the draws' attributes (``sampler_attrs.json``) when
+    sampling begins (``attrs``; a continued run has them already, and ``elapsed`` seconds
+    of sampling)."""
+
+    def begin(values: dict[str, Any]) -> None:
+        folder.write_json(RunFolder.SAMPLER_ATTRS, values)
+
+    return ChunkWriter(folder.file(RunFolder.CHUNKS), first_index, begin if attrs else None,
+                       elapsed)
 
 
 def fit(
@@ -216,10 +236,13 @@ def fit(
 ) -> FitOutcome:
     """The whole fit: MAP, Hessian, sampler and the run folder (when ``out`` is given).
 
-    The run folder is marked incomplete until every file is written. A sampler interrupted
-    with Ctrl-C (or SIGTERM, see :mod:`symplid.workflow.interrupts`) keeps the draws it made:
-    they are saved, with SIGINT and SIGTERM held while the files are written, and the folder
-    is marked ``interrupted`` (readers refuse it with a message that says what to do). A
+    The run folder is marked incomplete until every file is written; the sampler streams each
+    chunk's draws and the chains' state to ``draws/`` as it goes (:func:`chunk_sink`), so a
+    killed run keeps them. A sampler stopped by a signal (:mod:`symplid.workflow.interrupts`:
+    at its next chunk) or by Ctrl-C keeps the draws it made: they are saved, with the signals
+    held while the files are written, and the folder is marked ``interrupted`` (readers refuse
+    it with a message that says what to do); a stop asked for during the MAP search comes at
+    its next evaluation (:mod:`symplid.stopping`). A
     failure or an interruption before sampling records its reason in the marker; a MAP
     search that failed (:mod:`symplid.inference.map_checks`) raises
     :class:`~symplid.inference.map_checks.MapFailedError` before any sampling. ``warn``
@@ -256,6 +279,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     if folder is not None:
         folder.write_settings(settings)
         folder.write_data(obs)
+    check_stop()  # a safe point: nothing compiled yet
     if status is not None:
         status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
                "filter: this can take a minute)...")
@@ -267,6 +291,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     model = build_model(fit_settings, fit_obs)
     posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior)
+    check_stop()  # a safe point between the phases (symplid.stopping)
     if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map_checks)
         raise MapFailedError(failure_message(map_fit.failure))
     groups = posterior.param_groups
@@ -277,7 +302,8 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     start = time.perf_counter()
     try:
         idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
-                                       progress_label, progress_position, return_state=True)
+                                       progress_label, progress_position, return_state=True,
+                                       sink=None if folder is None else chunk_sink(folder))
     except InterruptedInBurnIn as stop:
         if folder is not None:
             save_burn_in(folder, settings, stop)

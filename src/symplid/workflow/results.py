@@ -7,7 +7,9 @@ A run folder holds::
     map.json         the MAP point, its log posterior, the Hessian, ... (write_map)
     posterior.nc     the draws as ArviZ InferenceData (netCDF through h5netcdf)
     sampler_state.npz   only while interrupted: the chains' states, for ``fit --resume``
-    sampler_attrs.json  only while interrupted in the burn-in: the attributes of the draws
+    sampler_attrs.json  only while sampling or interrupted: the attributes of the draws
+    draws/chunk-NNNNNN.npz  only while sampling or interrupted: each compiled chunk's draws
+                     and the chains' states after it (symplid.io.chunks), removed at the end
     summary.json     the run's numbers, and summary.txt, the same as a readable table
     figures/*.png
     report.md
@@ -28,7 +30,9 @@ An update of a finished run (``mode="a"``) never makes it unfinished: its marker
 or interrupted update removes it again. A sampler stopped by Ctrl-C or SIGTERM leaves the
 marker ``interrupted: ...`` (:meth:`RunFolder.mark_interrupted`): the draws made so far are in
 ``posterior.nc``, the chains' states in ``sampler_state.npz``, and readers refuse the run with a
-one-line message that says what to do. ``mode="c"`` opens such a run to continue it
+one-line message that says what to do. The chunk files in ``draws/`` are written as the
+sampler goes, so a run killed outright (SIGKILL, the out-of-memory killer, a third Ctrl-C) keeps
+every finished chunk and can be continued too. ``mode="c"`` opens such a run to continue it
 (``symplid fit --resume``): the marker stays as it is until the continuation saves (a failed or
 killed continuation leaves the interrupted run as it was, resumable).
 
@@ -59,6 +63,7 @@ from typing import Any, Literal
 import numpy as np
 
 from symplid.io import read_trajectories, write_trajectories
+from symplid.io.chunks import CHUNKS_DIR, remove_chunks
 from symplid.io.files import (
     FolderLock,
     FolderLockedError,
@@ -144,9 +149,10 @@ class RunFolder:
     REPORT = "report.md"
     FIGURES = "figures"
     SAMPLER_STATE = "sampler_state.npz"
-    SAMPLER_ATTRS = "sampler_attrs.json"  # a run stopped in its burn-in: its draws' attributes
+    SAMPLER_ATTRS = "sampler_attrs.json"  # an unfinished run's draws' attributes
+    CHUNKS = CHUNKS_DIR  # the draws streamed chunk by chunk (symplid.io.chunks)
     RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES,
-                 SAMPLER_STATE, SAMPLER_ATTRS)
+                 SAMPLER_STATE, SAMPLER_ATTRS, CHUNKS)
     UPDATE = "update"
     INTERRUPTED = "interrupted:"
 
@@ -233,6 +239,10 @@ class RunFolder:
                 f"{path}: sampling was {reason}; continue it with 'symplid fit --resume --out "
                 f"{path}', or fit again with --overwrite"
             )
+        if self.has_chunks:  # killed while sampling: its finished chunks are kept
+            raise RunFolderError(
+                f"{path}: the run that wrote this folder did not finish ({reason}); continue it "
+                f"with 'symplid fit --resume --out {path}', or fit again with --overwrite")
         raise RunFolderError(
             f"{path}: the run that wrote this folder did not finish ({reason}); run it again"
         )
@@ -242,11 +252,18 @@ class RunFolder:
         if self.is_complete:
             raise RunFolderError(f"{path}: the run is finished; nothing to resume")
         reason = self.incomplete_reason or "unknown reason"
-        if not reason.startswith(self.INTERRUPTED) or not self.file(self.SAMPLER_STATE).exists():
+        stopped = reason.startswith(self.INTERRUPTED) and self.file(self.SAMPLER_STATE).exists()
+        if not stopped and not self.has_chunks:  # killed while sampling: its chunks are kept
             raise RunFolderError(
                 f"{path}: the run did not stop in sampling with its draws kept ({reason}); "
                 "it cannot be resumed: fit again with --overwrite"
             )
+
+    @property
+    def has_chunks(self) -> bool:
+        """True when the folder holds chunk files of draws (a run sampling, stopped or killed)."""
+        folder = self.file(self.CHUNKS)
+        return folder.is_dir() and any(folder.glob("chunk-*.npz"))
 
     def _write_marker(self, reason: str) -> None:
         stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
@@ -273,6 +290,7 @@ class RunFolder:
             raise RuntimeError(f"{self.path}: cannot finish the run, missing {', '.join(missing)}")
         for name in (self.SAMPLER_STATE, self.SAMPLER_ATTRS):  # only an interrupted run's
             (self.path / name).unlink(missing_ok=True)
+        remove_chunks(self.file(self.CHUNKS))  # gathered into posterior.nc
         (self.path / self.MARKER).unlink(missing_ok=True)
         self._finished = True
         self.release()

@@ -1,8 +1,10 @@
 """Continue an interrupted run folder (``symplid fit --resume``).
 
-A run whose sampler was stopped by Ctrl-C or SIGTERM is marked ``interrupted`` and keeps its
-settings, data, MAP, draws and the chains' states (``sampler_state.npz``, see
-:mod:`symplid.workflow.results`). :func:`resume_fit` reloads them, runs the iterations left
+A run whose sampler was stopped by Ctrl-C, SIGTERM or SIGHUP is marked ``interrupted`` and
+keeps its settings, data, MAP, draws and the chains' states (``sampler_state.npz``, see
+:mod:`symplid.workflow.results`); a run killed outright keeps its draws and states in the
+chunk files of ``draws/`` (:mod:`symplid.io.chunks`), which are preferred when present.
+:func:`resume_fit` reloads them, runs the iterations left
 (:func:`symplid.inference.samplers.resume.resume_sampling`: on the whole run's key and chunk
 grid, so the draws are those an uninterrupted run with the same seed makes) and saves the run
 as :func:`symplid.workflow.fit.fit` does: a finished run, or interrupted again.
@@ -16,19 +18,33 @@ stays the run's).
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from symplid.inference.map_result import MapResult
 from symplid.inference.samplers import InterruptedInBurnIn
-from symplid.inference.samplers.resume import resume_sampling
+from symplid.inference.samplers.resume import inference_data, resume_sampling
+from symplid.io.chunks import read_chunks, remove_chunks
 from symplid.io.runfiles import flatten
-from symplid.workflow.fit import FitOutcome, build_model, build_posterior, save_burn_in, save_run
+from symplid.workflow.fit import (
+    FitOutcome,
+    build_model,
+    build_posterior,
+    chunk_sink,
+    save_burn_in,
+    save_run,
+)
 from symplid.workflow.results import RunFolder, RunFolderError
 from symplid.workflow.settings import Settings, SettingsError, settings_to_dict
 
-__all__ = ["check_same_settings", "resume_fit"]
+__all__ = ["ChunkIgnoredWarning", "check_same_settings", "resume_fit"]
+
+
+class ChunkIgnoredWarning(UserWarning):
+    """A chunk file of draws could not continue the run (damaged, out of line) and was
+    ignored; the run continues from the chunk before it."""
 
 
 def check_same_settings(run: Settings, given: Settings, where: str | Path) -> None:
@@ -59,8 +75,9 @@ def resume_fit(
     ``expected(settings, data)``, when given, returns the settings the caller asks for (or
     None: the run's own) given the run's; they must equal the run's
     (:func:`check_same_settings`). A finished run, or one that did not stop in sampling, is
-    refused with a one-line :class:`~symplid.workflow.results.RunFolderError`; a failure or
-    a kill while continuing leaves the interrupted run as it was.
+    refused with a one-line :class:`~symplid.workflow.results.RunFolderError`; a failure
+    while continuing leaves the interrupted run as it was, plus the chunks it finished (a
+    kill too: the next ``--resume`` goes on from them).
     """
     folder = RunFolder(out, "c")
     try:
@@ -83,24 +100,17 @@ def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
             f"{out}: this run was fitted in standardised coordinates (model.standardise), "
             "which --resume does not continue yet; fit again with --overwrite"
         )
-    arrays = folder.read_npz(RunFolder.SAMPLER_STATE)
-    if "iterations_done" not in arrays:
-        raise RunFolderError(f"{folder.file(RunFolder.SAMPLER_STATE)}: not a sampler state "
-                             f"(no iterations_done); {folder.remedy}")
+    idata, arrays, sink = _where_sampling_stopped(folder)
     if status is not None:
         status(f"resuming {out} at iteration {int(arrays['iterations_done']):,} of "
                f"{settings.sampler.num_iterations:,} per chain (compiling first)...")
     model = build_model(settings, obs)
     posterior = build_posterior(settings, obs, model)
     map_result = MapResult.from_dict(folder.read_map())
-    if folder.file(RunFolder.POSTERIOR).exists():
-        idata = folder.read_posterior()
-    else:  # stopped in the burn-in: no draws yet, their attributes only
-        idata = folder.read_json(RunFolder.SAMPLER_ATTRS)
     start = time.perf_counter()
     try:
         idata, checkpoint = resume_sampling(posterior, idata, arrays, progress=progress,
-                                            return_state=True)
+                                            return_state=True, sink=sink)
     except InterruptedInBurnIn as stop:
         save_burn_in(folder, settings, stop)
         raise
@@ -109,3 +119,36 @@ def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
     timings["resumed"] = int(timings.get("resumed", 0)) + 1
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings)
     return save_run(folder, outcome, checkpoint, warn)
+
+
+def _where_sampling_stopped(folder: RunFolder) -> tuple[Any, dict[str, Any], Any]:
+    """The draws so far (InferenceData, or their attributes alone before any draw), the
+    chains' state arrays and the sink that goes on writing chunks.
+
+    From the chunk files when there are (:mod:`symplid.io.chunks`: a run stopped, or killed
+    outright, while sampling; a damaged last chunk is named in one warning line and written
+    again); else from ``posterior.nc`` (or ``sampler_attrs.json``) and ``sampler_state.npz``,
+    as a run stopped before its first chunk (or by an older version) left them.
+    """
+    chunks = read_chunks(folder.file(RunFolder.CHUNKS))
+    if chunks.note:
+        warnings.warn(chunks.note, ChunkIgnoredWarning, stacklevel=3)
+        remove_chunks(folder.file(RunFolder.CHUNKS), keep=chunks.count)  # made again
+    if chunks.count:
+        attrs = folder.read_json(RunFolder.SAMPLER_ATTRS)
+        attrs.update(iterations=chunks.iterations_done, interrupted=1,
+                     sampling_seconds=chunks.elapsed)
+        idata = inference_data(chunks.draws, attrs) if chunks.draws else attrs
+        return idata, chunks.state, chunk_sink(folder, chunks.count, attrs=False,
+                                               elapsed=chunks.elapsed)
+    arrays = folder.read_npz(RunFolder.SAMPLER_STATE)
+    if "iterations_done" not in arrays:
+        raise RunFolderError(f"{folder.file(RunFolder.SAMPLER_STATE)}: not a sampler state "
+                             f"(no iterations_done); {folder.remedy}")
+    if folder.file(RunFolder.POSTERIOR).exists():
+        idata = folder.read_posterior()
+    else:  # stopped in the burn-in: no draws yet, their attributes only
+        idata = folder.read_json(RunFolder.SAMPLER_ATTRS)
+    # Chunks go on from iteration 0 only (a state from an older version: none streamed).
+    fresh = int(arrays["iterations_done"]) == 0
+    return idata, arrays, chunk_sink(folder, attrs=False) if fresh else None

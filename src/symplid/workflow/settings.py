@@ -80,6 +80,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     variance_scale = "log"        # DRAM moves the variances as log(v) ("natural": as v)
     thin = 1
     seed = 0
+    chunk_size = 2000             # iterations per compiled block: draws saved, stops obeyed
 
     [prediction]
     integrator = "leapfrog"

@@ -323,6 +323,14 @@ class SamplerSettings:
     )
     thin: int = setting(1, minimum=1, doc="Keep every thin-th draw.")
     seed: int = setting(0, minimum=0, doc="Seed of the sampler.")
+    chunk_size: int = setting(
+        2000, minimum=1,
+        doc=(
+            "Iterations per compiled block of the sampler: after each, the block's draws are "
+            "saved to the run folder (``draws/``) and a stop (Ctrl-C, SIGTERM) is obeyed. "
+            "The draws do not depend on it."
+        ),
+    )
 
     @property
     def num_draws(self) -> int:

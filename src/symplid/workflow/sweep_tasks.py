@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from symplid import runtime
+from symplid.stopping import check as check_stop
 from symplid.workflow.results import to_jsonable, write_json
 from symplid.workflow.sweep_spec import Cell
 
@@ -180,7 +181,7 @@ def execute_cells(
     }
     failed = 0
     try:
-        for future in as_completed(futures):
+        for future in _completed(as_completed(futures)):
             cell = futures[future]
             try:
                 record = future.result()
@@ -197,6 +198,17 @@ def execute_cells(
         client.cancel(list(futures))
         raise
     return failed
+
+
+def _completed(pending: Any) -> Iterator[Any]:
+    """The futures of a Dask ``as_completed`` as they finish, with a stop requested by a
+    signal (:mod:`symplid.stopping`) obeyed between them within a tenth of a second."""
+    while not pending.is_empty():
+        check_stop()
+        if pending.has_ready():
+            yield from pending.next_batch(block=False)
+        else:
+            time.sleep(0.1)
 
 
 def _lost_record(err: BaseException) -> dict[str, Any]:

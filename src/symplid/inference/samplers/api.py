@@ -50,7 +50,7 @@ from symplid.compiled import cached_or_built
 from symplid.inference.diagnostics import import_arviz
 from symplid.inference.map import find_map
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
-from symplid.inference.samplers.run import ChainRun, ChunkReport, run_chains
+from symplid.inference.samplers.run import ChainRun, ChunkReport, ChunkSink, run_chains
 from symplid.model.params import pushforward_covariance
 
 __all__ = [
@@ -106,6 +106,7 @@ def sample(
     progress_position: int | None = None,
     num_samples: int | None = None,
     return_state: bool = False,
+    sink: ChunkSink | None = None,
 ):
     """Draw from a posterior with a registered sampler (DRAM, NUTS, ...).
 
@@ -152,6 +153,11 @@ def sample(
     return_state
         Also return the chains' final states (:class:`SamplerCheckpoint`), from which
         :func:`~.resume.resume_sampling` continues an interrupted run.
+    sink
+        Receives every chunk's draws and the chains' states as the run goes
+        (:data:`~.run.ChunkSink`); one with a ``begin(attrs)`` method is first given the
+        draws' attributes (those of the module docstring, for a run not started yet), so that
+        a run can be rebuilt from what the sink kept.
 
     Returns
     -------
@@ -185,11 +191,6 @@ def sample(
     else:
         starts = _explicit_starts(initial_positions, int(num_chains), num_params)
     states, extra_attrs = _initial_states(posterior, spec, kernel, starts, theta_map, cov_map)
-    run = run_chains(kernel.step, states, run_key, num_draws, record=kernel.record,
-                     burn_in=burn_in, thin=int(thin), chunk_size=int(chunk_size),
-                     chain_method=chain_method, progress=progress, callback=callback,
-                     desc=progress_label or method.upper(), position=progress_position)
-    extra_attrs.update(kernel.final_attrs(run.states))
     record_settings = {
         "method": method, "num_draws": num_draws, "num_chains": int(num_chains),
         "seed": int(seed), "burn_in": burn_in, "thin": int(thin),
@@ -197,6 +198,16 @@ def sample(
         "chain_method": chain_method, "explicit_initial_positions": initial_positions is not None,
         "kernel": dataclasses.asdict(kernel_settings),
     }
+    if hasattr(sink, "begin"):  # the attributes of the run stopped before its first iteration
+        sink.begin(_attrs(method, seed, record_settings, names, theta_map, cov_map, starts,
+                          ChainRun({}, states, 0, True, 0.0),
+                          {**extra_attrs, **kernel.final_attrs(states)}, init))
+    run = run_chains(kernel.step, states, run_key, num_draws, record=kernel.record,
+                     burn_in=burn_in, thin=int(thin), chunk_size=int(chunk_size),
+                     chain_method=chain_method, progress=progress, callback=callback,
+                     desc=progress_label or method.upper(), position=progress_position,
+                     sink=sink)
+    extra_attrs.update(kernel.final_attrs(run.states))
     attrs = _attrs(method, seed, record_settings, names, theta_map, cov_map, starts, run,
                    extra_attrs, init)
     if not run.draws:

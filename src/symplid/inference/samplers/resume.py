@@ -38,9 +38,9 @@ from symplid.inference.samplers.api import (
     draws_array,
 )
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
-from symplid.inference.samplers.run import ChainRun, ChunkReport, run_chains
+from symplid.inference.samplers.run import ChainRun, ChunkReport, ChunkSink, run_chains
 
-__all__ = ["checkpoint_arrays", "resume_sampling"]
+__all__ = ["checkpoint_arrays", "inference_data", "resume_sampling"]
 
 _ITERATIONS, _TREEDEF, _LEAF = "iterations_done", "treedef", "leaf_"
 
@@ -53,6 +53,15 @@ def checkpoint_arrays(checkpoint: SamplerCheckpoint) -> dict[str, np.ndarray]:
     out[_TREEDEF] = np.asarray(str(treedef))
     out[_ITERATIONS] = np.asarray(int(checkpoint.iterations_done))
     return out
+
+
+def inference_data(draws: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) -> Any:
+    """ArviZ ``InferenceData`` of draws ``name -> (num_chains, kept, ...)`` (``theta`` and the
+    sampler's statistics, as a :data:`~.run.ChunkSink` receives them) with the draws'
+    attributes, laid out as :func:`~.api.sample` returns them."""
+    names = tuple(str(n) for n in attrs["param_names"])
+    run = ChainRun(dict(draws), None, int(attrs["iterations"]), True, 0.0)
+    return _to_inference_data(run, names, dict(attrs))
 
 
 def _restore(arrays: Mapping[str, Any], template: Any) -> SamplerCheckpoint:
@@ -97,6 +106,7 @@ def resume_sampling(
     progress_label: str | None = None,
     progress_position: int | None = None,
     return_state: bool = False,
+    sink: ChunkSink | None = None,
 ):
     """Run the iterations an interrupted :func:`~.api.sample` run has left.
 
@@ -110,8 +120,8 @@ def resume_sampling(
         its :class:`~.api.InterruptedInBurnIn`.
     checkpoint
         Its :class:`~.api.SamplerCheckpoint`, or the arrays of :func:`checkpoint_arrays`.
-    progress, callback, progress_label, progress_position, return_state
-        As for :func:`~.api.sample`.
+    progress, callback, progress_label, progress_position, return_state, sink
+        As for :func:`~.api.sample` (the ``sink`` receives the new chunks only).
 
     Returns
     -------
@@ -154,7 +164,7 @@ def resume_sampling(
                      burn_in=burn_in, thin=thin, chunk_size=int(record["chunk_size"]),
                      chain_method=record["chain_method"], progress=progress,
                      callback=callback, desc=progress_label or method.upper(),
-                     position=progress_position, start=checkpoint.iterations_done)
+                     position=progress_position, start=checkpoint.iterations_done, sink=sink)
     old = _old_draws(idata, names) if hasattr(idata, "posterior") else {}
     draws = {k: np.concatenate([old[k], v], axis=1) if k in old else v
              for k, v in run.draws.items()} if run.draws else old

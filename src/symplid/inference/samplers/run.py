@@ -5,8 +5,11 @@ iterations. Each chunk is **one** compiled ``lax.scan`` over iterations whose bo
 all chains at once (``vmap``), or, for ``chain_method="sequential"``, one chain (the same
 compiled one-chain chunk is then called for each chain in turn, which compiles faster than
 a batched kernel and lets data-dependent branches skip work). Between
-chunks control returns to Python: the progress bar moves, a callback runs, and a
-``KeyboardInterrupt`` stops the run while keeping every draw already made.
+chunks control returns to Python: the progress bar moves, the chunk's draws and the chains'
+states go to the ``sink`` (a run folder streams them to disk), a callback runs, and a stop
+requested by a signal (:mod:`symplid.stopping`: checked before every chunk) or a
+``KeyboardInterrupt`` ends the run while keeping every draw already made. A chunk is the unit
+of both: a stop is obeyed within one chunk's time, and a crash loses at most one chunk.
 
 Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c], t)`` with
 ``chain_key = split(rng_key, num_chains)``. The draws therefore depend only on the key and
@@ -33,11 +36,17 @@ import numpy as np
 from jax import lax
 
 from symplid.compiled import cached_or_built
+from symplid.stopping import requested as stop_requested
 
-__all__ = ["ChainRun", "ChunkReport", "DataStep", "SamplingInterrupted", "run_chains"]
+__all__ = ["ChainRun", "ChunkReport", "ChunkSink", "DataStep", "SamplingInterrupted",
+           "run_chains"]
 
 StepFn = Callable[[jax.Array, Any], tuple[Any, Any]]
 RecordFn = Callable[[Any, Any], dict[str, jax.Array]]
+ChunkSink = Callable[[dict[str, np.ndarray], Any, int, int, float], None]
+"""``sink(draws, states, start, done, elapsed)``, called after every chunk: the draws the chunk
+kept (``name -> (num_chains, kept, ...)``, possibly none kept), the chains' states after it,
+the iterations per chain before and after it and the sampling time so far."""
 CHAIN_METHODS = ("vectorized", "sequential")
 
 
@@ -207,6 +216,7 @@ def run_chains(
     callback: Callable[[ChunkReport], None] | None = None,
     num_samples: int | None = None,
     start: int = 0,
+    sink: ChunkSink | None = None,
 ) -> ChainRun:
     """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
 
@@ -245,6 +255,9 @@ def run_chains(
         interrupted :class:`ChainRun`), and the run continues with iteration ``start + 1``.
         Keys, burn-in, thinning and chunks follow the whole run's grid, so an interrupted run
         continued this way gives the draws of the uninterrupted run (those after ``start``).
+    sink
+        Called after each chunk with its draws and the states (:data:`ChunkSink`), before
+        ``callback``; e.g. to write them to disk as the run goes.
 
     Returns
     -------
@@ -272,8 +285,8 @@ def run_chains(
     started = time.perf_counter()
     try:
         loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), callback,
-                     int(start))
-        states = loop.run(states, bar)
+                     int(start), sink)
+        states = loop.run(states, bar, started)
     finally:
         if bar is not None:
             bar.close()
@@ -310,22 +323,26 @@ def _check_run(num_draws: Any, burn_in: Any, thin: Any, chunk_size: Any, chain_m
 
 class _Loop:
     """The chunk loop of :func:`run_chains`: runs chunks, keeps the draws past burn-in on the
-    thin grid, reports to the callback, and stops cleanly on ``KeyboardInterrupt``."""
+    thin grid, hands each chunk to the sink and the callback, and stops cleanly before a chunk
+    when a stop was requested (:mod:`symplid.stopping`) or on ``KeyboardInterrupt``."""
 
     def __init__(self, chunk_fn: Callable, chain_keys: jax.Array, total: int, chunk_len: int,
                  burn_in: int, thin: int, callback: Callable[[ChunkReport], None] | None,
-                 start: int = 0):
+                 start: int = 0, sink: ChunkSink | None = None):
         self.chunk_fn, self.chain_keys = chunk_fn, chain_keys
         self.total, self.chunk_len, self.burn_in, self.thin = total, chunk_len, burn_in, thin
-        self.callback = callback
+        self.callback, self.sink = callback, sink
         self.kept: dict[str, list[np.ndarray]] = {}
         self.done = start
         self.draws_kept = max(0, start - burn_in) // thin
         self.interrupted = False
 
-    def run(self, states: Any, bar: Any) -> Any:
+    def run(self, states: Any, bar: Any, started: float) -> Any:
         chunk_index = 0
         while self.done < self.total:
+            if stop_requested() is not None:  # a signal asked to stop: a safe point
+                self.interrupted = True
+                break
             # Chunks on the whole run's grid (a resumed run starts at a chunk's end).
             num_active = min(self.chunk_len - self.done % self.chunk_len, self.total - self.done)
             try:
@@ -337,28 +354,35 @@ class _Loop:
                 self.interrupted = True
                 break
             states = new_states
-            self._keep(records, num_active)
+            chunk = self._keep(records, num_active)
             self.done += num_active
             if bar is not None:
                 bar.update(num_active)
-            if self.callback is not None:
-                try:
+            try:
+                if self.sink is not None:
+                    self.sink(chunk, states, self.done - num_active, self.done,
+                              time.perf_counter() - started)
+                if self.callback is not None:
                     self.callback(ChunkReport(chunk_index, self.done, self.total,
                                               self.draws_kept, states))
-                except KeyboardInterrupt:
-                    self.interrupted = self.done < self.total
-                    break
+            except KeyboardInterrupt:
+                self.interrupted = self.done < self.total
+                break
             chunk_index += 1
         return states
 
-    def _keep(self, records: dict[str, Any], num_active: int) -> None:
+    def _keep(self, records: dict[str, Any], num_active: int) -> dict[str, np.ndarray]:
+        """Keep the chunk's iterations past burn-in on the thin grid; returns them
+        ``(num_chains, kept, ...)`` (empty arrays in the burn-in)."""
         # Iterations done + 1 .. done + num_active; keep those past burn-in on the thin grid.
         iterations = np.arange(self.done + 1, self.done + num_active + 1)
         keep = (iterations > self.burn_in) & ((iterations - self.burn_in) % self.thin == 0)
+        chunk = {name: np.asarray(value)[:num_active][keep] for name, value in records.items()}
         if keep.any():
-            for name, value in records.items():
-                self.kept.setdefault(name, []).append(np.asarray(value)[:num_active][keep])
+            for name, value in chunk.items():
+                self.kept.setdefault(name, []).append(value)
             self.draws_kept += int(keep.sum())
+        return {name: np.swapaxes(value, 0, 1) for name, value in chunk.items()}
 
 
 def _progress_bar(total: int, desc: str, enabled: bool, position: int | None = None,

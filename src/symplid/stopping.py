@@ -1,0 +1,68 @@
+"""A request to stop, set by a signal and obeyed at safe points.
+
+A signal handler that raises (as Python's default SIGINT handler does) can land anywhere: in a
+library's callback (JAX's memory callback, which swallows it), inside SciPy's optimiser or in
+the middle of a compilation, where it was seen to be lost, printed twice or to end in a
+segmentation fault. Symplid's command line therefore installs handlers that only **record**
+the signal here (:func:`request`, from :mod:`symplid.workflow.interrupts`); the long loops ask
+at points where stopping is safe and cheap:
+
+* the sampler between two compiled chunks (:func:`symplid.inference.samplers.run.run_chains`
+  ends the run there and keeps every finished chunk);
+* the optimisers at each evaluation of their objective (the MAP's L-BFGS-B starts, the neural
+  fit's Adam and L-BFGS steps), which :func:`check` turns into :class:`StopRequested`;
+* the workflow between its phases (MAP, sampling, saving) and between the cells of a sweep.
+
+The request is process-wide and sticky until :func:`clear`. Outside the command line nothing
+sets it, and Python's own Ctrl-C (``KeyboardInterrupt``) behaves as before.
+"""
+
+from __future__ import annotations
+
+import threading
+
+__all__ = ["StopRequested", "check", "clear", "request", "requested"]
+
+
+class StopRequested(KeyboardInterrupt):
+    """Raised at a safe point after a stop was requested (a ``KeyboardInterrupt``, so that
+    code which keeps its work on Ctrl-C keeps it on this too).
+
+    Attributes
+    ----------
+    signum
+        The number of the signal that asked for the stop.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"stop requested by signal {signum}")
+        self.signum = signum
+
+
+_LOCK = threading.Lock()
+_RECEIVED: list[int] = []
+
+
+def request(signum: int) -> None:
+    """Record a request to stop by signal ``signum`` (called by a signal handler: it only
+    records the number, once)."""
+    if int(signum) not in _RECEIVED:
+        _RECEIVED.append(int(signum))
+
+
+def requested() -> int | None:
+    """The signal number of the first request since the last :func:`clear`, or None."""
+    return _RECEIVED[0] if _RECEIVED else None
+
+
+def check() -> None:
+    """Raise :class:`StopRequested` if a stop was requested; a safe point calls this."""
+    signum = requested()
+    if signum is not None:
+        raise StopRequested(signum)
+
+
+def clear() -> None:
+    """Forget every request (a new command starts)."""
+    with _LOCK:
+        _RECEIVED.clear()
