@@ -45,6 +45,7 @@ from typing import BinaryIO, TypeVar
 from symplid.model.data import DataError
 
 __all__ = [
+    "UNREADABLE",
     "FolderLock",
     "FolderLockedError",
     "RunFolderError",

@@ -46,6 +46,7 @@ __all__ = [
     "FitOutcome",
     "build_model",
     "build_posterior",
+    "chunk_sink",
     "find_map_for",
     "fit",
     "save_burn_in",
