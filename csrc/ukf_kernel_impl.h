@@ -903,6 +903,7 @@ class Filter {
     obs_var_ = take(work, dy);
     x0_ = take(work, n);
     p0_ = take(work, n * n);
+    selects_ = selection(s, select_);
     const int first_obs = s.ncoef + (s.diagonal ? n : 1);
     for (int w = 0; w < lanes(); ++w) {
       const Member& m = members[w % G];
@@ -974,6 +975,8 @@ class Filter {
 #pragma GCC unroll 16
       for (int k = 0; k < np; ++k) c[i * np + k] = row[k] - sum;
     }
+    // The lower triangle, mirrored (the reference computes both triangles and averages them:
+    // equal to rounding); Σ and jitter on the diagonal.
 #pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
       T weighted[NN > 0 ? 2 * NN + 1 : 1];  // wc_k c_ik, shared by the row's entries
@@ -981,23 +984,14 @@ class Filter {
 #pragma GCC unroll 16
       for (int k = 0; k < np; ++k) wci[k] = wc[k] * c[i * np + k];
 #pragma GCC unroll 8
-      for (int j = 0; j < n; ++j) {
-        T sum = T{} + wci[0] * c[j * np];
+      for (int j = 0; j <= i; ++j) {
+        T sum = wci[0] * c[j * np];
 #pragma GCC unroll 16
         for (int k = 1; k < np; ++k) sum = sum + wci[k] * c[j * np + k];
         cov[i * n + j] = sum;
+        cov[j * n + i] = sum;
       }
-      cov[i * n + i] = cov[i * n + i] + process_var_[i];
-    }
-#pragma GCC unroll 8
-    for (int i = 0; i < n; ++i) {  // symmetrise (Σ + jitter on the diagonal)
-#pragma GCC unroll 8
-      for (int j = 0; j < i; ++j) {
-        const T v = 0.5 * (cov[i * n + j] + cov[j * n + i]);
-        cov[i * n + j] = v;
-        cov[j * n + i] = v;
-      }
-      cov[i * n + i] = 0.5 * (cov[i * n + i] + cov[i * n + i]) + s_.jitter;
+      cov[i * n + i] = (cov[i * n + i] + process_var_[i]) + s_.jitter;
     }
   }
 
@@ -1138,6 +1132,21 @@ class Filter {
                            T* __restrict__ s0) const {
     const int n = this->n(), dy = this->dy();
     const double* H = s_.obs_matrix;
+    if (selects_) {  // y = x_sel: the same numbers, without the products by 0 and 1
+#pragma GCC unroll 8
+      for (int i = 0; i < dy; ++i) predicted[i] = mean[select_[i]];
+#pragma GCC unroll 8
+      for (int i = 0; i < n; ++i) {
+#pragma GCC unroll 8
+        for (int j = 0; j < dy; ++j) cross[i * dy + j] = cov[i * n + select_[j]];
+      }
+#pragma GCC unroll 8
+      for (int i = 0; i < dy; ++i) {
+#pragma GCC unroll 8
+        for (int j = 0; j < dy; ++j) s0[i * dy + j] = cov[select_[i] * n + select_[j]];
+      }
+      return;
+    }
 #pragma GCC unroll 8
     for (int i = 0; i < dy; ++i) {
       T sum{};
@@ -1174,7 +1183,25 @@ class Filter {
     }
   }
 
+  // Whether every row of H is a unit vector (full-state or positions observation), and which.
+  static bool selection(const Settings& s, int* select) {
+    for (int i = 0; i < s.dy; ++i) {
+      int ones = 0, zeros = 0;
+      for (int k = 0; k < s.n; ++k) {
+        const double h = s.obs_matrix[i * s.n + k];
+        ones += h == 1.0 ? 1 : 0;
+        zeros += h == 0.0 ? 1 : 0;
+        if (h == 1.0 && i < kMaxSelect) select[i] = k;
+      }
+      if (ones != 1 || zeros != s.n - 1 || i >= kMaxSelect) return false;
+    }
+    return true;
+  }
+  static constexpr int kMaxSelect = 64;
+
   const Settings& s_;
+  int select_[kMaxSelect] = {};
+  bool selects_ = false;
   T* joint_;
   T* cross_;
   T* predicted_;
