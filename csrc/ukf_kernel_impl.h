@@ -13,8 +13,10 @@
 // each vector is one sigma point of the eight. Arrays over lanes are coordinate-major,
 // x[i * C + c] for C vectors per coordinate; C is a compile-time constant for common sizes.
 //
-// Every formula follows the JAX reference operation for operation (same association of
-// products and sums), so the two agree to rounding.
+// Every formula is the JAX reference's, but not always associated the same way: where it
+// shortens a dependent chain (the force's sums, the leapfrog's kicks, the joint update's
+// factorisation) the kernel reorders sums and fuses multiply-adds, so the two agree to
+// rounding (1e-12 relative in log L where the reference is well conditioned), not bit for bit.
 
 namespace symplid {
 namespace SYMPLID_ISA_NS {
@@ -433,7 +435,7 @@ class Propagator {
 // reloaded every time), the fast path keeps a few vectors of sigma points in registers for the
 // whole gap: a Block holds the state of one vector (or one scalar) of lanes, and several
 // blocks are advanced in the same loop body so that the processor overlaps their dependency
-// chains. The arithmetic is the reference's, operation for operation (see Propagator).
+// chains. The arithmetic is the reference's, associated for short chains (see Block).
 
 // An explicit Runge–Kutta tableau of S stages for one step size h: h a_ij and h b_i, with
 // flags for the entries that are not zero (Propagator::runge_kutta skips those that are).
@@ -748,7 +750,7 @@ FastAdvanceFn fast_advance_for(const Settings& s) {
 }
 
 // The fast propagation for these settings, or nullptr: then Propagator::advance, which gives
-// the same numbers (both follow the reference operation for operation), 1.5 to 2 times slower
+// the same numbers to rounding, 1.5 to 2 times slower
 // (about 5 times for Runge–Kutta at d = 3 and degree 4, without a compile-time force table).
 // Each fast variant is straight-line code for one basis, propagator and block layout, and
 // compiling them all (12 bases x mass matrix or not x 5 propagators) took most of the build,
@@ -779,8 +781,8 @@ FastAdvanceFn select_fast_advance(const Settings& s) {
 // ---------------------------------------------------------------- the filter's dense algebra
 // The per-gap algebra of eqs (10)-(12) on a lane type T: double for one θ, Vec for a group of
 // eight θ sharing the data, lane g holding member g (sigma point k of the group is then the
-// vector k of every state row, see run_group). Every lane does the reference's operations in
-// the reference's order, so a member's numbers do not depend on its group. Sizes NN (state)
+// vector k of every state row, see run_group). Every lane does the same operations in the same
+// order whatever T, so a member's numbers do not depend on its group. Sizes NN (state)
 // and DY (observation) are compile-time for the common models, so the small loops unroll
 // completely; 0 means "read it from the settings".
 
