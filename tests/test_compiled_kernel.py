@@ -131,9 +131,9 @@ def test_paper_workload_and_invalid_variances(paper):
 @pytest.mark.parametrize("integrator", ["leapfrog", "yoshida4", "rk2-midpoint", "rk4"])
 def test_far_from_truth_equals_jax_to_its_conditioning(integrator):
     """32 θ up to ~e^±1 from the truth on the paper's workload (a third give −∞, a third are
-    so rugged that the JAX filter moves by more than 1e-13 relative when θ moves by 1e-14): the kernel
-    (one θ and batched) equals the JAX filter to 1e-12 relative, or to ten times the
-    reference's own change under that perturbation where it is larger; −∞ where it is."""
+    so rugged that the JAX filter moves by more than 1e-13 relative when θ moves by 1e-14):
+    the kernel (one θ and batched) equals the JAX filter to 1e-12 relative, or to ten times
+    the reference's own change under that perturbation where it is larger; −∞ where it is."""
     system = symplid.get_system("henon-heiles")
     model = symplid.HamiltonianModel(system.potential, integrator=integrator, dt=0.25)
     data = symplid.simulate(system, seed=0)
