@@ -12,6 +12,8 @@ sees), the minimum over repeats:
 * ``value and gradient``: ``jax.value_and_grad`` of log L (under differentiation the compiled
   tier evaluates the JAX reference's value and tangent, so it cannot be faster there).
 
+With ``--previous`` the first two rows also time the other build in the same loop.
+
 Times are the process's CPU time (``time.process_time``), the minimum over repeats: on a
 shared machine wall time would count other people's work. XLA runs on one thread.
 
@@ -69,7 +71,7 @@ def loop_time(step: Callable[[jax.Array], jax.Array], thetas: jax.Array, repeats
     return best
 
 
-def main(repeats: int = 7) -> None:
+def main(repeats: int = 7, make_previous: Callable | None = None) -> None:
     if not compiled_kernel.available():
         raise SystemExit("the compiled kernel is not built: pip install the package first")
     system = symplid.get_system("henon-heiles")
@@ -94,13 +96,21 @@ def main(repeats: int = 7) -> None:
         ("log L, vmap 64 (per θ)", lambda f: loop_time(jax.vmap(f), batches, repeats), 64),
         ("value and gradient", lambda f: loop_time(_value_and_grad(f), grads, repeats), 1),
     ]
+    previous = make_previous(model, prepared, x0) if make_previous else None
     print(f"kernel instruction set: {compiled_kernel.instruction_set()}\n")
-    print("| per evaluation | JAX reference (µs) | compiled kernel (µs) | speed-up |")
-    print("|---|---:|---:|---:|")
+    head = "| per evaluation | JAX reference (µs) | compiled kernel (µs) | speed-up |"
+    rule = "|---|---:|---:|---:|"
+    if previous:
+        head, rule = head + " previous kernel (µs) | previous / kernel |", rule + "---:|---:|"
+    print(f"{head}\n{rule}")
     for name, timer, per in rows:
         t_ref = timer(reference) / per * 1e6
         t_new = timer(compiled) / per * 1e6
-        print(f"| {name} | {t_ref:.2f} | {t_new:.2f} | {t_ref / t_new:.1f}× |")
+        row = f"| {name} | {t_ref:.2f} | {t_new:.2f} | {t_ref / t_new:.1f}× |"
+        if previous and name != "value and gradient":  # (the gradient is the JAX tier's)
+            t_old = timer(previous) / per * 1e6
+            row += f" {t_old:.2f} | {t_old / t_new:.2f}× |"
+        print(row)
 
 
 PROPAGATORS = ("leapfrog", "rk2-midpoint", "rk4")
@@ -218,9 +228,9 @@ if __name__ == "__main__":
     parser.add_argument("--previous", help="another build of the kernel's shared library")
     parser.add_argument("--propagators-only", action="store_true")
     args = parser.parse_args()
-    if not args.propagators_only:
-        main()
     make_previous = previous_build(args.previous) if args.previous else None
+    if not args.propagators_only:
+        main(make_previous=make_previous)
     propagators(7, make_previous)
     if make_previous:
         shapes(7, make_previous)

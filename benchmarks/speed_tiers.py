@@ -41,7 +41,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 TARGETS = {
-    "value, compiled loop (µs)": "≤ 8",
+    "value, compiled loop (µs)": "≤ 6",
     "value, vmap 64 (µs per θ)": "≤ 3",
     "gradient, compiled loop (µs)": "≤ 10× value",
     "DRAM 1 chain (it/s)": "≥ 50,000",

@@ -13,8 +13,9 @@
 // translation unit so that the build runs them in parallel: for AVX-512
 // (ukf_kernel_avx512.cc), for AVX2 with FMA (ukf_kernel_avx2.cc) and for the baseline x86-64,
 // or whatever the target is elsewhere (ukf_kernel_baseline.cc). The best one the processor
-// supports is chosen once at run time. Floating-point contraction is off (-ffp-contract=off),
-// so every variant gives the same numbers.
+// supports is chosen once at run time. Floating-point contraction is on (fused multiply-adds
+// where the instruction set has them), so the variants agree with each other and with the JAX
+// reference to rounding, not bit for bit.
 
 #include <cstdlib>
 #include <string>

@@ -1,5 +1,5 @@
-// The numerical kernel for AVX-512 (with AVX2 and FMA instructions available; floating-point
-// contraction stays off, so the numbers are the other variants'). Its own translation unit, so
+// The numerical kernel for AVX-512 (with AVX2 and FMA instructions available: the build's
+// floating-point contraction fuses multiply-adds). Its own translation unit, so
 // that the build compiles the instruction sets in parallel; compiled to nothing off x86.
 
 #include "ukf_kernel.h"

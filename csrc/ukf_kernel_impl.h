@@ -13,8 +13,10 @@
 // each vector is one sigma point of the eight. Arrays over lanes are coordinate-major,
 // x[i * C + c] for C vectors per coordinate; C is a compile-time constant for common sizes.
 //
-// Every formula follows the JAX reference operation for operation (same association of
-// products and sums), so the two agree to rounding.
+// Every formula is the JAX reference's, but not always associated the same way: where it
+// shortens a dependent chain (the force's sums, the leapfrog's kicks, the joint update's
+// factorisation) the kernel reorders sums and fuses multiply-adds, so the two agree to
+// rounding (1e-12 relative in log L where the reference is well conditioned), not bit for bit.
 
 namespace symplid {
 namespace SYMPLID_ISA_NS {
@@ -59,7 +61,24 @@ struct FixedBasis {
     int num_factors[kMaxTerms] = {};
     int factor_coord[kMaxTerms][ORDER] = {};
     int factor_power[kMaxTerms][ORDER] = {};
+    // The monomials of degree 1..ORDER−1 (the first kMono of exps), each the product of two
+    // earlier ones (mono_a × mono_b, as balanced as the degrees allow; degree 1: coordinate
+    // mono_a, mono_b = −1), and per term its derivative's monomial (−1: a constant).
+    int mono_a[kCoef] = {};
+    int mono_b[kCoef] = {};
+    int term_mono[kMaxTerms] = {};
   };
+  static constexpr int kMono = binomial(D + ORDER - 1, D) - 1;
+
+  // Index of the monomial with exponents e in exps (degree ≥ 1), or −1.
+  static constexpr int find(const Table& t, const int* e) {
+    for (int c = 0; c < kCoef; ++c) {
+      bool same = true;
+      for (int i = 0; i < D; ++i) same = same && t.exps[c][i] == e[i];
+      if (same) return c;
+    }
+    return -1;
+  }
 
   static constexpr Table table() {
     Table t{};
@@ -105,6 +124,33 @@ struct FixedBasis {
       }
     }
     t.start[D] = term;
+    for (int c = 0; c < kMono; ++c) {
+      int degree = 0, half[3] = {0, 0, 0}, rest[3] = {0, 0, 0};
+      for (int i = 0; i < D; ++i) degree += t.exps[c][i];
+      if (degree == 1) {
+        for (int i = 0; i < D; ++i) {
+          if (t.exps[c][i] == 1) t.mono_a[c] = i;
+        }
+        t.mono_b[c] = -1;
+        continue;
+      }
+      int left = degree / 2;  // the first half of the powers, coordinate by coordinate
+      for (int i = 0; i < D; ++i) {
+        half[i] = std::min(left, t.exps[c][i]);
+        left -= half[i];
+        rest[i] = t.exps[c][i] - half[i];
+      }
+      t.mono_a[c] = find(t, half);
+      t.mono_b[c] = find(t, rest);
+    }
+    for (int k = 0; k < term; ++k) {
+      int e[3] = {0, 0, 0}, degree = 0;
+      for (int f = 0; f < t.num_factors[k]; ++f) {
+        e[t.factor_coord[k][f]] = t.factor_power[k][f];
+        degree += t.factor_power[k][f];
+      }
+      t.term_mono[k] = degree == 0 ? -1 : find(t, e);
+    }
     return t;
   }
 
@@ -389,7 +435,7 @@ class Propagator {
 // reloaded every time), the fast path keeps a few vectors of sigma points in registers for the
 // whole gap: a Block holds the state of one vector (or one scalar) of lanes, and several
 // blocks are advanced in the same loop body so that the processor overlaps their dependency
-// chains. The arithmetic is the reference's, operation for operation (see Propagator).
+// chains. The arithmetic is the reference's, associated for short chains (see Block).
 
 // An explicit Runge–Kutta tableau of S stages for one step size h: h a_ij and h b_i, with
 // flags for the entries that are not zero (Propagator::runge_kutta skips those that are).
@@ -419,35 +465,39 @@ struct Block {
   using Basis = FixedBasis<D, ORDER>;
   static constexpr auto kTable = Basis::kTable;
 
-  T q[D], p[D], f[D];
+  T q[D], p[D];
   T tc[Basis::kTable.start[D]];  // c_m e_mj per term, for these lanes
 
   // ∂U/∂q at q into out.
   SYMPLID_INLINE void force(T (&out)[D]) const { force_at(q, out); }
 
-  // ∂U/∂q at x into out, straight-line: powers by repeated multiplication, then per
-  // component the terms in basis order (the first term starts the sum: 0 + v = v).
+  // ∂U/∂q at x into out, straight-line: every monomial of degree < ORDER once (a product of
+  // two lower ones), then per component Σ_t (c_m e_mj) monomial_t as a chain of multiply-adds,
+  // in basis order (two chains when there are more than four terms, added at the end). The
+  // reference's polynomial, with products and sums associated differently: equal to rounding.
   SYMPLID_INLINE void force_at(const T (&x)[D], T (&out)[D]) const {
-    T pw[D][ORDER + 1];
-#pragma GCC unroll 16
-    for (int i = 0; i < D; ++i) {
-      pw[i][1] = x[i];
-#pragma GCC unroll 16
-      for (int k = 2; k <= ORDER; ++k) pw[i][k] = pw[i][k - 1] * x[i];
+    T mono[Basis::kMono > 0 ? Basis::kMono : 1];
+#pragma GCC unroll 64
+    for (int c = 0; c < Basis::kMono; ++c) {
+      mono[c] = kTable.mono_b[c] < 0 ? x[kTable.mono_a[c]]
+                                     : mono[kTable.mono_a[c]] * mono[kTable.mono_b[c]];
     }
 #pragma GCC unroll 16
     for (int j = 0; j < D; ++j) {
-      T acc{};
+      const int first = kTable.start[j], count = kTable.start[j + 1] - first;
+      const int sums = count > 4 ? 2 : 1;
+      T acc[2];
 #pragma GCC unroll 128
-      for (int t = kTable.start[j]; t < kTable.start[j + 1]; ++t) {
-        T v = tc[t];
-#pragma GCC unroll 8
-        for (int k = 0; k < kTable.num_factors[t]; ++k) {
-          v = v * pw[kTable.factor_coord[t][k]][kTable.factor_power[t][k]];
+      for (int t = first; t < first + count; ++t) {
+        const int r = (t - first) % sums;
+        const int m = kTable.term_mono[t];
+        if (t - first < sums) {
+          acc[r] = m < 0 ? tc[t] : tc[t] * mono[m];
+        } else {
+          acc[r] = m < 0 ? acc[r] + tc[t] : acc[r] + tc[t] * mono[m];
         }
-        acc = (t == kTable.start[j]) ? v : acc + v;
       }
-      out[j] = acc;
+      out[j] = sums == 1 ? acc[0] : acc[0] + acc[1];
     }
   }
 
@@ -466,19 +516,27 @@ struct Block {
     }
   }
 
-  // One leapfrog step of size h with the force at q in f (eqs 5-6, as Propagator::leapfrog).
-  SYMPLID_INLINE void step(double h, double half_h, double half_h2, const double* inv_mass) {
-    T vp[D], vg[D], f1[D];
+  // One leapfrog substep (eqs 5-6) as kick-drift-kick with the half kicks of consecutive
+  // substeps merged: on entry p holds the momenta after this substep's first half kick,
+  // p_k − ½h ∂U(q_k); then q_(k+1) = q_k + h M⁻¹p, and the second half kick −½h ∂U(q_(k+1))
+  // and the next substep's first, −½h' ∂U(q_(k+1)), are one kick of −kick ∂U(q_(k+1)).
+  // Algebraically Propagator::leapfrog's q_(k+1) = q_k + h M⁻¹p_k − ½h² M⁻¹∂U(q_k).
+  SYMPLID_INLINE void merged_step(double h, double kick, const double* inv_mass) {
+    T vp[D], f1[D];
     velocity(p, vp, inv_mass);
-    velocity(f, vg, inv_mass);
 #pragma GCC unroll 16
-    for (int i = 0; i < D; ++i) q[i] = (q[i] + h * vp[i]) - half_h2 * vg[i];
+    for (int i = 0; i < D; ++i) q[i] = q[i] + h * vp[i];
     force(f1);
 #pragma GCC unroll 16
-    for (int i = 0; i < D; ++i) {
-      p[i] = p[i] - half_h * (f[i] + f1[i]);
-      f[i] = f1[i];
-    }
+    for (int i = 0; i < D; ++i) p[i] = p[i] - kick * f1[i];
+  }
+
+  // A kick of −kick ∂U(q) with the force at q (the first half kick of a gap).
+  SYMPLID_INLINE void first_kick(double kick) {
+    T f0[D];
+    force(f0);
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) p[i] = p[i] - kick * f0[i];
   }
 
   // One explicit Runge–Kutta step from the tableau (as Propagator::runge_kutta, operation for
@@ -565,19 +623,24 @@ struct Block {
 
 // How a few blocks advance together over `steps` steps of a gap, per kind of propagator, and
 // how many vector blocks go together at most (more hide more latency until they spill).
-// The composition of leapfrog steps (weights w): first-same-as-last, the force at the end of
-// a step starts the next one (as Propagator::advance).
+// The composition of leapfrog steps (weights w), kick-drift-kick with the half kicks between
+// substeps merged (one force and one kick per substep, as Propagator::advance's
+// first-same-as-last).
 struct CompositionMethod {
   static constexpr int kMaxBlocks = 3;
   template <class... Blocks>
   SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, Blocks&... blocks) {
-    (blocks.force(blocks.f), ...);
+    if (steps <= 0) return;
+    const int last = s.ncomp - 1;
+    const double first_half = 0.5 * s.comp_w[0] * dt;
+    (blocks.first_kick(first_half), ...);
     for (int k = 0; k < steps; ++k) {
       for (int w = 0; w < s.ncomp; ++w) {
         const double h = s.comp_w[w] * dt;
-        const double half_h2 = 0.5 * h * h;
-        const double half_h = 0.5 * h;
-        (blocks.step(h, half_h, half_h2, s.inv_mass), ...);
+        // this substep's second half kick and the next one's first (none after the last)
+        const double next =
+            w < last ? s.comp_w[w + 1] * dt : (k + 1 < steps ? 2.0 * first_half : 0.0);
+        (blocks.merged_step(h, 0.5 * h + 0.5 * next, s.inv_mass), ...);
       }
     }
   }
@@ -687,7 +750,7 @@ FastAdvanceFn fast_advance_for(const Settings& s) {
 }
 
 // The fast propagation for these settings, or nullptr: then Propagator::advance, which gives
-// the same numbers (both follow the reference operation for operation), 1.5 to 2 times slower
+// the same numbers to rounding, 1.5 to 2 times slower
 // (about 5 times for Runge–Kutta at d = 3 and degree 4, without a compile-time force table).
 // Each fast variant is straight-line code for one basis, propagator and block layout, and
 // compiling them all (12 bases x mass matrix or not x 5 propagators) took most of the build,
@@ -718,8 +781,8 @@ FastAdvanceFn select_fast_advance(const Settings& s) {
 // ---------------------------------------------------------------- the filter's dense algebra
 // The per-gap algebra of eqs (10)-(12) on a lane type T: double for one θ, Vec for a group of
 // eight θ sharing the data, lane g holding member g (sigma point k of the group is then the
-// vector k of every state row, see run_group). Every lane does the reference's operations in
-// the reference's order, so a member's numbers do not depend on its group. Sizes NN (state)
+// vector k of every state row, see run_group). Every lane does the same operations in the same
+// order whatever T, so a member's numbers do not depend on its group. Sizes NN (state)
 // and DY (observation) are compile-time for the common models, so the small loops unroll
 // completely; 0 means "read it from the settings".
 
@@ -760,6 +823,65 @@ SYMPLID_INLINE void cholesky_columns(T* __restrict__ a, int runtime_n, int colum
   }
 }
 
+// The first `columns` pivots of the LDLᵀ factorisation of the symmetric N x N matrix a
+// (row-major, lower triangle read), right-looking: per column j the pivot D_j = a_jj, the
+// multipliers l_ij = a_ij / D_j below it (left in a's column j), and a −= l a_jᵀ on the
+// trailing lower triangle. The Cholesky factor of the reference is l·diag(D)^½, so the two
+// agree to rounding; but the dependent chain per column is one division and one multiply-add
+// (the square roots are taken off the chain by the caller). A pivot ≤ 0 (not positive definite)
+// is left for the caller to detect, as the reference's NaN.
+template <int FIXED_N, class T>
+SYMPLID_INLINE void ldl_columns(T* __restrict__ a, T* __restrict__ D, int runtime_n,
+                                int columns) {
+  const int N = FIXED_N > 0 ? FIXED_N : runtime_n;
+#pragma GCC unroll 16
+  for (int j = 0; j < N; ++j) {
+    if (j == columns) break;
+    D[j] = a[j * N + j];
+    const T inv = 1.0 / D[j];
+    if (j < columns - 1) {
+#pragma GCC unroll 16
+      for (int i = j + 1; i < N; ++i) {
+        const T aij = a[i * N + j];
+        const T lij = aij * inv;
+#pragma GCC unroll 16
+        for (int k = j + 1; k < i; ++k) a[i * N + k] -= lij * a[k * N + j];
+        a[i * N + i] -= (aij * aij) * inv;  // the next pivot's chain: division, multiply-add
+      }
+    }
+#pragma GCC unroll 16
+    for (int i = j + 1; i < N; ++i) a[i * N + j] = a[i * N + j] * inv;
+  }
+}
+
+// Lane w of a value (the value itself for one lane).
+SYMPLID_INLINE double& lane_at(double& v, int) { return v; }
+SYMPLID_INLINE double& lane_at(Vec& v, int w) { return reinterpret_cast<double*>(&v)[w]; }
+SYMPLID_INLINE double lane_at(const double& v, int) { return v; }
+SYMPLID_INLINE double lane_at(const Vec& v, int w) { return v[w]; }
+
+// ½ Σ_j log x_j per lane: one logarithm of the product where every x_j is positive and the
+// product a normal number, else the sum of logarithms (−∞ or NaN for an x_j ≤ 0, as there).
+template <class T>
+SYMPLID_INLINE void half_log_product(const T* x, int count, T& out) {
+  constexpr int lanes = std::is_same<T, Vec>::value ? kWidth : 1;
+  for (int w = 0; w < lanes; ++w) {
+    double product = 1.0;
+    bool positive = true;
+    for (int j = 0; j < count; ++j) {
+      product = product * lane_at(x[j], w);
+      positive = positive && lane_at(x[j], w) > 0.0;
+    }
+    double sum = 0.0;
+    if (positive && product > 1e-300 && product < 1e300) {
+      sum = std::log(product);
+    } else {
+      for (int j = 0; j < count; ++j) sum = sum + std::log(lane_at(x[j], w));
+    }
+    lane_at(out, w) = 0.5 * sum;
+  }
+}
+
 // Per-lane filter state (mean, factor, predicted covariance) and the algebra of one gap.
 template <class T, int NN, int DY>
 class Filter {
@@ -776,11 +898,14 @@ class Filter {
     cross_ = take(work, n * dy);
     predicted_ = take(work, dy);
     s0_ = take(work, dy * dy);
+    pivots_ = take(work, N);
+    scratch_ = take(work, dy + n);
     centred_ = take(work, n * s.npts);
     process_var_ = take(work, n);
     obs_var_ = take(work, dy);
     x0_ = take(work, n);
     p0_ = take(work, n * n);
+    selects_ = selection(s, select_);
     const int first_obs = s.ncoef + (s.diagonal ? n : 1);
     for (int w = 0; w < lanes(); ++w) {
       const Member& m = members[w % G];
@@ -796,7 +921,8 @@ class Filter {
   // T values of workspace the constructor takes.
   static std::size_t workspace(const Settings& s) {
     const int n = s.n, dy = s.dy, N = s.dy + s.n + 1;
-    return n + 3 * n * n + N * N + n * dy + 2 * dy + dy * dy + n * s.npts + 2 * n;
+    return n + 3 * n * n + N * N + n * dy + 2 * dy + dy * dy + n * s.npts + 2 * n + N +
+           dy + n;
   }
 
   int n() const { return NN > 0 ? NN : s_.n; }
@@ -851,6 +977,8 @@ class Filter {
 #pragma GCC unroll 16
       for (int k = 0; k < np; ++k) c[i * np + k] = row[k] - sum;
     }
+    // The lower triangle, mirrored (the reference computes both triangles and averages them:
+    // equal to rounding); Σ and jitter on the diagonal.
 #pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
       T weighted[NN > 0 ? 2 * NN + 1 : 1];  // wc_k c_ik, shared by the row's entries
@@ -858,23 +986,14 @@ class Filter {
 #pragma GCC unroll 16
       for (int k = 0; k < np; ++k) wci[k] = wc[k] * c[i * np + k];
 #pragma GCC unroll 8
-      for (int j = 0; j < n; ++j) {
-        T sum = T{} + wci[0] * c[j * np];
+      for (int j = 0; j <= i; ++j) {
+        T sum = wci[0] * c[j * np];
 #pragma GCC unroll 16
         for (int k = 1; k < np; ++k) sum = sum + wci[k] * c[j * np + k];
         cov[i * n + j] = sum;
+        cov[j * n + i] = sum;
       }
-      cov[i * n + i] = cov[i * n + i] + process_var_[i];
-    }
-#pragma GCC unroll 8
-    for (int i = 0; i < n; ++i) {  // symmetrise (Σ + jitter on the diagonal)
-#pragma GCC unroll 8
-      for (int j = 0; j < i; ++j) {
-        const T v = 0.5 * (cov[i * n + j] + cov[j * n + i]);
-        cov[i * n + j] = v;
-        cov[j * n + i] = v;
-      }
-      cov[i * n + i] = 0.5 * (cov[i * n + i] + cov[i * n + i]) + s_.jitter;
+      cov[i * n + i] = (cov[i * n + i] + process_var_[i]) + s_.jitter;
     }
   }
 
@@ -949,24 +1068,36 @@ class Filter {
     for (int j = 0; j < dy; ++j) {
       if (mask[j]) a[(N - 1) * N + j] = y[j] - predicted[j];
     }
-    cholesky_columns<kJoint>(a, N, dy + n);
-    T zz{}, logdet{};
+    T pivot[kJoint > 0 ? kJoint : 1];
+    T* __restrict__ D = kJoint > 0 ? pivot : pivots_;
+    ldl_columns<kJoint>(a, D, N, dy + n);
+    // With L = l·diag(D)^½ (the Cholesky factor of the reference): the innovation's row of L
+    // is z_j = l_(N−1)j D_j^½, so z·z = Σ l_(N−1)j² D_j; log det L_S = ½ log Π_(j<dy) D_j; the
+    // gain's shift is Σ_j L_(dy+i)j z_j = Σ_j l_(dy+i)j (l_(N−1)j D_j); the filtered factor is
+    // l_(dy+i)(dy+j) D_(dy+j)^½.
+    T zz{}, weighted[kJoint > 0 ? DY : 1];
+    T* __restrict__ wz = kJoint > 0 ? weighted : scratch_;
 #pragma GCC unroll 8
     for (int j = 0; j < dy; ++j) {
-      const T z = a[(N - 1) * N + j];
-      zz = zz + z * z;
-      T log_diagonal;
-      lane_log(a[j * N + j], log_diagonal);
-      logdet = logdet + log_diagonal;
+      wz[j] = a[(N - 1) * N + j] * D[j];
+      zz = zz + a[(N - 1) * N + j] * wz[j];
     }
+    T logdet;
+    half_log_product(D, dy, logdet);
+    T root[NN > 0 ? NN : 1];
+    T* __restrict__ roots = NN > 0 ? root : scratch_ + dy;
+#pragma GCC unroll 8
+    for (int j = 0; j < n; ++j) lane_sqrt(D[dy + j], roots[j]);
 #pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
       T shift{};
 #pragma GCC unroll 8
-      for (int j = 0; j < dy; ++j) shift = shift + a[(dy + i) * N + j] * a[(N - 1) * N + j];
+      for (int j = 0; j < dy; ++j) shift = shift + a[(dy + i) * N + j] * wz[j];
       mean[i] = mean[i] + shift;
 #pragma GCC unroll 8
-      for (int j = 0; j < n; ++j) chol[i * n + j] = j <= i ? a[(dy + i) * N + dy + j] : T{};
+      for (int j = 0; j < n; ++j) {
+        chol[i * n + j] = j < i ? a[(dy + i) * N + dy + j] * roots[j] : (j == i ? roots[j] : T{});
+      }
     }
     total = total + ((-0.5 * zz - logdet) - 0.5 * observed * kLog2Pi);
   }
@@ -1003,6 +1134,21 @@ class Filter {
                            T* __restrict__ s0) const {
     const int n = this->n(), dy = this->dy();
     const double* H = s_.obs_matrix;
+    if (selects_) {  // y = x_sel: the same numbers, without the products by 0 and 1
+#pragma GCC unroll 8
+      for (int i = 0; i < dy; ++i) predicted[i] = mean[select_[i]];
+#pragma GCC unroll 8
+      for (int i = 0; i < n; ++i) {
+#pragma GCC unroll 8
+        for (int j = 0; j < dy; ++j) cross[i * dy + j] = cov[i * n + select_[j]];
+      }
+#pragma GCC unroll 8
+      for (int i = 0; i < dy; ++i) {
+#pragma GCC unroll 8
+        for (int j = 0; j < dy; ++j) s0[i * dy + j] = cov[select_[i] * n + select_[j]];
+      }
+      return;
+    }
 #pragma GCC unroll 8
     for (int i = 0; i < dy; ++i) {
       T sum{};
@@ -1039,11 +1185,31 @@ class Filter {
     }
   }
 
+  // Whether every row of H is a unit vector (full-state or positions observation), and which.
+  static bool selection(const Settings& s, int* select) {
+    for (int i = 0; i < s.dy; ++i) {
+      int ones = 0, zeros = 0;
+      for (int k = 0; k < s.n; ++k) {
+        const double h = s.obs_matrix[i * s.n + k];
+        ones += h == 1.0 ? 1 : 0;
+        zeros += h == 0.0 ? 1 : 0;
+        if (h == 1.0 && i < kMaxSelect) select[i] = k;
+      }
+      if (ones != 1 || zeros != s.n - 1 || i >= kMaxSelect) return false;
+    }
+    return true;
+  }
+  static constexpr int kMaxSelect = 64;
+
   const Settings& s_;
+  int select_[kMaxSelect] = {};
+  bool selects_ = false;
   T* joint_;
   T* cross_;
   T* predicted_;
   T* s0_;
+  T* pivots_;   // the joint factorisation's pivots
+  T* scratch_;  // dy + n: the weighted innovation and the pivots' square roots
   T* centred_;
   T* process_var_;  // per component (all equal for isotropic noise)
   T* obs_var_;

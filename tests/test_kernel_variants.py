@@ -1,10 +1,11 @@
 """Every instruction-set variant of the compiled kernel gives the same numbers.
 
 The kernel is compiled for AVX-512, AVX2 and the baseline target, each in its own translation
-unit, without floating-point contraction, and the widest variant the processor supports runs.
-``SYMPLID_KERNEL_ISA`` selects a narrower one, read once per process: a subprocess evaluates
-a few models with each narrower variant, and its values must equal this process's (the
-widest variant's) bit for bit, and the JAX tier's to 1e-12 relative. The models cover the
+unit, with floating-point contraction (fused multiply-adds where the instruction set has
+them), and the widest variant the processor supports runs. ``SYMPLID_KERNEL_ISA`` selects a
+narrower one, read once per process: a subprocess evaluates a few models with each narrower
+variant, and its values must equal this process's (the widest variant's) and the JAX tier's
+to 1e-12 relative (not bit for bit: the variants round differently). The models cover the
 AVX-512 register path (the paper's leapfrog, RK4, d = 3) and the general path (a mass matrix,
 forward Euler, d = 3 at degree 4), for one θ and a vmap batch of eight.
 """
@@ -100,14 +101,14 @@ def test_narrower_variant_gives_the_same_numbers(isa):
     assert result["isa"] == isa
     for case, (single, batch) in zip(CASES, result["values"], strict=True):
         here_single, here_batch = values(case)
-        assert single == here_single, case
-        assert batch == here_batch, case
         model, data, thetas, x0 = _problem(case)
         reference = dataclasses.replace(model, backend="jax").log_likelihood_fn(data, x0)
         expected = [float(reference(th)) for th in thetas]
         assert np.all(np.isfinite(expected)), case
         tolerance = 1e-12 * np.maximum(1.0, np.abs(expected))  # as test_compiled_kernel.py
-        assert np.all(np.abs(np.subtract(single, expected)) <= tolerance), case
+        for got in (single, batch, here_single, here_batch):
+            assert np.all(np.abs(np.subtract(got, expected)) <= tolerance), case
+        assert np.all(np.abs(np.subtract(single, here_single)) <= tolerance), case
 
 
 def test_unknown_or_wider_request_is_ignored():
