@@ -173,24 +173,12 @@ def sample(
     burn_in = _check_budget(spec, num_draws, num_chains, thin, burn_in, seed, init_spread)
     kernel_settings, chain_method = _run_settings(spec, method, settings, chain_method,
                                                   posterior, int(num_chains))
-    batch_logdensity = cached_or_built(
-        posterior, "batch-log-density", lambda: _batch_log_density(posterior)
+    batch_logdensity, kernel = _built_kernel(posterior, spec, method, kernel_settings, burn_in)
+    init = find_map(posterior, seed=seed) if init is None else init
+    theta_map, cov_map, starts, states, extra_attrs, run_key = _chain_starts(
+        posterior, spec, kernel, batch_logdensity, init, num_params, int(seed),
+        int(num_chains), float(init_spread), initial_positions,
     )
-    num_warmup = burn_in if spec.adapts_during_burn_in else 0
-    kernel: SamplerKernel = cached_or_built(
-        posterior, ("sampler", method, kernel_settings, num_warmup),
-        lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
-    )
-    if init is None:
-        init = find_map(posterior, seed=seed)
-    theta_map, cov_map = _check_map(init, num_params, batch_logdensity, int(num_chains))
-    init_key, run_key = jax.random.split(jax.random.key(int(seed)), 2)
-    if initial_positions is None:
-        starts = overdispersed_starts(init_key, batch_logdensity, theta_map, cov_map,
-                                      int(num_chains), float(init_spread))
-    else:
-        starts = _explicit_starts(initial_positions, int(num_chains), num_params)
-    states, extra_attrs = _initial_states(posterior, spec, kernel, starts, theta_map, cov_map)
     record_settings = {
         "method": method, "num_draws": num_draws, "num_chains": int(num_chains),
         "seed": int(seed), "burn_in": burn_in, "thin": int(thin),
@@ -216,6 +204,37 @@ def sample(
     if return_state:
         return idata, SamplerCheckpoint(run.states, int(run.iterations_done))
     return idata
+
+
+def _built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
+                  burn_in: int) -> tuple[Any, SamplerKernel]:
+    """The posterior's batched log density and the sampler's kernel, built once per
+    posterior and settings (kept on the posterior)."""
+    batch_logdensity = cached_or_built(
+        posterior, "batch-log-density", lambda: _batch_log_density(posterior)
+    )
+    num_warmup = burn_in if spec.adapts_during_burn_in else 0
+    kernel: SamplerKernel = cached_or_built(
+        posterior, ("sampler", method, kernel_settings, num_warmup),
+        lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
+    )
+    return batch_logdensity, kernel
+
+
+def _chain_starts(posterior: Any, spec: Any, kernel: SamplerKernel, batch_logdensity: Any,
+                  init: Any, num_params: int, seed: int, num_chains: int,
+                  init_spread: float, initial_positions: Any) -> tuple[Any, ...]:
+    """The MAP (θ, covariance) the chains start around, their starting points and states,
+    the kernel's initial attributes, and the key the run then draws from."""
+    theta_map, cov_map = _check_map(init, num_params, batch_logdensity, num_chains)
+    init_key, run_key = jax.random.split(jax.random.key(seed), 2)
+    if initial_positions is None:
+        starts = overdispersed_starts(init_key, batch_logdensity, theta_map, cov_map,
+                                      num_chains, init_spread)
+    else:
+        starts = _explicit_starts(initial_positions, num_chains, num_params)
+    states, extra_attrs = _initial_states(posterior, spec, kernel, starts, theta_map, cov_map)
+    return theta_map, cov_map, starts, states, extra_attrs, run_key
 
 
 # ----------------------------------------------------------------------------- checks
