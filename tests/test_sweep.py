@@ -550,16 +550,16 @@ def test_the_sweep_is_given_its_experiment_and_checks_the_name_the_spec_gives(tm
 
 def test_register_studies_lists_each_study_once_and_is_idempotent():
     from symplid.registry import Registry
-    from symplid.studies import STUDIES, baselines_study, paper, register_studies
+    from symplid.studies import STUDIES, baselines_study, paper, register_studies, sbc
     from symplid.workflow.sweep import get_experiment
 
-    assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT)
+    assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT)
     registry = Registry("experiment")
     with pytest.raises(SweepError, match="no experiment is registered"):
         get_experiment("paper", "s.toml", registry)
     register_studies(registry)
     register_studies(registry)  # again: nothing changes
-    assert registry.names() == ("paper", "baselines")
+    assert registry.names() == ("paper", "baselines", "sbc")
     assert registry["paper"] is paper.EXPERIMENT
     other = Registry("experiment")
     other.register("paper", baselines_study.EXPERIMENT)
@@ -578,4 +578,4 @@ def test_the_sweep_command_names_an_unknown_experiment_in_one_line(tmp_path):
     assert result.exit_code == 2, result.output
     assert result.stderr.strip().splitlines() == [
         f"symplid: error: {spec}: sweep.experiment is 'paperr': unknown experiment 'paperr' "
-        "(did you mean 'paper'?); choose one of paper, baselines"]
+        "(did you mean 'paper'?); choose one of paper, baselines, sbc"]
