@@ -63,28 +63,6 @@ __all__ = [
 
 Array = jax.Array
 
-__all__ = [
-    "INTEGRATORS",
-    "Dynamics",
-    "ForceStepFn",
-    "GeneralDynamics",
-    "Integrator",
-    "StepFn",
-    "as_general",
-    "get_integrator",
-    "leapfrog_force_step",
-    "leapfrog_step",
-    "make_dynamics",
-    "require_separable",
-    "runge_kutta",
-    "runge_kutta_integrator",
-    "separable_only_error",
-    "symplectic_composition",
-    "symplectic_integrator",
-]
-
-
-
 
 def leapfrog_step(dynamics: Dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
     """Leapfrog (Störmer–Verlet) at integer steps, eqs (5)–(6), with a mass matrix M.
