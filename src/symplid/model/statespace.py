@@ -120,7 +120,7 @@ class HamiltonianModel(ModelFields):
         Learn a damping rate γ ≥ 0: ṗ = −∂U/∂q − γM⁻¹p (:mod:`symplid.dynamics.damping`). θ
         gets the entry ``gamma`` after the coefficients; a symplectic composition (leapfrog,
         yoshida4) becomes the conformally symplectic splitting, a Runge–Kutta method the
-        damped Runge–Kutta step (:attr:`integrator` is then the damped one, its ``base`` the
+        damped Runge–Kutta step (``integrator`` is then the damped one, its ``base`` the
         named one). A separable H only.
     binding
         Tao's binding constant ω for ``"tao"``/``"tao4"`` (:mod:`symplid.dynamics.nonseparable`);
@@ -131,9 +131,10 @@ class HamiltonianModel(ModelFields):
 
     The settings are checked and made normal by
     :func:`~symplid.model.construction.normalise_fields` before they are stored: the fields
-    read back are the normal ones (:attr:`integrator` an ``Integrator``, :attr:`mass` a matrix
-    or None, a matrix :attr:`observation` as floats, canonical names). Backend selection and
-    the compiled programs are :mod:`symplid.model.programs`'.
+    read back are the normal ones (``integrator`` an ``Integrator``, ``mass`` a matrix
+    or None, a matrix ``observation`` as floats, canonical names). The backend is chosen
+    by :mod:`symplid.model.backends`; the compiled programs are kept by
+    :mod:`symplid.model.programs`.
     """
 
     def __init__(
@@ -166,7 +167,7 @@ class HamiltonianModel(ModelFields):
 
     @property
     def potential(self) -> Potential | Hamiltonian:
-        """Deprecated: the field is :attr:`hamiltonian`."""
+        """Deprecated: the field is ``hamiltonian``."""
         warnings.warn(_POTENTIAL_RENAMED, FutureWarning, stacklevel=2)
         return self.hamiltonian
 
