@@ -167,3 +167,25 @@ def test_read_with_names_the_file_and_the_remedy(tmp_path):
         read_with(path, np.load, "do this")
     with pytest.raises(RunFolderError, match="no such file; do this"):
         read_with(tmp_path / "none", np.load, "do this")
+
+
+def test_an_earlier_run_of_another_kind_is_overwritten_by_its_identity_file(tmp_path):
+    """``symplid reproduce`` into its own earlier folder: the folder holds ``config.json``
+    (no ``settings.toml``); named as the identity it is a run to overwrite, else refused."""
+    from symplid.workflow.results import RunFolder, RunFolderError
+
+    earlier = tmp_path / "paper"
+    earlier.mkdir()
+    (earlier / "config.json").write_text("{}", encoding="utf-8")
+    (earlier / "summary.json").write_text('{"old": 1}', encoding="utf-8")
+    (earlier / "notes.txt").write_text("mine", encoding="utf-8")
+    with pytest.raises(RunFolderError, match="not a run folder"):
+        RunFolder(earlier, "w", overwrite=True)
+    folder = RunFolder(earlier, "w", overwrite=True, identity="config.json")
+    assert not (earlier / "summary.json").exists()  # a run file of the earlier run: removed
+    assert (earlier / "notes.txt").read_text(encoding="utf-8") == "mine"  # not a run file
+    assert (earlier / RunFolder.MARKER).exists()
+    folder.write_json("config.json", {"seed": 0})
+    folder.finish(required=("config.json",))
+    assert not (earlier / RunFolder.MARKER).exists()
+    RunFolder(earlier, "w", overwrite=True, identity="config.json").finish(("config.json",))

@@ -323,7 +323,7 @@ def reproduce(
     config = config or PaperConfig()
     out = Path(out)
     start = time.perf_counter()
-    folder = RunFolder(out, "w", overwrite=True)
+    folder = RunFolder(out, "w", overwrite=True, identity="config.json")  # an earlier reproduce
     obs, system = paper_data(config)
     folder.write_data(obs)
     folder.write_json("config.json", dataclasses.asdict(config))

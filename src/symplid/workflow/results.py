@@ -123,6 +123,10 @@ class RunFolder:
         Only for ``mode="w"``.
     allow_incomplete
         For ``"r"`` and ``"a"``: open a folder whose run did not finish (to inspect it).
+    identity
+        For ``mode="w"``: a file that marks an earlier run of the same kind where the folder
+        has no ``settings.toml`` (``symplid reproduce`` writes ``config.json``), so that
+        rerunning into it overwrites it like a run.
 
     Use it as a context manager to call :meth:`finish` on success and to record the error in
     the marker on failure::
@@ -163,12 +167,14 @@ class RunFolder:
         *,
         overwrite: bool = False,
         allow_incomplete: bool = False,
+        identity: str | None = None,
     ) -> None:
         if mode not in ("w", "a", "r", "c"):
             raise ValueError(f"mode must be 'w', 'a', 'r' or 'c', got {mode!r}")
         self.path = Path(path)
         self.mode: Mode = mode
         self._finished = False
+        self._identity = identity
         self._lock = FolderLock(self.path)
         if mode == "w":
             _check_parents(self.path)
@@ -216,7 +222,10 @@ class RunFolder:
         self._write_marker("run started")
 
     def _looks_like_run(self) -> bool:
-        return (self.path / self.SETTINGS).exists() or (self.path / self.MARKER).exists()
+        """Whether the folder holds an earlier run: its settings, its marker, or the file that
+        marks a run of another kind (``identity``, e.g. ``reproduce``'s ``config.json``)."""
+        marks = (self.SETTINGS, self.MARKER, *((self._identity,) if self._identity else ()))
+        return any((self.path / name).exists() for name in marks)
 
     def _check_existing(self, allow_incomplete: bool) -> None:
         path = self.path
