@@ -56,9 +56,12 @@ from symplid.model.params import pushforward_covariance
 __all__ = [
     "InterruptedInBurnIn",
     "SamplerCheckpoint",
+    "check_posterior",
     "draws_array",
+    "make_settings",
     "overdispersed_starts",
     "sample",
+    "to_inference_data",
 ]
 
 
@@ -168,7 +171,7 @@ def sample(
     """
     method = SAMPLERS.canonical(method)
     spec = SAMPLERS[method]
-    num_params, names = _check_posterior(posterior, spec)
+    num_params, names = check_posterior(posterior, spec)
     num_draws = _num_draws(num_draws, num_samples)
     burn_in = _check_budget(spec, num_draws, num_chains, thin, burn_in, seed, init_spread)
     kernel_settings, chain_method = _run_settings(spec, method, settings, chain_method,
@@ -200,7 +203,7 @@ def sample(
                    extra_attrs, init)
     if not run.draws:
         raise InterruptedInBurnIn(SamplerCheckpoint(run.states, int(run.iterations_done)), attrs)
-    idata = _to_inference_data(run, names, attrs)
+    idata = to_inference_data(run, names, attrs)
     if return_state:
         return idata, SamplerCheckpoint(run.states, int(run.iterations_done))
     return idata
@@ -255,7 +258,8 @@ def _num_draws(num_draws: int | None, num_samples: int | None) -> int:
     return int(num_draws)
 
 
-def _check_posterior(posterior: Any, spec: SamplerSpec) -> tuple[int, tuple[str, ...]]:
+def check_posterior(posterior: Any, spec: SamplerSpec) -> tuple[int, tuple[str, ...]]:
+    """θ's size and names, after checking the posterior has what ``spec``'s sampler reads."""
     needed = _POSTERIOR_ATTRIBUTES + (_UNCONSTRAINED_ATTRIBUTES if spec.unconstrained else ())
     missing = [name for name in needed if not hasattr(posterior, name)]
     if missing:
@@ -295,14 +299,15 @@ def _run_settings(spec: SamplerSpec, method: str, settings: Any, chain_method: s
                   posterior: Any, num_chains: int) -> tuple[Any, str]:
     """The kernel's settings, with what the sampler leaves to the run resolved, and the chain
     layout."""
-    kernel_settings = _make_settings(method, spec.settings_class, settings)
+    kernel_settings = make_settings(method, spec.settings_class, settings)
     chain_method = spec.default_chain_method if chain_method is None else chain_method
     if spec.resolve is not None:
         kernel_settings = spec.resolve(kernel_settings, posterior, num_chains, chain_method)
     return kernel_settings, chain_method
 
 
-def _make_settings(method: str, cls: type, settings: Any) -> Any:
+def make_settings(method: str, cls: type, settings: Any) -> Any:
+    """The sampler's settings: ``cls()``, an instance of ``cls``, or one built from a dict."""
     if settings is None:
         return cls()
     if isinstance(settings, cls):
@@ -471,7 +476,8 @@ def _attrs(method: str, seed: int, record_settings: dict, names: tuple[str, ...]
     return attrs
 
 
-def _to_inference_data(run: ChainRun, names: tuple[str, ...], attrs: dict):
+def to_inference_data(run: ChainRun, names: tuple[str, ...], attrs: dict):
+    """A run's draws as ArviZ ``InferenceData`` (layout: the module docstring)."""
     az = import_arviz()
     theta = run.draws["theta"]
     posterior = {name: theta[..., i] for i, name in enumerate(names)}

@@ -32,10 +32,10 @@ from symplid.compiled import cached_or_built
 from symplid.inference.samplers.api import (
     InterruptedInBurnIn,
     SamplerCheckpoint,
-    _check_posterior,
-    _make_settings,
-    _to_inference_data,
+    check_posterior,
     draws_array,
+    make_settings,
+    to_inference_data,
 )
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
 from symplid.inference.samplers.run import ChainRun, ChunkReport, ChunkSink, run_chains
@@ -61,7 +61,7 @@ def inference_data(draws: Mapping[str, np.ndarray], attrs: Mapping[str, Any]) ->
     attributes, laid out as :func:`~.api.sample` returns them."""
     names = tuple(str(n) for n in attrs["param_names"])
     run = ChainRun(dict(draws), None, int(attrs["iterations"]), True, 0.0)
-    return _to_inference_data(run, names, dict(attrs))
+    return to_inference_data(run, names, dict(attrs))
 
 
 def _restore(arrays: Mapping[str, Any], template: Any) -> SamplerCheckpoint:
@@ -135,10 +135,10 @@ def resume_sampling(
         attrs["settings"])
     method = SAMPLERS.canonical(record["method"])
     spec = SAMPLERS[method]
-    num_params, names = _check_posterior(posterior, spec)
+    num_params, names = check_posterior(posterior, spec)
     if list(names) != [str(n) for n in attrs["param_names"]]:
         raise ValueError("the posterior's parameters are not those of the draws")
-    kernel_settings = _make_settings(method, spec.settings_class, record["kernel"])
+    kernel_settings = make_settings(method, spec.settings_class, record["kernel"])
     burn_in, thin, num_draws = int(record["burn_in"]), int(record["thin"]), int(
         record["num_draws"])
     num_chains = int(record["num_chains"])
@@ -174,7 +174,7 @@ def resume_sampling(
     if not draws:  # interrupted again, still in the burn-in
         raise InterruptedInBurnIn(SamplerCheckpoint(run.states, int(run.iterations_done)), attrs)
     whole = ChainRun(draws, run.states, run.iterations_done, run.interrupted, elapsed)
-    result = _to_inference_data(whole, names, attrs)
+    result = to_inference_data(whole, names, attrs)
     if return_state:
         return result, SamplerCheckpoint(run.states, int(run.iterations_done))
     return result
