@@ -272,8 +272,8 @@ def first_observation_update(
     R = obs_cov[np.ix_(idx, idx)]
     cross = P0 @ H.T
     moments = ObservationMoments(y_hat, H @ cross, cross)
-    noise = getattr(model, "noise_model", None)
-    if noise is not None and noise.multiplicative:  # R = Γ + diag(r ∘ E[h∘h]) (filters.noise)
+    noise = model.noise_model  # declared by the StateSpaceModel protocol
+    if noise.multiplicative:  # R = Γ + diag(r ∘ E[h∘h]) (filters.noise)
         R = noise.covariance_fn(R, model.relative_variances(model_theta)[idx])(moments)
     observed = jnp.ones(idx.size, dtype=bool)
     mean, chol, log_lik = gaussian_update(x0, P0, jnp.asarray(first.y), observed, moments, R)
