@@ -23,6 +23,7 @@ from symplid.workflow.commandline import (
     baselines_study_options,
     compare_candidates,
     config_option,
+    echo_diagnostics,
     fit_result_line,
     floats,
     integrator_registry,
@@ -304,6 +305,7 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
     outcome, heldout = run_fit(data, out, config, overrides, sets, (holdout, holdout_after),
                                overwrite, resume, no_progress)
     click.echo(fit_result_line(out, outcome, time.perf_counter() - start))
+    echo_diagnostics(out, outcome)  # the MAP-level sensitivity checks
     if outcome.interrupted:
         raise Interrupted
     if report:
@@ -372,6 +374,7 @@ def report(run, no_progress) -> None:
     from symplid.workflow.run_tools import report_run
 
     click.echo(report_run(run))
+    echo_diagnostics(run)  # the fit's sensitivity checks, as report.md shows them
 
 
 # ----------------------------------------------------------------------------- compare

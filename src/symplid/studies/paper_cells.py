@@ -38,8 +38,9 @@ _DEFAULTS = settings_to_dict(Settings())
 PAPER_MODEL = {"noise": "isotropic", "standardise": "off"}
 #: The paper's DRAM moves θ itself (the library's default moves the variances as log v).
 PAPER_SAMPLER = {"variance_scale": "natural"}
-#: The paper reports no evidence: the Laplace value (no extra fits) is recorded.
-PAPER_MAP = {"evidence": "laplace"}
+#: The paper reports no evidence: the Laplace value (no extra fits) is recorded; nor do its
+#: studies pay for a user's fit's sensitivity checks (two MAP refits).
+PAPER_MAP = {"evidence": "laplace", "sensitivity": False}
 #: The paper's half-normal(1) on the process variance, whatever a user's fit defaults to.
 PAPER_PRIORS = {"process_var": "variances"}
 

@@ -29,6 +29,7 @@ __all__ = [
     "compare_candidates",
     "config_option",
     "converged",
+    "echo_diagnostics",
     "fit_result_line",
     "floats",
     "integrator_registry",
@@ -343,6 +344,29 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
         f"{s['log_evidence']:.2f} ({s['evidence_method']}; Laplace "
         f"{s['log_evidence_laplace']:.2f}){extra}; {seconds:.0f} s"
     )
+
+
+def echo_diagnostics(out: Path, outcome: Any = None) -> None:
+    """Print the lines ``symplid fit`` and ``symplid report`` show for the run's sensitivity
+    checks (:func:`~symplid.workflow.sensitivity.sensitivity_summary`; none when the run has
+    none): the fit's ``outcome``'s, else the run folder's ``diagnostics.json``."""
+    for line in _diagnostics_lines(out, outcome):
+        click.echo(line)
+
+
+def _diagnostics_lines(out: Path, outcome: Any) -> list[str]:
+    """An unreadable ``diagnostics.json`` is one line, never an error."""
+    from symplid.workflow.results import RunFolder
+    from symplid.workflow.sensitivity import sensitivity_summary
+
+    checks = getattr(outcome, "diagnostics", None)
+    try:
+        if checks is None and (Path(out) / RunFolder.DIAGNOSTICS).exists():
+            checks = RunFolder(out, "r", allow_incomplete=True).read_json(RunFolder.DIAGNOSTICS)
+        return [] if checks is None else [f"{out}: {line}" for line in
+                                          sensitivity_summary(checks)]
+    except Exception as err:
+        return [f"{out}: the sensitivity checks cannot be shown ({type(err).__name__}: {err})"]
 
 
 def report_after_fit(out: Path) -> str:

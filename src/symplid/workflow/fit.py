@@ -27,20 +27,19 @@ from symplid.inference.map import find_map
 from symplid.inference.map_checks import MapFailedError, failure_message
 from symplid.inference.map_result import MapConvergenceWarning
 from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
-from symplid.io import as_list, observation_layout
 from symplid.io.chunks import ChunkWriter
 from symplid.model.data import Observations
-from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
-from symplid.model.variance_prior import process_variance_prior
 from symplid.stopping import check as check_stop
-from symplid.workflow.auto import auto_notes, resolve_noise
+from symplid.workflow.auto import auto_notes
+from symplid.workflow.building import build_model, build_posterior
 from symplid.workflow.interrupts import deferred_interrupts
-from symplid.workflow.model_builder import build_model_family, model_family
+from symplid.workflow.model_builder import model_family
 from symplid.workflow.results import RunFolder
 from symplid.workflow.scaling import scaling_for
+from symplid.workflow.sensitivity import sensitivity_checks
 from symplid.workflow.settings import Settings, resolve_for_data
-from symplid.workflow.settings_schema import map_start, prior_spec
+from symplid.workflow.settings_schema import map_start
 
 __all__ = [
     "FitOutcome",
@@ -52,59 +51,6 @@ __all__ = [
     "save_burn_in",
     "save_run",
 ]
-
-
-def build_model(settings: Settings, obs: Observations | list[Observations]) -> HamiltonianModel:
-    """The state-space model of eq. (7) that ``settings.model`` describes, for these data
-    (one trajectory, or a list of them observed the same way)."""
-
-    m = settings.model
-    layout = observation_layout(as_list(obs)[0])
-    observation = layout.kind if m.observation == "auto" else m.observation
-    return HamiltonianModel(
-        build_model_family(layout.dim, m),
-        integrator=m.integrator,
-        binding=m.binding or None,
-        dt=m.dt,
-        observation=observation,
-        process_noise_per=m.process_noise_per,
-        noise=resolve_noise(m.noise, observation),
-        observation_noise=m.observation_noise,
-        mass=list(m.mass) if m.mass else None,
-        alpha=m.alpha,
-        beta=m.beta,
-        kappa=m.kappa,
-        jitter=m.jitter,
-        damping=m.damping,
-    )
-
-
-def build_posterior(settings: Settings, obs: Observations | list[Observations],
-                    model: HamiltonianModel):
-    """The posterior of ``settings`` (priors, initial state) for ``model`` and ``obs``.
-
-    Several trajectories share θ; ``initial_state.x0`` is then one state for all, or one
-    after the other (K·2d numbers). With ``priors.process_var = "log-uniform"`` the process
-    variance's prior is :func:`~symplid.model.variance_prior.process_variance_prior` of
-    ``obs``."""
-
-    init = settings.initial_state
-    learned = init.mode == "learned"
-    x0 = np.asarray(init.x0, dtype=float) if init.x0 else None
-    if x0 is not None and not isinstance(obs, Observations):
-        x0 = np.resize(x0, (len(obs), model.state_dim))  # one for all, or one each
-    spec = prior_spec(settings)  # the groups' priors, and a user model's own
-    if settings.priors.process_var == "log-uniform":  # scaled to these data
-        spec = dataclasses.replace(spec, process_var=process_variance_prior(obs))
-    return Posterior(
-        model,
-        obs,
-        prior=spec,
-        x0=x0,
-        P0=init.p0_var,
-        t0=None if init.at_first_observation else init.t0,  # None: at the first observation
-        learn_initial_state=learned,  # its prior is the "initial_state" group above
-    )
 
 
 @dataclass
@@ -122,6 +68,9 @@ class FitOutcome:
     interrupted: bool = False
     standardised_scale: float | None = None
     """The position scale a of ``model.standardise`` (None: fitted in the data's units)."""
+    diagnostics: dict[str, Any] | None = None
+    """The MAP-level sensitivity checks (:func:`~symplid.workflow.sensitivity.sensitivity_checks`;
+    None with ``map.sensitivity = false``), as saved in ``diagnostics.json``."""
 
 
 def find_map_for(settings: Settings, posterior) -> Any:
@@ -300,6 +249,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     timings["map_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_map(map_result)
+    diagnostics = _diagnostics(settings, obs, posterior, map_result, folder, timings, status)
     start = time.perf_counter()
     try:
         idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
@@ -315,8 +265,29 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
         model = build_model(settings, obs)
         posterior = build_posterior(settings, obs, model)
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
-                         standardised_scale=None if scaling is None else scaling.scale)
+                         standardised_scale=None if scaling is None else scaling.scale,
+                         diagnostics=diagnostics)
     return save_run(folder, outcome, checkpoint, warn)
+
+
+def _diagnostics(settings, obs, posterior, map_result, folder, timings,
+                 status) -> dict[str, Any] | None:
+    """The MAP-level sensitivity checks between the MAP and the sampler
+    (:mod:`symplid.workflow.sensitivity`, with ``map.sensitivity``), saved as
+    ``diagnostics.json``. A check that fails is recorded as not available; a stop asked for
+    meanwhile ends the run here, its MAP kept (:mod:`symplid.stopping`)."""
+    if not settings.map.sensitivity:
+        return None
+    if status is not None:
+        status("sensitivity checks: the MAP refitted at dt/2 and with the other process-noise "
+               "model (map.sensitivity = false skips them)...")
+    start = time.perf_counter()
+    checks = sensitivity_checks(settings, obs, posterior, map_result)
+    timings["diagnostics_s"] = time.perf_counter() - start
+    if folder is not None:
+        folder.write_json(RunFolder.DIAGNOSTICS, checks)
+    check_stop()  # a safe point between the phases
+    return checks
 
 
 def save_burn_in(folder: RunFolder, settings: Settings, stop: InterruptedInBurnIn) -> None:

@@ -150,13 +150,14 @@ class RunFolder:
     POSTERIOR = "posterior.nc"
     SUMMARY = "summary.json"
     SUMMARY_TEXT = "summary.txt"
+    DIAGNOSTICS = "diagnostics.json"  # the MAP-level checks (symplid.workflow.sensitivity)
     REPORT = "report.md"
     FIGURES = "figures"
     SAMPLER_STATE = "sampler_state.npz"
     SAMPLER_ATTRS = "sampler_attrs.json"  # an unfinished run's draws' attributes
     CHUNKS = CHUNKS_DIR  # the draws streamed chunk by chunk (symplid.io.chunks)
-    RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, REPORT, FIGURES,
-                 SAMPLER_STATE, SAMPLER_ATTRS, CHUNKS)
+    RUN_FILES = (SETTINGS, DATA, MAP, POSTERIOR, SUMMARY, SUMMARY_TEXT, DIAGNOSTICS, REPORT,
+                 FIGURES, SAMPLER_STATE, SAMPLER_ATTRS, CHUNKS)
     UPDATE = "update"
     INTERRUPTED = "interrupted:"
 

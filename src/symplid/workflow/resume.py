@@ -117,7 +117,10 @@ def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
     timings = dict(summary.get("timings", {}))
     timings["sampler_s"] = float(timings.get("sampler_s", 0.0)) + time.perf_counter() - start
     timings["resumed"] = int(timings.get("resumed", 0)) + 1
-    outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings)
+    diagnostics = (folder.read_json(RunFolder.DIAGNOSTICS)
+                   if folder.file(RunFolder.DIAGNOSTICS).exists() else None)  # the fit's own
+    outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
+                         diagnostics=diagnostics)
     return save_run(folder, outcome, checkpoint, warn)
 
 

@@ -21,7 +21,7 @@ from symplid.workflow.results import RunFolder, format_summary
 from symplid.workflow.run_figures import ReportFigure, report_figures, trajectory_paths
 from symplid.workflow.sensitivity import sensitivity_checks, sensitivity_lines
 
-__all__ = ["predict_run", "report_run", "save_atomically"]
+__all__ = ["predict_run", "report_run", "run_diagnostics", "save_atomically"]
 
 #: The most integrator steps a prediction may take ((t_end − t0)/dt), so that a mistyped
 #: horizon (1e9) is a one-line error rather than hours of work or an exhausted memory.
@@ -130,9 +130,9 @@ def predict_run(
 
 
 def report_run(run: str | Path) -> str:
-    """Write ``report.md``: the summary, a per-parameter R-hat/ESS table, and the figures
-    (traces, pairs, U(q) with its band, the data against the fit; see
-    :mod:`symplid.workflow.run_figures`).
+    """Write ``report.md``: the summary, a per-parameter R-hat/ESS table, the sensitivity
+    checks of the fit (:func:`run_diagnostics`), and the figures (traces, pairs, U(q) with its
+    band, the data against the fit; see :mod:`symplid.workflow.run_figures`).
 
     Everything is computed before the folder is touched; a failed or interrupted report leaves
     a finished run finished. A run whose ``posterior.nc`` is missing gets a one-line warning
@@ -162,15 +162,9 @@ def report_run(run: str | Path) -> str:
     ]
     if table is not None:
         lines += ["## Convergence", "", table, ""]
-    flagged = ""
-    if settings.map.sensitivity:  # MAP refits at dt/2 and with the other process noise
-        checks = sensitivity_checks(settings, obs, posterior,
-                                    MapResult.from_dict(folder.read_map()))
+    checks = run_diagnostics(folder, settings, obs, posterior)
+    if checks is not None:
         lines += sensitivity_lines(checks)
-        if checks["step_size"]["flagged"]:
-            flagged = ("; warning: the learning step biases "
-                       f"{', '.join(checks['step_size']['flagged'])} (use a smaller dt or "
-                       "yoshida4)")
     notes = [f"{f.title}: {f.note}" for f in figures if f.note]
     with RunFolder(run, "a") as update:
         for f in figures:
@@ -180,9 +174,23 @@ def report_run(run: str | Path) -> str:
                   for p in update.figures() if p.stem.startswith("predictive")]
         for title, path, note in shown:
             lines += [f"![{title}]({path})\n"] + ([f"*{note}*\n"] if note else [])
+        if checks is not None and not folder.file(RunFolder.DIAGNOSTICS).exists():
+            update.write_json(RunFolder.DIAGNOSTICS, checks)  # computed for an older run
         update.write_report("\n".join(lines))
     extra = f" ({'; '.join(notes)})" if notes else ""
-    return f"{folder.file('report.md')}: {len(shown)} figures{extra}{flagged}"
+    return f"{folder.file('report.md')}: {len(shown)} figures{extra}"
+
+
+def run_diagnostics(folder: RunFolder, settings: Any = None, obs: Any = None,
+                    posterior: Any = None) -> dict | None:
+    """A run's sensitivity checks: ``diagnostics.json`` as its fit saved them, else (a run
+    made before fits computed them) computed now when its ``map.sensitivity`` is on (given
+    its ``settings``, ``obs`` and ``posterior``), else None."""
+    if folder.file(RunFolder.DIAGNOSTICS).exists():
+        return folder.read_json(RunFolder.DIAGNOSTICS)
+    if settings is None or not settings.map.sensitivity:
+        return None
+    return sensitivity_checks(settings, obs, posterior, MapResult.from_dict(folder.read_map()))
 
 
 def _which(path: Path) -> str:

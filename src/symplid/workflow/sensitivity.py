@@ -18,11 +18,20 @@ standard deviations (the Laplace sds of its MAP):
 turns it into the Markdown of a report. The refits start from the fit's MAP (without its
 process variance for the refit without process noise, the homotopy of
 :mod:`symplid.inference.homotopy`), so each costs a short search and one compilation.
+
+A user's fit runs both right after its MAP (``map.sensitivity = true``, the default;
+:func:`symplid.workflow.fit.fit`), saves them as ``diagnostics.json`` in the run folder and
+prints :func:`sensitivity_summary`; ``symplid report`` shows them without recomputing. A check
+that cannot be made (its refit raised, or its MAP search failed) is recorded as
+``{"not_available": reason}`` and never fails the fit; a stop asked for during a refit
+(:mod:`symplid.stopping`) is obeyed at its next evaluation.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import re
+import time
 from typing import Any
 
 import numpy as np
@@ -30,28 +39,37 @@ import numpy as np
 from symplid.inference.homotopy import without_process_var
 from symplid.inference.map import find_map
 from symplid.io import as_list
-from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.building import build_model, build_posterior
+from symplid.workflow.model_builder import model_family
 from symplid.workflow.scaling import scaling_for
 
 __all__ = [
+    "DYNAMICS_GROUPS",
     "THRESHOLD_SD",
     "process_noise_check",
     "refit_map",
     "sensitivity_checks",
     "sensitivity_lines",
+    "sensitivity_summary",
     "step_size_check",
 ]
 
 THRESHOLD_SD = 0.3
 """A coefficient whose MAP moves by more than this many posterior sds is flagged."""
 
+DYNAMICS_GROUPS = ("coefficients", "parameters", "damping")
+"""The parameter groups whose shifts are measured: the dynamics' (a polynomial's
+coefficients, a user model's parameters, the damping rate), not the noise variances or x0."""
 
-def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None) -> tuple[Any, Any]:
+
+def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
+              compute_hessian: bool = True) -> tuple[Any, Any]:
     """(MAP result in the data's units, posterior) of ``settings`` on ``obs``, one start.
 
     The fit runs in standardised coordinates when ``settings`` ask for them (as a fit does,
     :mod:`symplid.workflow.scaling`); ``init`` is a θ in the data's units, or None for the
-    default start.
+    default start. Without ``compute_hessian`` the refit has no covariance and no evidence
+    (the step-size check needs neither: one compilation and the quadrature saved).
     """
     scaling = scaling_for(settings, obs)
     fit_settings = settings if scaling is None else scaling.settings(settings)
@@ -67,7 +85,8 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None) -> tuple[
         if scaling is not None:
             start = scaling.reparameterisation(groups).to_unconstrained(start)
     result = find_map(posterior, seed=settings.map.seed, num_starts=1, init=start,
-                      evidence=settings.map.evidence, warn=False)
+                      evidence=settings.map.evidence, warn=False,
+                      compute_hessian=compute_hessian)
     if scaling is not None:
         result = scaling.map_result(result, groups, obs)
     return result, posterior
@@ -83,7 +102,7 @@ def _shifts(names: list[str], groups: list[str], base: Any, other: Any,
     index = {n: i for i, n in enumerate(other_names)}
     return {n: float((alt[index[n]] - theta[i]) / sd[i])
             for i, (n, g) in enumerate(zip(names, groups, strict=True))
-            if g == "coefficients" and n in index and sd[i] > 0}
+            if g in DYNAMICS_GROUPS and n in index and sd[i] > 0}
 
 
 def _check(shifts: dict[str, float]) -> list[str]:
@@ -96,7 +115,9 @@ def step_size_check(settings: Any, obs: Any, posterior: Any, map_result: Any) ->
     :data:`THRESHOLD_SD`). Arguments as :func:`sensitivity_checks`."""
     m = settings.model
     half = dataclasses.replace(settings, model=dataclasses.replace(m, dt=m.dt / 2))
-    half_map, half_post = refit_map(half, obs, np.asarray(map_result.theta))
+    half_map, half_post = refit_map(half, obs, np.asarray(map_result.theta),
+                                    compute_hessian=False)
+    _refit_found(half_map)
     shifts = _shifts(list(posterior.param_names), list(posterior.param_groups), map_result,
                      half_map, list(half_post.param_names))
     return {"dt": m.dt, "dt_refit": m.dt / 2, "shifts": shifts, "flagged": _check(shifts)}
@@ -116,11 +137,39 @@ def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any
     # the default start (a large process variance)
     init = None if deterministic else without_process_var(groups, map_result.theta)
     alt_map, alt_post = refit_map(alt_settings, obs, init)
+    _refit_found(alt_map)
     shifts = _shifts(list(posterior.param_names), groups, map_result, alt_map,
                      list(alt_post.param_names))
     return {"fitted": m.process_noise_per, "refit": other, "shifts": shifts,
             "flagged": _check(shifts), "log_evidence": float(map_result.log_evidence),
             "log_evidence_refit": float(alt_map.log_evidence)}
+
+
+def _refit_found(result: Any) -> None:
+    """Refuse a refit whose MAP search failed (:mod:`symplid.inference.map_checks`): its
+    shifts would measure the search, not the setting."""
+    if getattr(result, "failure", ""):
+        raise ValueError(f"the refit's MAP search failed (the best point {result.failure})")
+
+
+def _unavailable(settings: Any, map_result: Any) -> str:
+    """Why no check can be made for this fit ("" when they can)."""
+    if model_family(settings.model).neural:
+        return ("a neural family's MAP is its whole Adam + L-BFGS fit: refitting it twice is "
+                "not a cheap check")
+    if getattr(map_result, "covariance", None) is None:
+        return "the fit's MAP has no Laplace covariance to measure the shifts in"
+    return ""
+
+
+def _safely(check: Any, *args: Any) -> dict:
+    """``check(*args)``, or ``{"not_available": reason}`` when it raises (an error, not a
+    stop: :class:`~symplid.stopping.StopRequested` is a ``KeyboardInterrupt`` and passes)."""
+    try:
+        return check(*args)
+    except Exception as err:  # a diagnostic never fails the fit it checks
+        text = re.sub(r"\s*\([^()]{60,}\)", "", str(err))  # not a whole θ's list of values
+        return {"not_available": f"{type(err).__name__}: {text}"}
 
 
 def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
@@ -138,12 +187,19 @@ def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any)
     Returns
     -------
     dict
-        ``{"threshold_sd": ..., "step_size": {...}, "process_noise": {...}}``: the results of
-        :func:`step_size_check` and :func:`process_noise_check`.
+        ``{"threshold_sd": ..., "step_size": {...}, "process_noise": {...}, "seconds": ...}``:
+        the results of :func:`step_size_check` and :func:`process_noise_check`, each
+        ``{"not_available": reason}`` where it could not be made (it never raises but for a
+        stop, :mod:`symplid.stopping`).
     """
+    start = time.perf_counter()
+    why = _unavailable(settings, map_result)
+    args = (settings, obs, posterior, map_result)
     return {"threshold_sd": THRESHOLD_SD,
-            "step_size": step_size_check(settings, obs, posterior, map_result),
-            "process_noise": process_noise_check(settings, obs, posterior, map_result)}
+            "step_size": {"not_available": why} if why else _safely(step_size_check, *args),
+            "process_noise": ({"not_available": why} if why
+                              else _safely(process_noise_check, *args)),
+            "seconds": time.perf_counter() - start}
 
 
 def sensitivity_lines(checks: dict) -> list[str]:
@@ -152,24 +208,64 @@ def sensitivity_lines(checks: dict) -> list[str]:
     step, noise = checks["step_size"], checks["process_noise"]
     limit = checks["threshold_sd"]
     lines = ["## Sensitivity (MAP refits)", ""]
-    if step["flagged"]:
+    if step.get("flagged"):
         lines += [f"**Warning**: the learning step biases these parameters: "
                   f"{', '.join(step['flagged'])} (they move by more than {limit:g} posterior "
                   f"sds when dt is halved); use a smaller dt or yoshida4.", ""]
-    without = noise["refit"] == "none"
-    name = "without" if without else "with"
-    if noise["flagged"]:
+    name = "without" if noise.get("refit", "none") == "none" else "with"
+    if noise.get("flagged"):
         lines += [f"**Note**: these parameters depend on the process noise: "
                   f"{', '.join(noise['flagged'])} (they move by more than {limit:g} posterior "
                   f"sds in the fit {name} process noise); compare the evidences below.", ""]
-    lines += [f"| coefficient | shift at dt = {step['dt_refit']:g} (sds) | "
-              f"shift {name} process noise (sds) |", "|---|---:|---:|"]
-    for coefficient in step["shifts"] | noise["shifts"]:
-        lines.append(f"| {coefficient} | {_fmt(step['shifts'].get(coefficient))} | "
-                     f"{_fmt(noise['shifts'].get(coefficient))} |")
-    lines += ["", f"Log evidence: this fit {noise['log_evidence']:.2f}, the fit {name} process "
-              f"noise {noise['log_evidence_refit']:.2f}.", ""]
+    for title, check in (("Step-size check", step), ("Process-noise check", noise)):
+        if "not_available" in check:
+            lines += [f"{title}: not available: {check['not_available']}", ""]
+    steps, noises = step.get("shifts", {}), noise.get("shifts", {})
+    if steps or noises:
+        at = f"dt = {step['dt_refit']:g}" if "dt_refit" in step else "dt/2"
+        lines += [f"| parameter | shift at {at} (sds) | shift {name} process noise (sds) |",
+                  "|---|---:|---:|"]
+        lines += [f"| {n} | {_fmt(steps.get(n))} | {_fmt(noises.get(n))} |"
+                  for n in steps | noises]
+        lines.append("")
+    if "log_evidence_refit" in noise:
+        lines += [f"Log evidence: this fit {noise['log_evidence']:.2f}, the fit {name} "
+                  f"process noise {noise['log_evidence_refit']:.2f}.", ""]
     return lines
+
+
+def sensitivity_summary(checks: dict) -> list[str]:
+    """One or two lines for the end of ``symplid fit``: what the checks found, and a
+    warning line when a parameter moves by more than :data:`THRESHOLD_SD` posterior sds."""
+    step, noise = checks["step_size"], checks["process_noise"]
+    limit = checks["threshold_sd"]
+    name = "without" if noise.get("refit", "none") == "none" else "with"
+    parts = [f"step-size check not available ({step['not_available']})" if "not_available"
+             in step else f"halving dt moves a parameter by at most {_largest(step)}"]
+    if "not_available" in noise:
+        parts.append(f"process-noise check not available ({noise['not_available']})")
+    else:
+        parts.append(f"{name} process noise by at most {_largest(noise)}, log evidence "
+                     f"{noise['log_evidence_refit']:.2f} against this fit's "
+                     f"{noise['log_evidence']:.2f}")
+    lines = [f"sensitivity (MAP refits): {'; '.join(parts)}"]
+    if step.get("flagged"):
+        lines.append(f"warning: the learning step biases {', '.join(step['flagged'])} (more "
+                     f"than {limit:g} posterior sds when dt is halved); use a smaller dt or "
+                     "yoshida4")
+    if noise.get("flagged"):
+        lines.append(f"note: {', '.join(noise['flagged'])} move by more than {limit:g} "
+                     f"posterior sds {name} process noise; the evidences say which model the "
+                     "data prefer (symplid compare --process-noise)")
+    return lines
+
+
+def _largest(check: dict) -> str:
+    shifts = check.get("shifts", {})
+    if not shifts:
+        return "— (no parameter to compare)"
+    name = max(shifts, key=lambda n: abs(shifts[n]) if np.isfinite(shifts[n]) else np.inf)
+    return f"{abs(shifts[name]):.2f} posterior sds ({name})"
 
 
 def _fmt(value: float | None) -> str:

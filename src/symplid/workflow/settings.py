@@ -68,7 +68,7 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     adam_steps = 2000             # a neural family's MAP: Adam, then L-BFGS (no multistart)
     learning_rate = 0.01
     lbfgs_steps = 1000
-    sensitivity = false           # report: MAP refits at dt/2 and with the other process noise
+    sensitivity = true            # after the MAP: refits at dt/2 and with the other process noise
 
     [sampler]
     method = "dram"               # any name in symplid.inference.samplers.SAMPLERS
