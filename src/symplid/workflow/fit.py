@@ -196,7 +196,11 @@ def fit(
     failure or an interruption before sampling records its reason in the marker; a MAP
     search that failed (:mod:`symplid.inference.map_checks`) raises
     :class:`~symplid.inference.map_checks.MapFailedError` before any sampling. ``warn``
-    issues :class:`~symplid.inference.diagnostics.ConvergenceWarning` for R-hat and ESS;
+    issues :class:`~symplid.inference.diagnostics.ConvergenceWarning` for R-hat and ESS.
+    Between the MAP and the sampler, with ``map.sensitivity`` (the default), the MAP is refitted
+    at dt/2 and with the other process-noise model (:mod:`symplid.workflow.sensitivity`;
+    ``FitOutcome.diagnostics``, ``diagnostics.json``); a refit that fails is recorded as not
+    available, never raised;
     ``status`` receives a one-line message before the (silent) MAP search and compilation.
     """
 
