@@ -191,9 +191,18 @@ def run_fits(
     if workers <= 1:
         return [_fit_one(job) for job in jobs]
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
-                             initializer=stop_on_signals) as pool:  # signals: one policy
+    counter = context.Value("i", 0)  # numbers the workers, each pinned to its own core
+    with runtime.worker_environment(), ProcessPoolExecutor(
+        max_workers=min(workers, len(jobs)), mp_context=context, initializer=_start_worker,
+        initargs=(counter,),
+    ) as pool:  # one-thread pools, set before the worker loads NumPy or JAX
         return results_or_stop([pool.submit(_fit_one, job) for job in jobs])
+
+
+def _start_worker(counter: Any) -> None:
+    """A worker's initializer: its own core (before JAX starts), and the signal policy."""
+    runtime.pin_worker(counter)
+    stop_on_signals()  # signals: one policy
 
 
 @dataclasses.dataclass
