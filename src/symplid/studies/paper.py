@@ -179,7 +179,11 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
         progress_position=position,
         overwrite=True,
     )
-    return {"approach": approach, "timings": outcome.timings, "interrupted": outcome.interrupted}
+    draws = draws_array(outcome.idata)  # handed back in memory: the parent reads no file
+    return {"approach": approach, "timings": outcome.timings, "interrupted": outcome.interrupted,
+            "result": ApproachResult(approach, config.integrator(approach),
+                                     np.asarray(outcome.map_result.theta, dtype=float), draws,
+                                     tuple(outcome.posterior.param_names), outcome.summary)}
 
 
 def run_fits(
@@ -241,7 +245,8 @@ class ApproachResult:
 
 
 def load_approach(out: Path, approach: str, integrator: str) -> ApproachResult:
-    """Read one approach's run folder back."""
+    """Read one approach's run folder back (``reproduce`` has its results in memory: this is
+    for a folder written earlier)."""
 
     folder = RunFolder(out / approach, "r", allow_incomplete=True)
     map_info = folder.read_map()
@@ -341,8 +346,7 @@ def reproduce(
         f"{config.noise_std}; {config.chains} chains × {config.iterations:,} DRAM iterations "
         f"per approach ({config.resolved_burn_in:,} burn-in)"
     )
-    run_fits(config, out, progress)
-    results = {a: load_approach(out, a, config.integrator(a)) for a in APPROACHES}
+    results = {fitted["approach"]: fitted["result"] for fitted in run_fits(config, out, progress)}
     truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
     h_true = hamiltonian(system.potential, system.coefficients, system.initial_state)
     summary: dict[str, Any] = {"true_hamiltonian": float(h_true)}
