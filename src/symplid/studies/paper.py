@@ -45,7 +45,7 @@ from symplid.studies.paper_cells import (
     known_initial_state,
     system_defaults,
 )
-from symplid.studies.paper_figures import draw_figures
+from symplid.studies.paper_figures import approach_predictions, draw_figures
 from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import fit
 from symplid.workflow.interrupts import results_or_stop, stop_on_signals
@@ -169,7 +169,7 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
     runtime.enable_compilation_cache()
     runtime.one_line_warnings()  # one line per warning, as in the parent process
 
-    obs, _ = paper_data(config)
+    obs, system = paper_data(config)
     outcome = fit(
         obs,
         paper_settings(config, approach),
@@ -179,11 +179,14 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
         progress_position=position,
         overwrite=True,
     )
-    draws = draws_array(outcome.idata)  # handed back in memory: the parent reads no file
+    result = ApproachResult(approach, config.integrator(approach),
+                            np.asarray(outcome.map_result.theta, dtype=float),
+                            draws_array(outcome.idata), tuple(outcome.posterior.param_names),
+                            outcome.summary)
+    # handed back in memory (the parent reads no file), with this approach's paths for the
+    # figures, computed here while the other approach may still be sampling
     return {"approach": approach, "timings": outcome.timings, "interrupted": outcome.interrupted,
-            "result": ApproachResult(approach, config.integrator(approach),
-                                     np.asarray(outcome.map_result.theta, dtype=float), draws,
-                                     tuple(outcome.posterior.param_names), outcome.summary)}
+            "result": result, "predictions": approach_predictions(result, system, config)}
 
 
 def run_fits(
@@ -346,7 +349,8 @@ def reproduce(
         f"{config.noise_std}; {config.chains} chains × {config.iterations:,} DRAM iterations "
         f"per approach ({config.resolved_burn_in:,} burn-in)"
     )
-    results = {fitted["approach"]: fitted["result"] for fitted in run_fits(config, out, progress)}
+    fitted = {done["approach"]: done for done in run_fits(config, out, progress)}
+    results = {a: fitted[a]["result"] for a in APPROACHES}
     truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
     h_true = hamiltonian(system.potential, system.coefficients, system.initial_state)
     summary: dict[str, Any] = {"true_hamiltonian": float(h_true)}
@@ -358,7 +362,8 @@ def reproduce(
         summary["rk2"]["process_noise_median"] / summary["leapfrog"]["process_noise_median"]
     )
     summary["seed"] = config.seed
-    draw_figures(folder, results, system, obs, truth_times, truth, config, progress)
+    draw_figures(folder, results, system, obs, truth_times, truth, config, progress,
+                 predictions={a: fitted[a]["predictions"] for a in APPROACHES})
     summary["wall_time_s"] = time.perf_counter() - start
     table = comparison_table(summary)
     folder.write_summary(summary, table)
