@@ -6,7 +6,8 @@
   *i* on core *i*), and OpenBLAS inside NumPy reports one thread (asked through its own C
   function, not through the variable we set).
 * Importing the paper's experiment does no JAX work: JAX's backend has not started, so a
-  worker can still choose its threads after the import.
+  worker can still choose its threads after the import; nor does it load matplotlib (the
+  workers draw no figure).
 """
 
 from __future__ import annotations
@@ -105,11 +106,12 @@ def test_worker_environment_keeps_the_users_xla_flags(monkeypatch):
     assert all(env[name] == "1" for name in runtime.THREAD_VARIABLES)
 
 
-def test_importing_the_paper_experiment_starts_no_jax_backend():
+def test_importing_the_paper_experiment_starts_no_jax_backend_and_no_matplotlib():
     code = ("import symplid.studies.paper, symplid.workflow.fit, sys; "
             "from symplid.runtime import backend_started; "
-            "assert 'jax' in sys.modules; print(backend_started())")
-    assert _python(code).strip() == "False"
+            "assert 'jax' in sys.modules; "
+            "print(backend_started(), 'matplotlib' in sys.modules)")
+    assert _python(code).split() == ["False", "False"]
 
 
 def _python(code: str) -> str:

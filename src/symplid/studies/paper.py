@@ -31,8 +31,6 @@ from symplid.inference.predict import predict_trajectory, prediction_horizon
 from symplid.inference.samplers import draws_array
 from symplid.model.data import Observations
 from symplid.model.simulate import simulate, true_trajectory
-from symplid.plotting import COLORS
-from symplid.plotting.sweep import plot_sweep
 from symplid.studies.paper_calibration import cell_calibration, true_values
 from symplid.studies.paper_cells import (
     CELL_KEYS,
@@ -51,7 +49,6 @@ from symplid.workflow.fit import fit
 from symplid.workflow.interrupts import results_or_stop, stop_on_signals
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
-from symplid.workflow.sweep import cell_settings
 
 __all__ = [
     "CELL_KEYS",
@@ -432,6 +429,9 @@ Per-approach runs (settings, data, MAP, Hessian, posterior) are in `leapfrog/` a
 
 def sweep_figures(table: Any, folder: str | os.PathLike, settings: list[str]) -> dict[str, Path]:
     """One figure per metric, the propagators in the paper's colours."""
+    from symplid.plotting import COLORS  # matplotlib only where figures are drawn
+    from symplid.plotting.sweep import plot_sweep
+
     metrics = [m for m in SWEEP_METRICS if m in table.columns] or None
     colors = {"leapfrog": COLORS["leapfrog"], PaperConfig.rk2: COLORS["rk2"]}
     return plot_sweep(
@@ -448,6 +448,8 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
 
     start = time.perf_counter()
     system, obs = cell_data(cell)
+    from symplid.workflow.sweep import cell_settings  # the sweep (and its figures) only here
+
     settings = cell_settings(cell, experiment=EXPERIMENT)
     outcome = fit(obs, settings, out=None, progress=False)
     integrator = settings.model.integrator

@@ -1,6 +1,12 @@
-"""The paper's four figures (Section IV) from the two approaches' fits."""
+"""The paper's four figures (Section IV) from the two approaches' fits.
+
+Matplotlib (:mod:`symplid.plotting`) is imported where a figure is drawn, not with this
+module: a worker process computes :func:`approach_predictions` without it.
+"""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -10,13 +16,9 @@ from symplid.inference.predict import (
     posterior_predictive,
     predict_trajectory,
 )
-from symplid.plotting import (
-    Curves,
-    plot_hamiltonians,
-    plot_phase_portraits,
-    plot_process_noise,
-    plot_trajectory_bands,
-)
+
+if TYPE_CHECKING:
+    from symplid.plotting import Curves
 
 __all__ = ["approach_predictions", "draw_figures", "figure_stride"]
 
@@ -34,6 +36,13 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
     ``predictions`` maps an approach to its :func:`approach_predictions` when they were
     computed already (by the process that fitted it); the others are computed here.
     """
+    from symplid.plotting import (
+        plot_hamiltonians,
+        plot_phase_portraits,
+        plot_process_noise,
+        plot_trajectory_bands,
+    )
+
     t_data_end = float(obs.times[-1])
     stride = figure_stride(config)
     truth_t, truth_x = truth_times[::stride], truth[::stride]
@@ -108,6 +117,8 @@ def approach_predictions(result, system, config) -> tuple[tuple[np.ndarray, np.n
 def _energy_curves(results, system, config, maps, bands) -> tuple[list[Curves], list[Curves]]:
     """Fig. 2's curves: H along the fine paths (MAP and samples), and along the RK2 model
     integrated by its learning integrator at the learning step."""
+    from symplid.plotting import Curves
+
     pot = system.potential
     fine, coarse = [], []
     for name, res in results.items():
@@ -150,6 +161,8 @@ def _energy_curves(results, system, config, maps, bands) -> tuple[list[Curves], 
 
 def _q1_curves(label: str, map_path, band: PosteriorPredictive) -> Curves:
     """Fig. 3's curves of one approach: the MAP's q1, the band and the sample paths."""
+    from symplid.plotting import Curves
+
     t_map, x_map = map_path
     return Curves(
         label,
