@@ -27,16 +27,29 @@ silently dropped. :func:`merge_xla_flags` therefore puts every ``--flag`` first 
 tokens last; :func:`single_thread_xla_flags` is the one place that writes the flags of a
 single-threaded worker process.
 
+**Worker processes.** A process that runs one fit beside others (``reproduce``'s two
+approaches, a sweep's cells) should use one core and one thread: XLA's and OpenBLAS's
+thread pools of two workers on two cores otherwise spin against each other (measured: a
+third more CPU per DRAM iteration). :func:`single_thread_environment` is the environment of
+such a process (XLA, OpenBLAS, MKL and OpenMP on one thread), which must be in place before
+NumPy or JAX load: :func:`worker_environment` puts it into ``os.environ`` while a pool
+starts its processes (a spawned process inherits it), and :func:`pin_worker` is the pool's
+initializer that binds worker *i* to core *i* mod the cores this process may use. XLA:CPU
+has no flag for the size of its intra-op pool: it is the number of cores the process may
+run on, so pinning (before the backend starts) is what makes it one.
+
 **Optional dependencies.** What only the sweeps need (Dask, pyarrow) is the ``sweeps`` extra;
 :func:`require_extra` is the one check, which names the command that installs it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import sys
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = [
@@ -48,9 +61,12 @@ __all__ = [
     "limit_threads",
     "merge_xla_flags",
     "one_line_warnings",
+    "pin_worker",
     "require_extra",
+    "single_thread_environment",
     "single_thread_xla_flags",
     "small_loop_flag",
+    "worker_environment",
 ]
 
 
@@ -234,3 +250,66 @@ def configure_xla() -> str | None:
     merged = merge_xla_flags(existing, small_loop_flag())
     os.environ[XLA_ENV] = merged
     return merged
+
+
+# ----------------------------------------------------------------------------- workers
+
+#: Thread-count variables of the numerical libraries below NumPy and SciPy.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+def single_thread_environment(xla_flags: str | None = None) -> dict[str, str]:
+    """The environment variables of a one-thread worker process.
+
+    ``XLA_FLAGS`` is :func:`single_thread_xla_flags` of ``xla_flags`` (default: this
+    process's), so the user's flags and symplid's small-loop flag are kept; the BLAS and
+    OpenMP variables are 1. They take effect only in a process that has not yet loaded
+    NumPy or started JAX's backend: a child process (see :func:`worker_environment`).
+    """
+    flags = os.environ.get(XLA_ENV) if xla_flags is None else xla_flags
+    return {XLA_ENV: single_thread_xla_flags(flags), **dict.fromkeys(THREAD_VARIABLES, "1")}
+
+
+@contextlib.contextmanager
+def worker_environment() -> Iterator[dict[str, str]]:
+    """``os.environ`` with :func:`single_thread_environment` while the block starts processes.
+
+    A spawned process copies the environment when it starts, before it imports anything, so
+    NumPy and JAX load one-threaded there; this process's own libraries, loaded already, are
+    not affected, and its environment is restored when the block ends.
+    """
+    added = single_thread_environment()
+    saved = {name: os.environ.get(name) for name in added}
+    os.environ.update(added)
+    try:
+        yield added
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def pin_worker(counter: object | None = None, index: int | None = None) -> int | None:
+    """Bind this process to one core: core ``index`` mod the cores it may use.
+
+    The initializer of a worker pool: ``counter`` (a ``multiprocessing.Value("i")`` shared by
+    the pool) numbers the workers 0, 1, ... as they start. Call it before JAX's backend
+    starts (XLA sizes its thread pool by the cores the process may run on). Returns the core,
+    or None where the system cannot pin (no ``os.sched_setaffinity``) or refuses.
+    """
+    if index is None and counter is not None:
+        with counter.get_lock():  # type: ignore[attr-defined]
+            index = counter.value  # type: ignore[attr-defined]
+            counter.value += 1  # type: ignore[attr-defined]
+    if index is None or not hasattr(os, "sched_setaffinity"):
+        return None
+    cores = sorted(os.sched_getaffinity(0))
+    core = cores[index % len(cores)]
+    try:
+        os.sched_setaffinity(0, {core})
+    except OSError:
+        return None
+    return core

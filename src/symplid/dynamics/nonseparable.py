@@ -41,6 +41,7 @@ which lists every built-in method:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import jax
@@ -139,7 +140,7 @@ def tao_integrator(
 ) -> TaoIntegrator:
     """Tao's explicit symplectic method for a non-separable H, with binding constant ω."""
     binding = float(binding)
-    if not binding > 0 or not jnp.isfinite(binding):
+    if not binding > 0 or not math.isfinite(binding):  # plain Python: no JAX at import
         raise ValueError(f"the binding constant ω must be a positive number, got {binding}")
     weights = tuple(float(w) for w in weights)
 

@@ -4,6 +4,14 @@ ArviZ does the statistics (rank-normalised split R-hat and the ESS of Vehtari et
 this module decides what to say about them. The thresholds are the usual ones: R-hat above
 1.01 or an effective sample size below 400 (100 per chain for four chains) means the draws
 are not yet to be trusted.
+
+A fit needs only R-hat and the bulk and tail ESS (:func:`convergence_table`): they are
+computed as ArviZ's ``summary`` computes them (Vehtari et al. 2021: split chains,
+rank-normalised, the folded draws for R-hat's tail, the 5 % and 95 % indicators for the
+tail ESS), the same numbers, without the columns nobody reads there (mean, sd, HDI, MCSE),
+and with a faster rank normalisation (one stable sort with ties averaged, and the normal
+quantile by ``scipy.special.ndtri``, which ``scipy.stats.norm.ppf`` calls): about half the
+time of ``az.summary`` on the paper's 400,000 draws per parameter.
 """
 
 from __future__ import annotations
@@ -21,6 +29,7 @@ __all__ = [
     "ESS_THRESHOLD",
     "RHAT_THRESHOLD",
     "ConvergenceWarning",
+    "convergence_table",
     "import_arviz",
     "quiet_arviz",
     "summary",
@@ -60,6 +69,7 @@ def summary(
     ess_threshold: float = ESS_THRESHOLD,
     show: bool = True,
     warn: bool = True,
+    columns: str = "all",
 ):
     """Summarise posterior draws and warn when they look unconverged.
 
@@ -78,6 +88,9 @@ def summary(
         acceptance or divergence counts.
     warn
         Issue the warnings.
+    columns
+        ``"all"``: ``az.summary``'s table; ``"convergence"``: only ``r_hat``, ``ess_bulk`` and
+        ``ess_tail`` (:func:`convergence_table`, the same numbers, faster; not with ``show``).
 
     Returns
     -------
@@ -87,8 +100,13 @@ def summary(
     az = import_arviz()
     if not hasattr(idata, "posterior"):
         raise ValueError("idata has no posterior group; pass the result of symplid.sample")
+    if columns not in ("all", "convergence"):
+        raise ValueError(f"columns must be 'all' or 'convergence', got {columns!r}")
     with quiet_arviz():  # NaN statistics of short chains: one ConvergenceWarning says it below
-        table = az.summary(idata, var_names=var_names, round_to="none")
+        if columns == "convergence" and not show:
+            table = convergence_table(idata, var_names)
+        else:
+            table = az.summary(idata, var_names=var_names, round_to="none")
     notes = _sampler_notes(idata)
     if show:
         import pandas as pd
@@ -100,6 +118,86 @@ def summary(
     if warn:
         _warn(table, idata, rhat_threshold, ess_threshold)
     return table
+
+
+def convergence_table(idata: Any, var_names: list[str] | None = None):
+    """``r_hat``, ``ess_bulk`` and ``ess_tail`` of each parameter, as ``az.summary`` has them.
+
+    One row per scalar parameter (a vector one row per element, named ``name[i]`` as ArviZ
+    names them); NaN where ArviZ gives NaN (fewer than 4 draws per chain; R-hat with one
+    chain). The ESS and the autocovariances are ArviZ's own functions; the rank
+    normalisation is done here (see the module's note), with the same ranks and quantiles.
+    """
+    import pandas as pd
+
+    az = import_arviz()
+    try:
+        from arviz.stats.diagnostics import _ess, _quantile
+    except ImportError:  # pragma: no cover - an ArviZ without them: its own summary
+        frame = az.summary(idata, var_names=var_names, round_to="none", kind="diagnostics")
+        return frame[["ess_bulk", "ess_tail", "r_hat"]]
+    posterior = idata.posterior
+    names = list(posterior.data_vars) if var_names is None else list(var_names)
+    rows: dict[str, tuple[float, float, float]] = {}
+    for name in names:
+        values = np.asarray(posterior[name], dtype=float)
+        flat = values.reshape(values.shape[0], values.shape[1], -1)
+        for k in range(flat.shape[2]):
+            index = np.unravel_index(k, values.shape[2:]) if values.ndim > 2 else ()
+            label = f"{name}[{', '.join(map(str, index))}]" if index else str(name)
+            rows[label] = _convergence(flat[:, :, k], _ess, _quantile)
+    return pd.DataFrame.from_dict(rows, orient="index", columns=["ess_bulk", "ess_tail",
+                                                                 "r_hat"])
+
+
+def _convergence(ary: np.ndarray, ess, quantile) -> tuple[float, float, float]:
+    """(bulk ESS, tail ESS, R-hat) of one parameter's (chain, draw) array, in the order of
+    operations of ArviZ's ``_multichain_statistics``."""
+    chains, draws = ary.shape
+    if draws < MIN_DRAWS or np.isnan(ary).any():
+        return np.nan, np.nan, np.nan
+    z_split = _z_scale(_split_chains(ary))
+    q05, q95 = quantile(ary, [0.05, 0.95])
+    ess_tail = min(ess(_split_chains(ary <= q05)), ess(_split_chains(ary <= q95)))
+    if chains < 2:
+        rhat = np.nan
+    else:
+        folded = np.abs(ary - np.median(ary))
+        rhat = max(_rhat(z_split), _rhat(_z_scale(_split_chains(folded))))
+    return float(ess(z_split)), float(ess_tail), float(rhat)
+
+
+def _split_chains(ary: np.ndarray) -> np.ndarray:
+    half = ary.shape[1] // 2
+    return np.vstack((ary[:, :half], ary[:, -half:]))
+
+
+def _z_scale(ary: np.ndarray) -> np.ndarray:
+    """Rank-normalised draws: average ranks of ties, (r − 3/8)/(S + 1/4), the normal quantile."""
+    from scipy.special import ndtri
+
+    flat = ary.ravel()
+    order = np.argsort(flat, kind="stable")
+    ordered = flat[order]
+    first = np.empty(flat.size, dtype=bool)  # where a run of equal values starts
+    first[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.append(starts, flat.size))
+    ranks = np.empty(flat.size)
+    ranks[order] = np.repeat(starts + (counts + 1) / 2.0, counts)  # 1-based, ties averaged
+    c = 3 / 8
+    return ndtri((ranks - c) / (flat.size - 2 * c + 1)).reshape(ary.shape)
+
+
+def _rhat(ary: np.ndarray) -> float:
+    """ArviZ's ``_rhat`` (Gelman–Rubin on already split, normalised chains)."""
+    num_samples = ary.shape[1]
+    chain_mean = np.mean(ary, axis=1)
+    chain_var = np.var(ary, axis=1, ddof=1)
+    between = num_samples * np.var(chain_mean, axis=None, ddof=1)
+    within = np.mean(chain_var)
+    return float(np.sqrt((between / within + num_samples - 1) / num_samples))
 
 
 def _sampler_notes(idata: Any) -> list[str]:

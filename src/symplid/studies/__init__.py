@@ -22,14 +22,25 @@ any, goes in :mod:`symplid.cli` under ``symplid study``.
 
 from __future__ import annotations
 
+import importlib
+from typing import Any
+
 from symplid.registry import Registry
-from symplid.studies import baselines_study, paper, sbc
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 
 __all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc"]
 
-#: Every study's experiment, in the order ``symplid sweep`` lists them.
-STUDIES: tuple[Experiment, ...] = (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT)
+#: The studies' modules, in the order ``symplid sweep`` lists them. They are imported when
+#: first used: a worker process that runs the paper's fits imports only what those need.
+_MODULES = ("paper", "baselines_study", "sbc")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MODULES:
+        return importlib.import_module(f"{__name__}.{name}")
+    if name == "STUDIES":  # every study's experiment, in the order above
+        return tuple(importlib.import_module(f"{__name__}.{m}").EXPERIMENT for m in _MODULES)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def register_studies(registry: Registry[Experiment] | None = None) -> None:
@@ -40,6 +51,6 @@ def register_studies(registry: Registry[Experiment] | None = None) -> None:
     a name taken by another experiment is a ``ValueError``.
     """
     registry = EXPERIMENTS if registry is None else registry
-    for experiment in STUDIES:
+    for experiment in __getattr__("STUDIES"):
         if registry.get(experiment.name) is not experiment:
             registry.register(experiment.name, experiment)

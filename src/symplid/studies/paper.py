@@ -31,8 +31,6 @@ from symplid.inference.predict import predict_trajectory, prediction_horizon
 from symplid.inference.samplers import draws_array
 from symplid.model.data import Observations
 from symplid.model.simulate import simulate, true_trajectory
-from symplid.plotting import COLORS
-from symplid.plotting.sweep import plot_sweep
 from symplid.studies.paper_calibration import cell_calibration, true_values
 from symplid.studies.paper_cells import (
     CELL_KEYS,
@@ -45,13 +43,12 @@ from symplid.studies.paper_cells import (
     known_initial_state,
     system_defaults,
 )
-from symplid.studies.paper_figures import draw_figures
+from symplid.studies.paper_figures import approach_predictions, draw_figures
 from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import fit
 from symplid.workflow.interrupts import results_or_stop, stop_on_signals
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
-from symplid.workflow.sweep import cell_settings
 
 __all__ = [
     "CELL_KEYS",
@@ -169,7 +166,7 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
     runtime.enable_compilation_cache()
     runtime.one_line_warnings()  # one line per warning, as in the parent process
 
-    obs, _ = paper_data(config)
+    obs, system = paper_data(config)
     outcome = fit(
         obs,
         paper_settings(config, approach),
@@ -179,7 +176,14 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
         progress_position=position,
         overwrite=True,
     )
-    return {"approach": approach, "timings": outcome.timings, "interrupted": outcome.interrupted}
+    result = ApproachResult(approach, config.integrator(approach),
+                            np.asarray(outcome.map_result.theta, dtype=float),
+                            draws_array(outcome.idata), tuple(outcome.posterior.param_names),
+                            outcome.summary)
+    # handed back in memory (the parent reads no file), with this approach's paths for the
+    # figures, computed here while the other approach may still be sampling
+    return {"approach": approach, "timings": outcome.timings, "interrupted": outcome.interrupted,
+            "result": result, "predictions": approach_predictions(result, system, config)}
 
 
 def run_fits(
@@ -191,9 +195,18 @@ def run_fits(
     if workers <= 1:
         return [_fit_one(job) for job in jobs]
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
-                             initializer=stop_on_signals) as pool:  # signals: one policy
+    counter = context.Value("i", 0)  # numbers the workers, each pinned to its own core
+    with runtime.worker_environment(), ProcessPoolExecutor(
+        max_workers=min(workers, len(jobs)), mp_context=context, initializer=_start_worker,
+        initargs=(counter,),
+    ) as pool:  # one-thread pools, set before the worker loads NumPy or JAX
         return results_or_stop([pool.submit(_fit_one, job) for job in jobs])
+
+
+def _start_worker(counter: Any) -> None:
+    """A worker's initializer: its own core (before JAX starts), and the signal policy."""
+    runtime.pin_worker(counter)
+    stop_on_signals()  # signals: one policy
 
 
 @dataclasses.dataclass
@@ -232,7 +245,8 @@ class ApproachResult:
 
 
 def load_approach(out: Path, approach: str, integrator: str) -> ApproachResult:
-    """Read one approach's run folder back."""
+    """Read one approach's run folder back (``reproduce`` has its results in memory: this is
+    for a folder written earlier)."""
 
     folder = RunFolder(out / approach, "r", allow_incomplete=True)
     map_info = folder.read_map()
@@ -332,8 +346,8 @@ def reproduce(
         f"{config.noise_std}; {config.chains} chains × {config.iterations:,} DRAM iterations "
         f"per approach ({config.resolved_burn_in:,} burn-in)"
     )
-    run_fits(config, out, progress)
-    results = {a: load_approach(out, a, config.integrator(a)) for a in APPROACHES}
+    fitted = {done["approach"]: done for done in run_fits(config, out, progress)}
+    results = {a: fitted[a]["result"] for a in APPROACHES}
     truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
     h_true = hamiltonian(system.potential, system.coefficients, system.initial_state)
     summary: dict[str, Any] = {"true_hamiltonian": float(h_true)}
@@ -345,7 +359,8 @@ def reproduce(
         summary["rk2"]["process_noise_median"] / summary["leapfrog"]["process_noise_median"]
     )
     summary["seed"] = config.seed
-    draw_figures(folder, results, system, obs, truth_times, truth, config, progress)
+    draw_figures(folder, results, system, obs, truth_times, truth, config, progress,
+                 predictions={a: fitted[a]["predictions"] for a in APPROACHES})
     summary["wall_time_s"] = time.perf_counter() - start
     table = comparison_table(summary)
     folder.write_summary(summary, table)
@@ -414,6 +429,9 @@ Per-approach runs (settings, data, MAP, Hessian, posterior) are in `leapfrog/` a
 
 def sweep_figures(table: Any, folder: str | os.PathLike, settings: list[str]) -> dict[str, Path]:
     """One figure per metric, the propagators in the paper's colours."""
+    from symplid.plotting import COLORS  # matplotlib only where figures are drawn
+    from symplid.plotting.sweep import plot_sweep
+
     metrics = [m for m in SWEEP_METRICS if m in table.columns] or None
     colors = {"leapfrog": COLORS["leapfrog"], PaperConfig.rk2: COLORS["rk2"]}
     return plot_sweep(
@@ -430,6 +448,8 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
 
     start = time.perf_counter()
     system, obs = cell_data(cell)
+    from symplid.workflow.sweep import cell_settings  # the sweep (and its figures) only here
+
     settings = cell_settings(cell, experiment=EXPERIMENT)
     outcome = fit(obs, settings, out=None, progress=False)
     integrator = settings.model.integrator

@@ -1,6 +1,12 @@
-"""The paper's four figures (Section IV) from the two approaches' fits."""
+"""The paper's four figures (Section IV) from the two approaches' fits.
+
+Matplotlib (:mod:`symplid.plotting`) is imported where a figure is drawn, not with this
+module: a worker process computes :func:`approach_predictions` without it.
+"""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -10,31 +16,41 @@ from symplid.inference.predict import (
     posterior_predictive,
     predict_trajectory,
 )
-from symplid.plotting import (
-    Curves,
-    plot_hamiltonians,
-    plot_phase_portraits,
-    plot_process_noise,
-    plot_trajectory_bands,
-)
 
-__all__ = ["draw_figures"]
+if TYPE_CHECKING:
+    from symplid.plotting import Curves
+
+__all__ = ["approach_predictions", "draw_figures", "figure_stride"]
 
 LABELS = {"leapfrog": "leapfrog", "rk2": "RK2"}
 EVERY = 10  # keep every 10th fine step (0.1 s) in the stored paths
 
 
-def draw_figures(folder, results, system, obs, truth_times, truth, config, progress=True) -> None:
+def draw_figures(folder, results, system, obs, truth_times, truth, config, progress=True,
+                 predictions=None) -> None:
     """Figures 1–4 into ``folder/figures``.
 
     Every path is integrated from the true initial state by leapfrog at the fine step
     (``config.prediction_dt``) for ``config.t_end``, and stored every ``EVERY`` fine steps of
     0.01 s; Fig. 2(b) also integrates the RK2 model by RK2 at the learning step.
+    ``predictions`` maps an approach to its :func:`approach_predictions` when they were
+    computed already (by the process that fitted it); the others are computed here.
     """
+    from symplid.plotting import (
+        plot_hamiltonians,
+        plot_phase_portraits,
+        plot_process_noise,
+        plot_trajectory_bands,
+    )
+
     t_data_end = float(obs.times[-1])
-    stride = max(1, round(EVERY * 0.01 / config.prediction_dt))
+    stride = figure_stride(config)
     truth_t, truth_x = truth_times[::stride], truth[::stride]
-    maps, bands = _predictions(results, system, config, stride)
+    done = predictions or {}
+    made = {name: done.get(name) or approach_predictions(res, system, config)
+            for name, res in results.items()}
+    maps = {name: pair[0] for name, pair in made.items()}
+    bands = {name: pair[1] for name, pair in made.items()}
 
     # Fig 1: phase portraits (leapfrog at the fine step for 200 s; data over 100 s).
     plot_phase_portraits(
@@ -71,31 +87,38 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
     )
 
 
-def _predictions(results, system, config, stride: int):
-    """Per approach: the MAP path ``(times, states)`` and the posterior predictive band."""
-    maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    bands: dict[str, PosteriorPredictive] = {}
+def figure_stride(config) -> int:
+    """Fine steps between stored points of the figures' paths (0.1 s)."""
+    return max(1, round(EVERY * 0.01 / config.prediction_dt))
+
+
+def approach_predictions(result, system, config) -> tuple[tuple[np.ndarray, np.ndarray],
+                                                           PosteriorPredictive]:
+    """One approach's MAP path ``(times, states)`` and its posterior predictive band (from
+    the true initial state, leapfrog at ``config.prediction_dt``, seeded by ``config.seed``)."""
+    stride = figure_stride(config)
     x0, pot = system.initial_state, system.potential
-    for name, res in results.items():
-        maps[name] = predict_trajectory(
-            pot, res.coefficients_map, x0, config.t_end, dt=config.prediction_dt, every=stride
-        )
-        bands[name] = posterior_predictive(
-            pot,
-            res.coefficient_draws,
-            x0,
-            config.t_end,
-            dt=config.prediction_dt,
-            num_paths=config.num_paths,
-            seed=config.seed,
-            every=stride,
-        )
-    return maps, bands
+    path = predict_trajectory(
+        pot, result.coefficients_map, x0, config.t_end, dt=config.prediction_dt, every=stride
+    )
+    band = posterior_predictive(
+        pot,
+        result.coefficient_draws,
+        x0,
+        config.t_end,
+        dt=config.prediction_dt,
+        num_paths=config.num_paths,
+        seed=config.seed,
+        every=stride,
+    )
+    return path, band
 
 
 def _energy_curves(results, system, config, maps, bands) -> tuple[list[Curves], list[Curves]]:
     """Fig. 2's curves: H along the fine paths (MAP and samples), and along the RK2 model
     integrated by its learning integrator at the learning step."""
+    from symplid.plotting import Curves
+
     pot = system.potential
     fine, coarse = [], []
     for name, res in results.items():
@@ -138,6 +161,8 @@ def _energy_curves(results, system, config, maps, bands) -> tuple[list[Curves], 
 
 def _q1_curves(label: str, map_path, band: PosteriorPredictive) -> Curves:
     """Fig. 3's curves of one approach: the MAP's q1, the band and the sample paths."""
+    from symplid.plotting import Curves
+
     t_map, x_map = map_path
     return Curves(
         label,

@@ -315,7 +315,8 @@ def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = No
     idata, settings = outcome.idata, outcome.settings
     with deferred_interrupts():  # a second Ctrl-C must not lose the draws the first kept
         interrupted = bool(idata.attrs.get("interrupted", False)) if idata is not None else False
-        table = diagnostics_summary(idata, show=False, warn=warn and not interrupted)
+        table = diagnostics_summary(idata, show=False, warn=warn and not interrupted,
+                                    columns="convergence")  # only R-hat and ESS are read
         summary = fit_summary(outcome.posterior, outcome.map_result, idata, table)
         summary["timings"] = outcome.timings
         if outcome.standardised_scale is not None:

@@ -90,14 +90,10 @@ def worker_environment(extra: Mapping[str, str] | None = None) -> dict[str, str]
 
     ``XLA_FLAGS`` keeps JAX on one thread (``--xla_cpu_multi_thread_eigen=false
     intra_op_parallelism_threads=1``); ``OMP/MKL/OPENBLAS_NUM_THREADS = 1`` do the same for
-    NumPy and SciPy, so that one worker per core never oversubscribes the machine.
+    NumPy and SciPy (:func:`symplid.runtime.single_thread_environment`), so that one worker
+    per core never oversubscribes the machine.
     """
-    env = {
-        "XLA_FLAGS": XLA_SINGLE_THREAD,
-        "OMP_NUM_THREADS": "1",
-        "MKL_NUM_THREADS": "1",
-        "OPENBLAS_NUM_THREADS": "1",
-    }
+    env = runtime.single_thread_environment(XLA_SINGLE_THREAD)
     env.update({str(k): str(v) for k, v in (extra or {}).items()})
     return env
 
