@@ -26,6 +26,7 @@ SUMMARY_KEYS = {
 }
 TINY_FIT = ["--iterations", "800", "--burn-in", "400", "--chains", "2", "--no-progress",
             "--no-report"]
+TINY_FIT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 
 def run(*args: str):

@@ -22,6 +22,7 @@ import pytest
 
 FIT = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1"]
+FIT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 
 def symplid(*args, limit_bytes: int | None = None, timeout: float = 300):
