@@ -26,13 +26,20 @@ from symplid.studies.paper_study import PAPER_SETTING, VARIANTS, Variant, paper_
 from symplid.studies.paper_study_report import calibration_answer, format_claims_report
 
 LF, RK, Y4 = "leapfrog", "rk2-midpoint", "yoshida4"
+Z95 = 1.959963984540054
 NONE = {"model.process_noise_per": "none"}
 LOGU = {"priors.process_var": "log-uniform"}
 
 
-def _row(seed, integrator, h, noise, horizon, covered=(True, True), ranks=(50, 50), **setting):
-    """One ok cell with the claim metrics and the calibration columns of two parameters."""
+def _row(seed, integrator, h, noise, horizon, covered=(True, True), ranks=(50, 50),
+         mid=None, **setting):
+    """One ok cell with the claim metrics and the calibration columns of two parameters
+    (with ``mid``, a's interval: mid ± 1.96 around a truth 0, so that z = mid)."""
+    quantiles = {} if mid is None else {
+        "calibration.a.q025": mid - Z95, "calibration.a.q975": mid + Z95,
+        "calibration.a.truth": 0.0}
     return {
+        **quantiles,
         **PAPER_SETTING, **setting, "seed": seed, "integrator": integrator, "status": "ok",
         "hamiltonian_rel_error": h, "process_noise_median": noise,
         "prediction_horizon_s": horizon, "rhat_max": 1.001,
@@ -51,7 +58,7 @@ PAPER_ROWS = [
 # Leapfrog covers a in 3 of 4 seeds and b in all; yoshida4 covers both in every seed.
 NO_NOISE_ROWS = [
     _row(s, LF, 0.01, float("nan"), 150.0, covered=(s != 2, True), ranks=(10 * s, 99 - s),
-         **NONE)
+         mid=0.5 * s, **NONE)
     for s in range(4)
 ] + [_row(s, Y4, 0.005, float("nan"), 180.0, ranks=(40 + s, 60), **NONE) for s in range(4)]
 # The log-uniform prior: two seeds of leapfrog (a missed once).
@@ -173,13 +180,15 @@ def test_calibration_block_counts_by_hand(claims_json, tmp_path):
     block = calibration_block(claims_json)
     rows = {line.split(" | ")[0][2:]: line for line in block.splitlines()[3:]}
     # leapfrog without process noise: a covered 3 of 4 (Wilson 30 – 95 %, which holds 95 %),
-    # b 4 of 4; median coverage 87.5 %; the smallest p-value is b's ranks 99, 98, 97, 96
+    # b 4 of 4; median coverage 87.5 %; the smallest p-value is b's ranks 99, 98, 97, 96;
+    # a's z = 0, 0.5, 1, 1.5: mean shift 0.75 (b has no quantiles: no shift)
     lo, hi = wilson_interval(3, 4)
     p_min = min(rank_uniformity([0, 10, 20, 30], 99)["p_value"],
                 rank_uniformity([99, 98, 97, 96], 99)["p_value"])
     row = rows["Leapfrog without process noise (deterministic likelihood)"]
     assert row == (f"| Leapfrog without process noise (deterministic likelihood) | a: 75 % "
-                   f"({100 * lo:.0f} % – {100 * hi:.0f} %) | 88 % | 2 of 2 | {p_min:.3g} |")
+                   f"({100 * lo:.0f} % – {100 * hi:.0f} %) | 88 % | 2 of 2 | {p_min:.3g} | "
+                   "a: 0.75 |")
     # yoshida4 at the paper's setting: a 1 of 2 (Wilson 9 – 91 %: 95 % outside)
     assert "| a: 50 % (9 % – 91 %) | 75 % | 1 of 2 |" in rows["yoshida4 at the paper's setting"]
     assert "yoshida4 with the log-uniform prior on Σ" not in rows  # not run
@@ -187,3 +196,25 @@ def test_calibration_block_counts_by_hand(claims_json, tmp_path):
     readme.write_text(f"intro\n{CALIBRATION_BEGIN}\nold\n{CALIBRATION_END}\nend\n")
     assert update_readme(readme, claims_json) == block
     assert readme.read_text() == f"intro\n{CALIBRATION_BEGIN}\n{block}\n{CALIBRATION_END}\nend\n"
+
+
+def test_shift_and_spread_of_the_truth_in_posterior_sds():
+    """z = (midpoint − truth) / (width / 3.92): intervals [0, 3.92], [0, 3.92], [1, 4.92]
+    (sd 1) around truths 1.96, 0.96, 0.96 give z = 0, 1, 2: mean 1, spread 1."""
+    from symplid.studies.paper_calibration import evaluate_calibration
+
+    z95 = Z95
+    rows = pd.DataFrame({
+        "status": ["ok"] * 3,
+        "calibration.a.q025": [0.0, 0.0, 1.0],
+        "calibration.a.q975": [2 * z95, 2 * z95, 1.0 + 2 * z95],
+        "calibration.a.truth": [z95, z95 - 1.0, z95 - 1.0],
+        "calibration.a.covered": [True, True, True],
+        "calibration.a.rank": [50, 20, 5],
+    })
+    a = evaluate_calibration(rows, "three")["params"]["a"]
+    assert (a["z_mean"], a["z_sd"]) == pytest.approx((1.0, 1.0))
+    one = evaluate_calibration(rows.iloc[:1], "one")["params"]["a"]
+    assert one["z_mean"] is None  # no spread from one seed
+    old = evaluate_calibration(rows.drop(columns="calibration.a.q025"), "old")["params"]["a"]
+    assert old["z_mean"] is None and old["covered"] == 3

@@ -6,6 +6,11 @@ it is a value of that content passed through one of the formatters below (tested
 (the markers stay) and copies the study's figures beside it, so the block's images resolve::
 
     symplid study paper-claims --out runs/claims --update-readme README.md
+
+:func:`calibration_block` is a compact alternative for a front page: one row per fit of the
+calibration (lowest and median coverage, how many parameters reach the level, the smallest
+rank p-value, the largest shift), between :data:`CALIBRATION_BEGIN` and
+:data:`CALIBRATION_END`; ``update_readme`` rewrites whichever of the two blocks a file has.
 """
 
 from __future__ import annotations
@@ -260,8 +265,9 @@ def calibration_block(claims: Mapping[str, Any]) -> str:
     :func:`~.paper_study_report.calibration_answer` that was run (leapfrog, RK2 and yoshida4
     at the paper's setting, leapfrog at dt = 0.1, then the deterministic likelihood and the
     log-uniform Σ prior), with the lowest coverage over the parameters (its Wilson interval),
-    the median coverage, how many parameters' Wilson intervals contain the level, and the
-    smallest rank-uniformity p-value."""
+    the median coverage, how many parameters' Wilson intervals contain the level, the
+    smallest rank-uniformity p-value and the largest mean shift of a posterior from the truth
+    (:func:`~.paper_calibration.evaluate_calibration`'s ``z_mean``)."""
     study = claims["study"]
     level = pct(claims["level"])
     lines = [
@@ -269,8 +275,8 @@ def calibration_block(claims: Mapping[str, Any]) -> str:
         "edits here are overwritten -->",
         f"| fit ({whole(study['seeds'])} seeds, budget *{study['budget_name']}*) | lowest "
         f"coverage of the {level} intervals (Wilson {level}) | median | {level} inside the "
-        "Wilson interval | smallest rank p-value |",
-        "|---|---|---|---|---|",
+        "Wilson interval | smallest rank p-value | largest mean shift [posterior sd] |",
+        "|---|---|---|---|---|---|",
     ]
     for key, g in calibration_answer(claims).items():
         if g is None:
@@ -286,9 +292,19 @@ def calibration_block(claims: Mapping[str, Any]) -> str:
         lines.append(
             f"| {ANSWER_LABELS[key]} | {low}: {pct(p['coverage'])} "
             f"({pct(_lo(p['coverage_ci']))} – {pct(_hi(p['coverage_ci']))}) | {pct(median)} | "
-            f"{inside} of {len(params)} | {num(min(pvals)) if pvals else '–'} |"
+            f"{inside} of {len(params)} | {num(min(pvals)) if pvals else '–'} | "
+            f"{_largest_shift(params)} |"
         )
     return "\n".join(lines)
+
+
+def _largest_shift(params: Mapping[str, Any]) -> str:
+    """The parameter whose posterior is shifted most from the truth (mean z, in sds)."""
+    shifts = {n: p["z_mean"] for n, p in params.items() if p.get("z_mean") is not None}
+    if not shifts:
+        return "–"
+    name = max(shifts, key=lambda n: abs(shifts[n]))
+    return f"{name}: {num(shifts[name])}"
 
 
 # ----------------------------------------------------------------------------- the README

@@ -15,6 +15,10 @@ the two fits of the same data — as a median with a percentile-bootstrap 95 % i
 A verdict per claim and variant: ``holds`` when the Wilson interval of the fraction lies above
 one half (most seeds, beyond chance), ``fails`` when it lies below, ``mixed`` otherwise.
 Calibration (:mod:`.paper_calibration`) is evaluated per variant and propagator.
+
+A claim that does not apply to a variant (one fitted without a reference, or one that names
+the claims it judges: :meth:`.paper_study.Variant.applicable_claims`) reads :data:`NOT_APPLICABLE`
+with no count, fraction or effect, and the reason; it is never counted as failing.
 """
 
 from __future__ import annotations

@@ -31,6 +31,15 @@ variant is data: the cell keys it changes, the reference propagator, and the ext
 fitted for calibration alone. Cells shared by two variants (leapfrog under "RK2 Heun" is the
 paper's leapfrog) are run once.
 
+Two variants are fitted for the calibration alone, leapfrog and yoshida4 each, with no
+reference (``reference=None``: no RK2 cell is run, and every claim reads *n/a* there, since
+each compares leapfrog with the reference on the same data): ``no-process-noise``, the
+deterministic-trajectory likelihood (``model.process_noise_per = "none"``; its MAP search
+starts from the filter's MAP, :func:`symplid.workflow.fit.find_map_for`), and ``log-uniform``,
+the log-uniform prior on the process variance (``priors.process_var``). They answer whether
+the intervals reach their nominal coverage once Σ no longer shifts the coefficients. A variant
+with a reference may also name the claims that apply (``claims``).
+
 :func:`run_paper_claims` runs the sweep (resumable: a rerun skips finished cells) and writes
 ``claims.json``, ``report.md`` and the figures into the sweep folder.
 """

@@ -298,6 +298,7 @@ def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> l
                          f"{_pct(p['coverage'])} ({_range(p['coverage_ci'], _pct)}), "
                          f"p={_num(p['rank_p_value'])}")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += _shift_lines(groups, names)
     failed = [(g["label"], g.get("not_converged") or {}) for g in groups]
     failed = [(label, f) for label, f in failed if f.get("n")]
     if failed:
@@ -309,6 +310,27 @@ def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> l
     for key in ("calibration_coverage", "calibration_ranks"):
         if key in study.get("figures", {}):
             lines += [f"![{key}]({study['figures'][key]})", ""]
+    return lines
+
+
+def _shift_lines(groups: list, names: list[str]) -> list[str]:
+    """The mean and spread of z = (interval midpoint − truth) / posterior sd per parameter:
+    a miss in coverage comes from a shift (mean ≠ 0) or a width (spread ≠ 1)."""
+    if not any(p.get("z_mean") is not None for g in groups for p in g["params"].values()):
+        return []
+    lines = ["", "Where the truth lies: mean (spread) over the seeds of z = (interval midpoint "
+             "− truth) / (interval width / 3.92), in posterior sds. A calibrated posterior "
+             "has mean ≈ 0 and spread ≈ 1; a mean far from 0 with a spread near or below 1 "
+             "is a shift of the posterior, not a too narrow one.", "",
+             "| parameter | " + " | ".join(g["label"] for g in groups) + " |",
+             "|---|" + "---|" * len(groups)]
+    for name in names:
+        cells = []
+        for g in groups:
+            p = g["params"].get(name) or {}
+            cells.append("–" if p.get("z_mean") is None else
+                         f"{p['z_mean']:+.2f} ({p['z_sd']:.2f})")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return lines
 
 
