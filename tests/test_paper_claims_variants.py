@@ -186,7 +186,7 @@ def test_calibration_block_counts_by_hand(claims_json, tmp_path):
     p_min = min(rank_uniformity([0, 10, 20, 30], 99)["p_value"],
                 rank_uniformity([99, 98, 97, 96], 99)["p_value"])
     row = rows["Leapfrog without process noise (deterministic likelihood)"]
-    assert row == (f"| Leapfrog without process noise (deterministic likelihood) | a: 75 % "
+    assert row == (f"| Leapfrog without process noise (deterministic likelihood) | 4 | a: 75 % "
                    f"({100 * lo:.0f} % – {100 * hi:.0f} %) | 88 % | 2 of 2 | {p_min:.3g} | "
                    "a: 0.75 |")
     # yoshida4 at the paper's setting: a 1 of 2 (Wilson 9 – 91 %: 95 % outside)

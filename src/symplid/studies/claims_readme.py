@@ -273,10 +273,10 @@ def calibration_block(claims: Mapping[str, Any]) -> str:
     lines = [
         "<!-- generated from claims.json by `symplid study paper-claims --update-readme`; "
         "edits here are overwritten -->",
-        f"| fit ({whole(study['seeds'])} seeds, budget *{study['budget_name']}*) | lowest "
+        f"| fit (budget *{study['budget_name']}*) | seeds (+ not converged) | lowest "
         f"coverage of the {level} intervals (Wilson {level}) | median | {level} inside the "
         "Wilson interval | smallest rank p-value | largest mean shift [posterior sd] |",
-        "|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|",
     ]
     for key, g in calibration_answer(claims).items():
         if g is None:
@@ -289,8 +289,11 @@ def calibration_block(claims: Mapping[str, Any]) -> str:
         inside = sum(bool(q["nominal_inside"]) for q in params.values())
         pvals = [q["rank_p_value"] for q in params.values() if q["rank_p_value"] is not None]
         median = float(np.median([q["coverage"] for q in params.values()]))
+        failed = (g.get("not_converged") or {}).get("n", 0)
+        seeds = whole(max(q["n"] for q in params.values())) + (
+            f" (+ {whole(failed)})" if failed else "")
         lines.append(
-            f"| {ANSWER_LABELS[key]} | {low}: {pct(p['coverage'])} "
+            f"| {ANSWER_LABELS[key]} | {seeds} | {low}: {pct(p['coverage'])} "
             f"({pct(_lo(p['coverage_ci']))} – {pct(_hi(p['coverage_ci']))}) | {pct(median)} | "
             f"{inside} of {len(params)} | {num(min(pvals)) if pvals else '–'} | "
             f"{_largest_shift(params)} |"
