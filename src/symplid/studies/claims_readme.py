@@ -6,6 +6,11 @@ it is a value of that content passed through one of the formatters below (tested
 (the markers stay) and copies the study's figures beside it, so the block's images resolve::
 
     symplid study paper-claims --out runs/claims --update-readme README.md
+
+:func:`calibration_block` is a compact alternative for a front page: one row per fit of the
+calibration (lowest and median coverage, how many parameters reach the level, the smallest
+rank p-value, the largest shift), between :data:`CALIBRATION_BEGIN` and
+:data:`CALIBRATION_END`; ``update_readme`` rewrites whichever of the two blocks a file has.
 """
 
 from __future__ import annotations
@@ -17,12 +22,26 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from symplid.studies.paper_study_report import calibration_answer
+import numpy as np
 
-__all__ = ["BEGIN", "END", "FIGURES_DIR", "readme_block", "update_readme"]
+from symplid.studies.paper_study_report import ANSWER_LABELS, calibration_answer
+
+__all__ = [
+    "BEGIN",
+    "CALIBRATION_BEGIN",
+    "CALIBRATION_END",
+    "END",
+    "FIGURES_DIR",
+    "calibration_block",
+    "readme_block",
+    "update_readme",
+]
 
 BEGIN = "<!-- claims:begin -->"
 END = "<!-- claims:end -->"
+#: The markers of the compact calibration table (:func:`calibration_block`).
+CALIBRATION_BEGIN = "<!-- calibration:begin -->"
+CALIBRATION_END = "<!-- calibration:end -->"
 #: Where the figures go, relative to the README.
 FIGURES_DIR = "docs/figures/claims"
 _FIGURE_TITLES = {
@@ -72,6 +91,9 @@ def readme_block(claims: Mapping[str, Any], figures: str | None = FIGURES_DIR) -
     ]
     for name, claim in claims["claims"].items():
         for e in claim["per_variant"]:
+            if not e.get("applies", True):
+                lines.append(f"| {_SHORT[name]} | {e['variant']} | – | – | n/a | – |")
+                continue
             eff = e["effect"]
             lines.append(
                 f"| {_SHORT[name]} | {e['variant']} | {e['holds']} / {e['n']} | "
@@ -168,7 +190,7 @@ def _effects(claims: Mapping[str, Any]) -> list[str]:
 def _not_holding(claims: Mapping[str, Any]) -> list[str]:
     bad = [
         (name, e) for name, c in claims["claims"].items() for e in c["per_variant"]
-        if e["verdict"] != "holds"
+        if e["verdict"] != "holds" and e.get("applies", True)
     ]
     if not bad:
         return ["Every claim holds in every variant measured."]
@@ -225,39 +247,118 @@ def _restores(ans: Mapping[str, Any]) -> str:
     base = ans["baseline"]
     head = ("Leapfrog at the paper's setting " + ("is" if base and base["nominal"] else
             "is not") + " nominally calibrated; ") if base else ""
+    more = [said(k, w) for k, w in (("no_process_noise", "leapfrog without process noise"),
+                                     ("no_process_noise_yoshida4",
+                                      "yoshida4 without process noise"),
+                                     ("log_uniform", "leapfrog with the log-uniform Σ prior"),
+                                     ("log_uniform_yoshida4",
+                                      "yoshida4 with the log-uniform Σ prior"))
+            if ans.get(k) is not None]
     return (f"{head}{said('yoshida4', 'yoshida4')} and {said('smaller_dt', 'leapfrog at dt=0.1')}"
-            " (nominal: every parameter's Wilson interval of the coverage contains the level).")
+            + "".join(f"; {m}" for m in more)
+            + " (nominal: every parameter's Wilson interval of the coverage contains the level).")
+
+
+# ----------------------------------------------------------------------------- compact
+def calibration_block(claims: Mapping[str, Any]) -> str:
+    """A compact calibration table for a front page: one row per fit of
+    :func:`~.paper_study_report.calibration_answer` that was run (leapfrog, RK2 and yoshida4
+    at the paper's setting, leapfrog at dt = 0.1, then the deterministic likelihood and the
+    log-uniform Σ prior), with the lowest coverage over the parameters (its Wilson interval),
+    the median coverage, how many parameters' Wilson intervals contain the level, the
+    smallest rank-uniformity p-value and the largest mean shift of a posterior from the truth
+    (:func:`~.paper_calibration.evaluate_calibration`'s ``z_mean``)."""
+    study = claims["study"]
+    level = pct(claims["level"])
+    lines = [
+        "<!-- generated from claims.json by `symplid study paper-claims --update-readme`; "
+        "edits here are overwritten -->",
+        f"| fit (budget *{study['budget_name']}*) | seeds (+ not converged) | lowest "
+        f"coverage of the {level} intervals (Wilson {level}) | median | {level} inside the "
+        "Wilson interval | smallest rank p-value | largest mean shift [posterior sd] |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for key, g in calibration_answer(claims).items():
+        if g is None:
+            continue
+        params = {n: p for n, p in g["params"].items() if p["coverage"] is not None}
+        if not params:
+            continue
+        low = min(params, key=lambda n: params[n]["coverage"])
+        p = params[low]
+        inside = sum(bool(q["nominal_inside"]) for q in params.values())
+        pvals = [q["rank_p_value"] for q in params.values() if q["rank_p_value"] is not None]
+        median = float(np.median([q["coverage"] for q in params.values()]))
+        failed = (g.get("not_converged") or {}).get("n", 0)
+        seeds = whole(max(q["n"] for q in params.values())) + (
+            f" (+ {whole(failed)})" if failed else "")
+        lines.append(
+            f"| {ANSWER_LABELS[key]} | {seeds} | {low}: {pct(p['coverage'])} "
+            f"({pct(_lo(p['coverage_ci']))} – {pct(_hi(p['coverage_ci']))}) | {pct(median)} | "
+            f"{inside} of {len(params)} | {num(min(pvals)) if pvals else '–'} | "
+            f"{_largest_shift(params)} |"
+        )
+    return "\n".join(lines)
+
+
+def _largest_shift(params: Mapping[str, Any]) -> str:
+    """The parameter whose posterior is shifted most from the truth (mean z, in sds)."""
+    shifts = {n: p["z_mean"] for n, p in params.items() if p.get("z_mean") is not None}
+    if not shifts:
+        return "–"
+    name = max(shifts, key=lambda n: abs(shifts[n]))
+    return f"{name}: {num(shifts[name])}"
 
 
 # ----------------------------------------------------------------------------- the README
+def _replace_block(text: str, begin: str, end: str, block: str) -> str | None:
+    start, stop = text.find(begin), text.find(end)
+    if start < 0 or stop < start:
+        return None
+    return text[: start + len(begin)] + "\n" + block + "\n" + text[stop:]
+
+
 def update_readme(
     readme: str | os.PathLike,
     claims: Mapping[str, Any],
     study_dir: str | os.PathLike | None = None,
 ) -> str:
-    """Rewrite the block between :data:`BEGIN` and :data:`END` of ``readme``; returns it.
+    """Rewrite the blocks of ``readme`` between :data:`BEGIN` and :data:`END` (the summary
+    of :func:`readme_block`) and between :data:`CALIBRATION_BEGIN` and
+    :data:`CALIBRATION_END` (:func:`calibration_block`), whichever it has; returns the text
+    written between the markers (both blocks, in that order, when it has both).
 
-    With ``study_dir``, the figures named in ``claims["study"]["figures"]`` are copied from it
-    into :data:`FIGURES_DIR` beside the README.
+    With ``study_dir`` and a summary block, the figures named in
+    ``claims["study"]["figures"]`` are copied from it into :data:`FIGURES_DIR` beside the
+    README.
 
     Raises
     ------
     ValueError
-        The README lacks the markers (or has them out of order).
+        The README has neither pair of markers (or has them out of order).
     """
     path = Path(readme)
     text = path.read_text(encoding="utf-8")
-    start, end = text.find(BEGIN), text.find(END)
-    if start < 0 or end < start:
-        raise ValueError(f"{path}: no '{BEGIN}' ... '{END}' block to rewrite")
-    block = readme_block(claims)
-    new = text[: start + len(BEGIN)] + "\n" + block + "\n" + text[end:]
-    if study_dir is not None:
+    written = []
+    new = _replace_block(text, BEGIN, END, readme_block(claims))
+    if new is not None:
+        text, summary = new, True
+        written.append(readme_block(claims))
+    else:
+        summary = False
+    new = _replace_block(text, CALIBRATION_BEGIN, CALIBRATION_END, calibration_block(claims))
+    if new is not None:
+        text = new
+        written.append(calibration_block(claims))
+    if not written:
+        raise ValueError(f"{path}: no '{BEGIN}' ... '{END}' or '{CALIBRATION_BEGIN}' ... "
+                         f"'{CALIBRATION_END}' block to rewrite")
+    if study_dir is not None and summary:
         target = path.parent / FIGURES_DIR
         target.mkdir(parents=True, exist_ok=True)
         for rel in claims["study"].get("figures", {}).values():
             shutil.copyfile(Path(study_dir) / rel, target / Path(rel).name)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(new, encoding="utf-8")
+    tmp.write_text(text, encoding="utf-8")
     os.replace(tmp, path)
-    return block
+    return "\n".join(written)

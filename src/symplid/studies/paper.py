@@ -209,6 +209,10 @@ def _start_worker(counter: Any) -> None:
     stop_on_signals()  # signals: one policy
 
 
+#: The parameters that may follow the coefficients in θ (the first present ends them).
+_AFTER_COEFFICIENTS = ("gamma", "process_var", "obs_var", "obs_rel_var")
+
+
 @dataclasses.dataclass
 class ApproachResult:
     """Everything the figures and the summary need from one approach."""
@@ -226,8 +230,10 @@ class ApproachResult:
 
     @property
     def num_coefficients(self) -> int:
+        """The coefficients lead θ; the first of γ, Σ and the observation variance ends them
+        (a model without process noise has no Σ)."""
         names = self.param_names
-        return names.index("gamma") if "gamma" in names else names.index("process_var")
+        return min(names.index(n) for n in _AFTER_COEFFICIENTS if n in names)
 
     @property
     def gamma_map(self) -> float | None:
@@ -236,7 +242,10 @@ class ApproachResult:
         return float(self.map_theta[names.index("gamma")]) if "gamma" in names else None
 
     @property
-    def process_noise_draws(self) -> np.ndarray:
+    def process_noise_draws(self) -> np.ndarray | None:
+        """The process variance's draws (None for a model without process noise)."""
+        if "process_var" not in self.param_names:
+            return None
         return self.draws[..., self.param_names.index("process_var")].ravel()
 
     @property
@@ -292,7 +301,6 @@ def analyse_approach(
     )
     truth_on_grid = np.stack([np.interp(times, truth_times, col) for col in truth.T], axis=1)
     horizon = prediction_horizon(times, path, truth_on_grid, threshold, 0)
-    noise = result.process_noise_draws
     fs = result.fit_summary
     damping = {} if result.gamma_map is None else {"gamma_map": result.gamma_map}
     return {
@@ -300,15 +308,27 @@ def analyse_approach(
         "integrator": result.integrator,
         "map_hamiltonian": h_map,
         "hamiltonian_rel_error": abs(h_map - h_true) / h_true,
-        "process_noise_map": float(result.map_theta[result.param_names.index("process_var")]),
-        "process_noise_median": float(np.median(noise)),
-        "process_noise_q025": float(np.quantile(noise, 0.025)),
-        "process_noise_q975": float(np.quantile(noise, 0.975)),
+        **_process_noise(result),
         "prediction_horizon_s": float(horizon),
         "acceptance_rate": fs.get("acceptance_rate"),
         "rhat_max": fs.get("rhat_max"),
         "ess_min": fs.get("ess_min"),
         "map": dict(zip(result.param_names, result.map_theta.tolist(), strict=True)),
+    }
+
+
+def _process_noise(result: ApproachResult) -> dict[str, float | None]:
+    """The process variance's MAP, median and central 95 % interval (all None for a model
+    without process noise, ``model.process_noise_per = "none"``: it has no such parameter)."""
+    noise = result.process_noise_draws
+    if noise is None:
+        return dict.fromkeys(("process_noise_map", "process_noise_median",
+                              "process_noise_q025", "process_noise_q975"))
+    return {
+        "process_noise_map": float(result.map_theta[result.param_names.index("process_var")]),
+        "process_noise_median": float(np.median(noise)),
+        "process_noise_q025": float(np.quantile(noise, 0.025)),
+        "process_noise_q975": float(np.quantile(noise, 0.975)),
     }
 
 

@@ -138,6 +138,7 @@ def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
         ranks = pd.to_numeric(ok[f"{_PREFIX}{name}.rank"], errors="coerce").dropna()
         uniform = rank_uniformity(ranks.to_numpy(), num_draws)
         params[name] = {
+            **_shift(ok, name),
             "n": n,
             "covered": k,
             "coverage": k / n if n else None,
@@ -163,6 +164,30 @@ def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
         "min_coverage": min((p["coverage"] for p in judged), default=None),
         "not_converged": failed,
     }
+
+
+def _shift(ok: Any, name: str) -> dict[str, Any]:
+    """Where the truth lies in the intervals, in posterior sds: per row
+    z = (interval midpoint − truth) / (width / 3.92), the width of a normal's central 95 %
+    being 3.92 sds; the mean of z over the rows is the posterior's shift, its sd the spread
+    (about 1 when the intervals have the right width). ``None`` without the columns (cells
+    recorded before the quantiles were kept) or with fewer than two rows."""
+    import pandas as pd
+
+    cols = [f"{_PREFIX}{name}.{k}" for k in ("q025", "q975", "truth")]
+    if not all(c in ok for c in cols):
+        return {"z_mean": None, "z_sd": None}
+    lo, hi, truth = (pd.to_numeric(ok[c], errors="coerce").to_numpy(float) for c in cols)
+    width = hi - lo
+    z = ((lo + hi) / 2 - truth) / (width / (2 * _Z95))
+    z = z[np.isfinite(z) & (width > 0)]
+    if z.size < 2:
+        return {"z_mean": None, "z_sd": None}
+    return {"z_mean": float(z.mean()), "z_sd": float(z.std(ddof=1))}
+
+
+#: The two-sided 95 % normal quantile (a central 95 % interval is 2·1.96 sds wide).
+_Z95 = 1.959963984540054
 
 
 #: A cell whose chains have a larger R-hat did not converge: it is left out of the

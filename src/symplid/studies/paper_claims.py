@@ -15,6 +15,10 @@ the two fits of the same data — as a median with a percentile-bootstrap 95 % i
 A verdict per claim and variant: ``holds`` when the Wilson interval of the fraction lies above
 one half (most seeds, beyond chance), ``fails`` when it lies below, ``mixed`` otherwise.
 Calibration (:mod:`.paper_calibration`) is evaluated per variant and propagator.
+
+A claim that does not apply to a variant (one fitted without a reference, or one that names
+the claims it judges: :meth:`.paper_study.Variant.applicable_claims`) reads :data:`NOT_APPLICABLE`
+with no count, fraction or effect, and the reason; it is never counted as failing.
 """
 
 from __future__ import annotations
@@ -24,11 +28,17 @@ from typing import Any
 
 import numpy as np
 
-from symplid.plotting.sweep import rows_matching
 from symplid.studies.claims_stats import LEVEL, bootstrap_median, wilson_interval
 from symplid.studies.paper_calibration import evaluate_calibration
 
-__all__ = ["CLAIMS", "RATIO_THRESHOLD", "VERDICT_SPLIT", "evaluate_claims", "verdict"]
+__all__ = [
+    "CLAIMS",
+    "NOT_APPLICABLE",
+    "RATIO_THRESHOLD",
+    "VERDICT_SPLIT",
+    "evaluate_claims",
+    "verdict",
+]
 
 #: The process-noise claim holds for a seed when RK2's variance is at least this many times
 #: leapfrog's (the paper: "about an order of magnitude"; an independent reproduction: ≥ 5×).
@@ -75,19 +85,31 @@ def verdict(ci: Sequence[float] | None) -> str:
 
 
 def _match(table: Any, setting: Mapping[str, Any], integrator: str) -> Any:
-    """Rows of one setting and propagator. A setting key the table has no column for matches
-    only its default (the table's cells were run with it); any other value matches no row."""
-    values = {"integrator": integrator}
-    for key, value in setting.items():
-        if key in table.columns:
-            values[key] = value
-        elif key not in _DEFAULTS or _DEFAULTS[key] != value:
-            return table.iloc[0:0]
-    return rows_matching(table, values)
+    """Rows of one setting and propagator. A run setting of :data:`_DEFAULTS` that the setting
+    leaves out stands at its default; a cell with no value for it (a table without its column,
+    or a cell run before another cell set it) was run with the default."""
+    import pandas as pd
+
+    mask = (table["integrator"] == integrator).to_numpy(dtype=bool, copy=True)
+    for key, value in {**_DEFAULTS, **setting}.items():
+        if key not in table.columns:
+            if _DEFAULTS.get(key, _NO_DEFAULT) != value:
+                return table.iloc[0:0]
+            continue
+        hit = (table[key] == value).to_numpy(dtype=bool, copy=True)
+        if _DEFAULTS.get(key, _NO_DEFAULT) == value:
+            hit |= pd.isna(table[key]).to_numpy(dtype=bool)
+        mask &= hit
+    return table[mask]
 
 
-#: Run settings that older tables may lack as a column, and the value their cells used.
-_DEFAULTS: dict[str, Any] = {"model.process_noise_per": "gap"}
+#: Run settings that a cell may lack (a table without the column, or a cell of a variant that
+#: leaves it out), and the value such a cell was run with.
+_DEFAULTS: dict[str, Any] = {"model.process_noise_per": "gap", "priors.process_var": "variances"}
+_NO_DEFAULT = object()
+#: What a claim that does not apply to a variant reads (:meth:`.paper_study.Variant.
+#: applicable_claims`): no reference was fitted, or its metric does not exist there.
+NOT_APPLICABLE = "n/a"
 
 
 def evaluate_claims(
@@ -147,20 +169,27 @@ def _evaluate_variant(result: dict[str, Any], table: Any, ok: Any, v: Any, sympl
                       seed: int) -> None:
     """Add one variant's pairs, claims and calibration to ``result``."""
     setting = v.setting()
-    sym = _unique(_match(ok, setting, symplectic), v.name, symplectic)
-    ref = _unique(_match(ok, setting, v.reference), v.name, v.reference)
+    applies = _applicable(v)
+    judged = (symplectic, v.reference) if v.reference is not None else (symplectic,)
     done = table[table["status"] != "pending"]  # a cell not run yet is no seed of the variant
-    seeds_all = set(_match(done, setting, symplectic)["seed"])
-    seeds_all |= set(_match(done, setting, v.reference)["seed"])
-    paired = sorted(set(sym.index) & set(ref.index))
-    unpaired = len(seeds_all) - len(paired)
+    seeds_all = set().union(*(set(_match(done, setting, i)["seed"]) for i in judged))
+    sym = _unique(_match(ok, setting, symplectic), v.name, symplectic)
+    if v.reference is None:
+        ref, paired = None, []
+    else:
+        ref = _unique(_match(ok, setting, v.reference), v.name, v.reference)
+        paired = sorted(set(sym.index) & set(ref.index))
+    unpaired = len(seeds_all) - len(paired) if v.reference is not None else 0
     result["variants"].append({"name": v.name, "reference": v.reference,
                                "seeds": len(seeds_all), "pairs": len(paired),
-                               "unpaired": unpaired})
+                               "unpaired": unpaired, "claims": list(applies)})
     for j, (name, spec) in enumerate(CLAIMS.items()):
-        a = _numbers(sym.loc[paired, spec["metric"]])
-        b = _numbers(ref.loc[paired, spec["metric"]])
-        entry = _judge(name, a, b, np.asarray(paired), seed + j)
+        if name not in applies or ref is None:
+            entry = _not_applicable(v.reference)
+        else:
+            a = _numbers(sym.loc[paired, spec["metric"]])
+            b = _numbers(ref.loc[paired, spec["metric"]])
+            entry = _judge(name, a, b, np.asarray(paired), seed + j)
         result["claims"][name]["per_variant"].append(
             {"variant": v.name, "reference": v.reference, "unpaired": unpaired, **entry}
         )
@@ -169,6 +198,26 @@ def _evaluate_variant(result: dict[str, Any], table: Any, ok: Any, v: Any, sympl
         if len(rows):
             cal = evaluate_calibration(rows, f"{v.name}, {integ}")
             result["calibration"].append({"variant": v.name, "integrator": integ, **cal})
+
+
+def _applicable(v: Any) -> tuple[str, ...]:
+    """The claims judged in variant ``v`` (all of them for an object without
+    ``applicable_claims`` that has a reference)."""
+    if getattr(v, "reference", None) is None:
+        return ()
+    method = getattr(v, "applicable_claims", None)
+    return tuple(CLAIMS) if method is None else tuple(method())
+
+
+def _not_applicable(reference: str | None) -> dict[str, Any]:
+    """The entry of a claim that does not apply: no count, no fraction, verdict *n/a*."""
+    why = ("no reference propagator is fitted in this variant (calibration only)"
+           if reference is None else "the claim's metric does not exist in this variant")
+    return {"n": 0, "undecided": 0, "holds": 0, "fraction": None, "fraction_ci": None,
+            "verdict": NOT_APPLICABLE, "applies": False, "why": why,
+            "median_symplectic": None, "median_reference": None,
+            "effect": bootstrap_median([]),
+            "per_seed": {"seed": [], "symplectic": [], "reference": [], "effect": []}}
 
 
 def _unique(rows: Any, variant: str, integrator: str) -> Any:
@@ -195,7 +244,7 @@ def _judge(name: str, sym: np.ndarray, ref: np.ndarray, seeds: np.ndarray,
         finite &= (sym > 0) & (ref > 0)
     s, r = sym[finite], ref[finite]
     n = int(finite.sum())
-    out: dict[str, Any] = {"n": n, "undecided": int((~finite).sum())}
+    out: dict[str, Any] = {"n": n, "undecided": int((~finite).sum()), "applies": True}
     if name == "hamiltonian":
         holds, effect = s < r, s - r
     elif name == "process_noise":

@@ -31,6 +31,15 @@ variant is data: the cell keys it changes, the reference propagator, and the ext
 fitted for calibration alone. Cells shared by two variants (leapfrog under "RK2 Heun" is the
 paper's leapfrog) are run once.
 
+Two variants are fitted for the calibration alone, leapfrog and yoshida4 each, with no
+reference (``reference=None``: no RK2 cell is run, and every claim reads *n/a* there, since
+each compares leapfrog with the reference on the same data): ``no-process-noise``, the
+deterministic-trajectory likelihood (``model.process_noise_per = "none"``; its MAP search
+starts from the filter's MAP, :func:`symplid.workflow.fit.find_map_for`), and ``log-uniform``,
+the log-uniform prior on the process variance (``priors.process_var``). They answer whether
+the intervals reach their nominal coverage once Σ no longer shifts the coefficients. A variant
+with a reference may also name the claims that apply (``claims``).
+
 :func:`run_paper_claims` runs the sweep (resumable: a rerun skips finished cells) and writes
 ``claims.json``, ``report.md`` and the figures into the sweep folder.
 """
@@ -93,21 +102,38 @@ class Variant:
     """One setting of the study: what changes from :data:`PAPER_SETTING`, and who is fitted.
 
     ``keys`` are cell keys (short or dotted); ``reference`` is the propagator leapfrog is
-    compared with; ``extra`` are propagators fitted for the calibration alone.
+    compared with, or ``None`` for a variant fitted for the calibration alone (no reference
+    cells are run and no claim is judged: each reads *n/a*); ``extra`` are propagators
+    fitted for the calibration alone; ``claims`` names the claims of :data:`CLAIMS` that
+    apply (``None``: all of them, when there is a reference).
     """
 
     name: str
     keys: Mapping[str, Any] = field(default_factory=dict)
-    reference: str = REFERENCE
+    reference: str | None = REFERENCE
     extra: tuple[str, ...] = ()
     description: str = ""
+    claims: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        unknown = sorted(set(self.claims or ()) - set(CLAIMS))
+        if unknown:
+            raise ValueError(f"variant {self.name}: unknown claim(s) {', '.join(unknown)}")
 
     def setting(self) -> dict[str, Any]:
         """The variant's full setting (without the propagator)."""
         return {**PAPER_SETTING, **self.keys}
 
     def propagators(self) -> tuple[str, ...]:
-        return (SYMPLECTIC, self.reference, *self.extra)
+        """The propagators fitted: leapfrog, the reference (if any), the extras."""
+        reference = () if self.reference is None else (self.reference,)
+        return (SYMPLECTIC, *reference, *self.extra)
+
+    def applicable_claims(self) -> tuple[str, ...]:
+        """The claims judged in this variant (none without a reference)."""
+        if self.reference is None:
+            return ()
+        return tuple(CLAIMS) if self.claims is None else tuple(self.claims)
 
 
 #: The paper's setting first, then one setting changed at a time.
@@ -125,6 +151,21 @@ VARIANTS: tuple[Variant, ...] = (
         description="process noise per integration step",
     ),
     Variant("rk2-heun", reference="rk2-heun", description="RK2 Heun as the reference"),
+    Variant(
+        "no-process-noise",
+        {"model.process_noise_per": "none"},
+        reference=None,
+        extra=("yoshida4",),
+        description="the deterministic-trajectory likelihood (no process noise), "
+        "calibration only",
+    ),
+    Variant(
+        "log-uniform",
+        {"priors.process_var": "log-uniform"},
+        reference=None,
+        extra=("yoshida4",),
+        description="a log-uniform prior on the process variance, calibration only",
+    ),
 )
 
 #: The paper's sampler budget per cell: DRAM, 4 chains of 200,000 iterations (100,000 burn-in).

@@ -17,6 +17,7 @@ from symplid.plotting import COLORS, save_figure
 from symplid.plotting.sweep import strip_plot
 
 __all__ = [
+    "ANSWER_LABELS",
     "CALIBRATION_VARIANTS",
     "calibration_answer",
     "format_claims_report",
@@ -24,7 +25,20 @@ __all__ = [
 ]
 
 #: The variants whose calibration is drawn and tabulated (all are in ``claims.json``).
-CALIBRATION_VARIANTS = ("paper", "dt=0.1", "dt=0.5")
+CALIBRATION_VARIANTS = ("paper", "dt=0.1", "dt=0.5", "no-process-noise", "log-uniform")
+#: The calibration entries of :func:`calibration_answer`, as the report names them.
+ANSWER_LABELS = {
+    "baseline": "Leapfrog at the paper's setting",
+    "reference": "RK2 at the paper's setting",
+    "yoshida4": "yoshida4 at the paper's setting",
+    "smaller_dt": "Leapfrog at dt = 0.1",
+    "no_process_noise": "Leapfrog without process noise (deterministic likelihood)",
+    "no_process_noise_yoshida4": "yoshida4 without process noise (deterministic likelihood)",
+    "log_uniform": "Leapfrog with the log-uniform prior on Σ",
+    "log_uniform_yoshida4": "yoshida4 with the log-uniform prior on Σ",
+}
+#: Entries the report names even when they were not run (the others appear once run).
+_ALWAYS_ANSWERED = ("baseline", "reference", "yoshida4", "smaller_dt")
 _TITLES = {
     "hamiltonian": "Claim 1: the learned Hamiltonian",
     "process_noise": "Claim 2: the process noise",
@@ -58,7 +72,7 @@ def _plot_claim(name: str, claim: Mapping[str, Any], claims: Mapping[str, Any],
                 folder: Path) -> Path:
     from matplotlib.figure import Figure
 
-    entries = claim["per_variant"]
+    entries = [e for e in claim["per_variant"] if e.get("applies", True)]  # n/a: not drawn
     x = np.arange(len(entries))
     labels = [e["variant"] for e in entries]
     fig = Figure(figsize=(max(8.0, 1.1 * len(entries) + 4), 4.2), layout="constrained")
@@ -159,9 +173,11 @@ def _plot_ranks(groups: list, folder: Path) -> Path:
 def calibration_answer(claims: Mapping[str, Any]) -> dict[str, Any]:
     """Does yoshida4, or leapfrog at a smaller dt, restore nominal coverage? From the data.
 
-    Returns ``{"baseline", "reference", "yoshida4", "smaller_dt"}``, each the calibration
-    entry (or ``None`` when not run) of leapfrog, the reference (RK2) and yoshida4 at the
-    paper's setting, and of leapfrog at dt = 0.1.
+    Returns ``{"baseline", "reference", "yoshida4", "smaller_dt", "no_process_noise",
+    "no_process_noise_yoshida4", "log_uniform", "log_uniform_yoshida4"}``, each the
+    calibration entry (or ``None`` when not run) of leapfrog, the reference (RK2) and
+    yoshida4 at the paper's setting, of leapfrog at dt = 0.1, and of leapfrog and yoshida4
+    with the deterministic likelihood and with the log-uniform prior on Σ.
     """
     def find(variant: str, integrator: str) -> Mapping[str, Any] | None:
         for g in claims.get("calibration", []):
@@ -170,10 +186,15 @@ def calibration_answer(claims: Mapping[str, Any]) -> dict[str, Any]:
         return None
 
     reference = claims["claims"]["hamiltonian"]["per_variant"][0]["reference"]
-    return {"baseline": find("paper", claims["symplectic"]),
+    sym = claims["symplectic"]
+    return {"baseline": find("paper", sym),
             "reference": find("paper", reference),
             "yoshida4": find("paper", "yoshida4"),
-            "smaller_dt": find("dt=0.1", claims["symplectic"])}
+            "smaller_dt": find("dt=0.1", sym),
+            "no_process_noise": find("no-process-noise", sym),
+            "no_process_noise_yoshida4": find("no-process-noise", "yoshida4"),
+            "log_uniform": find("log-uniform", sym),
+            "log_uniform_yoshida4": find("log-uniform", "yoshida4")}
 
 
 def format_claims_report(claims: Mapping[str, Any]) -> str:
@@ -236,6 +257,10 @@ def _claim_lines(name: str, claim: Mapping[str, Any], study: Mapping[str, Any]) 
              "| median effect (95 % CI) | median leapfrog | median reference |",
              "|---|---|---|---|---|---|---|---|---|"]
     for e in claim["per_variant"]:
+        if not e.get("applies", True):
+            lines.append(f"| {e['variant']} | {e['reference'] or '–'} | – | – | – | n/a "
+                         "| – | – | – |")
+            continue
         eff = e["effect"]
         lines.append(
             f"| {e['variant']} | {e['reference']} | {e['n']} | {e['holds']} | "
@@ -246,6 +271,7 @@ def _claim_lines(name: str, claim: Mapping[str, Any], study: Mapping[str, Any]) 
     left_out = sum(e["undecided"] + e["unpaired"] for e in claim["per_variant"])
     if left_out:
         lines += ["", f"{left_out} seed(s) left out (a failed cell or a non-finite value)."]
+    lines += _not_applicable_lines(claim)
     figure = study.get("figures", {}).get(name)
     if figure:
         lines += ["", f"![{_TITLES[name]}]({figure})"]
@@ -272,6 +298,7 @@ def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> l
                          f"{_pct(p['coverage'])} ({_range(p['coverage_ci'], _pct)}), "
                          f"p={_num(p['rank_p_value'])}")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += _shift_lines(groups, names)
     failed = [(g["label"], g.get("not_converged") or {}) for g in groups]
     failed = [(label, f) for label, f in failed if f.get("n")]
     if failed:
@@ -286,16 +313,35 @@ def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> l
     return lines
 
 
+def _shift_lines(groups: list, names: list[str]) -> list[str]:
+    """The mean and spread of z = (interval midpoint − truth) / posterior sd per parameter:
+    a miss in coverage comes from a shift (mean ≠ 0) or a width (spread ≠ 1)."""
+    if not any(p.get("z_mean") is not None for g in groups for p in g["params"].values()):
+        return []
+    lines = ["", "Where the truth lies: mean (spread) over the seeds of z = (interval midpoint "
+             "− truth) / (interval width / 3.92), in posterior sds. A calibrated posterior "
+             "has mean ≈ 0 and spread ≈ 1; a mean far from 0 with a spread near or below 1 "
+             "is a shift of the posterior, not a too narrow one.", "",
+             "| parameter | " + " | ".join(g["label"] for g in groups) + " |",
+             "|---|" + "---|" * len(groups)]
+    for name in names:
+        cells = []
+        for g in groups:
+            p = g["params"].get(name) or {}
+            cells.append("–" if p.get("z_mean") is None else
+                         f"{p['z_mean']:+.2f} ({p['z_sd']:.2f})")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _answer_lines(claims: Mapping[str, Any]) -> list[str]:
     ans = calibration_answer(claims)
     out = []
-    for key, what in (("baseline", "Leapfrog at the paper's setting"),
-                      ("reference", "RK2 at the paper's setting"),
-                      ("yoshida4", "yoshida4 at the paper's setting"),
-                      ("smaller_dt", "Leapfrog at dt = 0.1")):
+    for key, what in ANSWER_LABELS.items():
         g = ans[key]
         if g is None:
-            out.append(f"{what}: not run.  ")
+            if key in _ALWAYS_ANSWERED:
+                out.append(f"{what}: not run.  ")
             continue
         below = ", ".join(g["below_nominal"]) or "none"
         state = ("nominal coverage" if g["nominal"] else
@@ -303,6 +349,17 @@ def _answer_lines(claims: Mapping[str, Any]) -> list[str]:
         out.append(f"{what}: {state} (lowest coverage {_pct(g['min_coverage'])}; parameters "
                    f"whose interval lies below 95 %: {below}).  ")
     return out
+
+
+def _not_applicable_lines(claim: Mapping[str, Any]) -> list[str]:
+    """Why a claim reads *n/a* in some variants (one line per reason)."""
+    reasons: dict[str, list[str]] = {}
+    for e in claim["per_variant"]:
+        if not e.get("applies", True):
+            reasons.setdefault(e.get("why", "it does not apply"), []).append(e["variant"])
+    if not reasons:
+        return []
+    return ["", *(f"*n/a* in {', '.join(names)}: {why}." for why, names in reasons.items())]
 
 
 def _pct(x: float | None) -> str:
