@@ -90,8 +90,8 @@ SAMPLERS = ("dram", "nuts")
 #: Sampler budgets: iterations per chain (half burn-in) and chains; NUTS (whose draws are far
 #: less autocorrelated) ``nuts_draws`` kept per chain after ``nuts_warmup`` adaptation steps.
 BUDGETS: dict[str, dict[str, int]] = {
-    "full": {"iterations": 4000, "chains": 2, "num_starts": 2, "nuts_warmup": 500,
-             "nuts_draws": 500},
+    "full": {"iterations": 4000, "chains": 2, "num_starts": 2, "nuts_warmup": 400,
+             "nuts_draws": 300},
     "quick": {"iterations": 400, "chains": 2, "num_starts": 1, "nuts_warmup": 100,
               "nuts_draws": 100},
 }
