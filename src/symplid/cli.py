@@ -579,18 +579,23 @@ def baselines_study(out, no_progress, **options) -> None:
               help="gap (process noise once per gap), none (deterministic), or both.")
 @click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
               show_default=True, help="Sampler budget per replication.")
+@click.option("--samplers", default="dram", show_default=True,
+              help="dram, nuts, or both (dram,nuts): each runs every replication from the MAP.")
 @click.option("--workers", type=click.IntRange(min=1), default=None)
 @click.option("--report-only", is_flag=True,
               help="Run nothing: report the replications OUT holds.")
 @no_progress_option
 @user_errors
-def sbc_study(out, replications, likelihoods, budget, workers, report_only, no_progress) -> None:
+def sbc_study(out, replications, likelihoods, budget, samplers, workers, report_only,
+              no_progress) -> None:
     """Simulation-based calibration: ranks of prior-drawn truths among posterior draws."""
     from symplid.studies.sbc import run_sbc_study
 
     chosen = tuple(v.strip() for v in likelihoods.split(",") if v.strip())
+    methods = tuple(v.strip() for v in samplers.split(",") if v.strip())
     run_sbc_study(out, replications=replications, likelihoods=chosen, budget=budget,
-                  workers=workers, progress=not no_progress, report_only=report_only)
+                  samplers=methods, workers=workers, progress=not no_progress,
+                  report_only=report_only)
     click.echo(f"{out}: report.md, sbc.json, results.csv and figures/")
 
 

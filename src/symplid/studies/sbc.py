@@ -59,6 +59,8 @@ __all__ = [
     "EXPERIMENT",
     "LIKELIHOODS",
     "PRIORS",
+    "SAMPLERS",
+    "THIN_DRAWS",
     "X0",
     "draw_truth",
     "fit_replication",
@@ -83,17 +85,28 @@ PRIORS: dict[str, Prior] = {
     "process_var": LogUniform(1e-5, 1e-2),
     "obs_var": LogNormal(math.log(2.5e-3), 0.5),
 }
-#: Sampler budgets: iterations per chain (half burn-in) and chains.
+#: The samplers calibrated, both started from the MAP: DRAM (the paper's, in θ) and NUTS.
+SAMPLERS = ("dram", "nuts")
+#: Sampler budgets: iterations per chain (half burn-in) and chains; NUTS (whose draws are far
+#: less autocorrelated) ``nuts_draws`` kept per chain after ``nuts_warmup`` adaptation steps.
 BUDGETS: dict[str, dict[str, int]] = {
-    "full": {"iterations": 4000, "chains": 2, "num_starts": 2},
-    "quick": {"iterations": 400, "chains": 2, "num_starts": 1},
+    "full": {"iterations": 4000, "chains": 2, "num_starts": 2, "nuts_warmup": 400,
+             "nuts_draws": 300},
+    "quick": {"iterations": 400, "chains": 2, "num_starts": 1, "nuts_warmup": 100,
+              "nuts_draws": 100},
 }
+#: Draws behind the second, ESS-matched rank (``sbc.<name>.rank_thin``): a converged chain
+#: (ESS ≥ :data:`~symplid.studies.sbc_report.ESS_MIN` = 50) thinned to 49 draws is one draw
+#: per autocorrelation time or more, so these draws are about independent (Talts et al.
+#: 2018, §5: ranks of autocorrelated draws are not uniform, even from the right posterior).
+THIN_DRAWS = 49
 
 CELL_KEYS: dict[str, Spec] = {
     "seed": Spec(int, 0, "replication: seed of the truth, the data and the fit", minimum=0,
                  setting="seed"),
     "likelihood": Spec(str, "gap", "process noise once per gap, or none (deterministic)",
                        choices=LIKELIHOODS),
+    "sampler": Spec(str, "dram", "sampler started from the MAP", choices=SAMPLERS),
     "num_obs": Spec(int, 20, "full-state observations", minimum=2),
     "obs_interval": Spec(float, 1.0, "time between observations", minimum=0.0, strict=True),
     "dt": Spec(float, 0.1, "learning step (eq. 14)", minimum=0.0, strict=True),
@@ -146,7 +159,8 @@ def _settings(cell: Mapping[str, Any]) -> Settings:
 
 
 def fit_replication(cell: Mapping[str, Any], obs: Observations) -> tuple[Any, np.ndarray, Any]:
-    """The pipeline's fit of one replication: posterior (priors :data:`PRIORS`), MAP, DRAM.
+    """The pipeline's fit of one replication: posterior (priors :data:`PRIORS`), MAP, then
+    the cell's sampler (DRAM or NUTS) from it.
 
     Returns ``(posterior, draws (chain, draw, param), diagnostics table)``.
     """
@@ -158,12 +172,16 @@ def fit_replication(cell: Mapping[str, Any], obs: Observations) -> tuple[Any, np
     if list(posterior.param_names) != names:
         raise RuntimeError(f"θ is {posterior.param_names}, the study's priors name {names}")
     budget = BUDGETS[str(cell["budget"])]
+    method = str(cell.get("sampler", "dram"))
+    if method == "nuts":
+        kept, burn_in = budget["nuts_draws"], budget["nuts_warmup"]
+    else:
+        kept = burn_in = budget["iterations"] // 2
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a replication's warnings are its metrics
         result = find_map_for(settings, posterior)
-        half = budget["iterations"] // 2
-        idata = sample(posterior, "dram", num_draws=half, num_chains=budget["chains"],
-                       burn_in=half, init=result, seed=int(cell["seed"]), progress=False)
+        idata = sample(posterior, method, num_draws=kept, num_chains=budget["chains"],
+                       burn_in=burn_in, init=result, seed=int(cell["seed"]), progress=False)
         table = diagnostics_summary(idata, show=False, warn=False)
     return posterior, draws_array(idata), table
 
@@ -174,9 +192,10 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
     truth = draw_truth(int(cell["seed"]), str(cell["likelihood"]))
     obs = simulate_model(truth, cell)
     posterior, draws, table = fit_replication(cell, obs)
-    metrics: dict[str, Any] = {"rank_draws": RANK_DRAWS}
+    metrics: dict[str, Any] = {"rank_draws": RANK_DRAWS, "thin_draws": THIN_DRAWS}
     for i, name in enumerate(posterior.param_names):
         metrics[f"sbc.{name}.rank"] = truth_rank(draws[..., i], truth[name], RANK_DRAWS)
+        metrics[f"sbc.{name}.rank_thin"] = truth_rank(draws[..., i], truth[name], THIN_DRAWS)
         metrics[f"sbc.{name}.truth"] = truth[name]
         metrics[f"sbc.{name}.rhat"] = float(table.loc[name, "r_hat"])
         metrics[f"sbc.{name}.ess"] = float(min(table.loc[name, "ess_bulk"],
@@ -199,9 +218,10 @@ EXPERIMENT = Experiment(
 
 
 def sbc_spec(replications: int = 100, likelihoods: tuple[str, ...] = LIKELIHOODS,
-             budget: str = "full") -> Any:
-    """The study's sweep: ``replications`` seeds for each likelihood (all of the first
-    likelihood first, so an interrupted study can be reported on one of them)."""
+             budget: str = "full", samplers: tuple[str, ...] = ("dram",)) -> Any:
+    """The study's sweep: ``replications`` seeds for each sampler and likelihood (all of the
+    first sampler's first likelihood first, so an interrupted study can be reported on
+    what finished)."""
     from symplid.workflow.sweep import sweep_spec_from_dict
 
     if isinstance(replications, bool) or not isinstance(replications, int) or replications < 1:
@@ -210,7 +230,12 @@ def sbc_spec(replications: int = 100, likelihoods: tuple[str, ...] = LIKELIHOODS
     if unknown or not likelihoods:
         raise ValueError(f"likelihoods must be among {', '.join(LIKELIHOODS)}, got "
                          f"{', '.join(likelihoods) or 'none'}")
-    cells = [{"likelihood": v, "seed": s} for v in likelihoods for s in range(replications)]
+    bad = [m for m in samplers if m not in SAMPLERS]
+    if bad or not samplers:
+        raise ValueError(f"samplers must be among {', '.join(SAMPLERS)}, got "
+                         f"{', '.join(samplers) or 'none'}")
+    cells = [{"sampler": m, "likelihood": v, "seed": s} for m in samplers for v in likelihoods
+             for s in range(replications)]
     name = "sbc" + (f" ({budget})" if budget != "full" else "")
     return sweep_spec_from_dict({"base": {"budget": budget},
                                  "sweep": {"name": name, "experiment": "sbc", "cells": cells}},
@@ -219,7 +244,8 @@ def sbc_spec(replications: int = 100, likelihoods: tuple[str, ...] = LIKELIHOODS
 
 def run_sbc_study(out_dir: Any, *, replications: int = 100,
                   likelihoods: tuple[str, ...] = LIKELIHOODS, budget: str = "full",
-                  workers: int | None = None, progress: bool = True,
+                  samplers: tuple[str, ...] = ("dram",), workers: int | None = None,
+                  progress: bool = True,
                   report_only: bool = False) -> dict[str, Any]:
     """Run the replications on the sweep (resumable) into ``out_dir``, then write
     ``report.md``, ``sbc.json`` and ``figures/`` (:mod:`.sbc_report`). ``report_only``:
@@ -227,7 +253,7 @@ def run_sbc_study(out_dir: Any, *, replications: int = 100,
     from symplid.studies.sbc_report import write_sbc_report
     from symplid.workflow.sweep import run_sweep
 
-    spec = sbc_spec(replications, likelihoods, budget)
+    spec = sbc_spec(replications, likelihoods, budget, samplers)
     table = None
     if not report_only:
         table = run_sweep(spec, out_dir, None, workers, progress=progress, figures=False,

@@ -29,6 +29,7 @@ __all__ = [
     "converged_mask",
     "ecdf_band",
     "ecdf_inside",
+    "groups",
     "plot_ranks",
     "rank_columns",
     "sbc_summary",
@@ -74,9 +75,24 @@ def ecdf_inside(ranks: Any, num_draws: int = RANK_DRAWS, level: float = 0.95) ->
 
 
 def rank_columns(table: Any) -> list[str]:
-    """The parameters with rank columns (``sbc.<name>.rank``) in a results table."""
+    """The parameters with rank columns (``sbc.<name>.rank``) in a results table, but those
+    with no finite rank in it (Σ where the likelihood is deterministic)."""
     return [c[len("sbc."):-len(".rank")] for c in table.columns
-            if c.startswith("sbc.") and c.endswith(".rank")]
+            if c.startswith("sbc.") and c.endswith(".rank")
+            and np.isfinite(table[c].to_numpy(dtype=float)).any()]
+
+
+def groups(table: Any) -> list[tuple[str, str, Any]]:
+    """``(sampler, likelihood, rows)`` of the finished replications, by sampler then
+    likelihood (rows without a sampler column were DRAM's)."""
+    ok = table[table["status"] == "ok"] if "status" in table else table
+    samplers = ok["sampler"].fillna("dram") if "sampler" in ok else None
+    out = []
+    for sampler in (["dram"] if samplers is None else sorted(samplers.unique())):
+        rows = ok if samplers is None else ok[samplers == sampler]
+        out += [(sampler, v, rows[rows["likelihood"] == v])
+                for v in sorted(rows["likelihood"].unique())]
+    return out
 
 
 def converged_mask(table: Any) -> np.ndarray:
@@ -86,31 +102,45 @@ def converged_mask(table: Any) -> np.ndarray:
     return (rhat <= RHAT_MAX) & (ess >= ESS_MIN)
 
 
-def _judge(ranks: np.ndarray) -> dict[str, Any]:
+def _judge(ranks: np.ndarray, num_draws: int = RANK_DRAWS) -> dict[str, Any]:
     ranks = ranks[np.isfinite(ranks)].astype(int)
     if ranks.size == 0:
         return {"n": 0}
-    u = rank_uniformity(ranks, RANK_DRAWS)
+    u = rank_uniformity(ranks, num_draws)
     return {"n": int(ranks.size), "chi2": u["chi2"], "p_value": u["p_value"],
-            "bins": u["bins"], "counts": u["counts"], "ecdf_inside": ecdf_inside(ranks),
-            "mean_fraction": float(np.mean(ranks) / RANK_DRAWS)}
+            "bins": u["bins"], "counts": u["counts"],
+            "ecdf_inside": ecdf_inside(ranks, num_draws),
+            "mean_fraction": float(np.mean(ranks) / num_draws)}
+
+
+def _judge_param(rows: Any, name: str, good: np.ndarray) -> dict[str, Any]:
+    ranks = rows[f"sbc.{name}.rank"].to_numpy(dtype=float)
+    judged = {"converged": _judge(ranks[good]), "not_converged": _judge(ranks[~good])}
+    column = f"sbc.{name}.rank_thin"
+    if column in rows:
+        thin = rows[column].to_numpy(dtype=float)
+        judged["converged_thin"] = _judge(thin[good], int(rows["thin_draws"].iloc[0]))
+    return judged
 
 
 def sbc_summary(table: Any) -> dict[str, Any]:
-    """Per likelihood and parameter: the rank tests over the converged replications and,
-    apart, over the non-converged ones (``table``: the sweep's results)."""
-    ok = table[table["status"] == "ok"] if "status" in table else table
+    """Per sampler, likelihood and parameter: the rank tests over the converged replications
+    and, apart, over the non-converged ones (``table``: the sweep's results); with the
+    rank among the fewer, about independent draws (``rank_thin``) where it was recorded.
+    ``ess_below_rank_draws``: converged replications whose smallest ESS is below the
+    :data:`RANK_DRAWS` draws the rank is counted among (neighbouring thinned draws are then
+    correlated)."""
     out: dict[str, Any] = {}
-    for likelihood in sorted(ok["likelihood"].unique()):
-        rows = ok[ok["likelihood"] == likelihood]
+    for sampler, likelihood, rows in groups(table):
         good = converged_mask(rows)
-        params = {}
-        for name in rank_columns(rows):
-            ranks = rows[f"sbc.{name}.rank"].to_numpy(dtype=float)
-            params[name] = {"converged": _judge(ranks[good]),
-                            "not_converged": _judge(ranks[~good])}
-        out[likelihood] = {"replications": len(rows), "converged": int(good.sum()),
-                           "not_converged": int((~good).sum()), "params": params}
+        ess = rows["ess_min"].to_numpy(dtype=float)
+        params = {name: _judge_param(rows, name, good) for name in rank_columns(rows)}
+        out.setdefault(sampler, {})[likelihood] = {
+            "replications": len(rows), "converged": int(good.sum()),
+            "not_converged": int((~good).sum()),
+            "ess_below_rank_draws": int((good & (ess < RANK_DRAWS)).sum()),
+            "wall_time_s_median": float(np.median(rows["wall_time_s"].to_numpy(dtype=float))),
+            "params": params}
     return out
 
 
@@ -126,10 +156,8 @@ def plot_ranks(table: Any, folder: Any) -> dict[str, Path]:
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    ok = table[table["status"] == "ok"] if "status" in table else table
     paths = {}
-    for likelihood in sorted(ok["likelihood"].unique()):
-        rows = ok[ok["likelihood"] == likelihood]
+    for sampler, likelihood, rows in groups(table):
         rows = rows[converged_mask(rows)]
         names = rank_columns(rows)
         if rows.empty or not names:
@@ -155,12 +183,14 @@ def plot_ranks(table: Any, folder: Any) -> dict[str, Path]:
             ax.set_xlabel("fractional rank")
         axes[0, 0].set_ylabel("replications")
         axes[1, 0].set_ylabel("ECDF − uniform")
-        fig.suptitle(f"SBC, process noise: {likelihood} ({n} converged replications)")
+        fig.suptitle(f"SBC, {sampler.upper()}, process noise: {likelihood} "
+                     f"({n} converged replications)")
         fig.tight_layout()
-        path = folder / f"sbc_ranks_{likelihood}.png"
+        suffix = likelihood if sampler == "dram" else f"{sampler}_{likelihood}"
+        path = folder / f"sbc_ranks_{suffix}.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
-        paths[likelihood] = path
+        paths[suffix] = path
     return paths
 
 
@@ -176,18 +206,24 @@ def format_report(summary: dict[str, Any], budget: dict[str, Any]) -> str:
     """The study's ``report.md``: per likelihood and parameter, the χ² p-value and whether the
     ECDF stays in its band, converged and non-converged replications apart."""
     lines = ["# Simulation-based calibration", "",
-             f"Budget per replication: {budget}. Ranks among {RANK_DRAWS} thinned draws; "
+             f"Budget per replication: {budget}. Ranks among {RANK_DRAWS} thinned draws "
+             "(and, last columns, among the fewer draws of `rank_thin`); "
              f"converged: R-hat ≤ {RHAT_MAX} and ESS ≥ {ESS_MIN:g} in every parameter.", ""]
-    for likelihood, s in summary.items():
-        lines += [f"## process noise: {likelihood}", "",
-                  f"{s['replications']} replications: {s['converged']} converged, "
-                  f"{s['not_converged']} not (reported apart).", "",
-                  "| parameter | n | χ² p | ECDF in band | n (not conv.) | χ² p | ECDF in band |",
-                  "|---|---:|---:|---|---:|---:|---|"]
-        for name, judged in s["params"].items():
-            lines.append(f"| {name} | {_fmt(judged['converged'])} | "
-                         f"{_fmt(judged['not_converged'])} |")
-        lines.append("")
+    for sampler, by_likelihood in summary.items():
+        for likelihood, s in by_likelihood.items():
+            lines += [f"## {sampler.upper()}, process noise: {likelihood}", "",
+                      f"{s['replications']} replications: {s['converged']} converged, "
+                      f"{s['not_converged']} not (reported apart); "
+                      f"{s['ess_below_rank_draws']} converged with ESS < {RANK_DRAWS}; "
+                      f"median wall time {s['wall_time_s_median']:.1f} s.", "",
+                      "| parameter | n | χ² p | ECDF in band | n (not conv.) | χ² p | "
+                      "ECDF in band | n (thinned) | χ² p | ECDF in band |",
+                      "|---|---:|---:|---|---:|---:|---|---:|---:|---|"]
+            for name, judged in s["params"].items():
+                lines.append(f"| {name} | {_fmt(judged['converged'])} | "
+                             f"{_fmt(judged['not_converged'])} | "
+                             f"{_fmt(judged.get('converged_thin', {}))} |")
+            lines.append("")
     return "\n".join(lines)
 
 
