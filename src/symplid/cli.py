@@ -591,5 +591,26 @@ def sbc_study(out, replications, likelihoods, budget, workers, report_only, no_p
     click.echo(f"{out}: report.md, sbc.json, results.csv and figures/")
 
 
+@study.command("shift")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Study folder (decomposition.json, report.md, figures/).")
+@click.option("--cells", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              default=None,
+              help="A paper-claims study folder: the posterior shifts, Σ's per-seed values "
+              "and the remainders [default: parts (a)–(c) only].")
+@click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
+              show_default=True, help="Rows, steps and seeds decomposed.")
+@click.option("--report-only", is_flag=True,
+              help="Run nothing: report the parts OUT holds (the others as pending).")
+@user_errors
+def shift_study(out, cells, budget, report_only) -> None:
+    """Split each coefficient's shift into discretisation, noise draws, process noise, rest."""
+    from symplid.studies.shift import run_shift_study
+
+    if report_only and not (Path(out) / "parts").is_dir():
+        raise click.UsageError(f"{out} holds no finished parts (parts/) to report on")
+    run_shift_study(out, cells=cells, budget=budget, echo=click.echo, compute=not report_only)
+    click.echo(f"{out}: decomposition.json, report.md and figures/")
+
 if __name__ == "__main__":  # pragma: no cover
     main()

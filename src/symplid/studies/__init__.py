@@ -13,7 +13,10 @@ figures) in its own module:
 * ``"baselines"`` (:mod:`.baselines_study`): the UKF posterior against HNN and one-step least
   squares;
 * ``"sbc"`` (:mod:`.sbc`, report :mod:`.sbc_report`): simulation-based calibration of MAP +
-  DRAM on data simulated from the model itself.
+  DRAM on data simulated from the model itself;
+* ``"shift"`` (:mod:`.shift`, fits :mod:`.shift_fits`, report :mod:`.shift_report`): the
+  paper-claims posteriors' coefficient shift split into discretisation, noise draws, process
+  noise and remainder, one (integrator, dt) row per cell.
 
 A new study is a module here that defines ``EXPERIMENT = Experiment(...)`` (without
 registering it), added to :data:`STUDIES` below, the one list of the studies; its command, if
@@ -23,13 +26,14 @@ any, goes in :mod:`symplid.cli` under ``symplid study``.
 from __future__ import annotations
 
 from symplid.registry import Registry
-from symplid.studies import baselines_study, paper, sbc
+from symplid.studies import baselines_study, paper, sbc, shift
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 
-__all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc"]
+__all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc", "shift"]
 
 #: Every study's experiment, in the order ``symplid sweep`` lists them.
-STUDIES: tuple[Experiment, ...] = (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT)
+STUDIES: tuple[Experiment, ...] = (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT,
+                                   shift.EXPERIMENT)
 
 
 def register_studies(registry: Registry[Experiment] | None = None) -> None:
