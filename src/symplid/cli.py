@@ -35,8 +35,10 @@ from symplid.workflow.commandline import (
     rk2_variants,
     run_fit,
     sampler_registry,
+    sbc_study_options,
     sets_option,
     settings_from_options,
+    shift_study_options,
     simulate_to_file,
     time_or_word,
     user_errors,
@@ -569,18 +571,7 @@ def baselines_study(out, no_progress, **options) -> None:
 
 
 @study.command("sbc")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Study folder (a rerun skips the finished replications).")
-@click.option("--replications", type=click.IntRange(min=1), default=100, show_default=True)
-@click.option("--likelihoods", default="gap,none", show_default=True,
-              help="gap (process noise once per gap), none (deterministic), or both.")
-@click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
-              show_default=True, help="Sampler budget per replication.")
-@click.option("--workers", type=click.IntRange(min=1), default=None)
-@click.option("--report-only", is_flag=True,
-              help="Run nothing: report the replications OUT holds.")
-@no_progress_option
-@user_errors
+@sbc_study_options
 def sbc_study(out, replications, likelihoods, budget, workers, report_only, no_progress) -> None:
     """Simulation-based calibration: ranks of prior-drawn truths among posterior draws."""
     from symplid.studies.sbc import run_sbc_study
@@ -592,25 +583,13 @@ def sbc_study(out, replications, likelihoods, budget, workers, report_only, no_p
 
 
 @study.command("shift")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Study folder (decomposition.json, report.md, figures/).")
-@click.option("--cells", type=click.Path(exists=True, file_okay=False, path_type=Path),
-              default=None,
-              help="A paper-claims study folder: the posterior shifts, Σ's per-seed values "
-              "and the remainders [default: parts (a)–(c) only].")
-@click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
-              show_default=True, help="Rows, steps and seeds decomposed.")
-@click.option("--report-only", is_flag=True,
-              help="Run nothing: report the parts OUT holds (the others as pending).")
-@user_errors
-def shift_study(out, cells, budget, report_only) -> None:
+@shift_study_options
+def shift_study(**options) -> None:
     """Split each coefficient's shift into discretisation, noise draws, process noise, rest."""
-    from symplid.studies.shift import run_shift_study
+    from symplid.studies.shift import study_from_options
 
-    if report_only and not (Path(out) / "parts").is_dir():
-        raise click.UsageError(f"{out} holds no finished parts (parts/) to report on")
-    run_shift_study(out, cells=cells, budget=budget, echo=click.echo, compute=not report_only)
-    click.echo(f"{out}: decomposition.json, report.md and figures/")
+    click.echo(study_from_options(echo=click.echo, **options))
+
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -71,6 +71,7 @@ __all__ = [
     "row_posterior",
     "run_cell",
     "run_shift_study",
+    "study_from_options",
 ]
 
 #: The (integrator, dt) rows decomposed: those the paper-claims study fitted at the paper's
@@ -317,6 +318,17 @@ def run_shift_study(out_dir: str | Path, cells: str | Path | None = None,
         _write(out, budget, plan, cells, rows, noise_free, pending)
     _write(out, budget, plan, cells, rows, noise_free, pending)
     return write_shift_report(out)
+
+
+def study_from_options(out: Path, cells: Path | None, budget: str, report_only: bool,
+                       echo: Callable[[str], None] = print) -> str:
+    """``symplid study shift``: run (or, ``report_only``, report) the study; its last line."""
+    from symplid.workflow.commandline import UserError
+
+    if report_only and not (Path(out) / "parts").is_dir():
+        raise UserError(f"{out} holds no finished parts (parts/) to report on")
+    run_shift_study(out, cells=cells, budget=budget, echo=echo, compute=not report_only)
+    return f"{out}: decomposition.json, report.md and figures/"
 
 
 def _job(kind: str, integrator: str, dt: float, plan: Mapping[str, Any],
