@@ -217,14 +217,14 @@ def plot_shift_vs_dt2(result: Mapping[str, Any], path: Path, name: str = FOCUS) 
     fits = _dt_fits(result, name)
     for k, (integrator, by_dt) in enumerate(result["discretisation"].items()):
         color = CYCLE[k % len(CYCLE)]
-        grid = np.linspace(0.0, max(float(d) for d in by_dt) ** 2, 50)
+        posterior = (result.get("posterior_totals") or {}).get(integrator, {})
+        grid = np.linspace(0.0, max(float(d) for d in [*by_dt, *posterior]) ** 2, 50)
         dts = [float(d) for d in by_dt]
         ax.plot(np.square(dts), [1e3 * v[name] for v in by_dt.values()], "o", mfc="none",
                 color=color, label=f"{integrator}: noise-free fit")
         fit = fits[integrator]["discretisation"]
         if fit:
             ax.plot(grid, 1e3 * (fit["a"] + fit["b"] * grid), ":", color=color)
-        posterior = (result.get("posterior_totals") or {}).get(integrator, {})
         if posterior:
             ax.plot([float(d) ** 2 for d in posterior],
                     [1e3 * v[name]["total"] for v in posterior.values()], "s", color=color,
