@@ -550,16 +550,17 @@ def test_the_sweep_is_given_its_experiment_and_checks_the_name_the_spec_gives(tm
 
 def test_register_studies_lists_each_study_once_and_is_idempotent():
     from symplid.registry import Registry
-    from symplid.studies import STUDIES, baselines_study, paper, register_studies, sbc
+    from symplid.studies import STUDIES, baselines_study, paper, register_studies, sbc, shift
     from symplid.workflow.sweep import get_experiment
 
-    assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT)
+    assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT,
+                       shift.EXPERIMENT)
     registry = Registry("experiment")
     with pytest.raises(SweepError, match="no experiment is registered"):
         get_experiment("paper", "s.toml", registry)
     register_studies(registry)
     register_studies(registry)  # again: nothing changes
-    assert registry.names() == ("paper", "baselines", "sbc")
+    assert registry.names() == ("paper", "baselines", "sbc", "shift")
     assert registry["paper"] is paper.EXPERIMENT
     other = Registry("experiment")
     other.register("paper", baselines_study.EXPERIMENT)

@@ -14,13 +14,13 @@ from pathlib import Path
 import click
 
 from symplid import __version__
+from symplid.cli_studies import study
 from symplid.workflow.commandline import (
     Interrupted,
     LazyChoice,
     OneLineErrors,
     RegistryOption,
     UserError,
-    baselines_study_options,
     compare_candidates,
     config_option,
     echo_diagnostics,
@@ -513,90 +513,7 @@ def sweep(spec, out, scheduler, workers, no_progress) -> None:
     click.echo(f"{out}: {len(table)} cells ({done}); results.csv and results.parquet")
 
 
-@main.group()
-def study() -> None:
-    """Named studies: sweeps with their own analysis."""
-
-
-@study.command("paper-claims")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Study folder (a rerun skips the finished cells).")
-@click.option("--seeds", type=click.IntRange(min=1), default=20, show_default=True)
-@click.option("--budget", default="paper", show_default=True,
-              help="Sampler budget per cell: paper (4 × 200,000 DRAM), quick, or iterations.")
-@click.option("--variants", default="all", show_default=True,
-              help="all, none (the paper's setting), or variant names separated by commas.")
-@click.option("--quick", is_flag=True, hidden=True, help="Same as --budget quick.")
-@click.option("--no-variants", is_flag=True, hidden=True, help="Same as --variants none.")
-@click.option("--scheduler", type=str, default=None,
-              help="A Dask scheduler address (tcp://host:8786) [default: a local cluster].")
-@click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Local worker processes [default: one per core].")
-@click.option("--update-readme", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Rewrite the claims block of this README from claims.json.")
-@click.option("--report-only", is_flag=True,
-              help="Run nothing: judge the cells OUT holds (cells not run yet are pending).")
-@no_progress_option
-@user_errors
-def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, workers,
-                 update_readme, report_only, no_progress) -> None:
-    """How often the paper's claims hold over many data seeds, per variant; calibration."""
-    from symplid.studies.paper_study import run_paper_claims
-
-    claims = run_paper_claims(
-        out,
-        seeds=seeds,
-        budget="quick" if quick else budget,
-        scheduler=scheduler,
-        workers=workers,
-        variants="none" if no_variants else variants,
-        progress=not no_progress,
-        report_only=report_only,
-    )
-    click.echo(f"{out}: claims.json, report.md and figures/")
-    if update_readme is not None:
-        from symplid.studies.claims_readme import update_readme as write_block
-
-        write_block(update_readme, claims, Path(out))
-        click.echo(f"{update_readme}: claims block rewritten from {out}/claims.json")
-
-
-@study.command("baselines")
-@baselines_study_options
-@user_errors
-def baselines_study(out, no_progress, **options) -> None:
-    """The UKF posterior against HNN and one-step least squares over data sizes (a sweep)."""
-    from symplid.studies.baselines_study import study_from_options
-
-    click.echo(study_from_options(out, progress=not no_progress, **options))
-
-
-@study.command("sbc")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Study folder (a rerun skips the finished replications).")
-@click.option("--replications", type=click.IntRange(min=1), default=100, show_default=True)
-@click.option("--likelihoods", default="gap,none", show_default=True,
-              help="gap (process noise once per gap), none (deterministic), or both.")
-@click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
-              show_default=True, help="Sampler budget per replication.")
-@click.option("--samplers", default="dram", show_default=True,
-              help="dram, nuts, or both (dram,nuts): each runs every replication from the MAP.")
-@click.option("--workers", type=click.IntRange(min=1), default=None)
-@click.option("--report-only", is_flag=True,
-              help="Run nothing: report the replications OUT holds.")
-@no_progress_option
-@user_errors
-def sbc_study(out, replications, likelihoods, budget, samplers, workers, report_only,
-              no_progress) -> None:
-    """Simulation-based calibration: ranks of prior-drawn truths among posterior draws."""
-    from symplid.studies.sbc import run_sbc_study
-
-    chosen = tuple(v.strip() for v in likelihoods.split(",") if v.strip())
-    methods = tuple(v.strip() for v in samplers.split(",") if v.strip())
-    run_sbc_study(out, replications=replications, likelihoods=chosen, budget=budget,
-                  samplers=methods, workers=workers, progress=not no_progress,
-                  report_only=report_only)
-    click.echo(f"{out}: report.md, sbc.json, results.csv and figures/")
+main.add_command(study)  # the named studies (symplid.cli_studies)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -13,7 +13,10 @@ figures) in its own module:
 * ``"baselines"`` (:mod:`.baselines_study`): the UKF posterior against HNN and one-step least
   squares;
 * ``"sbc"`` (:mod:`.sbc`, report :mod:`.sbc_report`): simulation-based calibration of MAP +
-  DRAM on data simulated from the model itself.
+  DRAM on data simulated from the model itself;
+* ``"shift"`` (:mod:`.shift`, fits :mod:`.shift_fits`, report :mod:`.shift_report`): the
+  paper-claims posteriors' coefficient shift split into discretisation, noise draws, process
+  noise and remainder, one (integrator, dt) row per cell.
 
 A new study is a module here that defines ``EXPERIMENT = Experiment(...)`` (without
 registering it), added to :data:`STUDIES` below, the one list of the studies; its command, if
@@ -28,11 +31,11 @@ from typing import Any
 from symplid.registry import Registry
 from symplid.workflow.experiment import EXPERIMENTS, Experiment
 
-__all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc"]
+__all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc", "shift"]
 
 #: The studies' modules, in the order ``symplid sweep`` lists them. They are imported when
 #: first used: a worker process that runs the paper's fits imports only what those need.
-_MODULES = ("paper", "baselines_study", "sbc")
+_MODULES = ("paper", "baselines_study", "sbc", "shift")
 
 
 def __getattr__(name: str) -> Any:

@@ -34,7 +34,8 @@ from symplid.studies.claims_stats import (
     wilson_interval,
 )
 
-__all__ = ["BOUNDARY_PARAMS", "cell_calibration", "evaluate_calibration", "true_values"]
+__all__ = ["BOUNDARY_PARAMS", "RHAT_FAILED", "cell_calibration", "evaluate_calibration",
+           "true_values"]
 
 #: Parameters whose true value (0) lies on the boundary of their support: not calibrated.
 BOUNDARY_PARAMS = ("process_var",)

@@ -42,8 +42,10 @@ __all__ = [
     "rk2_variants",
     "run_fit",
     "sampler_registry",
+    "sbc_study_options",
     "sets_option",
     "settings_from_options",
+    "shift_study_options",
     "simulate_to_file",
     "time_or_word",
     "user_errors",
@@ -216,6 +218,52 @@ def baselines_study_options(fn: Any) -> Any:
         click.option("--workers", type=click.IntRange(min=1), default=None),
         click.option("--no-progress", is_flag=True),
     ]
+    for option in reversed(options):
+        fn = option(fn)
+    return fn
+
+
+def sbc_study_options(fn: Any) -> Any:
+    """The options of ``symplid study sbc``, and its user errors as one line
+    (:func:`user_errors`)."""
+    options = [
+        click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+                     help="Study folder (a rerun skips the finished replications)."),
+        click.option("--replications", type=click.IntRange(min=1), default=100,
+                     show_default=True),
+        click.option("--likelihoods", default="gap,none", show_default=True,
+                     help="gap (process noise once per gap), none (deterministic), or both."),
+        click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
+                     show_default=True, help="Sampler budget per replication."),
+        click.option("--samplers", default="dram", show_default=True,
+                     help="dram, nuts, or both (dram,nuts): each runs every replication from "
+                     "the MAP."),
+        click.option("--workers", type=click.IntRange(min=1), default=None),
+        click.option("--report-only", is_flag=True,
+                     help="Run nothing: report the replications OUT holds."),
+        no_progress_option,
+    ]
+    fn = user_errors(fn)
+    for option in reversed(options):
+        fn = option(fn)
+    return fn
+
+
+def shift_study_options(fn: Any) -> Any:
+    """The options of ``symplid study shift``, and its user errors as one line
+    (:func:`user_errors`)."""
+    options = [
+        click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+                     help="Study folder (decomposition.json, report.md, figures/, parts/)."),
+        click.option("--cells", type=click.Path(exists=True, file_okay=False, path_type=Path),
+                     default=None, help="A paper-claims study folder: the posterior shifts, "
+                     "Σ's per-seed values and the remainders [default: parts (a)–(c) only]."),
+        click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
+                     show_default=True, help="Rows, steps and seeds decomposed."),
+        click.option("--report-only", is_flag=True,
+                     help="Run nothing: report the parts OUT holds (the others as pending)."),
+    ]
+    fn = user_errors(fn)
     for option in reversed(options):
         fn = option(fn)
     return fn
