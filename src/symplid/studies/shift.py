@@ -134,6 +134,9 @@ def read_cells(folder: str | Path) -> dict[tuple[str, float], dict[int, dict[str
     from symplid.workflow.sweep_results import load_results
 
     table = load_results(folder)
+    if "priors.process_var" in table:  # the paper's prior on Σ only (not the log-uniform variant)
+        prior = table["priors.process_var"]
+        table = table[prior.isna() | (prior == "variances")]
     table = table[(table["status"] == "ok") & (table["noise_std"] == _NOISE_STD)
                   & (table["num_obs"] == 20) & (table["model.process_noise_per"] == "gap")]
     cells: dict[tuple[str, float], dict[int, dict[str, Any]]] = {}
