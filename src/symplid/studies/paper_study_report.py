@@ -288,16 +288,7 @@ def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> l
              "(Wilson 95 % interval), and the χ² p-value of the truth's rank among the thinned "
              "draws being uniform. The process-noise variance is left out: its true value, 0, "
              "is on the boundary of its support.", "",
-             "| parameter | " + " | ".join(g["label"] for g in groups) + " |",
-             "|---|" + "---|" * len(groups)]
-    for name in names:
-        cells = []
-        for g in groups:
-            p = g["params"].get(name)
-            cells.append("–" if not p or not p["n"] else
-                         f"{_pct(p['coverage'])} ({_range(p['coverage_ci'], _pct)}), "
-                         f"p={_num(p['rank_p_value'])}")
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+             *_parameter_table(groups, names, _coverage_cell)]
     lines += _shift_lines(groups, names)
     failed = [(g["label"], g.get("not_converged") or {}) for g in groups]
     failed = [(label, f) for label, f in failed if f.get("n")]
@@ -322,16 +313,30 @@ def _shift_lines(groups: list, names: list[str]) -> list[str]:
              "− truth) / (interval width / 3.92), in posterior sds. A calibrated posterior "
              "has mean ≈ 0 and spread ≈ 1; a mean far from 0 with a spread near or below 1 "
              "is a shift of the posterior, not a too narrow one.", "",
-             "| parameter | " + " | ".join(g["label"] for g in groups) + " |",
+             *_parameter_table(groups, names, _shift_cell)]
+    return lines
+
+
+def _parameter_table(groups: list, names: list[str], cell: Any) -> list[str]:
+    """A Markdown table: one row per parameter, one column per group, ``cell(p)`` of the
+    group's entry for the parameter (``{}`` where it has none)."""
+    lines = ["| parameter | " + " | ".join(g["label"] for g in groups) + " |",
              "|---|" + "---|" * len(groups)]
     for name in names:
-        cells = []
-        for g in groups:
-            p = g["params"].get(name) or {}
-            cells.append("–" if p.get("z_mean") is None else
-                         f"{p['z_mean']:+.2f} ({p['z_sd']:.2f})")
+        cells = [cell(g["params"].get(name) or {}) for g in groups]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return lines
+
+
+def _coverage_cell(p: Mapping[str, Any]) -> str:
+    if not p.get("n"):
+        return "–"
+    return (f"{_pct(p['coverage'])} ({_range(p['coverage_ci'], _pct)}), "
+            f"p={_num(p['rank_p_value'])}")
+
+
+def _shift_cell(p: Mapping[str, Any]) -> str:
+    return "–" if p.get("z_mean") is None else f"{p['z_mean']:+.2f} ({p['z_sd']:.2f})"
 
 
 def _answer_lines(claims: Mapping[str, Any]) -> list[str]:
