@@ -144,3 +144,41 @@ def moment_z_scores(draws: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> dic
 def _z(values: np.ndarray, truth: float) -> float:
     mcse = float(az.mcse(values, method="mean"))
     return (float(values.mean()) - truth) / mcse
+
+
+class TwoModes:
+    """Mixture of N(0, I) and N(m, I) in two dimensions, m = (30, 30), the second component's
+    log weight ``gap`` nats below the first's: log p = logaddexp(log N(x; 0, I),
+    log N(x; m, I) − gap) (unnormalised). At ``gap = 60`` the second mode holds e⁻⁶⁰ of the
+    mass, so the posterior's mean and covariance are those of N(0, I) to far below any
+    Monte-Carlo error; at ``gap = 0`` both modes are equal. The modes are ~42 standard
+    deviations apart: no chain crosses from one to the other.
+    """
+
+    num_params = 2
+    param_names = ("x", "y")
+    lower = np.full(2, -np.inf)
+    upper = np.full(2, np.inf)
+    far = np.array([30.0, 30.0])
+
+    def __init__(self, gap: float) -> None:
+        self.gap = gap
+        self.mean = np.zeros(2)
+        self.cov = np.eye(2)
+
+    def log_density(self, theta):
+        near = -0.5 * jnp.sum(theta**2)
+        far = -0.5 * jnp.sum((theta - jnp.asarray(self.far)) ** 2) - self.gap
+        return jnp.logaddexp(near, far)
+
+    def to_unconstrained(self, theta):
+        return theta
+
+    def from_unconstrained(self, z):
+        return z
+
+    def log_density_unconstrained(self, z):
+        return self.log_density(z)
+
+    def map_result(self) -> MapResult:
+        return MapResult(np.zeros(2), np.eye(2), np.eye(2), 0.0)

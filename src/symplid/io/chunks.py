@@ -7,7 +7,8 @@ The sampler runs in chunks (:func:`symplid.inference.samplers.run.run_chains`). 
 * ``draw_<name>``: the draws the chunk kept, ``(num_chains, kept, ...)`` (none in the burn-in),
   ``theta`` and the sampler's statistics;
 * the chains' states after the chunk (:func:`~symplid.inference.samplers.resume.checkpoint_arrays`:
-  ``leaf_<i>``, ``treedef``, ``iterations_done``), what ``fit --resume`` continues from;
+  ``leaf_<i>``, ``treedef``, ``iterations_done`` and, in a run that restarts stuck chains,
+  ``monitor_<name>``), what ``fit --resume`` continues from;
 * ``start`` and ``done`` (iterations per chain before and after it) and ``elapsed`` (sampling
   seconds so far).
 
@@ -76,12 +77,14 @@ class ChunkWriter:
             self._begin(attrs)
 
     def __call__(self, draws: Mapping[str, np.ndarray], states: Any, start: int, done: int,
-                 elapsed: float) -> None:
+                 elapsed: float, monitor: Mapping[str, np.ndarray] | None = None) -> None:
         from symplid.inference.samplers.api import SamplerCheckpoint
         from symplid.inference.samplers.resume import checkpoint_arrays
 
         arrays = {f"{_DRAW}{name}": np.asarray(value) for name, value in draws.items()}
-        arrays.update(checkpoint_arrays(SamplerCheckpoint(states, int(done))))
+        arrays.update(checkpoint_arrays(SamplerCheckpoint(states, int(done),
+                                                          None if monitor is None
+                                                          else dict(monitor))))
         arrays.update(start=np.asarray(int(start)), done=np.asarray(int(done)),
                       elapsed=np.asarray(self.elapsed + float(elapsed)))
         write_with(chunk_path(self.folder, self.index),

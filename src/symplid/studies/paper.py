@@ -313,6 +313,7 @@ def analyse_approach(
         "acceptance_rate": fs.get("acceptance_rate"),
         "rhat_max": fs.get("rhat_max"),
         "ess_min": fs.get("ess_min"),
+        "restarted_chains": fs.get("restarted_chains"),
         "map": dict(zip(result.param_names, result.map_theta.tolist(), strict=True)),
     }
 

@@ -378,6 +378,9 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
                                           outcome.settings.sampler.num_chains)
         if not outcome.interrupted and not converged(s):
             extra += " (not converged: see the warnings; run longer)"
+    if s.get("restarted_chains"):
+        extra += (f"; {s['restarted_chains']} chain(s) stuck far below the others restarted at "
+                  "the end of the burn-in (see the warning)")
     head = f"{out}: "
     if outcome.interrupted:
         total = outcome.settings.sampler.num_iterations

@@ -155,6 +155,7 @@ def sample_for(
         return_state=return_state,
         chunk_size=s.chunk_size,
         sink=sink,
+        restart_stuck_chains=s.restart_stuck_chains,
     )
 
 
@@ -377,4 +378,6 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
             warnings.simplefilter("ignore", RuntimeWarning)
             out["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy()))
             out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
+    # Chains restarted at the end of the burn-in (inference.samplers.restart); 0: none.
+    out["restarted_chains"] = len(idata.attrs.get("restarted_chains", None) or [])
     return out

@@ -12,6 +12,7 @@ from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD, quiet_a
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map_result import MapResult
 from symplid.inference.samplers import draws_array
+from symplid.inference.samplers.restart import restart_threshold, restarted_message
 from symplid.io import as_list
 from symplid.io.files import write_with
 from symplid.plotting import plot_predictive
@@ -162,6 +163,7 @@ def report_run(run: str | Path) -> str:
     ]
     if table is not None:
         lines += ["## Convergence", "", table, ""]
+        lines += _restart_lines(idata)
     checks = run_diagnostics(folder, settings, obs, posterior)
     if checks is not None:
         lines += sensitivity_lines(checks)
@@ -213,6 +215,16 @@ def _report_header(run: str | Path, settings, obs) -> list[str]:
         f"{settings.sampler.num_iterations:,} iterations ({settings.sampler.burn_in:,} burn-in).",
         "",
     ]
+
+
+def _restart_lines(idata: Any) -> list[str]:
+    """The chains the sampler restarted at the end of the burn-in, in one paragraph (none:
+    no lines)."""
+    records = list(idata.attrs.get("restarted_chains", None) or [])
+    if not records:
+        return []
+    threshold = restart_threshold(len(idata.attrs["param_names"]))
+    return [f"Chains {restarted_message(records, threshold)}.", ""]
 
 
 def convergence_table(idata: Any) -> str:

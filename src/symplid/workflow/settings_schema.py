@@ -326,6 +326,14 @@ class SamplerSettings:
     )
     thin: int = setting(1, minimum=1, doc="Keep every thin-th draw.")
     seed: int = setting(0, minimum=0, doc="Seed of the sampler.")
+    restart_stuck_chains: bool = setting(
+        True,
+        doc=(
+            "At the end of the burn-in, restart a chain whose median log density stays more "
+            "than max(10, 5√(d/2)) nats below the best chain's from a good chain's state "
+            "(a region of negligible mass); the draws are unchanged when no chain is stuck."
+        ),
+    )
     chunk_size: int = setting(
         2000, minimum=1,
         doc=(

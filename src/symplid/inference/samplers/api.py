@@ -19,7 +19,10 @@ Layout of the result
   every setting, defaults included), ``param_names``, ``map_theta``, ``map_log_posterior``,
   ``hessian`` and ``map_covariance`` (nested lists), ``initial_positions`` (one row per
   chain), ``iterations`` (per chain, burn-in
-  included), ``interrupted`` (0/1), ``sampling_seconds``, and the sampler's own (``final_attrs``):
+  included), ``interrupted`` (0/1), ``sampling_seconds``, ``restarted_chains`` (the chains
+  restarted at the end of the burn-in, see ``restart_stuck_chains``: one dict each with
+  ``chain``, ``from_chain``, ``lp_median``, ``best_lp_median``), and the sampler's own
+  (``final_attrs``):
   for DRAM ``dram_adapted_covariance`` (each chain's final running covariance, nested
   lists, in the coordinates the chain moves in: log(v) for the variances when
   ``dram_variance_scale`` is ``"log"``, the default); for NUTS
@@ -32,6 +35,13 @@ Chains start from overdispersed points around the MAP, ``θ̂ + s·L z`` with ``
 covariance, ``z ~ N(0, I)`` and ``s = init_spread`` (2 by default), a point being redrawn
 until its log density is finite (up to 100 times; then the chain starts at the MAP and a
 warning says so). ``init_spread=0`` starts every chain at the MAP, as in the paper.
+
+Overdispersed starts let R-hat see a chain that has not found the bulk of the posterior, but
+on a rugged likelihood such a chain can settle in a secondary mode of negligible mass and
+spoil the run. With ``restart_stuck_chains`` (the default) a chain whose log density at the
+end of the burn-in stays far below the best chain's is restarted from a good chain's state
+before any draw is kept (:mod:`~symplid.inference.samplers.restart` states and argues the
+rule); R-hat and ESS are computed on the kept draws as before.
 """
 
 from __future__ import annotations
@@ -67,10 +77,13 @@ __all__ = [
 
 class SamplerCheckpoint(NamedTuple):
     """Where a run's chains stand: their states (stacked over chains) after
-    ``iterations_done`` iterations per chain (burn-in included)."""
+    ``iterations_done`` iterations per chain (burn-in included), and the arrays of the rule
+    that restarts stuck chains (``monitor``: :meth:`~.restart.BurnInMonitor.arrays`; None
+    when the run does not restart them)."""
 
     states: Any
     iterations_done: int
+    monitor: dict[str, np.ndarray] | None = None
 
 
 class InterruptedInBurnIn(KeyboardInterrupt):
@@ -110,6 +123,7 @@ def sample(
     num_samples: int | None = None,
     return_state: bool = False,
     sink: ChunkSink | None = None,
+    restart_stuck_chains: bool = True,
 ):
     """Draw from a posterior with a registered sampler (DRAM, NUTS, ...).
 
@@ -161,6 +175,14 @@ def sample(
         (:data:`~.run.ChunkSink`); one with a ``begin(attrs)`` method is first given the
         draws' attributes (those of the module docstring, for a run not started yet), so that
         a run can be rebuilt from what the sink kept.
+    restart_stuck_chains
+        At the end of the burn-in, before any draw is kept, restart each chain whose median
+        log density over the burn-in's last quarter lies more than max(10, 5√(d/2)) nats
+        below the best chain's from the state of a randomly chosen good chain (its adapted
+        proposal or step size included): such a chain sits in a region of negligible mass
+        (:mod:`~symplid.inference.samplers.restart`). ``attrs["restarted_chains"]`` lists
+        them and a :class:`~.run.StuckChainsRestarted` warning says so. When no chain is
+        stuck the draws are those of ``False``, bit for bit.
 
     Returns
     -------
@@ -187,6 +209,7 @@ def sample(
         "seed": int(seed), "burn_in": burn_in, "thin": int(thin),
         "init_spread": float(init_spread), "chunk_size": int(chunk_size),
         "chain_method": chain_method, "explicit_initial_positions": initial_positions is not None,
+        "restart_stuck_chains": bool(restart_stuck_chains),
         "kernel": dataclasses.asdict(kernel_settings),
     }
     if hasattr(sink, "begin"):  # the attributes of the run stopped before its first iteration
@@ -197,15 +220,16 @@ def sample(
                      burn_in=burn_in, thin=int(thin), chunk_size=int(chunk_size),
                      chain_method=chain_method, progress=progress, callback=callback,
                      desc=progress_label or method.upper(), position=progress_position,
-                     sink=sink)
+                     sink=sink, restart_stuck_chains=bool(restart_stuck_chains))
     extra_attrs.update(kernel.final_attrs(run.states))
     attrs = _attrs(method, seed, record_settings, names, theta_map, cov_map, starts, run,
                    extra_attrs, init)
+    checkpoint = SamplerCheckpoint(run.states, int(run.iterations_done), run.monitor)
     if not run.draws:
-        raise InterruptedInBurnIn(SamplerCheckpoint(run.states, int(run.iterations_done)), attrs)
+        raise InterruptedInBurnIn(checkpoint, attrs)
     idata = to_inference_data(run, names, attrs)
     if return_state:
-        return idata, SamplerCheckpoint(run.states, int(run.iterations_done))
+        return idata, checkpoint
     return idata
 
 
@@ -467,6 +491,7 @@ def _attrs(method: str, seed: int, record_settings: dict, names: tuple[str, ...]
         "iterations": int(run.iterations_done),
         "interrupted": int(run.interrupted),
         "sampling_seconds": float(run.elapsed),
+        "restarted_chains": list(run.restarted_chains),
         **extra,
     }
     if getattr(init, "hessian", None) is not None:

@@ -42,16 +42,19 @@ from symplid.inference.samplers.run import ChainRun, ChunkReport, ChunkSink, run
 
 __all__ = ["checkpoint_arrays", "inference_data", "resume_sampling"]
 
-_ITERATIONS, _TREEDEF, _LEAF = "iterations_done", "treedef", "leaf_"
+_ITERATIONS, _TREEDEF, _LEAF, _MONITOR = "iterations_done", "treedef", "leaf_", "monitor_"
 
 
 def checkpoint_arrays(checkpoint: SamplerCheckpoint) -> dict[str, np.ndarray]:
     """The checkpoint as named NumPy arrays (for ``numpy.savez``): the state's leaves
-    ``leaf_0``…, its tree structure as text and ``iterations_done``."""
+    ``leaf_0``…, its tree structure as text, ``iterations_done`` and the restart rule's
+    arrays ``monitor_<name>`` (when the run restarts stuck chains)."""
     leaves, treedef = jax.tree.flatten(checkpoint.states)
     out = {f"{_LEAF}{i}": np.asarray(leaf) for i, leaf in enumerate(leaves)}
     out[_TREEDEF] = np.asarray(str(treedef))
     out[_ITERATIONS] = np.asarray(int(checkpoint.iterations_done))
+    for name, value in (checkpoint.monitor or {}).items():
+        out[f"{_MONITOR}{name}"] = np.asarray(value)
     return out
 
 
@@ -77,8 +80,10 @@ def _restore(arrays: Mapping[str, Any], template: Any) -> SamplerCheckpoint:
             raise ValueError(f"stored sampler state entry {i} is {leaf.dtype}{leaf.shape}, "
                              f"the sampler expects {shape.dtype}{shape.shape}")
         leaves.append(jax.numpy.asarray(leaf))
+    monitor = {k[len(_MONITOR):]: np.asarray(v) for k, v in arrays.items()
+               if k.startswith(_MONITOR)}
     return SamplerCheckpoint(jax.tree.unflatten(treedef, leaves),
-                             int(np.asarray(arrays[_ITERATIONS])))
+                             int(np.asarray(arrays[_ITERATIONS])), monitor or None)
 
 
 def _state_template(spec: SamplerSpec, kernel: SamplerKernel, num_chains: int, d: int) -> Any:
@@ -160,21 +165,27 @@ def resume_sampling(
         raise ValueError(f"the sampler state is at iteration {checkpoint.iterations_done:,} "
                          f"but the draws end at {int(attrs['iterations']):,}")
     _, run_key = jax.random.split(jax.random.key(int(record["seed"])), 2)
+    # A run recorded before the rule existed ran without it.
+    restart = bool(record.get("restart_stuck_chains", False))
     run = run_chains(kernel.step, checkpoint.states, run_key, num_draws, record=kernel.record,
                      burn_in=burn_in, thin=thin, chunk_size=int(record["chunk_size"]),
                      chain_method=record["chain_method"], progress=progress,
                      callback=callback, desc=progress_label or method.upper(),
-                     position=progress_position, start=checkpoint.iterations_done, sink=sink)
+                     position=progress_position, start=checkpoint.iterations_done, sink=sink,
+                     restart_stuck_chains=restart, monitor=checkpoint.monitor)
     old = _old_draws(idata, names) if hasattr(idata, "posterior") else {}
     draws = {k: np.concatenate([old[k], v], axis=1) if k in old else v
              for k, v in run.draws.items()} if run.draws else old
     elapsed = float(attrs.get("sampling_seconds", 0.0)) + run.elapsed
     attrs.update(iterations=int(run.iterations_done), interrupted=int(run.interrupted),
                  sampling_seconds=elapsed, **kernel.final_attrs(run.states))
+    if restart:
+        attrs["restarted_chains"] = list(run.restarted_chains)
+    checkpoint = SamplerCheckpoint(run.states, int(run.iterations_done), run.monitor)
     if not draws:  # interrupted again, still in the burn-in
-        raise InterruptedInBurnIn(SamplerCheckpoint(run.states, int(run.iterations_done)), attrs)
+        raise InterruptedInBurnIn(checkpoint, attrs)
     whole = ChainRun(draws, run.states, run.iterations_done, run.interrupted, elapsed)
     result = to_inference_data(whole, names, attrs)
     if return_state:
-        return result, SamplerCheckpoint(run.states, int(run.iterations_done))
+        return result, checkpoint
     return result

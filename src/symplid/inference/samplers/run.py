@@ -25,6 +25,7 @@ A single chain runs unbatched.
 from __future__ import annotations
 
 import functools
+import inspect
 import time
 import warnings
 from collections.abc import Callable
@@ -36,22 +37,34 @@ import numpy as np
 from jax import lax
 
 from symplid.compiled import cached_or_built
+from symplid.inference.samplers.restart import (
+    BurnInMonitor,
+    restart_threshold,
+    restarted_message,
+)
 from symplid.stopping import requested as stop_requested
 
 __all__ = ["ChainRun", "ChunkReport", "ChunkSink", "DataStep", "SamplingInterrupted",
-           "run_chains"]
+           "StuckChainsRestarted", "run_chains"]
 
 StepFn = Callable[[jax.Array, Any], tuple[Any, Any]]
 RecordFn = Callable[[Any, Any], dict[str, jax.Array]]
 ChunkSink = Callable[[dict[str, np.ndarray], Any, int, int, float], None]
 """``sink(draws, states, start, done, elapsed)``, called after every chunk: the draws the chunk
 kept (``name -> (num_chains, kept, ...)``, possibly none kept), the chains' states after it,
-the iterations per chain before and after it and the sampling time so far."""
+the iterations per chain before and after it and the sampling time so far. A sink whose call
+takes a ``monitor`` keyword also gets, in a run that restarts stuck chains, the arrays that
+continue the restart rule (:meth:`~.restart.BurnInMonitor.arrays`), to keep with the states."""
 CHAIN_METHODS = ("vectorized", "sequential")
 
 
 class SamplingInterrupted(UserWarning):
     """Warning: a run was stopped by ``KeyboardInterrupt``; the draws made so far are kept."""
+
+
+class StuckChainsRestarted(UserWarning):
+    """Warning: chains stuck far below the best one at the end of the burn-in were restarted
+    from good chains' states (:mod:`~symplid.inference.samplers.restart`)."""
 
 
 class ChunkReport(NamedTuple):
@@ -93,6 +106,12 @@ class ChainRun(NamedTuple):
         Whether a ``KeyboardInterrupt`` ended the run early.
     elapsed
         Wall time in seconds, compilation included.
+    monitor
+        The restart rule's arrays (:meth:`~.restart.BurnInMonitor.arrays`: the window read so
+        far, or the decision taken) when the run restarts stuck chains, else None.
+    restarted_chains
+        The chains restarted at the end of the burn-in
+        (:meth:`~.restart.BurnInMonitor.records`); empty when none were.
     """
 
     draws: dict[str, np.ndarray]
@@ -100,6 +119,8 @@ class ChainRun(NamedTuple):
     iterations_done: int
     interrupted: bool
     elapsed: float
+    monitor: dict[str, np.ndarray] | None = None
+    restarted_chains: tuple[dict[str, Any], ...] = ()
 
 
 class DataStep:
@@ -217,6 +238,8 @@ def run_chains(
     num_samples: int | None = None,
     start: int = 0,
     sink: ChunkSink | None = None,
+    restart_stuck_chains: bool = False,
+    monitor: dict[str, np.ndarray] | None = None,
 ) -> ChainRun:
     """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
 
@@ -258,6 +281,15 @@ def run_chains(
     sink
         Called after each chunk with its draws and the states (:data:`ChunkSink`), before
         ``callback``; e.g. to write them to disk as the run goes.
+    restart_stuck_chains
+        At the end of the burn-in, restart every chain whose median log density (``record``'s
+        ``"lp"``) over the burn-in's last quarter is far below the best chain's from a good
+        chain's state (:mod:`~symplid.inference.samplers.restart`; a warning says so). A chunk
+        that would cross the end of the burn-in then stops at it (the draws are the same);
+        when no chain is stuck, the run is that of ``False``, bit for bit.
+    monitor
+        The ``monitor`` of the interrupted run's :class:`ChainRun` a continued run
+        (``start > 0``) goes on from.
 
     Returns
     -------
@@ -281,11 +313,15 @@ def run_chains(
     chunk_len = -(-total // num_chunks)
     chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
     chain_keys = jax.random.split(rng_key, num_chains)
+    restarts = (BurnInMonitor(num_chains, int(burn_in), rng_key, monitor)
+                if restart_stuck_chains else None)
+    if restarts is not None and restarts.pending and start >= burn_in:
+        restarts.restarted = np.zeros((0, 4))  # a state from before the rule: nothing to do
     bar = _progress_bar(total, desc, progress, position, int(start))
     started = time.perf_counter()
     try:
         loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), callback,
-                     int(start), sink)
+                     int(start), sink, restarts)
         states = loop.run(states, bar, started)
     finally:
         if bar is not None:
@@ -301,7 +337,10 @@ def run_chains(
     draws = {
         name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1) for name, parts in loop.kept.items()
     }
-    return ChainRun(draws, states, loop.done, loop.interrupted, elapsed)
+    if restarts is None:
+        return ChainRun(draws, states, loop.done, loop.interrupted, elapsed)
+    return ChainRun(draws, states, loop.done, loop.interrupted, elapsed, restarts.arrays(),
+                    tuple(restarts.records()))
 
 
 def _check_run(num_draws: Any, burn_in: Any, thin: Any, chunk_size: Any, chain_method: str,
@@ -328,10 +367,12 @@ class _Loop:
 
     def __init__(self, chunk_fn: Callable, chain_keys: jax.Array, total: int, chunk_len: int,
                  burn_in: int, thin: int, callback: Callable[[ChunkReport], None] | None,
-                 start: int = 0, sink: ChunkSink | None = None):
+                 start: int = 0, sink: ChunkSink | None = None,
+                 restarts: BurnInMonitor | None = None):
         self.chunk_fn, self.chain_keys = chunk_fn, chain_keys
         self.total, self.chunk_len, self.burn_in, self.thin = total, chunk_len, burn_in, thin
-        self.callback, self.sink = callback, sink
+        self.callback, self.sink, self.restarts = callback, sink, restarts
+        self.sink_takes_monitor = restarts is not None and _takes_monitor(sink)
         self.kept: dict[str, list[np.ndarray]] = {}
         self.done = start
         self.draws_kept = max(0, start - burn_in) // thin
@@ -345,6 +386,8 @@ class _Loop:
                 break
             # Chunks on the whole run's grid (a resumed run starts at a chunk's end).
             num_active = min(self.chunk_len - self.done % self.chunk_len, self.total - self.done)
+            if self.restarts is not None and self.restarts.pending and self.done < self.burn_in:
+                num_active = min(num_active, self.burn_in - self.done)  # stop at its end
             try:
                 new_states, records = self.chunk_fn(states, self.chain_keys,
                                                     jnp.int64(self.done), jnp.int64(num_active))
@@ -356,12 +399,14 @@ class _Loop:
             states = new_states
             chunk = self._keep(records, num_active)
             self.done += num_active
+            states = self._restart_stuck(states, records)
             if bar is not None:
                 bar.update(num_active)
             try:
                 if self.sink is not None:
+                    extra = {"monitor": self.restarts.arrays()} if self.sink_takes_monitor else {}
                     self.sink(chunk, states, self.done - num_active, self.done,
-                              time.perf_counter() - started)
+                              time.perf_counter() - started, **extra)
                 if self.callback is not None:
                     self.callback(ChunkReport(chunk_index, self.done, self.total,
                                               self.draws_kept, states))
@@ -371,11 +416,26 @@ class _Loop:
             chunk_index += 1
         return states
 
+    def _restart_stuck(self, states: Any, records: dict[str, Any]) -> Any:
+        """At the end of the burn-in, the states with the stuck chains restarted (and one
+        warning line when some were)."""
+        if self.restarts is None or not self.restarts.pending or self.done != self.burn_in:
+            return states
+        num_params = int(np.shape(records["theta"])[-1]) if "theta" in records else 1
+        states = self.restarts.decide(states, num_params)
+        if self.restarts.records():
+            warnings.warn(restarted_message(self.restarts.records(),
+                                            restart_threshold(num_params)),
+                          StuckChainsRestarted, stacklevel=4)
+        return states
+
     def _keep(self, records: dict[str, Any], num_active: int) -> dict[str, np.ndarray]:
         """Keep the chunk's iterations past burn-in on the thin grid; returns them
         ``(num_chains, kept, ...)`` (empty arrays in the burn-in)."""
         # Iterations done + 1 .. done + num_active; keep those past burn-in on the thin grid.
         iterations = np.arange(self.done + 1, self.done + num_active + 1)
+        if self.restarts is not None and self.restarts.pending:
+            self.restarts.observe(iterations, np.asarray(records["lp"])[:num_active])
         keep = (iterations > self.burn_in) & ((iterations - self.burn_in) % self.thin == 0)
         chunk = {name: np.asarray(value)[:num_active][keep] for name, value in records.items()}
         if keep.any():
@@ -383,6 +443,17 @@ class _Loop:
                 self.kept.setdefault(name, []).append(value)
             self.draws_kept += int(keep.sum())
         return {name: np.swapaxes(value, 0, 1) for name, value in chunk.items()}
+
+
+def _takes_monitor(sink: Any) -> bool:
+    """Whether ``sink`` accepts the ``monitor`` keyword (:data:`ChunkSink`)."""
+    if sink is None:
+        return False
+    try:
+        parameters = inspect.signature(sink).parameters.values()
+    except (TypeError, ValueError):
+        return False
+    return any(p.name == "monitor" or p.kind is p.VAR_KEYWORD for p in parameters)
 
 
 def _progress_bar(total: int, desc: str, enabled: bool, position: int | None = None,
