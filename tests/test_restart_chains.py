@@ -161,3 +161,29 @@ class _nothing:
 
     def __exit__(self, *exc):
         return False
+
+
+def test_a_fit_reports_its_restarted_chains():
+    """``summary.json``'s count, the fit's line and the report's paragraph."""
+    from types import SimpleNamespace
+
+    from symplid.workflow.commandline import fit_result_line
+    from symplid.workflow.fit import fit_summary
+    from symplid.workflow.run_tools import _restart_lines
+
+    target = TwoModes(gap=60.0)
+    with pytest.warns(StuckChainsRestarted):
+        idata = sample(target, "dram", init=target.map_result(),
+                       initial_positions=_starts((2,)), **SMALL)
+    map_result = SimpleNamespace(theta=np.zeros(2), log_posterior=0.0, log_evidence=0.0)
+    summary = fit_summary(target, map_result, idata)
+    assert summary["restarted_chains"] == 1
+    (line, _) = _restart_lines(idata)
+    assert "chain 2 (median log density -6" in line and "10.0 nats" in line
+    outcome = SimpleNamespace(summary=summary, interrupted=False,
+                              settings=SimpleNamespace(sampler=SimpleNamespace(num_chains=4)))
+    assert "1 chain(s) stuck far below the others restarted" in fit_result_line(
+        "runs/x", outcome, 1.0)
+    quiet = sample(Gaussian2D(), "dram", init=Gaussian2D().map_result(), **SMALL)
+    assert fit_summary(target, map_result, quiet)["restarted_chains"] == 0
+    assert _restart_lines(quiet) == []

@@ -47,6 +47,7 @@ rule); R-hat and ESS are computed on the kept draws as before.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import warnings
 from collections.abc import Callable
@@ -176,13 +177,9 @@ def sample(
         draws' attributes (those of the module docstring, for a run not started yet), so that
         a run can be rebuilt from what the sink kept.
     restart_stuck_chains
-        At the end of the burn-in, before any draw is kept, restart each chain whose median
-        log density over the burn-in's last quarter lies more than max(10, 5√(d/2)) nats
-        below the best chain's from the state of a randomly chosen good chain (its adapted
-        proposal or step size included): such a chain sits in a region of negligible mass
-        (:mod:`~symplid.inference.samplers.restart`). ``attrs["restarted_chains"]`` lists
-        them and a :class:`~.run.StuckChainsRestarted` warning says so. When no chain is
-        stuck the draws are those of ``False``, bit for bit.
+        Restart, at the end of the burn-in, a chain stuck far below the best one from a good
+        chain's state (:mod:`~symplid.inference.samplers.restart`; recorded in
+        ``attrs["restarted_chains"]``); without a stuck chain the draws are those of ``False``.
 
     Returns
     -------
@@ -210,27 +207,30 @@ def sample(
         "init_spread": float(init_spread), "chunk_size": int(chunk_size),
         "chain_method": chain_method, "explicit_initial_positions": initial_positions is not None,
         "restart_stuck_chains": bool(restart_stuck_chains),
-        "kernel": dataclasses.asdict(kernel_settings),
-    }
+        "kernel": dataclasses.asdict(kernel_settings)}
+    make_attrs = functools.partial(_attrs, method, seed, record_settings, names, theta_map,
+                                   cov_map, starts)
     if hasattr(sink, "begin"):  # the attributes of the run stopped before its first iteration
-        sink.begin(_attrs(method, seed, record_settings, names, theta_map, cov_map, starts,
-                          ChainRun({}, states, 0, True, 0.0),
-                          {**extra_attrs, **kernel.final_attrs(states)}, init))
+        sink.begin(make_attrs(ChainRun({}, states, 0, True, 0.0),
+                              {**extra_attrs, **kernel.final_attrs(states)}, init))
     run = run_chains(kernel.step, states, run_key, num_draws, record=kernel.record,
                      burn_in=burn_in, thin=int(thin), chunk_size=int(chunk_size),
                      chain_method=chain_method, progress=progress, callback=callback,
                      desc=progress_label or method.upper(), position=progress_position,
                      sink=sink, restart_stuck_chains=bool(restart_stuck_chains))
     extra_attrs.update(kernel.final_attrs(run.states))
-    attrs = _attrs(method, seed, record_settings, names, theta_map, cov_map, starts, run,
-                   extra_attrs, init)
+    return _finished(run, names, make_attrs(run, extra_attrs, init), return_state)
+
+
+def _finished(run: ChainRun, names: tuple[str, ...], attrs: dict[str, Any],
+              return_state: bool) -> Any:
+    """The run's ``InferenceData`` (and checkpoint with ``return_state``); a run stopped in
+    its burn-in raises :class:`InterruptedInBurnIn`."""
     checkpoint = SamplerCheckpoint(run.states, int(run.iterations_done), run.monitor)
     if not run.draws:
         raise InterruptedInBurnIn(checkpoint, attrs)
     idata = to_inference_data(run, names, attrs)
-    if return_state:
-        return idata, checkpoint
-    return idata
+    return (idata, checkpoint) if return_state else idata
 
 
 def _built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,

@@ -281,15 +281,11 @@ def run_chains(
     sink
         Called after each chunk with its draws and the states (:data:`ChunkSink`), before
         ``callback``; e.g. to write them to disk as the run goes.
-    restart_stuck_chains
-        At the end of the burn-in, restart every chain whose median log density (``record``'s
-        ``"lp"``) over the burn-in's last quarter is far below the best chain's from a good
-        chain's state (:mod:`~symplid.inference.samplers.restart`; a warning says so). A chunk
-        that would cross the end of the burn-in then stops at it (the draws are the same);
-        when no chain is stuck, the run is that of ``False``, bit for bit.
-    monitor
-        The ``monitor`` of the interrupted run's :class:`ChainRun` a continued run
-        (``start > 0``) goes on from.
+    restart_stuck_chains, monitor
+        At the end of the burn-in, restart every chain whose log density (``record``'s
+        ``"lp"``) stays far below the best chain's from a good chain's state
+        (:mod:`~symplid.inference.samplers.restart`); a chunk that would cross the end of the
+        burn-in stops at it. ``monitor``: the interrupted run's, continued.
 
     Returns
     -------
