@@ -142,6 +142,17 @@ def test_non_converged_cells_are_reported_apart():
     assert cal["not_converged"] == {"n": 2, "seeds": [3, 17], "rhat": [2.58, 1.8]}
     kept = evaluate_calibration(rows.drop(columns="rhat_max"), "no R-hat")
     assert kept["not_converged"]["n"] == 0 and kept["params"]["a"]["n"] == 60
+    assert cal["restarted"] == {"chains": 0, "seeds": []}  # cells from before the rule
+
+
+def test_restarted_chains_are_counted_with_their_seeds():
+    rows = _conjugate_records(1.0, reps=20)
+    rows["seed"] = range(20)
+    rows["restarted_chains"] = 0
+    rows.loc[[4, 9], "restarted_chains"] = [1, 2]
+    cal = evaluate_calibration(rows, "restarts")
+    assert cal["restarted"] == {"chains": 3, "seeds": [4, 9]}
+    assert all(p["n"] == 20 for p in cal["params"].values())  # they stay in the table
 
 
 def test_rank_uniformity_bins_and_range():

@@ -125,6 +125,7 @@ def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
     import pandas as pd
 
     ok = rows[rows["status"] == "ok"] if "status" in rows else rows
+    restarted = _restarted(ok)
     ok, failed = _split_converged(ok)
     num_draws = RANK_DRAWS
     if f"{_PREFIX}rank_draws" in ok and ok[f"{_PREFIX}rank_draws"].notna().any():
@@ -164,7 +165,21 @@ def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
         "nominal": bool(judged) and all(p["nominal_inside"] for p in judged),
         "min_coverage": min((p["coverage"] for p in judged), default=None),
         "not_converged": failed,
+        "restarted": restarted,
     }
+
+
+def _restarted(ok: Any) -> dict[str, Any]:
+    """The chains the sampler restarted at the end of the burn-in (stuck far below the
+    others, :mod:`symplid.inference.samplers.restart`) over the rows: how many, in which
+    seeds (none recorded: cells run before the rule)."""
+    if "restarted_chains" not in ok:
+        return {"chains": 0, "seeds": []}
+    import pandas as pd
+
+    count = pd.to_numeric(ok["restarted_chains"], errors="coerce").fillna(0).astype(int)
+    seeds = [int(v) for v in ok.loc[count > 0, "seed"]] if "seed" in ok else []
+    return {"chains": int(count.sum()), "seeds": seeds}
 
 
 def _shift(ok: Any, name: str) -> dict[str, Any]:

@@ -297,6 +297,13 @@ def _calibration_lines(claims: Mapping[str, Any], study: Mapping[str, Any]) -> l
                   + "; ".join(f"{label}: seed(s) {', '.join(map(str, f['seeds']))} (R-hat "
                               f"{', '.join(f'{r:.2f}' for r in f['rhat'])})"
                               for label, f in failed) + "."]
+    restarted = [(g["label"], g["restarted"]) for g in groups if (g.get("restarted") or {})
+                 .get("chains")]
+    if restarted:
+        lines += ["", "Chains restarted at the end of the burn-in (stuck far below the others, "
+                  "before any draw was kept): " + "; ".join(
+                      f"{label}: {r['chains']} in seed(s) {', '.join(map(str, r['seeds']))}"
+                      for label, r in restarted) + "."]
     lines += ["", *_answer_lines(claims), ""]
     for key in ("calibration_coverage", "calibration_ranks"):
         if key in study.get("figures", {}):
