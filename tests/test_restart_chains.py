@@ -109,9 +109,10 @@ def test_chains_split_between_two_equal_modes_are_left_alone(recwarn):
     assert draws_array(on)[2:].mean() == pytest.approx(30.0, abs=1.0)
 
 
-@pytest.mark.parametrize("stop", [40, 80, 90, 160])
+@pytest.mark.parametrize("stop", [40, 80, 120, 160])
 def test_a_run_with_a_restart_resumes_to_the_uninterrupted_run(stop, tmp_path):
-    """Stopped before the window (40), inside it (80), at the decision (90) and after (160)."""
+    """Stopped before the window (40), inside it (80), right after the chunk in which the
+    burn-in ends and the decision is taken (120) and later (160)."""
     target = TwoModes(gap=60.0)
     init, starts = target.map_result(), _starts((1,))
     with pytest.warns(StuckChainsRestarted):
@@ -153,6 +154,44 @@ def test_a_restart_survives_the_chunk_files(tmp_path):
         resumed = resume_sampling(target, so_far, chunks.state, progress=False)
         _same_run(full, resumed)
         assert resumed.attrs["restarted_chains"] == full.attrs["restarted_chains"]
+
+
+def test_a_stop_inside_the_cut_chunk_takes_the_decision_again(monkeypatch):
+    """Ctrl-C while the second half of the chunk in which the burn-in ends runs: the run stops
+    at the chunk's start, the decision undone, and resumes to the uninterrupted run."""
+    from symplid.inference.samplers import run as run_module
+
+    target = TwoModes(gap=60.0)
+    init, starts = target.map_result(), _starts((3,))
+    with pytest.warns(StuckChainsRestarted):
+        full = sample(target, "dram", init=init, initial_positions=starts, **SMALL)
+    compute = run_module._Loop._compute
+
+    def interrupted_after_the_decision(self, states, start, num_active):
+        if start == SMALL["burn_in"]:
+            raise KeyboardInterrupt
+        return compute(self, states, start, num_active)
+
+    monkeypatch.setattr(run_module._Loop, "_compute", interrupted_after_the_decision)
+    with pytest.warns(SamplingInterrupted), pytest.raises(InterruptedInBurnIn) as info:
+        sample(target, "dram", init=init, initial_positions=starts, **SMALL)
+    monkeypatch.setattr(run_module._Loop, "_compute", compute)
+    stop = info.value
+    assert stop.checkpoint.iterations_done == 80 and "window" in stop.checkpoint.monitor
+    with pytest.warns(StuckChainsRestarted):
+        resumed = resume_sampling(target, stop.attrs, checkpoint_arrays(stop.checkpoint),
+                                  progress=False)
+    _same_run(full, resumed)
+
+
+def test_the_chunks_seen_from_outside_do_not_change():
+    """The sink and the callback see the run's grid of chunks, the burn-in's end inside one."""
+    target = TwoModes(gap=60.0)
+    seen = []
+    with pytest.warns(StuckChainsRestarted):
+        sample(target, "dram", init=target.map_result(), initial_positions=_starts((0,)),
+               callback=lambda report: seen.append(report.iterations_done), **SMALL)
+    assert seen == [40, 80, 120, 160, 200, 240]
 
 
 class _nothing:

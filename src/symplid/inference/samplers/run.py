@@ -284,8 +284,9 @@ def run_chains(
     restart_stuck_chains, monitor
         At the end of the burn-in, restart every chain whose log density (``record``'s
         ``"lp"``) stays far below the best chain's from a good chain's state
-        (:mod:`~symplid.inference.samplers.restart`); a chunk that would cross the end of the
-        burn-in stops at it. ``monitor``: the interrupted run's, continued.
+        (:mod:`~symplid.inference.samplers.restart`; the chunk in which the burn-in ends runs
+        as two calls around the decision, one chunk from outside). ``monitor``: the
+        interrupted run's, continued.
 
     Returns
     -------
@@ -382,20 +383,12 @@ class _Loop:
                 break
             # Chunks on the whole run's grid (a resumed run starts at a chunk's end).
             num_active = min(self.chunk_len - self.done % self.chunk_len, self.total - self.done)
-            if self.restarts is not None and self.restarts.pending and self.done < self.burn_in:
-                num_active = min(num_active, self.burn_in - self.done)  # stop at its end
             try:
-                new_states, records = self.chunk_fn(states, self.chain_keys,
-                                                    jnp.int64(self.done), jnp.int64(num_active))
-                records = jax.device_get(records)
-                jax.block_until_ready(new_states)
+                states, chunk = self._advance(states, num_active)
             except KeyboardInterrupt:
                 self.interrupted = True
                 break
-            states = new_states
-            chunk = self._keep(records, num_active)
             self.done += num_active
-            states = self._restart_stuck(states, records)
             if bar is not None:
                 bar.update(num_active)
             try:
@@ -412,10 +405,41 @@ class _Loop:
             chunk_index += 1
         return states
 
-    def _restart_stuck(self, states: Any, records: dict[str, Any]) -> Any:
-        """At the end of the burn-in, the states with the stuck chains restarted (and one
-        warning line when some were)."""
-        if self.restarts is None or not self.restarts.pending or self.done != self.burn_in:
+    def _advance(self, states: Any, num_active: int) -> tuple[Any, dict[str, np.ndarray]]:
+        """One chunk of the grid: the states after it and its kept draws. When the burn-in
+        ends inside it and the restart rule is to decide, the chunk runs as two calls with
+        the decision between them: the same draws, and from outside (sink, callback, stops)
+        the same one chunk. A ``KeyboardInterrupt`` leaves the loop as the chunk found it."""
+        cut = num_active
+        if self.restarts is not None and self.restarts.pending and self.done < self.burn_in:
+            cut = min(num_active, self.burn_in - self.done)
+        states, records = self._compute(states, self.done, cut)
+        chunk = self._keep(records, cut, self.done)
+        saved = None if self.restarts is None else (self.restarts.window.copy(),
+                                                    self.restarts.restarted)
+        states = self._restart_stuck(states, records, self.done + cut)
+        if cut == num_active:
+            return states, chunk
+        try:
+            states, records = self._compute(states, self.done + cut, num_active - cut)
+        except KeyboardInterrupt:  # the decision is taken again when the chunk is
+            self.restarts.window, self.restarts.restarted = saved
+            raise
+        rest = self._keep(records, num_active - cut, self.done + cut)
+        return states, {k: np.concatenate([chunk[k], v], axis=1) for k, v in rest.items()}
+
+    def _compute(self, states: Any, start: int, num_active: int) -> tuple[Any, dict]:
+        """The compiled chunk from iteration ``start``, ``num_active`` iterations counting."""
+        new_states, records = self.chunk_fn(states, self.chain_keys, jnp.int64(start),
+                                            jnp.int64(num_active))
+        records = jax.device_get(records)
+        jax.block_until_ready(new_states)
+        return new_states, records
+
+    def _restart_stuck(self, states: Any, records: dict[str, Any], done: int) -> Any:
+        """At the end of the burn-in (``done``), the states with the stuck chains restarted
+        (and one warning line when some were)."""
+        if self.restarts is None or not self.restarts.pending or done != self.burn_in:
             return states
         num_params = int(np.shape(records["theta"])[-1]) if "theta" in records else 1
         states = self.restarts.decide(states, num_params)
@@ -425,11 +449,12 @@ class _Loop:
                           StuckChainsRestarted, stacklevel=4)
         return states
 
-    def _keep(self, records: dict[str, Any], num_active: int) -> dict[str, np.ndarray]:
+    def _keep(self, records: dict[str, Any], num_active: int,
+              start: int) -> dict[str, np.ndarray]:
         """Keep the chunk's iterations past burn-in on the thin grid; returns them
         ``(num_chains, kept, ...)`` (empty arrays in the burn-in)."""
-        # Iterations done + 1 .. done + num_active; keep those past burn-in on the thin grid.
-        iterations = np.arange(self.done + 1, self.done + num_active + 1)
+        # Iterations start + 1 .. start + num_active; keep those past burn-in on the thin grid.
+        iterations = np.arange(start + 1, start + num_active + 1)
         if self.restarts is not None and self.restarts.pending:
             self.restarts.observe(iterations, np.asarray(records["lp"])[:num_active])
         keep = (iterations > self.burn_in) & ((iterations - self.burn_in) % self.thin == 0)
