@@ -36,7 +36,7 @@ namespace symplid {
 namespace {
 
 constexpr double kLog2Pi = 1.8378770664093454835606594728112;
-constexpr int kPad = 4;  // lanes per point array are a multiple of this
+constexpr int kPad = 8;  // lanes per point array are a multiple of this (a Vec)
 
 // Exponent vector e of the monomial Π q_i^e_i: its index among the program's monomials
 // (degree ≥ 1), adding it and its parents where missing; −1 for degree 0.
@@ -105,9 +105,9 @@ struct Dims {
 // between substeps merged, as the value kernel's CompositionMethod.
 class Propagation {
  public:
-  Propagation(const Settings& s, const Dims& z, const ForceProgram& f, const double* tc,
-              const double* hc, double* scratch)
-      : s_(s), z_(z), f_(f), tc_(tc), hc_(hc) {
+  Propagation(const Settings& s, const Dims& z, const ForceProgram& f, FastPropagation fast,
+              const double* tc, const double* hc, double* scratch)
+      : s_(s), z_(z), f_(f), fast_(fast), tc_(tc), hc_(hc) {
     mono_ = scratch;
     force_ = mono_ + f.mono_parent.size() * z.NP;
     tmp_ = force_ + z.d * z.NP;
@@ -128,6 +128,7 @@ class Propagation {
 
   void forward(double dt, int steps, double* q, double* p, double* qs) {
     const int NP = z_.NP, dN = z_.d * z_.NP;
+    if (fast_.forward != nullptr) return fast_.forward(s_, dt, steps, NP, q, p, qs, tc_);
     const int total = steps * s_.ncomp;
     std::copy(q, q + dN, qs);
     if (total == 0) return;
@@ -145,6 +146,7 @@ class Propagation {
   // The adjoint of forward: qb, pb (d rows of NP) from the gap's end to its start; the
   // coefficients' adjoint accumulates per force term and lane in tacc.
   void reverse(double dt, int steps, const double* qs, double* qb, double* pb, double* tacc) {
+    if (fast_.reverse != nullptr) return fast_.reverse(s_, dt, steps, z_.NP, qs, qb, pb, tc_, tacc);
     const int dN = z_.d * z_.NP;
     const int total = steps * s_.ncomp;
     if (total == 0) return;
@@ -233,6 +235,7 @@ class Propagation {
   const Settings& s_;
   const Dims& z_;
   const ForceProgram& f_;
+  FastPropagation fast_;
   const double* tc_;
   const double* hc_;
   double* mono_;
@@ -487,7 +490,15 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
   Dims z{s.d, s.n, s.dy, s.npts, (s.npts + kPad - 1) / kPad * kPad, s.ncoef};
   const int d = z.d, n = z.n, dy = z.dy, NP = z.NP, nc = z.nc;
   ForceProgram& f = work.program;
-  build_program(s, f);
+  const std::size_t ne = static_cast<std::size_t>(s.ncoef) * s.d;
+  if (work.program_dim != s.d || work.program_exponents.size() != ne ||
+      !std::equal(s.exponents, s.exponents + ne, work.program_exponents.begin())) {
+    build_program(s, f);
+    work.program_exponents.assign(s.exponents, s.exponents + ne);
+    work.program_dim = s.d;
+  }
+  // (the fast path also depends on the mass matrix and the propagator: chosen every call)
+  work.fast = select_fast_propagation(s);
   const int nt = static_cast<int>(f.term_j.size()), nh = static_cast<int>(f.hess_i.size());
   const double* theta = member.theta;
 
@@ -499,7 +510,8 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
   // Steps per gap, the tape's layout.
   const int gaps = data.num_gaps;
   work.gap_offset.assign(gaps + 1, 0);
-  std::vector<int> steps_of(gaps);
+  std::vector<int>& steps_of = work.steps;
+  steps_of.resize(gaps);
   for (int k = 0; k < gaps; ++k) {
     int steps = s.uniform ? s.max_steps : static_cast<int>(data.num_steps[k]);
     steps_of[k] = std::max(0, std::min(steps, s.max_steps));
@@ -538,7 +550,7 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
   double* chol = cov + n * n;    // n x n
   double* pbar = chol + n * n;   // n x n
   double* tmp = pbar + n * n;    // the rest
-  Propagation prop(s, z, f, tc, hc, prop_scratch);
+  Propagation prop(s, z, f, work.fast, tc, hc, prop_scratch);
   double* q = x;
   double* p = x + d * NP;
 

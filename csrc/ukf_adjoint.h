@@ -27,12 +27,34 @@ struct ForceProgram {
   std::vector<double> hess_mult;
 };
 
+// Ψ over one gap for every sigma point (d rows of NP lanes) with the positions at every force
+// evaluation recorded in qs, and its adjoint, for a basis fixed at compile time
+// (ukf_adjoint_fast.cc); tc holds c_m e_mj per force term, tacc the coefficients' adjoint per
+// term and lane.
+using FastForwardFn = void (*)(const Settings&, double dt, int steps, int NP, double* q,
+                               double* p, double* qs, const double* tc);
+using FastReverseFn = void (*)(const Settings&, double dt, int steps, int NP, const double* qs,
+                               double* qb, double* pb, const double* tc, double* tacc);
+struct FastPropagation {
+  FastForwardFn forward = nullptr;
+  FastReverseFn reverse = nullptr;
+};
+
+// The fast propagation for these settings, or nullptrs (then the general one, same numbers to
+// rounding): a composition without a mass matrix, a basis of the value kernel's fast path, on
+// a processor with AVX2 and FMA.
+FastPropagation select_fast_propagation(const Settings& s);
+
 // Reused buffers (one per thread): the tape of the forward sweep and the reverse's arrays.
 struct AdjointWorkspace {
   std::vector<double> tape;
   std::vector<std::size_t> gap_offset;
   std::vector<double> scratch;
   ForceProgram program;
+  std::vector<int64_t> program_exponents;  // the basis the program was built for
+  int program_dim = 0;
+  FastPropagation fast;
+  std::vector<int> steps;  // per gap
 };
 
 // Whether adjoint_gradient carries these settings (a composition of leapfrog steps, Σ once
