@@ -38,6 +38,8 @@ namespace {
 constexpr double kLog2Pi = 1.8378770664093454835606594728112;
 constexpr int kPad = 8;  // lanes per point array are a multiple of this (a Vec)
 
+#include "ukf_adjoint_update.h"
+
 // Exponent vector e of the monomial Π q_i^e_i: its index among the program's monomials
 // (degree ≥ 1), adding it and its parents where missing; −1 for degree 0.
 int monomial(ForceProgram& f, std::vector<std::vector<int>>& exps, std::vector<int> e) {
@@ -95,10 +97,6 @@ void build_program(const Settings& s, ForceProgram& f) {
   }
 }
 
-// The sizes and the settings one evaluation uses.
-struct Dims {
-  int d, n, dy, npts, NP, nc;
-};
 
 // Ψ over one gap for all points (q, p: d rows of NP lanes), recording q at every force
 // evaluation in qs (S + 1 blocks of d·NP) — a composition, kick-drift-kick with the kicks
@@ -243,252 +241,21 @@ class Propagation {
   double* tmp_;
 };
 
-// Lower Cholesky factor of the symmetric n x n matrix a (lower triangle read) into l (upper
-// triangle zero); NaN where a is not positive definite.
-void cholesky(const double* a, double* l, int n) {
-  for (int i = 0; i < n * n; ++i) l[i] = 0.0;
-  for (int j = 0; j < n; ++j) {
-    double diag = a[j * n + j];
-    for (int k = 0; k < j; ++k) diag -= l[j * n + k] * l[j * n + k];
-    const double root = std::sqrt(diag);
-    l[j * n + j] = root;
-    for (int i = j + 1; i < n; ++i) {
-      double sum = a[i * n + j];
-      for (int k = 0; k < j; ++k) sum -= l[i * n + k] * l[j * n + k];
-      l[i * n + j] = sum / root;
-    }
-  }
-}
-
-// x = L⁻ᵀ b for the lower factor L (n x n) and b with `cols` columns (n x cols), in place.
-void solve_upper_transposed(const double* l, double* b, int n, int cols) {
-  for (int c = 0; c < cols; ++c) {
-    for (int i = n - 1; i >= 0; --i) {
-      double sum = b[i * cols + c];
-      for (int k = i + 1; k < n; ++k) sum -= l[k * n + i] * b[k * cols + c];
-      b[i * cols + c] = sum / l[i * n + i];
-    }
-  }
-}
-
-// x = L⁻¹ b in place (forward substitution), b n x cols.
-void solve_lower(const double* l, double* b, int n, int cols) {
-  for (int c = 0; c < cols; ++c) {
-    for (int i = 0; i < n; ++i) {
-      double sum = b[i * cols + c];
-      for (int k = 0; k < i; ++k) sum -= l[i * n + k] * b[k * cols + c];
-      b[i * cols + c] = sum / l[i * n + i];
-    }
-  }
-}
-
-// The adjoint of P = L Lᵀ: P̄ (symmetric) from L̄ (lower; its upper triangle is ignored).
-void cholesky_reverse(const double* l, const double* lbar, double* pbar, double* tmp, int n) {
-  double* g = tmp;  // M = Lᵀ L̄, then G = ½(Φ(M) + Φ(M)ᵀ)
-  for (int i = 0; i < n; ++i) {
-    for (int j = 0; j <= i; ++j) {
-      double sum = 0.0;
-      for (int k = i; k < n; ++k) sum += l[k * n + i] * lbar[k * n + j];  // (Lᵀ L̄)_ij, L̄ lower
-      g[i * n + j] = 0.5 * sum;  // G_ij = ½ M_ij below and on the diagonal, mirrored
-      g[j * n + i] = 0.5 * sum;
-    }
-  }
-  solve_upper_transposed(l, g, n, n);  // Z = L⁻ᵀ G
-  for (int i = 0; i < n; ++i) {        // Zᵀ
-    for (int j = 0; j < n; ++j) pbar[i * n + j] = g[j * n + i];
-  }
-  solve_upper_transposed(l, pbar, n, n);  // L⁻ᵀ Zᵀ = P̄ᵀ = P̄
-  for (int i = 0; i < n; ++i) {
-    for (int j = 0; j < i; ++j) {
-      const double v = 0.5 * (pbar[i * n + j] + pbar[j * n + i]);
-      pbar[i * n + j] = v;
-      pbar[j * n + i] = v;
-    }
-  }
-}
-
-// One gap's record on the tape (pointers into it) and its size.
-struct GapRecord {
-  double* qs;     // (S + 1) x d x NP: positions at every force evaluation
-  double* pend;   // d x NP: final momenta
-  double* mpred;  // n: predicted mean m⁻
-  double* lpost;  // n x n: filtered factor L⁺
-  double* sinv;   // o x o: S⁻¹ of the observed components
-  double* gain;   // n x o: K = C S⁻¹
-  double* a;      // o: S⁻¹ v
-  int* obs;       // o observed components, then o itself at obs[dy]
-  static std::size_t size(const Dims& z, int steps, int ncomp) {
-    const std::size_t S = static_cast<std::size_t>(steps) * ncomp;
-    return (S + 2) * z.d * z.NP + z.n + z.n * z.n + z.dy * z.dy + z.n * z.dy + z.dy +
-           (z.dy + 1 + 1) / 2 + 1;
-  }
-  GapRecord(double* at, const Dims& z, int steps, int ncomp) {
-    const std::size_t S = static_cast<std::size_t>(steps) * ncomp;
-    qs = at;
-    pend = qs + (S + 1) * z.d * z.NP;
-    mpred = pend + z.d * z.NP;
-    lpost = mpred + z.n;
-    sinv = lpost + z.n * z.n;
-    gain = sinv + z.dy * z.dy;
-    a = gain + z.n * z.dy;
-    obs = reinterpret_cast<int*>(a + z.dy);
-  }
-  int observed(const Dims& z) const { return obs[z.dy]; }
-};
-
-// The update (eqs 11-12) in the forward sweep: from m⁻ (mean) and P⁻ (cov) to m⁺ (mean) and
-// L⁺ (rec.lpost); returns the log-likelihood term.
-double update_forward(const Settings& s, const Dims& z, const double* y, const bool* mask,
-                      const double* obs_var, double* mean, const double* cov, GapRecord& rec,
-                      double* tmp) {
-  const int n = z.n, dy = z.dy;
-  const double* H = s.obs_matrix;
-  int o = 0;
-  for (int r = 0; r < dy; ++r) {
-    if (mask[r]) rec.obs[o++] = r;
-  }
-  rec.obs[dy] = o;
-  double* C = tmp;             // n x o
-  double* S = C + n * o;       // o x o
-  double* LS = S + o * o;      // o x o
-  double* v = LS + o * o;      // o
-  double* P = v + o;           // n x n
-  for (int i = 0; i < n; ++i) {
-    for (int r = 0; r < o; ++r) {
-      double sum = 0.0;
-      for (int k = 0; k < n; ++k) sum += cov[i * n + k] * H[rec.obs[r] * n + k];
-      C[i * o + r] = sum;
-    }
-  }
-  for (int r = 0; r < o; ++r) {
-    for (int c = 0; c < o; ++c) {
-      double sum = 0.0;
-      for (int k = 0; k < n; ++k) sum += H[rec.obs[r] * n + k] * C[k * o + c];
-      S[r * o + c] = sum;
-    }
-  }
-  for (int r = 0; r < o; ++r) {
-    for (int c = 0; c < r; ++c) {
-      const double sym = 0.5 * (S[r * o + c] + S[c * o + r]);
-      S[r * o + c] = sym;
-      S[c * o + r] = sym;
-    }
-    S[r * o + r] += obs_var[rec.obs[r]];
-  }
-  cholesky(S, LS, o);
-  double logdet = 0.0;
-  for (int r = 0; r < o; ++r) logdet += std::log(LS[r * o + r]);
-  for (int r = 0; r < o; ++r) {  // S⁻¹ = L_S⁻ᵀ L_S⁻¹
-    for (int c = 0; c < o; ++c) rec.sinv[r * o + c] = r == c ? 1.0 : 0.0;
-  }
-  solve_lower(LS, rec.sinv, o, o);
-  solve_upper_transposed(LS, rec.sinv, o, o);
-  for (int r = 0; r < o; ++r) {
-    double sum = 0.0;
-    for (int k = 0; k < n; ++k) sum += H[rec.obs[r] * n + k] * mean[k];
-    v[r] = y[rec.obs[r]] - sum;
-  }
-  double quad = 0.0;
-  for (int r = 0; r < o; ++r) {
-    double sum = 0.0;
-    for (int c = 0; c < o; ++c) sum += rec.sinv[r * o + c] * v[c];
-    rec.a[r] = sum;
-    quad += v[r] * sum;
-  }
-  for (int i = 0; i < n; ++i) {
-    for (int r = 0; r < o; ++r) {
-      double sum = 0.0;
-      for (int c = 0; c < o; ++c) sum += C[i * o + c] * rec.sinv[c * o + r];
-      rec.gain[i * o + r] = sum;
-    }
-    double shift = 0.0;
-    for (int r = 0; r < o; ++r) shift += C[i * o + r] * rec.a[r];
-    rec.mpred[i] = mean[i];
-    mean[i] += shift;
-  }
-  for (int i = 0; i < n; ++i) {
-    for (int j = 0; j <= i; ++j) {
-      double sum = 0.0;
-      for (int r = 0; r < o; ++r) sum += rec.gain[i * o + r] * C[j * o + r];
-      P[i * n + j] = cov[i * n + j] - sum;
-    }
-  }
-  cholesky(P, rec.lpost, n);
-  return (-0.5 * quad - logdet) - 0.5 * o * kLog2Pi;
-}
-
-// The adjoint of update_forward: from m̄⁺ (mbar) and P̄⁺ (pbar, symmetric) to m̄⁻ (mbar) and
-// P̄⁻ (pbar), adding Γ̄ per observed component to obs_bar.
-void update_reverse(const Settings& s, const Dims& z, const GapRecord& rec, double* mbar,
-                    double* pbar, double* obs_bar, double* tmp) {
-  const int n = z.n, o = rec.observed(z);
-  const double* H = s.obs_matrix;
-  const double* K = rec.gain;
-  double* b = tmp;           // o: Kᵀ m̄⁺
-  double* vbar = b + o;      // o
-  double* Sbar = vbar + o;   // o x o
-  double* PK = Sbar + o * o; // n x o: P̄⁺ K
-  double* Cbar = PK + n * o; // n x o
-  double* M = Cbar + n * o;  // n x n: C̄ H_O
-  for (int r = 0; r < o; ++r) {
-    double sum = 0.0;
-    for (int i = 0; i < n; ++i) sum += K[i * o + r] * mbar[i];
-    b[r] = sum;
-    vbar[r] = sum - rec.a[r];
-  }
-  for (int i = 0; i < n; ++i) {
-    for (int r = 0; r < o; ++r) {
-      double sum = 0.0;
-      for (int k = 0; k < n; ++k) sum += pbar[i * n + k] * K[k * o + r];
-      PK[i * o + r] = sum;
-      Cbar[i * o + r] = mbar[i] * rec.a[r] - 2.0 * sum;
-    }
-  }
-  for (int r = 0; r < o; ++r) {
-    for (int c = 0; c < o; ++c) {
-      double sum = 0.0;
-      for (int i = 0; i < n; ++i) sum += K[i * o + r] * PK[i * o + c];
-      Sbar[r * o + c] = 0.5 * (rec.a[r] * rec.a[c] - rec.sinv[r * o + c]) -
-                        0.5 * (b[r] * rec.a[c] + rec.a[r] * b[c]) + sum;
-    }
-  }
-  for (int r = 0; r < o; ++r) obs_bar[rec.obs[r]] += Sbar[r * o + r];
-  for (int i = 0; i < n; ++i) {  // m̄⁻ = m̄⁺ − H_Oᵀ v̄
-    double sum = 0.0;
-    for (int r = 0; r < o; ++r) sum += H[rec.obs[r] * n + i] * vbar[r];
-    mbar[i] -= sum;
-  }
-  for (int i = 0; i < n; ++i) {  // C̄ H_O
-    for (int j = 0; j < n; ++j) {
-      double sum = 0.0;
-      for (int r = 0; r < o; ++r) sum += Cbar[i * o + r] * H[rec.obs[r] * n + j];
-      M[i * n + j] = sum;
-    }
-  }
-  for (int i = 0; i < n; ++i) {  // P̄⁻ = P̄⁺ + H_Oᵀ S̄ H_O + sym(C̄ H_O)
-    for (int j = 0; j < n; ++j) {
-      double sum = 0.0;
-      for (int r = 0; r < o; ++r) {
-        const double* hr = H + rec.obs[r] * n;
-        double inner = 0.0;
-        for (int c = 0; c < o; ++c) inner += Sbar[r * o + c] * H[rec.obs[c] * n + j];
-        sum += hr[i] * inner;
-      }
-      pbar[i * n + j] += sum + 0.5 * (M[i * n + j] + M[j * n + i]);
-    }
-  }
-}
-
 }  // namespace
 
 bool adjoint_supports(const Settings& s) {
   return s.composition && !s.per_step && s.d >= 1 && s.dy >= 1;
 }
 
-void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Member& member,
-                      double* grad, AdjointWorkspace& work) {
+namespace {
+
+// adjoint_gradient for a state of NN and observations of DY components (0: at run time).
+template <int NN, int DY>
+void run_sized(const Settings& s, const TrajectoryData& data, const Member& member, double* grad,
+               AdjointWorkspace& work) {
   Dims z{s.d, s.n, s.dy, s.npts, (s.npts + kPad - 1) / kPad * kPad, s.ncoef};
-  const int d = z.d, n = z.n, dy = z.dy, NP = z.NP, nc = z.nc;
+  const int n = NN > 0 ? NN : z.n, d = n / 2, dy = DY > 0 ? DY : z.dy, npts = 2 * n + 1;
+  const int NP = z.NP, nc = z.nc;
   ForceProgram& f = work.program;
   const std::size_t ne = static_cast<std::size_t>(s.ncoef) * s.d;
   if (work.program_dim != s.d || work.program_exponents.size() != ne ||
@@ -559,7 +326,7 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
   for (int i = 0; i < n; ++i) {
     for (int k = 0; k < n; ++k) cov[i * n + k] = 0.5 * (member.P0[i * n + k] + member.P0[k * n + i]);
   }
-  cholesky(cov, chol, n);
+  cholesky<NN>(cov, chol, n);
   double total = 0.0;
   const double* lprev = chol;
   for (int g = 0; g < gaps; ++g) {
@@ -578,20 +345,20 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
     for (int i = 0; i < n; ++i) {  // moments, eq (10)
       const double* row = x + i * NP;
       double sum = 0.0;
-      for (int k = 0; k < z.npts; ++k) sum += s.wm[k] * row[k];
+      for (int k = 0; k < npts; ++k) sum += s.wm[k] * row[k];
       mean[i] = sum;
-      for (int k = 0; k < z.npts; ++k) centred[i * NP + k] = row[k] - sum;
+      for (int k = 0; k < npts; ++k) centred[i * NP + k] = row[k] - sum;
     }
     for (int i = 0; i < n; ++i) {
       for (int j = 0; j <= i; ++j) {
         double sum = 0.0;
-        for (int k = 0; k < z.npts; ++k) sum += s.wc[k] * centred[i * NP + k] * centred[j * NP + k];
+        for (int k = 0; k < npts; ++k) sum += s.wc[k] * centred[i * NP + k] * centred[j * NP + k];
         cov[i * n + j] = sum;
         cov[j * n + i] = sum;
       }
       cov[i * n + i] += process_var[i] + s.jitter;
     }
-    total += update_forward(s, z, data.ys + g * dy, data.masks + g * dy, obs_var, mean, cov, rec,
+    total += update_forward<NN, DY>(s, z, data.ys + g * dy, data.masks + g * dy, obs_var, mean, cov, rec,
                             tmp);
     lprev = rec.lpost;
   }
@@ -605,25 +372,25 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
   double* pb = xb + d * NP;
   for (int g = gaps - 1; g >= 0; --g) {
     GapRecord rec(work.tape.data() + work.gap_offset[g], z, steps_of[g], s.ncomp);
-    update_reverse(s, z, rec, mbar, pbar, obs_bar, tmp);
+    update_reverse_for<NN, DY>(s, z, rec, mbar, pbar, obs_bar, tmp);
     for (int i = 0; i < n; ++i) process_bar[i] += pbar[i * n + i];
     // Moments: Ȳ_k = D̄_k + wm_k (m̄⁻ − Σ_j D̄_j), D̄_k = 2 wc_k P̄⁻ D_k.
     const double* qend = rec.qs + static_cast<std::size_t>(steps_of[g]) * s.ncomp * d * NP;
     for (int i = 0; i < n; ++i) {
       const double* row = i < d ? qend + i * NP : rec.pend + (i - d) * NP;
-      for (int k = 0; k < z.npts; ++k) centred[i * NP + k] = row[k] - rec.mpred[i];
+      for (int k = 0; k < npts; ++k) centred[i * NP + k] = row[k] - rec.mpred[i];
     }
     for (int i = 0; i < n; ++i) {
       double* out = xb + i * NP;
       double dsum = 0.0;
       for (int k = 0; k < NP; ++k) out[k] = 0.0;
-      for (int k = 0; k < z.npts; ++k) {
+      for (int k = 0; k < npts; ++k) {
         double sum = 0.0;
         for (int j = 0; j < n; ++j) sum += pbar[i * n + j] * centred[j * NP + k];
         out[k] = 2.0 * s.wc[k] * sum;
         dsum += out[k];
       }
-      for (int k = 0; k < z.npts; ++k) out[k] += s.wm[k] * (mbar[i] - dsum);
+      for (int k = 0; k < npts; ++k) out[k] += s.wm[k] * (mbar[i] - dsum);
     }
     prop.reverse(data.step_size[g], steps_of[g], rec.qs, qb, pb, tacc);
     if (g == 0) break;  // x0 and P0 do not depend on θ
@@ -632,21 +399,21 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
     for (int i = 0; i < n; ++i) {
       const double* row = xb + i * NP;
       double sum = 0.0;
-      for (int k = 0; k < z.npts; ++k) sum += row[k];
+      for (int k = 0; k < npts; ++k) sum += row[k];
       mbar[i] = sum;
       for (int c = 0; c < n; ++c) {
         lbar[i * n + c] = c <= i ? s.scale * (row[1 + c] - row[1 + n + c]) : 0.0;
       }
     }
     GapRecord prev(work.tape.data() + work.gap_offset[g - 1], z, steps_of[g - 1], s.ncomp);
-    cholesky_reverse(prev.lpost, lbar, pbar, tmp + n * n, n);
+    cholesky_reverse<NN>(prev.lpost, lbar, pbar, tmp + n * n, n);
   }
 
   // ∂ log L/∂θ; off the support 0 × that (zero where finite, NaN where not).
   for (int m = 0; m < nc; ++m) coef_bar[m] = 0.0;
   for (int t = 0; t < nt; ++t) {
     double sum = 0.0;
-    for (int k = 0; k < z.npts; ++k) sum += tacc[t * NP + k];
+    for (int k = 0; k < npts; ++k) sum += tacc[t * NP + k];
     coef_bar[f.term_m[t]] -= f.term_mult[t] * sum;
   }
   for (int m = 0; m < nc; ++m) grad[m] = coef_bar[m];
@@ -656,6 +423,19 @@ void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Membe
   if (!ok) {
     for (int v = 0; v < s.nparams; ++v) grad[v] *= 0.0;
   }
+}
+
+}  // namespace
+
+void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Member& member,
+                      double* grad, AdjointWorkspace& work) {
+  if (s.n == 4 && s.dy == 4) return run_sized<4, 4>(s, data, member, grad, work);
+  if (s.n == 4 && s.dy == 2) return run_sized<4, 2>(s, data, member, grad, work);
+  if (s.n == 2 && s.dy == 2) return run_sized<2, 2>(s, data, member, grad, work);
+  if (s.n == 2 && s.dy == 1) return run_sized<2, 1>(s, data, member, grad, work);
+  if (s.n == 6 && s.dy == 6) return run_sized<6, 6>(s, data, member, grad, work);
+  if (s.n == 6 && s.dy == 3) return run_sized<6, 3>(s, data, member, grad, work);
+  run_sized<0, 0>(s, data, member, grad, work);
 }
 
 }  // namespace symplid
