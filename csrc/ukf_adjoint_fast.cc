@@ -8,6 +8,9 @@
 // (the coefficients' adjoint, summed over the lanes by the caller), and per drift q += h p,
 // p̄ += h q̄. Used where the processor has AVX2 and FMA and the model has no mass matrix.
 
+#include <cstdlib>
+#include <string>
+
 #include "ukf_adjoint.h"
 
 #pragma GCC push_options
@@ -218,13 +221,27 @@ struct FastPsi {
 
 namespace symplid {
 
+namespace {
+
+// Whether the processor has AVX2 and FMA, unless SYMPLID_KERNEL_ISA names "baseline" (as for
+// the value kernel: to test the general path on a processor that would not take it).
+bool fast_isa() {
+#ifdef SYMPLID_X86
+  const char* requested = std::getenv("SYMPLID_KERNEL_ISA");
+  if (requested != nullptr && std::string(requested) == "baseline") return false;
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#else
+  return false;
+#endif
+}
+
+}  // namespace
+
 FastPropagation select_fast_propagation(const Settings& s) {
 #ifdef SYMPLID_X86
-  __builtin_cpu_init();
-  if (s.has_mass || !s.composition || !__builtin_cpu_supports("avx2") ||
-      !__builtin_cpu_supports("fma")) {
-    return {};
-  }
+  static const bool usable = fast_isa();
+  if (s.has_mass || !s.composition || !usable) return {};
 #define SYMPLID_TRY_FAST(D, ORDER)                                                  \
   if (adjoint_fast::FixedBasis<D, ORDER>::matches(s)) {                             \
     using Psi = adjoint_fast::FastPsi<D, ORDER, (4 * D + 1 + 3) / 4>;               \

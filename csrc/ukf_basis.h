@@ -1,12 +1,12 @@
 // The compile-time basis of a polynomial potential (eq 13) in D coordinates up to degree ORDER:
 // its monomials, the force's term program and the products that build the monomials, as
 // constexpr tables. Shared by the value kernel (ukf_kernel_impl.h) and the adjoint's fast
-// propagation (ukf_adjoint.cc).
+// propagation (ukf_adjoint_fast.cc).
 //
 // Like ukf_kernel_impl.h this file is included inside an instruction set's namespace (and
 // `#pragma GCC target` region) and includes nothing itself: Settings, Vec and the standard
 // headers come from ukf_kernel.h.
-// ---------------------------------------------------------------- force for small d and ℓ
+//
 // For d ≤ 2 and ℓ ≤ 5, and for d = 3 and ℓ ≤ 3, the force's term program is built at compile
 // time, so the gradient is straight-line code with the lanes in registers (other bases use the
 // runtime program, same numbers). The table is the library's basis order

@@ -3,7 +3,9 @@
 // symplectic composition of leapfrog steps (eqs 5-6) or an explicit Runge-Kutta propagator
 // over each observation gap (eq 14), and a linear observation operator.
 //
-// It is an XLA FFI handler ("symplid_ukf_loglik"), called from JAX through jax.ffi.ffi_call.
+// It is an XLA FFI handler ("symplid_ukf_loglik"), called from JAX through jax.ffi.ffi_call,
+// with a second one ("symplid_ukf_loglik_grad") for the value and its gradient over θ by the
+// adjoint of ukf_adjoint.cc.
 // Static settings arrive as attributes, data as buffers. Under vmap (vmap_method
 // "expand_dims") every buffer gains the same leading batch axes, of size 1 where that input
 // is not batched; the kernel loops over the batch itself and, when the data are shared,
@@ -313,7 +315,7 @@ ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffe
 }
 
 // The gradient's FFI handler: per batch element log L (out) and ∂ log L/∂θ (grad, the
-// batch then θ's entries), by the forward-mode kernel, one element at a time.
+// batch then θ's entries), by the adjoint (ukf_adjoint.cc), one element at a time.
 ffi::Error log_likelihood_gradient(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffer P0,
                                    ffi::AnyBuffer step_size, ffi::AnyBuffer num_steps,
                                    ffi::AnyBuffer ys, ffi::AnyBuffer masks,

@@ -3,9 +3,10 @@
 //
 // This file is included once by each instruction set's translation unit (ukf_kernel_avx512.cc,
 // ukf_kernel_avx2.cc, ukf_kernel_baseline.cc), inside a `#pragma GCC target(...)` region and
-// with SYMPLID_ISA_NS naming the namespace. It includes nothing itself: the types it uses
-// (Settings, TrajectoryData, Member) and the standard headers come from ukf_kernel.h, which
-// those files include before the region.
+// with SYMPLID_ISA_NS naming the namespace. It includes only ukf_basis.h (the compile-time
+// polynomial bases, into the same namespace): the types it uses (Settings, TrajectoryData,
+// Member) and the standard headers come from ukf_kernel.h, which those files include before
+// the region.
 //
 // Layout. A "lane" is one sigma point of one parameter vector θ; lanes come in vectors of
 // eight (Vec). One θ puts its 2n+1 sigma points in consecutive lanes (the last vector padded);

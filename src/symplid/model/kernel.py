@@ -13,12 +13,13 @@ the sigma points as vector lanes. It equals the JAX reference
 * ``vmap``-able over θ (and over x0, P0 or the data): a batch reaches the kernel as one call,
   which propagates eight parameter vectors at once when they share the data;
 * differentiable: a ``jax.custom_jvp``. The gradient over θ (``jax.grad``,
-  ``value_and_grad``, a JVP along θ) is compiled too: a second kernel carries the derivatives
-  along every entry of θ through the same filter (forward mode, the θ directions in vector
-  lanes) for the symplectic compositions and models of at most 32 parameters, and returns the
-  value with them, equal to the JAX tier's gradient to rounding. Second derivatives (the
-  Laplace/MAP Hessian), derivatives in x0, P0 or the data, Runge–Kutta propagators and larger
-  models use the JAX reference's derivatives exactly.
+  ``value_and_grad``, a JVP along θ) is compiled too, as an adjoint: a second FFI target
+  (``csrc/ukf_adjoint.cc``) runs the filter forward recording each gap's substeps, moments and
+  update, then one reverse sweep through them, and returns the value with the gradient, equal
+  to the JAX tier's gradient to rounding, for the symplectic compositions with Σ once per gap
+  (any number of parameters). Second derivatives (the Laplace/MAP Hessian), derivatives in
+  x0, P0 or the data, Runge–Kutta propagators and Σ per substep use the JAX reference's
+  derivatives exactly.
 
 The kernel is built by ``pip install`` from the project's own files (an optional extension:
 a failed build does not fail the install). When the shared library is missing or cannot be
