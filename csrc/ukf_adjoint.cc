@@ -249,23 +249,141 @@ bool adjoint_supports(const Settings& s) {
 
 namespace {
 
-// adjoint_gradient for a state of NN and observations of DY components (0: at run time).
-template <int NN, int DY>
-void run_sized(const Settings& s, const TrajectoryData& data, const Member& member, double* grad,
-               AdjointWorkspace& work) {
-  Dims z{s.d, s.n, s.dy, s.npts, (s.npts + kPad - 1) / kPad * kPad, s.ncoef};
-  const int n = NN > 0 ? NN : z.n, d = n / 2, dy = DY > 0 ? DY : z.dy, npts = 2 * n + 1;
-  const int NP = z.NP, nc = z.nc;
-  ForceProgram& f = work.program;
+// The force program for this basis (rebuilt when the basis changes) and the fast propagation.
+void prepare_program(const Settings& s, AdjointWorkspace& work) {
   const std::size_t ne = static_cast<std::size_t>(s.ncoef) * s.d;
   if (work.program_dim != s.d || work.program_exponents.size() != ne ||
       !std::equal(s.exponents, s.exponents + ne, work.program_exponents.begin())) {
-    build_program(s, f);
+    build_program(s, work.program);
     work.program_exponents.assign(s.exponents, s.exponents + ne);
     work.program_dim = s.d;
   }
   // (the fast path also depends on the mass matrix and the propagator: chosen every call)
   work.fast = select_fast_propagation(s);
+}
+
+// Substeps per gap and each gap's place on the tape.
+void layout_tape(const Settings& s, const Dims& z, const TrajectoryData& data,
+                 AdjointWorkspace& work) {
+  const int gaps = data.num_gaps;
+  work.gap_offset.assign(gaps + 1, 0);
+  work.steps.resize(gaps);
+  for (int k = 0; k < gaps; ++k) {
+    const int steps = s.uniform ? s.max_steps : static_cast<int>(data.num_steps[k]);
+    work.steps[k] = std::max(0, std::min(steps, s.max_steps));
+    work.gap_offset[k + 1] = work.gap_offset[k] + GapRecord::size(z, work.steps[k], s.ncomp);
+  }
+  work.tape.resize(work.gap_offset[gaps] + 1);
+}
+
+// The sigma points m, m ± scale·L[:, c] into x (n rows of NP lanes; padding lanes get m).
+template <int NN>
+void sigma_points(const Settings& s, const Dims& z, const double* mean, const double* chol,
+                  double* x) {
+  const int n = NN > 0 ? NN : z.n, NP = z.NP;
+  for (int i = 0; i < n; ++i) {
+    double* row = x + i * NP;
+    for (int k = 0; k < NP; ++k) row[k] = mean[i];
+    for (int c = 0; c < n; ++c) {
+      const double spread = s.scale * chol[i * n + c];
+      row[1 + c] = mean[i] + spread;
+      row[1 + n + c] = mean[i] - spread;
+    }
+  }
+}
+
+// Their adjoint: m̄ = Σ_k X̄_k, L̄_ic = scale (X̄_i,1+c − X̄_i,1+n+c) on and below the diagonal.
+template <int NN>
+void sigma_points_reverse(const Settings& s, const Dims& z, const double* xb, double* mbar,
+                          double* lbar) {
+  const int n = NN > 0 ? NN : z.n, NP = z.NP, npts = 2 * n + 1;
+  for (int i = 0; i < n; ++i) {
+    const double* row = xb + i * NP;
+    double sum = 0.0;
+    for (int k = 0; k < npts; ++k) sum += row[k];
+    mbar[i] = sum;
+    for (int c = 0; c < n; ++c) lbar[i * n + c] = c <= i ? s.scale * (row[1 + c] - row[1 + n + c]) : 0.0;
+  }
+}
+
+// Predicted moments, eq (10), of the propagated points x: mean, centred points, covariance
+// with Σ and the jitter on the diagonal.
+template <int NN>
+void moments(const Settings& s, const Dims& z, const double* x, const double* process_var,
+             double* mean, double* centred, double* cov) {
+  const int n = NN > 0 ? NN : z.n, NP = z.NP, npts = 2 * n + 1;
+  for (int i = 0; i < n; ++i) {
+    const double* row = x + i * NP;
+    double sum = 0.0;
+    for (int k = 0; k < npts; ++k) sum += s.wm[k] * row[k];
+    mean[i] = sum;
+    for (int k = 0; k < npts; ++k) centred[i * NP + k] = row[k] - sum;
+  }
+  for (int i = 0; i < n; ++i) {
+    for (int j = 0; j <= i; ++j) {
+      double sum = 0.0;
+      for (int k = 0; k < npts; ++k) sum += s.wc[k] * centred[i * NP + k] * centred[j * NP + k];
+      cov[i * n + j] = sum;
+      cov[j * n + i] = sum;
+    }
+    cov[i * n + i] += process_var[i] + s.jitter;
+  }
+}
+
+// Their adjoint into xb (the points' adjoint): Ȳ_k = D̄_k + wm_k (m̄⁻ − Σ_j D̄_j) with
+// D̄_k = 2 wc_k P̄⁻ D_k, the centred points D recomputed from the record.
+template <int NN>
+void moments_reverse(const Settings& s, const Dims& z, const GapRecord& rec, int steps,
+                     const double* pbar, const double* mbar, double* centred, double* xb) {
+  const int n = NN > 0 ? NN : z.n, d = n / 2, NP = z.NP, npts = 2 * n + 1;
+  const double* qend = rec.qs + static_cast<std::size_t>(steps) * s.ncomp * d * NP;
+  for (int i = 0; i < n; ++i) {
+    const double* row = i < d ? qend + i * NP : rec.pend + (i - d) * NP;
+    for (int k = 0; k < npts; ++k) centred[i * NP + k] = row[k] - rec.mpred[i];
+  }
+  for (int i = 0; i < n; ++i) {
+    double* out = xb + i * NP;
+    double dsum = 0.0;
+    for (int k = 0; k < NP; ++k) out[k] = 0.0;
+    for (int k = 0; k < npts; ++k) {
+      double sum = 0.0;
+      for (int j = 0; j < n; ++j) sum += pbar[i * n + j] * centred[j * NP + k];
+      out[k] = 2.0 * s.wc[k] * sum;
+      dsum += out[k];
+    }
+    for (int k = 0; k < npts; ++k) out[k] += s.wm[k] * (mbar[i] - dsum);
+  }
+}
+
+// ∂ log L/∂θ from the adjoints: the coefficients' from the force terms' accumulators (summed
+// over the points), the variances' from Σ̄ and Γ̄; off the support (not ok) 0 × that, which is
+// zero where it is finite and NaN where not (jax.grad of the JAX tier's −∞ branch).
+void assemble_gradient(const Settings& s, const Dims& z, const ForceProgram& f,
+                       const double* tacc, const double* process_bar, const double* obs_bar,
+                       bool ok, double* grad) {
+  const int nc = z.nc, first_obs = nc + (s.diagonal ? z.n : 1);
+  for (int v = 0; v < s.nparams; ++v) grad[v] = 0.0;
+  for (std::size_t t = 0; t < f.term_j.size(); ++t) {
+    double sum = 0.0;
+    for (int k = 0; k < z.npts; ++k) sum += tacc[t * z.NP + k];
+    grad[f.term_m[t]] -= f.term_mult[t] * sum;
+  }
+  for (int i = 0; i < z.n; ++i) grad[nc + (s.diagonal ? i : 0)] += process_bar[i];
+  for (int r = 0; r < z.dy; ++r) grad[first_obs + (s.diagonal ? r : 0)] += obs_bar[r];
+  if (!ok) {
+    for (int v = 0; v < s.nparams; ++v) grad[v] *= 0.0;
+  }
+}
+
+// adjoint_gradient for a state of NN and observations of DY components (0: at run time).
+template <int NN, int DY>
+void run_sized(const Settings& s, const TrajectoryData& data, const Member& member, double* grad,
+               AdjointWorkspace& work) {
+  Dims z{s.d, s.n, s.dy, s.npts, (s.npts + kPad - 1) / kPad * kPad, s.ncoef};
+  const int n = NN > 0 ? NN : z.n, d = n / 2, dy = DY > 0 ? DY : z.dy;
+  const int NP = z.NP, nc = z.nc;
+  prepare_program(s, work);
+  const ForceProgram& f = work.program;
   const int nt = static_cast<int>(f.term_j.size()), nh = static_cast<int>(f.hess_i.size());
   const double* theta = member.theta;
 
@@ -274,17 +392,9 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member& memb
   for (int v = nc; v < s.nparams; ++v) valid = valid && theta[v] > 0.0;
   auto variance = [&](int v) { return theta[v] > 0.0 ? theta[v] : std::fabs(theta[v]) + 1e-12; };
 
-  // Steps per gap, the tape's layout.
+  layout_tape(s, z, data, work);
   const int gaps = data.num_gaps;
-  work.gap_offset.assign(gaps + 1, 0);
-  std::vector<int>& steps_of = work.steps;
-  steps_of.resize(gaps);
-  for (int k = 0; k < gaps; ++k) {
-    int steps = s.uniform ? s.max_steps : static_cast<int>(data.num_steps[k]);
-    steps_of[k] = std::max(0, std::min(steps, s.max_steps));
-    work.gap_offset[k + 1] = work.gap_offset[k] + GapRecord::size(z, steps_of[k], s.ncomp);
-  }
-  work.tape.resize(work.gap_offset[gaps] + 1);
+  const std::vector<int>& steps_of = work.steps;
 
   // Scratch: per-lane arrays, small matrices, the coefficients and variances.
   const std::size_t prop_size = Propagation::scratch_size(z, f);
@@ -307,7 +417,6 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member& memb
   double* process_bar = process_var + n; // n
   double* obs_var = process_bar + n;     // dy
   double* obs_bar = obs_var + dy;        // dy
-  double* coef_bar = obs_bar + dy;       // nc
   for (int t = 0; t < nt; ++t) tc[t] = theta[f.term_m[t]] * f.term_mult[t];
   for (int h = 0; h < nh; ++h) hc[h] = theta[f.hess_m[h]] * f.hess_mult[h];
   const int first_obs = nc + (s.diagonal ? n : 1);
@@ -331,35 +440,12 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member& memb
   const double* lprev = chol;
   for (int g = 0; g < gaps; ++g) {
     GapRecord rec(work.tape.data() + work.gap_offset[g], z, steps_of[g], s.ncomp);
-    for (int i = 0; i < n; ++i) {  // sigma points
-      double* row = x + i * NP;
-      for (int k = 0; k < NP; ++k) row[k] = mean[i];
-      for (int c = 0; c < n; ++c) {
-        const double spread = s.scale * lprev[i * n + c];
-        row[1 + c] = mean[i] + spread;
-        row[1 + n + c] = mean[i] - spread;
-      }
-    }
+    sigma_points<NN>(s, z, mean, lprev, x);
     prop.forward(data.step_size[g], steps_of[g], q, p, rec.qs);
     std::copy(p, p + d * NP, rec.pend);
-    for (int i = 0; i < n; ++i) {  // moments, eq (10)
-      const double* row = x + i * NP;
-      double sum = 0.0;
-      for (int k = 0; k < npts; ++k) sum += s.wm[k] * row[k];
-      mean[i] = sum;
-      for (int k = 0; k < npts; ++k) centred[i * NP + k] = row[k] - sum;
-    }
-    for (int i = 0; i < n; ++i) {
-      for (int j = 0; j <= i; ++j) {
-        double sum = 0.0;
-        for (int k = 0; k < npts; ++k) sum += s.wc[k] * centred[i * NP + k] * centred[j * NP + k];
-        cov[i * n + j] = sum;
-        cov[j * n + i] = sum;
-      }
-      cov[i * n + i] += process_var[i] + s.jitter;
-    }
-    total += update_forward<NN, DY>(s, z, data.ys + g * dy, data.masks + g * dy, obs_var, mean, cov, rec,
-                            tmp);
+    moments<NN>(s, z, x, process_var, mean, centred, cov);
+    total += update_forward<NN, DY>(s, z, data.ys + g * dy, data.masks + g * dy, obs_var, mean,
+                                    cov, rec, tmp);
     lprev = rec.lpost;
   }
   const bool ok = valid && std::isfinite(total);
@@ -374,55 +460,16 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member& memb
     GapRecord rec(work.tape.data() + work.gap_offset[g], z, steps_of[g], s.ncomp);
     update_reverse_for<NN, DY>(s, z, rec, mbar, pbar, obs_bar, tmp);
     for (int i = 0; i < n; ++i) process_bar[i] += pbar[i * n + i];
-    // Moments: Ȳ_k = D̄_k + wm_k (m̄⁻ − Σ_j D̄_j), D̄_k = 2 wc_k P̄⁻ D_k.
-    const double* qend = rec.qs + static_cast<std::size_t>(steps_of[g]) * s.ncomp * d * NP;
-    for (int i = 0; i < n; ++i) {
-      const double* row = i < d ? qend + i * NP : rec.pend + (i - d) * NP;
-      for (int k = 0; k < npts; ++k) centred[i * NP + k] = row[k] - rec.mpred[i];
-    }
-    for (int i = 0; i < n; ++i) {
-      double* out = xb + i * NP;
-      double dsum = 0.0;
-      for (int k = 0; k < NP; ++k) out[k] = 0.0;
-      for (int k = 0; k < npts; ++k) {
-        double sum = 0.0;
-        for (int j = 0; j < n; ++j) sum += pbar[i * n + j] * centred[j * NP + k];
-        out[k] = 2.0 * s.wc[k] * sum;
-        dsum += out[k];
-      }
-      for (int k = 0; k < npts; ++k) out[k] += s.wm[k] * (mbar[i] - dsum);
-    }
+    moments_reverse<NN>(s, z, rec, steps_of[g], pbar, mbar, centred, xb);
     prop.reverse(data.step_size[g], steps_of[g], rec.qs, qb, pb, tacc);
     if (g == 0) break;  // x0 and P0 do not depend on θ
-    // Sigma points: m̄ = Σ_k X̄_k, L̄_ic = scale (X̄_i,1+c − X̄_i,1+n+c) below the diagonal.
     double* lbar = tmp;
-    for (int i = 0; i < n; ++i) {
-      const double* row = xb + i * NP;
-      double sum = 0.0;
-      for (int k = 0; k < npts; ++k) sum += row[k];
-      mbar[i] = sum;
-      for (int c = 0; c < n; ++c) {
-        lbar[i * n + c] = c <= i ? s.scale * (row[1 + c] - row[1 + n + c]) : 0.0;
-      }
-    }
+    sigma_points_reverse<NN>(s, z, xb, mbar, lbar);
     GapRecord prev(work.tape.data() + work.gap_offset[g - 1], z, steps_of[g - 1], s.ncomp);
     cholesky_reverse<NN>(prev.lpost, lbar, pbar, tmp + n * n, n);
   }
 
-  // ∂ log L/∂θ; off the support 0 × that (zero where finite, NaN where not).
-  for (int m = 0; m < nc; ++m) coef_bar[m] = 0.0;
-  for (int t = 0; t < nt; ++t) {
-    double sum = 0.0;
-    for (int k = 0; k < npts; ++k) sum += tacc[t * NP + k];
-    coef_bar[f.term_m[t]] -= f.term_mult[t] * sum;
-  }
-  for (int m = 0; m < nc; ++m) grad[m] = coef_bar[m];
-  for (int v = nc; v < s.nparams; ++v) grad[v] = 0.0;
-  for (int i = 0; i < n; ++i) grad[nc + (s.diagonal ? i : 0)] += process_bar[i];
-  for (int r = 0; r < dy; ++r) grad[first_obs + (s.diagonal ? r : 0)] += obs_bar[r];
-  if (!ok) {
-    for (int v = 0; v < s.nparams; ++v) grad[v] *= 0.0;
-  }
+  assemble_gradient(s, z, f, tacc, process_bar, obs_bar, ok, grad);
 }
 
 }  // namespace
