@@ -33,7 +33,7 @@ pytestmark = pytest.mark.skipif(
     reason="the compiled kernel extension was not built (pip install builds it)",
 )
 
-RTOL = 1e-8  # per component (measured: ≤ 2e-10 on these cases)
+RTOL = 1e-8  # per component (measured: ≤ 1e-10 on these cases)
 
 
 def _assert_gradient_close(grad, expected) -> None:
