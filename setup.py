@@ -21,9 +21,12 @@ SOURCES = [  # the slowest to compile first (setuptools sorts them by name; the 
     "csrc/ukf_kernel_avx512.cc",
     "csrc/ukf_kernel_baseline.cc",
     "csrc/ukf_kernel_avx2.cc",
+    "csrc/ukf_adjoint_fast.cc",
+    "csrc/ukf_adjoint.cc",
     "csrc/ukf_kernel.cc",
 ]
-HEADERS = ["csrc/ukf_kernel.h", "csrc/ukf_kernel_impl.h"]
+HEADERS = ["csrc/ukf_kernel.h", "csrc/ukf_kernel_impl.h", "csrc/ukf_adjoint.h",
+           "csrc/ukf_basis.h"]
 
 
 def _ffi_include_dir() -> str | None:

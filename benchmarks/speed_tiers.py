@@ -14,7 +14,8 @@ Tiers (each measured in its own child process, pinned to CPU 0, one XLA thread):
   (``xla_cpu_small_while_loop_byte_threshold``), DRAM's linear algebra unrolled; the JAX
   likelihood (``backend="jax"``).
 * ``tier 2``: tier 1 with the compiled C++ likelihood kernel (``backend="compiled"``, what
-  ``backend="auto"`` picks where it is built); its gradient is the JAX tier's by design.
+  ``backend="auto"`` picks where it is built); its gradient is the kernel's adjoint (the
+  symplectic compositions; the JAX tier's otherwise).
 
 Rows: the value in a compiled loop, the value batched over 64 θ (per θ), the gradient in a
 compiled loop, DRAM iterations per CPU second (one chain; four chains one after another, four

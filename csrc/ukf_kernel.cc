@@ -3,7 +3,9 @@
 // symplectic composition of leapfrog steps (eqs 5-6) or an explicit Runge-Kutta propagator
 // over each observation gap (eq 14), and a linear observation operator.
 //
-// It is an XLA FFI handler ("symplid_ukf_loglik"), called from JAX through jax.ffi.ffi_call.
+// It is an XLA FFI handler ("symplid_ukf_loglik"), called from JAX through jax.ffi.ffi_call,
+// with a second one ("symplid_ukf_loglik_grad") for the value and its gradient over θ by the
+// adjoint of ukf_adjoint.cc.
 // Static settings arrive as attributes, data as buffers. Under vmap (vmap_method
 // "expand_dims") every buffer gains the same leading batch axes, of size 1 where that input
 // is not batched; the kernel loops over the batch itself and, when the data are shared,
@@ -21,6 +23,7 @@
 #include <string>
 #include <tuple>
 
+#include "ukf_adjoint.h"
 #include "ukf_kernel.h"
 #include "xla/ffi/api/ffi.h"
 
@@ -31,36 +34,47 @@ namespace symplid {
 // The widest instruction set this processor supports, chosen once, or a narrower one named
 // by the environment variable SYMPLID_KERNEL_ISA ("avx2" or "baseline": to test or time the
 // variants that this processor would not choose; a wider or unknown name is ignored).
-EvaluateFn select_kernel() {
+enum class Isa { kAvx512, kAvx2, kBaseline };
+
+Isa select_isa() {
   const char* requested = std::getenv("SYMPLID_KERNEL_ISA");
   const std::string cap = requested != nullptr ? requested : "";
-  if (cap == "baseline") return baseline::evaluate;
+  if (cap == "baseline") return Isa::kBaseline;
 #ifdef SYMPLID_X86
   __builtin_cpu_init();
   const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
   if (cap != "avx2" && avx2 && __builtin_cpu_supports("avx512f") &&
       __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512dq")) {
-    return avx512::evaluate;
+    return Isa::kAvx512;
   }
-  if (avx2) return avx2::evaluate;
+  if (avx2) return Isa::kAvx2;
+#endif
+  return Isa::kBaseline;
+}
+
+// The instruction set this process runs with (the choice is made on the first call).
+Isa isa() {
+  static const Isa chosen = select_isa();
+  return chosen;
+}
+
+EvaluateFn kernel() {
+#ifdef SYMPLID_X86
+  if (isa() == Isa::kAvx512) return avx512::evaluate;
+  if (isa() == Isa::kAvx2) return avx2::evaluate;
 #endif
   return baseline::evaluate;
 }
 
-// The kernel this process runs with (the choice is made on the first call).
-EvaluateFn kernel() {
-  static const EvaluateFn chosen = select_kernel();
-  return chosen;
-}
-
 const char* kernel_isa() {
-  const EvaluateFn fn = kernel();
-#ifdef SYMPLID_X86
-  if (fn == avx512::evaluate) return "avx512";
-  if (fn == avx2::evaluate) return "avx2";
-#endif
-  (void)fn;
-  return "baseline";
+  switch (isa()) {
+    case Isa::kAvx512:
+      return "avx512";
+    case Isa::kAvx2:
+      return "avx2";
+    default:
+      return "baseline";
+  }
 }
 
 namespace {
@@ -180,25 +194,58 @@ void build_terms(Settings& s, Workspace& w) {
   s.factor_rows = w.factor_rows.data();
 }
 
-}  // namespace
-
-// The FFI handler: reads the settings and the (batched) buffers, then evaluates every batch
-// element, in groups of kMaxGroup where the data are shared.
-ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffer P0,
-                          ffi::AnyBuffer step_size, ffi::AnyBuffer num_steps, ffi::AnyBuffer ys,
-                          ffi::AnyBuffer masks, ffi::Result<ffi::AnyBuffer> out, int64_t dim,
-                          int64_t order, ffi::Span<const int64_t> exponents,
-                          int64_t composition, ffi::Span<const double> comp_w,
-                          ffi::Span<const double> rk_a, ffi::Span<const double> rk_b,
-                          int64_t has_mass, ffi::Span<const double> inv_mass,
-                          ffi::Span<const double> obs_matrix, ffi::Span<const double> wm,
-                          ffi::Span<const double> wc, double scale, double jitter,
-                          int64_t per_step, int64_t diagonal, int64_t max_steps,
-                          int64_t uniform) {
-  const EvaluateFn evaluate = kernel();
-  thread_local Workspace work;
-
+// The batch of one call: the settings, the buffers seen through vmap's batch axes, and
+// per batch element its member and data (a row-major walk of the batch multi-index).
+struct Call {
   Settings s;
+  std::vector<int64_t> batch;
+  int64_t total = 1;
+  int gaps = 0;
+  bool shared_data = false;
+  Batched th, m0, c0, dt, ns, y, mk;
+  std::vector<int64_t> index;
+
+  // The next batch element's member (its result at out) and, if `data`, its data.
+  Member next(double* out, TrajectoryData* data) {
+    Member m;
+    m.theta = reinterpret_cast<const double*>(th.data + th.offset(index));
+    m.x0 = reinterpret_cast<const double*>(m0.data + m0.offset(index));
+    m.P0 = reinterpret_cast<const double*>(c0.data + c0.offset(index));
+    m.out = out;
+    if (data != nullptr) {
+      data->num_gaps = gaps;
+      data->step_size = reinterpret_cast<const double*>(dt.data + dt.offset(index));
+      data->num_steps = reinterpret_cast<const int64_t*>(ns.data + ns.offset(index));
+      data->ys = reinterpret_cast<const double*>(y.data + y.offset(index));
+      data->masks = reinterpret_cast<const bool*>(mk.data + mk.offset(index));
+    }
+    for (std::size_t a = batch.size(); a-- > 0;) {  // row-major increment
+      if (++index[a] < batch[a]) break;
+      index[a] = 0;
+    }
+    return m;
+  }
+};
+
+// The attributes of both handlers, in their order of binding.
+#define SYMPLID_KERNEL_ATTRIBUTES                                                              \
+  int64_t dim, int64_t order, ffi::Span<const int64_t> exponents, int64_t composition,        \
+      ffi::Span<const double> comp_w, ffi::Span<const double> rk_a,                           \
+      ffi::Span<const double> rk_b, int64_t has_mass, ffi::Span<const double> inv_mass,       \
+      ffi::Span<const double> obs_matrix, ffi::Span<const double> wm,                         \
+      ffi::Span<const double> wc, double scale, double jitter, int64_t per_step,              \
+      int64_t diagonal, int64_t max_steps, int64_t uniform
+#define SYMPLID_KERNEL_ATTRIBUTE_NAMES                                                         \
+  dim, order, exponents, composition, comp_w, rk_a, rk_b, has_mass, inv_mass, obs_matrix, wm, \
+      wc, scale, jitter, per_step, diagonal, max_steps, uniform
+
+// Reads and checks the settings and the (batched) buffers; the batch is the shape of out.
+ffi::Error prepare(Call& call, Workspace& work, const ffi::AnyBuffer& theta,
+                   const ffi::AnyBuffer& x0, const ffi::AnyBuffer& P0,
+                   const ffi::AnyBuffer& step_size, const ffi::AnyBuffer& num_steps,
+                   const ffi::AnyBuffer& ys, const ffi::AnyBuffer& masks,
+                   const ffi::AnyBuffer& out, SYMPLID_KERNEL_ATTRIBUTES) {
+  Settings& s = call.s;
   if (auto err = read_settings(s, dim, order, exponents, composition, comp_w, rk_a, rk_b,
                                has_mass, inv_mass, obs_matrix, wm, wc, scale, jitter, per_step,
                                diagonal, max_steps, uniform);
@@ -214,18 +261,17 @@ ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffe
   if (theta.element_type() != ffi::F64 || x0.element_type() != ffi::F64 ||
       P0.element_type() != ffi::F64 || step_size.element_type() != ffi::F64 ||
       num_steps.element_type() != ffi::S64 || ys.element_type() != ffi::F64 ||
-      masks.element_type() != ffi::PRED || out->element_type() != ffi::F64) {
+      masks.element_type() != ffi::PRED || out.element_type() != ffi::F64) {
     return ffi::Error(ffi::ErrorCode::kInvalidArgument, "symplid kernel: wrong dtypes");
   }
-  const auto out_dims = out->dimensions();
-  const std::vector<int64_t> batch(out_dims.begin(), out_dims.end());
-  Batched th, m0, c0, dt, ns, y, mk;
+  const auto out_dims = out.dimensions();
+  call.batch.assign(out_dims.begin(), out_dims.end());
   for (auto [buf, rank, name, view] :
-       {std::tuple{&theta, 1, "theta", &th}, std::tuple{&x0, 1, "x0", &m0},
-        std::tuple{&P0, 2, "P0", &c0}, std::tuple{&step_size, 1, "step_size", &dt},
-        std::tuple{&num_steps, 1, "num_steps", &ns}, std::tuple{&ys, 2, "ys", &y},
-        std::tuple{&masks, 2, "masks", &mk}}) {
-    if (auto err = batched(*buf, rank, batch, name, view); !err.success()) return err;
+       {std::tuple{&theta, 1, "theta", &call.th}, std::tuple{&x0, 1, "x0", &call.m0},
+        std::tuple{&P0, 2, "P0", &call.c0}, std::tuple{&step_size, 1, "step_size", &call.dt},
+        std::tuple{&num_steps, 1, "num_steps", &call.ns}, std::tuple{&ys, 2, "ys", &call.y},
+        std::tuple{&masks, 2, "masks", &call.mk}}) {
+    if (auto err = batched(*buf, rank, call.batch, name, view); !err.success()) return err;
   }
   const auto gaps = step_size.dimensions().back();
   if (theta.dimensions().back() != s.nparams || x0.dimensions().back() != s.n ||
@@ -233,72 +279,109 @@ ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffe
       ys.dimensions()[ys.dimensions().size() - 2] != gaps) {
     return ffi::Error(ffi::ErrorCode::kInvalidArgument, "symplid kernel: wrong shapes");
   }
+  call.gaps = static_cast<int>(gaps);
+  for (int64_t b : call.batch) call.total *= b;
+  call.shared_data = call.dt.shared() && call.ns.shared() && call.y.shared() && call.mk.shared();
+  call.index.assign(call.batch.size(), 0);
+  return ffi::Error::Success();
+}
 
-  int64_t total = 1;
-  for (int64_t b : batch) total *= b;
-  const bool shared_data = dt.shared() && ns.shared() && y.shared() && mk.shared();
+}  // namespace
+
+// The FFI handler: reads the settings and the (batched) buffers, then evaluates every batch
+// element, in groups of kMaxGroup where the data are shared.
+ffi::Error log_likelihood(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffer P0,
+                          ffi::AnyBuffer step_size, ffi::AnyBuffer num_steps, ffi::AnyBuffer ys,
+                          ffi::AnyBuffer masks, ffi::Result<ffi::AnyBuffer> out,
+                          SYMPLID_KERNEL_ATTRIBUTES) {
+  const EvaluateFn evaluate = kernel();
+  thread_local Workspace work;
+  Call call;
+  if (auto err = prepare(call, work, theta, x0, P0, step_size, num_steps, ys, masks, *out,
+                         SYMPLID_KERNEL_ATTRIBUTE_NAMES);
+      !err.success()) {
+    return err;
+  }
   double* result = static_cast<double*>(out->untyped_data());
-  std::vector<int64_t> index(batch.size(), 0);
-  auto next_index = [&] {  // row-major increment of the batch multi-index
-    for (std::size_t a = batch.size(); a-- > 0;) {
-      if (++index[a] < batch[a]) return;
-      index[a] = 0;
-    }
-  };
-  for (int64_t start = 0; start < total;) {
-    const int G = (shared_data && total - start >= kMaxGroup) ? kMaxGroup : 1;
+  for (int64_t start = 0; start < call.total;) {
+    const int G = (call.shared_data && call.total - start >= kMaxGroup) ? kMaxGroup : 1;
     Member members[kMaxGroup];
     TrajectoryData data;
-    for (int g = 0; g < G; ++g) {
-      members[g].theta = reinterpret_cast<const double*>(th.data + th.offset(index));
-      members[g].x0 = reinterpret_cast<const double*>(m0.data + m0.offset(index));
-      members[g].P0 = reinterpret_cast<const double*>(c0.data + c0.offset(index));
-      members[g].out = result + start + g;
-      if (g == 0) {
-        data.num_gaps = static_cast<int>(gaps);
-        data.step_size = reinterpret_cast<const double*>(dt.data + dt.offset(index));
-        data.num_steps = reinterpret_cast<const int64_t*>(ns.data + ns.offset(index));
-        data.ys = reinterpret_cast<const double*>(y.data + y.offset(index));
-        data.masks = reinterpret_cast<const bool*>(mk.data + mk.offset(index));
-      }
-      next_index();
-    }
-    evaluate(s, data, members, G, work);
+    for (int g = 0; g < G; ++g) members[g] = call.next(result + start + g, g == 0 ? &data : nullptr);
+    evaluate(call.s, data, members, G, work);
     start += G;
+  }
+  return ffi::Error::Success();
+}
+
+// The gradient's FFI handler: per batch element log L (out) and ∂ log L/∂θ (grad, the
+// batch then θ's entries), by the adjoint (ukf_adjoint.cc), one element at a time.
+ffi::Error log_likelihood_gradient(ffi::AnyBuffer theta, ffi::AnyBuffer x0, ffi::AnyBuffer P0,
+                                   ffi::AnyBuffer step_size, ffi::AnyBuffer num_steps,
+                                   ffi::AnyBuffer ys, ffi::AnyBuffer masks,
+                                   ffi::Result<ffi::AnyBuffer> out,
+                                   ffi::Result<ffi::AnyBuffer> grad, SYMPLID_KERNEL_ATTRIBUTES) {
+  thread_local Workspace work;
+  thread_local AdjointWorkspace adjoint_work;
+  Call call;
+  if (auto err = prepare(call, work, theta, x0, P0, step_size, num_steps, ys, masks, *out,
+                         SYMPLID_KERNEL_ATTRIBUTE_NAMES);
+      !err.success()) {
+    return err;
+  }
+  const int P = call.s.nparams;
+  if (!adjoint_supports(call.s) || grad->element_type() != ffi::F64 ||
+      grad->element_count() != static_cast<std::size_t>(call.total * P)) {
+    return ffi::Error(ffi::ErrorCode::kInvalidArgument, "symplid kernel: bad gradient output");
+  }
+  double* result = static_cast<double*>(out->untyped_data());
+  double* gradients = static_cast<double*>(grad->untyped_data());
+  for (int64_t b = 0; b < call.total; ++b) {
+    TrajectoryData data;
+    const Member member = call.next(result + b, &data);
+    adjoint_gradient(call.s, data, member, gradients + b * P, adjoint_work);
   }
   return ffi::Error::Success();
 }
 
 }  // namespace symplid
 
+// The buffers and attributes of both handlers (the gradient's adds one result).
+#define SYMPLID_BIND_BUFFERS                  \
+  ffi::Ffi::Bind()                            \
+      .Arg<ffi::AnyBuffer>() /* theta */      \
+      .Arg<ffi::AnyBuffer>() /* x0 */         \
+      .Arg<ffi::AnyBuffer>() /* P0 */         \
+      .Arg<ffi::AnyBuffer>() /* step_size */  \
+      .Arg<ffi::AnyBuffer>() /* num_steps */  \
+      .Arg<ffi::AnyBuffer>() /* ys */         \
+      .Arg<ffi::AnyBuffer>() /* masks */      \
+      .Ret<ffi::AnyBuffer>() /* log L */
+#define SYMPLID_BIND_ATTRIBUTES                              \
+  .Attr<int64_t>("dim")                                      \
+      .Attr<int64_t>("order")                                \
+      .Attr<ffi::Span<const int64_t>>("exponents")           \
+      .Attr<int64_t>("composition")                          \
+      .Attr<ffi::Span<const double>>("comp_weights")         \
+      .Attr<ffi::Span<const double>>("rk_a")                 \
+      .Attr<ffi::Span<const double>>("rk_b")                 \
+      .Attr<int64_t>("has_mass")                             \
+      .Attr<ffi::Span<const double>>("inv_mass")             \
+      .Attr<ffi::Span<const double>>("obs_matrix")           \
+      .Attr<ffi::Span<const double>>("weights_mean")         \
+      .Attr<ffi::Span<const double>>("weights_cov")          \
+      .Attr<double>("scale")                                 \
+      .Attr<double>("jitter")                                \
+      .Attr<int64_t>("per_step")                             \
+      .Attr<int64_t>("diagonal")                             \
+      .Attr<int64_t>("max_steps")                            \
+      .Attr<int64_t>("uniform")
+
 XLA_FFI_DEFINE_HANDLER_SYMBOL(SymplidUkfLogLikelihood, symplid::log_likelihood,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::AnyBuffer>()  // theta
-                                  .Arg<ffi::AnyBuffer>()  // x0
-                                  .Arg<ffi::AnyBuffer>()  // P0
-                                  .Arg<ffi::AnyBuffer>()  // step_size
-                                  .Arg<ffi::AnyBuffer>()  // num_steps
-                                  .Arg<ffi::AnyBuffer>()  // ys
-                                  .Arg<ffi::AnyBuffer>()  // masks
-                                  .Ret<ffi::AnyBuffer>()  // log-likelihood
-                                  .Attr<int64_t>("dim")
-                                  .Attr<int64_t>("order")
-                                  .Attr<ffi::Span<const int64_t>>("exponents")
-                                  .Attr<int64_t>("composition")
-                                  .Attr<ffi::Span<const double>>("comp_weights")
-                                  .Attr<ffi::Span<const double>>("rk_a")
-                                  .Attr<ffi::Span<const double>>("rk_b")
-                                  .Attr<int64_t>("has_mass")
-                                  .Attr<ffi::Span<const double>>("inv_mass")
-                                  .Attr<ffi::Span<const double>>("obs_matrix")
-                                  .Attr<ffi::Span<const double>>("weights_mean")
-                                  .Attr<ffi::Span<const double>>("weights_cov")
-                                  .Attr<double>("scale")
-                                  .Attr<double>("jitter")
-                                  .Attr<int64_t>("per_step")
-                                  .Attr<int64_t>("diagonal")
-                                  .Attr<int64_t>("max_steps")
-                                  .Attr<int64_t>("uniform"));
+                              SYMPLID_BIND_BUFFERS SYMPLID_BIND_ATTRIBUTES);
+XLA_FFI_DEFINE_HANDLER_SYMBOL(SymplidUkfLogLikelihoodGradient, symplid::log_likelihood_gradient,
+                              SYMPLID_BIND_BUFFERS.Ret<ffi::AnyBuffer>() /* ∂ log L/∂θ */
+                                  SYMPLID_BIND_ATTRIBUTES);
 
 // The instruction set the kernel runs with ("avx512", "avx2" or "baseline"), for reports.
 extern "C" const char* symplid_kernel_isa() { return symplid::kernel_isa(); }

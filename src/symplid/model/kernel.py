@@ -12,8 +12,14 @@ the sigma points as vector lanes. It equals the JAX reference
 * ``jit``-able: it is an XLA custom call, ~0.2 µs of overhead inside a compiled loop;
 * ``vmap``-able over θ (and over x0, P0 or the data): a batch reaches the kernel as one call,
   which propagates eight parameter vectors at once when they share the data;
-* differentiable: a ``jax.custom_jvp`` whose value and tangent under differentiation are the
-  JAX reference's, so gradients are exactly the JAX tier's (and cost what they cost there).
+* differentiable: a ``jax.custom_jvp``. The gradient over θ (``jax.grad``,
+  ``value_and_grad``, a JVP along θ) is compiled too, as an adjoint: a second FFI target
+  (``csrc/ukf_adjoint.cc``) runs the filter forward recording each gap's substeps, moments and
+  update, then one reverse sweep through them, and returns the value with the gradient, equal
+  to the JAX tier's gradient to rounding, for the symplectic compositions with Σ once per gap
+  (any number of parameters). Second derivatives (the Laplace/MAP Hessian), derivatives in
+  x0, P0 or the data, Runge–Kutta propagators and Σ per substep use the JAX reference's
+  derivatives exactly.
 
 The kernel is built by ``pip install`` from the project's own files (an optional extension:
 a failed build does not fail the install). When the shared library is missing or cannot be
@@ -50,8 +56,8 @@ from symplid.model.programs import compiled
 Array = jax.Array
 
 TARGET_NAME = "symplid_ukf_loglik"
+GRADIENT_TARGET_NAME = "symplid_ukf_loglik_grad"
 _LIBRARY_STEM = "_ukf_kernel"
-
 
 
 class KernelUnavailableWarning(UserWarning):
@@ -87,6 +93,11 @@ def _load_library() -> ctypes.CDLL:
     handle = ctypes.CDLL(str(path))
     jax.ffi.register_ffi_target(
         TARGET_NAME, jax.ffi.pycapsule(handle.SymplidUkfLogLikelihood), platform="cpu"
+    )
+    jax.ffi.register_ffi_target(
+        GRADIENT_TARGET_NAME,
+        jax.ffi.pycapsule(handle.SymplidUkfLogLikelihoodGradient),
+        platform="cpu",
     )
     handle.symplid_kernel_isa.restype = ctypes.c_char_p
     return handle
@@ -219,38 +230,104 @@ def _kernel_theta(model: StateSpaceModel) -> Callable[[Array], Array]:
     return lambda theta: theta[..., index]
 
 
+def _kernel_num_params(model: StateSpaceModel) -> int:
+    """Entries of θ in the kernel's layout (coefficients, then Σ's and Γ's variances)."""
+    if model.noise == "isotropic":
+        return model.num_coefficients + 2
+    return model.num_coefficients + model.state_dim + model.obs_dim
+
+
+def _gradient_unsupported_reason(model: StateSpaceModel) -> str | None:
+    """Why the compiled gradient (the kernel's adjoint) does not carry this model, or None:
+    it covers the symplectic compositions with Σ added once per gap (the kernel's
+    ``adjoint_supports``); Runge–Kutta propagators and Σ per substep keep the JAX tier's."""
+    if model.integrator.scheme[0] != "composition":
+        return f"the integrator {model.integrator.name!r} is not a composition of leapfrog steps"
+    if model.process_noise_per == "step":
+        return "Σ is added after every substep"
+    return None
+
+
+def _reference_jvp(reference, derivative, primals, tangents):
+    """The JVP of ``derivative(ref)`` (the log-likelihood, or its value and gradient) of the
+    JAX reference filter, in the arguments whose tangent is not a symbolic zero."""
+    live = [i for i in _DIFFERENTIABLE if not isinstance(tangents[i], SymbolicZero)]
+
+    def ref(*args):
+        full = list(primals)
+        for i, arg in zip(live, args, strict=True):
+            full[i] = arg
+        theta, x0, p0, step_size, num_steps, ys, masks = full
+
+        def loglik(th):
+            return reference(th, GapInputs(step_size, num_steps), ys, masks, x0, p0).log_likelihood
+
+        return derivative(loglik)(theta)
+
+    return jax.jvp(ref, [primals[i] for i in live], [tangents[i] for i in live])
+
+
+def _build_value_and_gradient(model: StateSpaceModel, attrs: dict[str, Any], reference):
+    """``(θ, x0, P0, step_size, num_steps, ys, masks) -> (log L, ∂ log L/∂θ)`` by the compiled
+    gradient, differentiable once more through the JAX reference (Hessian-vector products
+    are the reference's exactly); None for models the compiled gradient does not carry
+    (:func:`_gradient_unsupported_reason`)."""
+    if _gradient_unsupported_reason(model) is not None:
+        return None
+    call = jax.ffi.ffi_call(
+        GRADIENT_TARGET_NAME,
+        (
+            jax.ShapeDtypeStruct((), jnp.float64),
+            jax.ShapeDtypeStruct((_kernel_num_params(model),), jnp.float64),
+        ),
+        vmap_method="expand_dims",
+    )
+    layout = _kernel_theta(model)
+
+    @jax.custom_jvp
+    def value_and_gradient(theta, x0, p0, step_size, num_steps, ys, masks):
+        value, grad = call(layout(theta), x0, p0, step_size, num_steps, ys, masks, **attrs)
+        _, pullback = jax.vjp(layout, theta)  # per-kind noise: sum the repeated entries
+        return value, pullback(grad)[0]
+
+    def value_and_gradient_jvp(primals, tangents):
+        if all(isinstance(t, SymbolicZero) for t in tangents):
+            out = value_and_gradient(*primals)
+            return out, tuple(jnp.zeros_like(o) for o in out)
+        return _reference_jvp(reference, jax.value_and_grad, primals, tangents)
+
+    value_and_gradient.defjvp(value_and_gradient_jvp, symbolic_zeros=True)
+    return value_and_gradient
+
+
 def _build_kernel(model: StateSpaceModel, prepared: PreparedData) -> KernelFn:
-    """``(θ, x0, P0, step_size, num_steps, ys, masks) -> log L``: the FFI call, with JVPs
-    taken from the JAX reference filter so that derivatives are the JAX tier's."""
+    """``(θ, x0, P0, step_size, num_steps, ys, masks) -> log L``: the FFI call, whose JVP along
+    θ alone is the compiled gradient's, and along anything else the JAX reference's."""
     attrs = _attributes(model, prepared)
     call = jax.ffi.ffi_call(
         TARGET_NAME, jax.ShapeDtypeStruct((), jnp.float64), vmap_method="expand_dims"
     )
     reference = build_filter(model, prepared.max_steps, prepared.uniform_steps)
     layout = _kernel_theta(model)
+    value_and_gradient = _build_value_and_gradient(model, attrs, reference)
 
     @jax.custom_jvp
     def kernel(theta, x0, p0, step_size, num_steps, ys, masks):
         return call(layout(theta), x0, p0, step_size, num_steps, ys, masks, **attrs)
 
     def kernel_jvp(primals, tangents):
-        # Differentiate the reference in the arguments whose tangent is not a symbolic zero
-        # (usually θ alone). It computes its value on the way to the tangent: using it (equal
-        # to the kernel's to rounding) keeps value_and_grad at the JAX tier's cost.
         live = [i for i in _DIFFERENTIABLE if not isinstance(tangents[i], SymbolicZero)]
         if not live:
             value = kernel(*primals)
             return value, jnp.zeros_like(value)
-
-        def ref(*args):
-            full = list(primals)
-            for i, arg in zip(live, args, strict=True):
-                full[i] = arg
-            theta, x0, p0, step_size, num_steps, ys, masks = full
-            inputs = GapInputs(step_size, num_steps)
-            return reference(theta, inputs, ys, masks, x0, p0).log_likelihood
-
-        return jax.jvp(ref, [primals[i] for i in live], [tangents[i] for i in live])
+        if live == [0] and value_and_gradient is not None:
+            # The compiled gradient, with the value computed on the way (value_and_grad
+            # costs one call).
+            value, grad = value_and_gradient(*primals)
+            return value, jnp.sum(grad * tangents[0], axis=-1)
+        # Otherwise the reference's JVP, which computes its value on the way (equal to the
+        # kernel's to rounding).
+        return _reference_jvp(reference, lambda f: f, primals, tangents)
 
     kernel.defjvp(kernel_jvp, symbolic_zeros=True)
     return kernel
@@ -323,6 +400,7 @@ def log_likelihood_fn(
 
 __all__ = [
     "COMPILED_BACKEND",
+    "GRADIENT_TARGET_NAME",
     "TARGET_NAME",
     "KernelUnavailableWarning",
     "available",
