@@ -9,13 +9,16 @@ Search space
 ------------
 Parameters bounded below only (the variances, bound 0) are searched as u = log(θ − a), with
 the bound u ≥ log(``positive_floor``) (default 1e-14, below the filter's 1e-12 jitter, where
-the likelihood no longer changes); every other parameter is searched as itself, with its
-bounds given to L-BFGS-B. The log scale lets one method handle coefficients of order one
-and variances of order 1e-7. The MAP is a property of the density over θ, so no Jacobian is
-added: the point found is the mode of π(θ | Y). Because the gradient in u vanishes as θ
-approaches its bound, a log-searched parameter is finally moved onto the floor when the log
-posterior there is no lower, and is then reported as sitting on its bound (with the paper's
-data and leapfrog this happens to the process variance: no process noise is detectable).
+the likelihood no longer changes); parameters in a positive range 0 < a < b < ∞ (a
+log-uniform process variance, :mod:`symplid.model.variance_prior`) as u = log θ within
+[log a, log b] (:class:`~symplid.model.params.SearchSpace`); every other parameter is searched as
+itself, with its bounds given to L-BFGS-B. The log scale lets one method handle coefficients
+of order one and variances of order 1e-7. The MAP is a property of the density over θ, so no
+Jacobian is added: the point found is the mode of π(θ | Y). Because the gradient in u
+vanishes as θ approaches its bound, a log-searched parameter is finally moved onto the floor
+when the log posterior there is no lower, and is then reported as sitting on its bound (with
+the paper's data and leapfrog this happens to the process variance: no process noise is
+detectable).
 
 Starting points
 ---------------
@@ -42,7 +45,9 @@ each prior's standard deviation (variances by a factor exp(N(0, 1))). Draws use
 
 A non-finite objective (a failed filter, an overflow) is returned to L-BFGS-B as a large
 value, so its line search backs off. A start counts as converged only when L-BFGS-B says so
-and the Newton decrement ½ gᵀH⁻¹g there is below 1e-3 (see :class:`StartResult`); the best
+and the Newton decrement ½ gᵀH⁻¹g there, over the parameters that no bound holds (a bound
+holds a parameter when the gradient of −log π points out of its range there: the KKT sign
+condition, :func:`~.map_search.active_bounds`), is below 1e-3 (see :class:`StartResult`); the best
 start (highest log posterior) gives the MAP. It is reported failed (``success`` False, the
 reason in ``failure``, a :class:`MapConvergenceWarning`) when it did not converge, never
 moved from its start, is not a maximum, or explains the data as noise

@@ -5,8 +5,8 @@ when any of these holds at the best start's end point:
 
 1. **Not converged**: the best start did not pass the convergence test of
    :class:`~symplid.inference.map_result.StartResult` (L-BFGS-B stopped by its own test and
-   the Newton decrement ½ gᵀH⁻¹g is below 1e-3), and no start that did ended within
-   0.1 nats of it.
+   the Newton decrement ½ gᵀH⁻¹g over the parameters no bound holds is below 1e-3), and no
+   start that did ended within 0.1 nats of it.
 2. **Never moved**: the best point is its own start (every coordinate within 1e-9 in the
    search space) and that start was not handed in (``init``): the search did nothing,
    whatever its message says. (A start handed in may be a previous MAP, where staying put

@@ -51,12 +51,14 @@ class Optimum:
 class StartResult:
     """One start of :func:`find_map`.
 
-    ``success`` means that L-BFGS-B reported convergence *and* the point is a maximum to
-    within 1e-3 in log posterior: the Newton decrement ½ gᵀH⁻¹g over the parameters off the
-    bounds (``newton_decrement``) is below 1e-3 when the Hessian is computed; otherwise the
-    largest projected-gradient component in the search space (``projected_gradient``) must
-    be below 1e-3·max(1, |log π|). A run that stalls against a region where the filter fails
-    is thus not counted as converged, whatever L-BFGS-B's message says.
+    ``success`` means that L-BFGS-B reported convergence *and* the point is a maximum to within
+    1e-3 in log posterior: the Newton decrement ½ gᵀH⁻¹g over the parameters no bound holds
+    (``newton_decrement``; a parameter on a bound is left out only where the gradient points
+    out of its range, the KKT sign condition) is below 1e-3 when the Hessian is computed;
+    otherwise the largest projected-gradient component in the search space
+    (``projected_gradient``) must be below 1e-3·max(1, |log π|). A run that stalls against a
+    region where the filter fails is thus not counted as converged, whatever L-BFGS-B's
+    message says.
     """
 
     start: np.ndarray

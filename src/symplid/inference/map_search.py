@@ -123,7 +123,11 @@ def run_start(theta0: np.ndarray, objective: Objective, options: dict[str, Any])
 def judge_with_hessian(
     result: StartResult, hessian: np.ndarray, objective: Objective
 ) -> StartResult:
-    """Convergence by the Newton decrement ½ gᵀH⁻¹g over the parameters off the bounds.
+    """Convergence by the Newton decrement ½ gᵀH⁻¹g over the parameters not held by a bound.
+
+    A parameter on a bound is left out only where the bound holds it (:func:`active_bounds`,
+    the KKT sign condition); one on a bound whose gradient points inside stays in the
+    decrement, so a search that stopped on a bound it should leave has not converged.
 
     The decrement is the log-posterior gain a Newton step would promise: scale-free, unlike
     the gradient, and robust to the small-scale roughness a filter with almost no process
@@ -135,8 +139,8 @@ def judge_with_hessian(
     space = objective.space
     u = space.to_u(result.theta)
     grad_u = np.asarray(objective.value_and_grad(jnp.asarray(u))[1], dtype=float)
-    scale = space.reparameterisation.jacobian_diagonal(space.to_u(result.theta, floor=False))
-    free = ~space.at_bounds(u)
+    scale = space.jacobian_diagonal(space.to_u(result.theta, floor=False))
+    free = ~active_bounds(u, grad_u, space)
     decrement = math.inf
     if np.all(np.isfinite(grad_u)) and np.all(np.isfinite(hessian)):
         g = -(grad_u / scale)[free]  # gradient of log π in θ
@@ -147,6 +151,23 @@ def judge_with_hessian(
     return dataclasses.replace(
         result, success=bool(lbfgs_ok and decrement < 1e-3), newton_decrement=decrement
     )
+
+
+def active_bounds(u: np.ndarray, grad: np.ndarray, space: SearchSpace) -> np.ndarray:
+    """Which entries of u a bound holds: on a bound (:meth:`SearchSpace.at_bounds`) with the
+    gradient of −log π pointing out of the box or zero there (the KKT condition of a
+    constrained minimum: the multiplier of an active bound has the sign of the gradient)."""
+    hits = space.at_bounds(u)
+    bounds = space.bounds()
+    out = np.zeros_like(hits)
+    for i in np.flatnonzero(hits):
+        lower_side = space.on_lower_side(u, i)
+        upper = bounds[i][1]
+        on_upper = upper is not None and abs(u[i] - upper) <= 1e-8 * max(1.0, abs(upper))
+        # lower bound: holds when −log π grows inward (g ≥ 0); upper: when g ≤ 0
+        out[i] = bool((lower_side and grad[i] >= 0) or (on_upper and grad[i] <= 0)
+                      or not np.isfinite(grad[i]))
+    return out
 
 
 def _projected_gradient(
@@ -164,4 +185,4 @@ def _projected_gradient(
     return float(np.max(np.abs(g))) if g.size else 0.0
 
 
-__all__ = ["Objective", "judge_with_hessian", "run_start"]
+__all__ = ["Objective", "active_bounds", "judge_with_hessian", "run_start"]

@@ -120,7 +120,7 @@ def perturbed_start(
     noise = np.asarray(jax.random.normal(key, (d,), dtype=jnp.float64))
     scale = np.array([_prior_std(posterior, i, base[i]) for i in range(d)])
     u_base = space.to_u(base)
-    step = np.where(space.log, 1.0, spread * scale) * noise
+    step = np.where(space.logarithmic, 1.0, spread * scale) * noise
     bounds = space.bounds()
     lo = np.array([-np.inf if b[0] is None else b[0] for b in bounds])
     hi = np.array([np.inf if b[1] is None else b[1] for b in bounds])
@@ -212,7 +212,7 @@ def scaled_start(
     noise = np.asarray(jax.random.normal(key, (d,), dtype=jnp.float64))
     scale = np.where(np.isfinite(scale) & (scale > 0), scale, np.maximum(np.abs(base), 1e-8))
     u_base = space.to_u(base)
-    step = np.where(space.log, 1.0, scale) * noise
+    step = np.where(space.logarithmic, 1.0, scale) * noise
     bounds = space.bounds()
     lo = np.array([-np.inf if b[0] is None else b[0] for b in bounds])
     hi = np.array([np.inf if b[1] is None else b[1] for b in bounds])

@@ -13,9 +13,13 @@ data's variance scale ``b`` (:func:`data_variance_scale`): a process noise with 
 of the whole signal would make the dynamics meaningless, so nothing above it is needed. Its
 low end, ``b·1e-8``, is far below what any record resolves, so most of the prior's mass lies
 where the data cannot tell Σ from zero: the posterior can follow Σ down to where the filter
-is effectively deterministic. It is opt-in (``priors.process_var = "log-uniform"``): what
-was measured with it on the paper's setting, and why it is not the default, is in
-``docs/howto/process-noise.md`` (section "The prior of Σ").
+is effectively deterministic. The same mass makes the prior's density 1/Σ highest at the
+low end: when the data do not resolve Σ, its MAP is the bound b·1e-8 itself (reported in
+``MapResult.at_bounds``), a property of this range and not a measurement; the MAP search
+runs on log Σ within the range (:class:`symplid.model.params.SearchSpace`). It is opt-in
+(``priors.process_var = "log-uniform"``): what was measured with it on the paper's setting,
+and why it is not the default, is in ``docs/howto/process-noise.md`` (section "The prior of
+Σ").
 """
 
 from __future__ import annotations
