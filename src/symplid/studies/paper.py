@@ -396,10 +396,8 @@ def reproduce(
 
 def _prepare_analysis(result: ApproachResult, system, config: PaperConfig) -> tuple[
         np.ndarray, np.ndarray]:
-    """The true path on the prediction grid, with the analysis's programs compiled and the
-    plotting library loaded (the first approach's fit is done, the other one's still runs)."""
-    import symplid.plotting  # noqa: F401  (loaded now, used by the figures)
-
+    """The true path on the prediction grid, with the analysis's programs compiled (the first
+    approach's fit is done, the other one's still runs)."""
     truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
     analyse_approach(result, system, truth_times, truth, config.t_end, config.prediction_dt)
     return truth_times, truth
