@@ -128,6 +128,8 @@ class WorkerPool:
             waiting.discard(index)
             if posted:
                 yield message
+        if stopping.requested() is not None:  # asked for after the last message
+            results_or_stop(self._futures)
 
     def results(self) -> list[Any]:
         """The jobs' return values, in the order of the jobs."""
