@@ -128,6 +128,8 @@ class WorkerPool:
             waiting.discard(index)
             if posted:
                 yield message
+            elif self._futures[index].exception() is not None:  # it ended without posting
+                results_or_stop(self._futures)
         if stopping.requested() is not None:  # asked for after the last message
             results_or_stop(self._futures)
 
