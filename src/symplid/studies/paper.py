@@ -13,11 +13,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import multiprocessing
 import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -46,9 +44,9 @@ from symplid.studies.paper_cells import (
 from symplid.studies.paper_figures import approach_predictions, draw_figures
 from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import fit
-from symplid.workflow.interrupts import results_or_stop, stop_on_signals
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
+from symplid.workflow.worker_pool import WorkerPool, post
 
 __all__ = [
     "CELL_KEYS",
@@ -160,13 +158,28 @@ def _limit_threads() -> None:
 
 
 def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
-    """Fit one approach into ``out/approach`` (runs in a worker process)."""
+    """Fit one approach into ``out/approach`` (runs in a worker process).
+
+    As soon as its sampler ends, the approach's draws and its prediction paths for the
+    figures are posted to the parent (:func:`~symplid.workflow.worker_pool.post`), which draws
+    the figures while this process summarises the draws and writes them; the return value is
+    the fit's summary and timings (all in memory: the parent reads no file).
+    """
     config, approach, out, progress, position = args
     _limit_threads()
     runtime.enable_compilation_cache()
     runtime.one_line_warnings()  # one line per warning, as in the parent process
 
     obs, system = paper_data(config)
+
+    def sampled(outcome: Any) -> None:
+        result = ApproachResult(approach, config.integrator(approach),
+                                np.asarray(outcome.map_result.theta, dtype=float),
+                                draws_array(outcome.idata), tuple(outcome.posterior.param_names),
+                                {})  # its summary follows with the return value
+        post({"approach": approach, "result": result,
+              "predictions": approach_predictions(result, system, config)})
+
     outcome = fit(
         obs,
         paper_settings(config, approach),
@@ -175,38 +188,19 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
         progress_label=f"DRAM {approach}",
         progress_position=position,
         overwrite=True,
+        on_sampled=sampled,
     )
-    result = ApproachResult(approach, config.integrator(approach),
-                            np.asarray(outcome.map_result.theta, dtype=float),
-                            draws_array(outcome.idata), tuple(outcome.posterior.param_names),
-                            outcome.summary)
-    # handed back in memory (the parent reads no file), with this approach's paths for the
-    # figures, computed here while the other approach may still be sampling
     return {"approach": approach, "timings": outcome.timings, "interrupted": outcome.interrupted,
-            "result": result, "predictions": approach_predictions(result, system, config)}
+            "summary": outcome.summary}
 
 
-def run_fits(
-    config: PaperConfig, out: Path, progress: bool = True, workers: int | None = None
-) -> list[dict[str, Any]]:
-    """Fit both approaches, in parallel processes when ``workers`` > 1."""
+def fit_pool(config: PaperConfig, out: Path, progress: bool = True,
+             workers: int | None = None) -> WorkerPool:
+    """Both approaches' fits (:func:`_fit_one`), in parallel pinned processes when ``workers``
+    > 1; a context manager that starts them (:class:`~symplid.workflow.worker_pool.WorkerPool`)."""
     workers = config.workers if workers is None else workers
     jobs = [(config, a, str(out), progress, i) for i, a in enumerate(APPROACHES)]
-    if workers <= 1:
-        return [_fit_one(job) for job in jobs]
-    context = multiprocessing.get_context("spawn")
-    counter = context.Value("i", 0)  # numbers the workers, each pinned to its own core
-    with runtime.worker_environment(), ProcessPoolExecutor(
-        max_workers=min(workers, len(jobs)), mp_context=context, initializer=_start_worker,
-        initargs=(counter,),
-    ) as pool:  # one-thread pools, set before the worker loads NumPy or JAX
-        return results_or_stop([pool.submit(_fit_one, job) for job in jobs])
-
-
-def _start_worker(counter: Any) -> None:
-    """A worker's initializer: its own core (before JAX starts), and the signal policy."""
-    runtime.pin_worker(counter)
-    stop_on_signals()  # signals: one policy
+    return WorkerPool(_fit_one, jobs, workers)
 
 
 #: The parameters that may follow the coefficients in θ (the first present ends them).
@@ -359,17 +353,28 @@ def reproduce(
     out = Path(out)
     start = time.perf_counter()
     folder = RunFolder(out, "w", overwrite=True, identity="config.json")  # an earlier reproduce
-    obs, system = paper_data(config)
-    folder.write_data(obs)
-    folder.write_json("config.json", dataclasses.asdict(config))
-    echo(
-        f"Hénon–Heiles, seed {config.seed}: {config.num_obs} observations, σ = "
-        f"{config.noise_std}; {config.chains} chains × {config.iterations:,} DRAM iterations "
-        f"per approach ({config.resolved_burn_in:,} burn-in)"
-    )
-    fitted = {done["approach"]: done for done in run_fits(config, out, progress)}
-    results = {a: fitted[a]["result"] for a in APPROACHES}
-    truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
+    # the workers start first: they load while this process makes the data
+    with fit_pool(config, out, progress) as pool:
+        obs, system = paper_data(config)
+        folder.write_data(obs)
+        folder.write_json("config.json", dataclasses.asdict(config))
+        echo(
+            f"Hénon–Heiles, seed {config.seed}: {config.num_obs} observations, σ = "
+            f"{config.noise_std}; {config.chains} chains × {config.iterations:,} DRAM "
+            f"iterations per approach ({config.resolved_burn_in:,} burn-in)"
+        )
+        sampled, truth_times, truth = {}, None, None
+        for done in pool.messages():  # each approach's draws, as soon as its sampler ends
+            sampled[done["approach"]] = done
+            if truth is None:  # meanwhile the other approach samples: what needs no draws
+                truth_times, truth = _prepare_analysis(done["result"], system, config)
+        results = {a: sampled[a]["result"] for a in APPROACHES}
+        # the figures, while the workers summarise and write their draws
+        draw_figures(folder, results, system, obs, truth_times, truth, config, progress,
+                     predictions={a: sampled[a]["predictions"] for a in APPROACHES})
+        fitted = {done["approach"]: done for done in pool.results()}
+    results = {a: dataclasses.replace(results[a], fit_summary=fitted[a]["summary"])
+               for a in APPROACHES}
     h_true = hamiltonian(system.potential, system.coefficients, system.initial_state)
     summary: dict[str, Any] = {"true_hamiltonian": float(h_true)}
     for name, result in results.items():
@@ -380,8 +385,6 @@ def reproduce(
         summary["rk2"]["process_noise_median"] / summary["leapfrog"]["process_noise_median"]
     )
     summary["seed"] = config.seed
-    draw_figures(folder, results, system, obs, truth_times, truth, config, progress,
-                 predictions={a: fitted[a]["predictions"] for a in APPROACHES})
     summary["wall_time_s"] = time.perf_counter() - start
     table = comparison_table(summary)
     folder.write_summary(summary, table)
@@ -390,6 +393,15 @@ def reproduce(
     echo(table)
     echo(f"Run folder: {out}  (wall time {summary['wall_time_s']:.0f} s)")
     return summary
+
+
+def _prepare_analysis(result: ApproachResult, system, config: PaperConfig) -> tuple[
+        np.ndarray, np.ndarray]:
+    """The true path on the prediction grid, with the analysis's programs compiled (the first
+    approach's fit is done, the other one's still runs)."""
+    truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
+    analyse_approach(result, system, truth_times, truth, config.t_end, config.prediction_dt)
+    return truth_times, truth
 
 
 def comparison_table(summary: dict[str, Any]) -> str:

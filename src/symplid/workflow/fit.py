@@ -184,6 +184,7 @@ def fit(
     progress_position: int = 0,
     warn: bool = False,
     status: Callable[[str], None] | None = None,
+    on_sampled: Callable[[FitOutcome], None] | None = None,
 ) -> FitOutcome:
     """The whole fit: MAP, Hessian, sampler and the run folder (when ``out`` is given).
 
@@ -202,7 +203,9 @@ def fit(
     at dt/2 and with the other process-noise model (:mod:`symplid.workflow.sensitivity`;
     ``FitOutcome.diagnostics``, ``diagnostics.json``); a refit that fails is recorded as not
     available, never raised;
-    ``status`` receives a one-line message before the (silent) MAP search and compilation.
+    ``status`` receives a one-line message before the (silent) MAP search and compilation;
+    ``on_sampled`` receives the outcome as soon as the draws are made, before they are
+    summarised and written (``summary`` still empty): a caller can use the draws meanwhile.
     """
 
     given, settings = settings, resolve_for_data(settings, obs, source)
@@ -211,7 +214,7 @@ def fit(
     folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
     try:
         return _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
-                    status)
+                    status, on_sampled)
     except BaseException as err:
         if folder is not None and not folder.is_complete and not _marked(folder):
             what = "interrupted before any draw was kept" if isinstance(
@@ -229,7 +232,7 @@ def _marked(folder: RunFolder) -> bool:
 
 
 def _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
-         status) -> FitOutcome:
+         status, on_sampled=None) -> FitOutcome:
     timings: dict[str, float] = {}
     if folder is not None:
         folder.write_settings(settings)
@@ -272,6 +275,8 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale,
                          diagnostics=diagnostics)
+    if on_sampled is not None:
+        on_sampled(outcome)
     return save_run(folder, outcome, checkpoint, warn)
 
 
