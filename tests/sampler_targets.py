@@ -24,7 +24,20 @@ class MapResult:
     log_posterior: float
 
 
-class Gaussian2D:
+class _Unbounded:
+    """A target on all of R^d: its unconstrained coordinates are θ itself."""
+
+    def to_unconstrained(self, theta):
+        return theta
+
+    def from_unconstrained(self, z):
+        return z
+
+    def log_density_unconstrained(self, z):
+        return self.log_density(z)
+
+
+class Gaussian2D(_Unbounded):
     """Correlated Gaussian: mean (1, −2), standard deviations (1, 2), correlation 0.8."""
 
     num_params = 2
@@ -41,20 +54,11 @@ class Gaussian2D:
         r = theta - jnp.asarray(self.mean)
         return -0.5 * r @ self._precision @ r
 
-    def to_unconstrained(self, theta):
-        return theta
-
-    def from_unconstrained(self, z):
-        return z
-
-    def log_density_unconstrained(self, z):
-        return self.log_density(z)
-
     def map_result(self) -> MapResult:
         return MapResult(self.mean.copy(), self.cov.copy(), np.linalg.inv(self.cov), 0.0)
 
 
-class Banana:
+class Banana(_Unbounded):
     """Twisted Gaussian (Haario et al. 1999): x1 ~ N(0, 1), x2 | x1 ~ N(b (x1² − 1), 1).
 
     Mean (0, 0); covariance diag(1, 1 + 2 b²) since Var(x1²) = 2 and Cov(x1, x1³ − x1) = 0.
@@ -74,15 +78,6 @@ class Banana:
     def log_density(self, theta):
         x1, x2 = theta[0], theta[1]
         return -0.5 * x1**2 - 0.5 * (x2 - self.b * (x1**2 - 1.0)) ** 2
-
-    def to_unconstrained(self, theta):
-        return theta
-
-    def from_unconstrained(self, z):
-        return z
-
-    def log_density_unconstrained(self, z):
-        return self.log_density(z)
 
     def map_result(self) -> MapResult:
         return MapResult(np.array([0.0, -self.b]), np.eye(2), np.eye(2), 0.0)
@@ -146,7 +141,7 @@ def _z(values: np.ndarray, truth: float) -> float:
     return (float(values.mean()) - truth) / mcse
 
 
-class TwoModes:
+class TwoModes(_Unbounded):
     """Mixture of N(0, I) and N(m, I) in two dimensions, m = (30, 30), the second component's
     log weight ``gap`` nats below the first's: log p = logaddexp(log N(x; 0, I),
     log N(x; m, I) − gap) (unnormalised). At ``gap = 60`` the second mode holds e⁻⁶⁰ of the
@@ -170,15 +165,6 @@ class TwoModes:
         near = -0.5 * jnp.sum(theta**2)
         far = -0.5 * jnp.sum((theta - jnp.asarray(self.far)) ** 2) - self.gap
         return jnp.logaddexp(near, far)
-
-    def to_unconstrained(self, theta):
-        return theta
-
-    def from_unconstrained(self, z):
-        return z
-
-    def log_density_unconstrained(self, z):
-        return self.log_density(z)
 
     def map_result(self) -> MapResult:
         return MapResult(np.zeros(2), np.eye(2), np.eye(2), 0.0)
