@@ -103,6 +103,12 @@ class BurnInMonitor:
         if "restarted" in arrays:
             self.restarted = np.asarray(arrays["restarted"], dtype=np.float64).reshape(-1, 4)
 
+    def resumed_from(self, start: int) -> None:
+        """A run resumed at iteration ``start`` past the burn-in without a recorded decision
+        (a state from before the rule existed): nothing is left to decide."""
+        if self.pending and start >= self.burn_in:
+            self.restarted = np.zeros((0, 4))
+
     @property
     def pending(self) -> bool:
         """Whether the decision is still to be taken (a burn-in to read, not decided yet)."""

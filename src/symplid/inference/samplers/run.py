@@ -312,8 +312,8 @@ def run_chains(
     chain_keys = jax.random.split(rng_key, num_chains)
     restarts = (BurnInMonitor(num_chains, int(burn_in), rng_key, monitor)
                 if restart_stuck_chains else None)
-    if restarts is not None and restarts.pending and start >= burn_in:
-        restarts.restarted = np.zeros((0, 4))  # a state from before the rule: nothing to do
+    if restarts is not None:
+        restarts.resumed_from(int(start))
     bar = _progress_bar(total, desc, progress, position, int(start))
     started = time.perf_counter()
     try:
