@@ -12,7 +12,7 @@ from scipy import stats
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, MapResult, moment_z_scores
-from symplid.inference.samplers import dram, draws_array, run_chains, sample
+from symplid.inference.samplers import dram, dram_stages, draws_array, run_chains, sample
 
 # ----------------------------------------------------------------------------------------
 # Independent NumPy versions of the target and of the delayed-rejection formula
@@ -302,7 +302,7 @@ def test_unrolled_linear_algebra_equals_lapack(dim):
     start, end = jnp.asarray(rng.normal(size=dim)), jnp.asarray(rng.normal(size=dim))
     white = solve_triangular(lapack, end - start, lower=True)
     np.testing.assert_allclose(
-        dram._log_q1(lapack, start, end), -0.5 * jnp.sum(white**2), rtol=1e-12
+        dram_stages._log_q1(lapack, start, end), -0.5 * jnp.sum(white**2), rtol=1e-12
     )
     z = jnp.asarray(rng.normal(size=dim))
     from symplid.filters.linalg import matmul

@@ -1,8 +1,9 @@
 """DRAM's paired stages and its choice of linear algebra: the same chain, decided per run.
 
-Both stages' proposals evaluated in one batched call (``paired_stages``) and LAPACK in place
-of the unrolled small-matrix arithmetic (``linalg``) change how a step is computed, not what
-it computes: the chains must equal the stage-by-stage, unrolled ones to rounding.
+Both stages' proposals evaluated in one batched call (``paired_stages``), and LAPACK in place
+of the unrolled small-matrix arithmetic or that arithmetic compiled region by region
+(``linalg``), change how a step is computed, not what it computes: the chains must equal the
+stage-by-stage, unrolled ones to rounding.
 """
 
 from __future__ import annotations
@@ -47,11 +48,14 @@ def test_paired_stages_give_the_stage_by_stage_chain(chains):
     _assert_same_chain(staged, paired, rtol=1e-10)
 
 
-def test_lapack_algebra_gives_the_unrolled_chain_to_rounding():
+@pytest.mark.parametrize("algebra", ["lapack", "fused"])
+@pytest.mark.parametrize("paired", [False, True])
+def test_every_algebra_gives_the_unrolled_chain_to_rounding(algebra, paired):
+    """LAPACK calls, or the unrolled arithmetic compiled region by region: the same moves."""
     target = Banana()
-    unrolled = _run(target, {"paired_stages": True, "linalg": "unrolled"})
-    lapack = _run(target, {"paired_stages": True, "linalg": "lapack"})
-    _assert_same_chain(unrolled, lapack, rtol=1e-9)
+    unrolled = _run(target, {"paired_stages": paired, "linalg": "unrolled"})
+    other = _run(target, {"paired_stages": paired, "linalg": algebra})
+    _assert_same_chain(unrolled, other, rtol=1e-9)
 
 
 def _posterior_on(backend: str) -> SimpleNamespace:
@@ -61,11 +65,11 @@ def _posterior_on(backend: str) -> SimpleNamespace:
 @pytest.mark.parametrize(
     ("backend", "chains", "method", "paired", "linalg"),
     [
-        ("compiled", 4, "vectorized", True, "lapack"),  # 2 × 4 proposals fill the 8 lanes
-        ("compiled", 8, "vectorized", True, "lapack"),
-        ("compiled", 2, "vectorized", False, "lapack"),  # a batch of 4 is four single calls
-        ("compiled", 4, "sequential", False, "lapack"),
-        ("compiled", 1, "vectorized", False, "lapack"),
+        ("compiled", 4, "vectorized", True, "fused"),  # 2 × 4 proposals fill the 8 lanes
+        ("compiled", 8, "vectorized", True, "fused"),
+        ("compiled", 2, "vectorized", False, "fused"),  # a batch of 4 is four single calls
+        ("compiled", 4, "sequential", False, "fused"),
+        ("compiled", 1, "vectorized", False, "fused"),
         ("jax", 4, "vectorized", False, "unrolled"),  # a batch costs its size in JAX
     ],
 )
@@ -85,7 +89,7 @@ def test_resolution_keeps_what_the_user_set():
 
 
 def test_linalg_is_validated():
-    with pytest.raises(ValueError, match="linalg must be one of 'unrolled', 'lapack'"):
+    with pytest.raises(ValueError, match="linalg must be one of 'unrolled', 'lapack', 'fused'"):
         DRAMSettings(linalg="cholmod")
 
 
@@ -94,7 +98,7 @@ def test_linalg_is_validated():
 def test_papers_posterior_on_the_kernel_pairs_and_keeps_the_chain(hh, hh_model, hh_data,
                                                                    hh_theta):
     """The paper's posterior on the compiled kernel: four vectorised chains are resolved to
-    paired stages and LAPACK (recorded in the run's settings), and their chain is the
+    paired stages and the fused regions (recorded in the run's settings), and their chain is the
     stage-by-stage, unrolled one to rounding: the kernel's batch of eight gives each θ the
     numbers it gives it alone."""
     from symplid.model.posterior import Posterior
@@ -106,7 +110,7 @@ def test_papers_posterior_on_the_kernel_pairs_and_keeps_the_chain(hh, hh_model, 
     settings = {"variance_scale": "natural"}
     auto = _run(posterior, settings, num_draws=300, init=init)
     kernel = json.loads(auto.attrs["settings"])["kernel"]
-    assert (kernel["paired_stages"], kernel["linalg"]) == (True, "lapack")
+    assert (kernel["paired_stages"], kernel["linalg"]) == (True, "fused")
     staged = _run(posterior, {**settings, "paired_stages": False, "linalg": "unrolled"},
                   num_draws=300, init=init)
     assert float(staged.sample_stats["stage2_attempted"].mean()) > 0.05

@@ -45,14 +45,20 @@ arithmetic (:mod:`symplid.filters.linalg`) instead of LAPACK calls and ``dot``: 
 custom call or ``dot`` in its body, XLA:CPU compiles a whole chunk of iterations as one kernel
 (see :func:`symplid.runtime.configure_xla`). The results equal LAPACK's to rounding (1e-12).
 Where the log density is a custom call (the compiled likelihood), XLA runs the chunk operation
-by operation anyway, and LAPACK's fewer, larger calls are cheaper (``linalg = "lapack"``); and
-a backend that evaluates a batch for little more than one point gets both stages' proposals
-in one call (``paired_stages``; stage 2's value is used only when stage 1 rejects, so the
-chain is the same to rounding). :func:`~.registry.resolve_dram` picks both per run.
+by operation, each fused operation and copy dispatched on its own; there each stretch of the
+step between two log-density calls (the random draws, the proposals, the acceptance test, the
+adaptive update) is compiled as one kernel of its own (``linalg = "fused"``,
+:func:`symplid.kernel_region.one_kernel`): the paper's posterior on the compiled kernel,
+one chain, 26.3 → 22.3 µs per iteration; four vectorised chains with paired stages,
+43.4 → 39.7 µs (against LAPACK calls, the former choice there). A backend that evaluates a
+batch for little more than one point gets both stages' proposals in one call
+(``paired_stages``; stage 2's value is used only when stage 1 rejects, so the chain is the
+same to rounding). :func:`~.registry.resolve_dram` picks both per run.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -60,40 +66,29 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax import lax
 
-from symplid.filters import linalg
-from symplid.filters.linalg import MAX_UNROLLED_DIM
+from symplid.inference.samplers.dram_stages import (
+    LAPACK,
+    UNROLLED,
+    Algebra,
+    Region,
+    Stages,
+    finite_or_neg_inf,
+    inline,
+    log1mexp,
+    paired_stages,
+    stage2_log_acceptance,
+    staged,
+)
+from symplid.kernel_region import one_kernel
 
 Array = jax.Array
 LogDensityFn = Callable[[Array], Array]
 VARIANCE_SCALES = ("natural", "log")
 """Choices of :attr:`DRAMSettings.variance_scale`."""
-LINALG_CHOICES = ("unrolled", "lapack")
+LINALG_CHOICES = ("unrolled", "lapack", "fused")
 """Choices of :attr:`DRAMSettings.linalg`."""
 
-
-class Algebra(NamedTuple):
-    """The kernel's small linear algebra: proposal factor, triangular solve, ``L z``."""
-
-    cholesky: Callable[[Array], Array]
-    solve_lower: Callable[[Array, Array], Array]
-    matmul: Callable[[Array, Array], Array]
-
-
-#: Unrolled small-matrix arithmetic: XLA:CPU compiles a chunk around it as one kernel.
-UNROLLED = Algebra(
-    lambda a: linalg.cholesky(a, MAX_UNROLLED_DIM),
-    lambda chol, b: linalg.solve_lower(chol, b, MAX_UNROLLED_DIM),
-    linalg.matmul,
-)
-#: LAPACK and ``dot``: fewer, larger operations, for a chunk that XLA cannot compile as one
-#: kernel anyway (a log density that is a custom call, such as the compiled likelihood).
-LAPACK = Algebra(
-    jnp.linalg.cholesky,
-    lambda chol, b: jax.scipy.linalg.solve_triangular(chol, b, lower=True),
-    jnp.matmul,
-)
 
 __all__ = [
     "VARIANCE_SCALES",
@@ -146,14 +141,15 @@ class DRAMSettings:
         ``None`` (default): :func:`~symplid.inference.samplers.sample` decides from the
         chains and the likelihood backend (:func:`~.registry.resolve_dram`).
     linalg
+        How the step's own arithmetic is compiled (the same numbers to rounding):
         ``"unrolled"``: the proposal's Cholesky factor, triangular solve and ``L z`` as
         unrolled small-matrix arithmetic, which lets XLA:CPU compile a whole chunk of
-        iterations as one kernel; ``"lapack"``: library calls, cheaper where the log density
-        is a custom call (the compiled likelihood), around which XLA runs every operation of
-        the chunk separately (four vectorised chains with paired stages on the paper's
-        posterior: 108 → 73 µs per iteration). The same numbers to rounding. ``None``
-        (default): decided by :func:`~.registry.resolve_dram` (unrolled when the backend is
-        unknown).
+        iterations as one kernel when the log density is plain JAX; ``"fused"``: the same
+        arithmetic, each stretch between two log-density calls compiled as one kernel of its
+        own, for a log density that is a custom call (the compiled likelihood), around which
+        XLA runs the chunk operation by operation; ``"lapack"``: library calls (fewer, larger
+        operations). ``None`` (default): decided by :func:`~.registry.resolve_dram` (fused for
+        a custom-call backend, else unrolled).
     """
 
     adapt_start: int = 200
@@ -265,86 +261,6 @@ class DRAMInfo(NamedTuple):
     logdensity: Array
 
 
-def log1mexp(a: Array) -> Array:
-    """``log(1 − exp(a))`` for ``a ≤ 0``, accurate in both tails.
-
-    Uses ``log(−expm1(a))`` for ``a > −log 2`` and ``log1p(−exp(a))`` otherwise
-    (Mächler 2012); ``log1mexp(0) = −∞`` and ``log1mexp(−∞) = 0``.
-    """
-    a = jnp.minimum(a, 0.0)
-    near_zero = a > -math.log(2.0)
-    safe_near = jnp.where(near_zero, a, -1.0)
-    safe_far = jnp.where(near_zero, -1.0, a)
-    return jnp.where(near_zero, jnp.log(-jnp.expm1(safe_near)), jnp.log1p(-jnp.exp(safe_far)))
-
-
-def _finite_or_neg_inf(logdensity: Array) -> Array:
-    logdensity = jnp.asarray(logdensity)
-    return jnp.where(jnp.isfinite(logdensity), logdensity, -jnp.inf)
-
-
-def _log_alpha1(logdensity_from: Array, logdensity_to: Array) -> Array:
-    """``log α1(from, to) = min(0, log π(to) − log π(from))``, −∞ when ``to`` is invalid."""
-    diff = jnp.where(jnp.isfinite(logdensity_to), logdensity_to - logdensity_from, -jnp.inf)
-    return jnp.minimum(0.0, diff)
-
-
-def _log_q1(chol: Array, start: Array, end: Array, algebra: Algebra = UNROLLED) -> Array:
-    """Log density of the stage-1 proposal ``N(end; start, L Lᵀ)`` up to its constant."""
-    white = algebra.solve_lower(chol, end - start)
-    return -0.5 * jnp.sum(white**2)
-
-
-def stage2_log_acceptance(
-    x: Array,
-    logdensity_x: Array,
-    y1: Array,
-    logdensity_y1: Array,
-    y2: Array,
-    logdensity_y2: Array,
-    chol: Array,
-    algebra: Algebra = UNROLLED,
-) -> Array:
-    """Log of the second-stage acceptance probability α2(x, y1, y2).
-
-    Parameters
-    ----------
-    x, logdensity_x
-        Current point and its (finite) log density.
-    y1, logdensity_y1
-        Rejected first-stage proposal and its log density (may be −∞).
-    y2, logdensity_y2
-        Second-stage proposal and its log density (may be −∞ or NaN).
-    chol
-        Lower Cholesky factor of the first-stage proposal covariance ``C``.
-    algebra
-        :data:`UNROLLED` or :data:`LAPACK` (the same numbers to rounding).
-
-    Returns
-    -------
-    Array
-        ``log α2 ≤ 0``; −∞ when ``y2`` has a non-finite log density or when
-        ``π(y1) ≥ π(y2)`` (then ``1 − α1(y2, y1) = 0``). Never NaN.
-    """
-    logdensity_y1 = _finite_or_neg_inf(logdensity_y1)
-    logdensity_y2 = _finite_or_neg_inf(logdensity_y2)
-    y2_valid = jnp.isfinite(logdensity_y2)
-    safe_y2 = jnp.where(y2_valid, logdensity_y2, logdensity_x)
-    numerator = (
-        safe_y2
-        + _log_q1(chol, y2, y1, algebra)
-        + log1mexp(_log_alpha1(safe_y2, logdensity_y1))
-    )
-    denominator = (
-        logdensity_x
-        + _log_q1(chol, x, y1, algebra)
-        + log1mexp(_log_alpha1(logdensity_x, logdensity_y1))
-    )
-    log_ratio = numerator - denominator
-    log_ratio = jnp.where(jnp.isnan(log_ratio), -jnp.inf, log_ratio)
-    return jnp.where(y2_valid, jnp.minimum(0.0, log_ratio), -jnp.inf)
-
-
 def _proposal_chol(cov: Array, nugget: Array, factor: float,
                    algebra: Algebra = UNROLLED) -> Array:
     matrix = factor * (0.5 * (cov + cov.T) + jnp.diag(nugget))
@@ -382,7 +298,7 @@ def init(position: Array, logdensity_fn: LogDensityFn, cov: Array,
     chol = jnp.linalg.cholesky(settings.resolved_initial_scale(dim) * 0.5 * (cov + cov.T))
     if logdensity is None:
         logdensity = logdensity_fn(position)
-    logdensity = _finite_or_neg_inf(logdensity)
+    logdensity = finite_or_neg_inf(logdensity)
     return DRAMState(
         position=position,
         logdensity=logdensity,
@@ -402,16 +318,6 @@ def _update_moments(state: DRAMState, position: Array) -> tuple[Array, Array, Ar
     mean = state.mean + delta / (n + 1.0)
     cov = ((n - 1.0) / n) * state.cov + jnp.outer(delta, delta) / (n + 1.0)
     return mean, cov, state.count + 1
-
-
-class _Stages(NamedTuple):
-    """Carry of the delayed-rejection loop (index 0: stage 1, index 1: stage 2)."""
-
-    stage: Array
-    accepted: Array
-    proposals: Array
-    logdensities: Array
-    log_alphas: Array
 
 
 def build_kernel(logdensity_fn: LogDensityFn,
@@ -435,90 +341,41 @@ def build_kernel(logdensity_fn: LogDensityFn,
     num_stages = 2 if settings.delayed_rejection else 1
     paired = bool(settings.paired_stages) and num_stages == 2
     algebra = LAPACK if settings.linalg == "lapack" else UNROLLED
+    region = one_kernel if settings.linalg == "fused" else inline
     stage_scales = jnp.array([1.0, math.sqrt(settings.gamma)])
 
     def logdensity(position: Array) -> Array:
-        return _finite_or_neg_inf(logdensity_fn(position))
+        return finite_or_neg_inf(logdensity_fn(position))
 
     def step(rng_key: Array, state: DRAMState) -> tuple[DRAMState, DRAMInfo]:
-        x = state.position
-        dim = x.shape[0]
-        key1, key_u1, key2, key_u2 = jax.random.split(rng_key, 4)
-        normals = jnp.stack([jax.random.normal(key1, (dim,), dtype=x.dtype),
-                             jax.random.normal(key2, (dim,), dtype=x.dtype)])
-        log_uniforms = jnp.log(jnp.stack([jax.random.uniform(key_u1, dtype=x.dtype),
-                                          jax.random.uniform(key_u2, dtype=x.dtype)]))
-        run = _paired_stages if paired else _staged
-        stages = run(logdensity, state, normals, log_uniforms, stage_scales, num_stages, algebra)
-        return _finish(state, stages, settings, algebra)
+        normals, log_uniforms = _draws(rng_key, state.position, region)
+        run = paired_stages if paired else staged
+        stages = run(logdensity, state.position, state.logdensity, state.chol, normals,
+                     log_uniforms, stage_scales, num_stages, algebra, region)
+        finish = region(functools.partial(_finish, settings=settings, algebra=algebra))
+        return finish(state, stages)
 
     return step
 
 
-def _staged(logdensity: LogDensityFn, state: DRAMState, normals: Array, log_uniforms: Array,
-            stage_scales: Array, num_stages: int, algebra: Algebra) -> _Stages:
-    """The stages in a loop with one call site of the log density, so that it is compiled
-    once (an expensive filter would otherwise be compiled twice), and stage 2 runs only when
-    stage 1 rejects. Stage 1: y1 ~ N(x, C); stage 2: y2 ~ N(x, γ C)."""
-    x, logdensity_x, chol = state.position, state.logdensity, state.chol
+def _draws(rng_key: Array, x: Array, region: Region) -> tuple[Array, Array]:
+    """The step's two standard normal vectors and the logs of its two uniforms."""
+    typed = jax.dtypes.issubdtype(rng_key.dtype, jax.dtypes.prng_key)
+    impl = jax.random.key_impl(rng_key) if typed else None
 
-    def keep_going(carry: _Stages) -> Array:
-        return (carry.stage < num_stages) & jnp.logical_not(carry.accepted)
+    def draw(key_data: Array) -> tuple[Array, Array]:
+        key = jax.random.wrap_key_data(key_data, impl=impl) if typed else key_data
+        key1, key_u1, key2, key_u2 = jax.random.split(key, 4)
+        normals = jnp.stack([jax.random.normal(key1, x.shape, dtype=x.dtype),
+                             jax.random.normal(key2, x.shape, dtype=x.dtype)])
+        log_uniforms = jnp.log(jnp.stack([jax.random.uniform(key_u1, dtype=x.dtype),
+                                          jax.random.uniform(key_u2, dtype=x.dtype)]))
+        return normals, log_uniforms
 
-    def one_stage(carry: _Stages) -> _Stages:
-        s = carry.stage
-        y = x + stage_scales[s] * algebra.matmul(chol, normals[s])
-        logdensity_y = logdensity(y)
-        log_alpha = jnp.where(
-            s == 0,
-            _log_alpha1(logdensity_x, logdensity_y),
-            stage2_log_acceptance(x, logdensity_x, carry.proposals[0],
-                                  carry.logdensities[0], y, logdensity_y, chol, algebra),
-        )
-        return _Stages(
-            stage=s + 1,
-            accepted=log_uniforms[s] < log_alpha,
-            proposals=carry.proposals.at[s].set(y),
-            logdensities=carry.logdensities.at[s].set(logdensity_y),
-            log_alphas=carry.log_alphas.at[s].set(log_alpha),
-        )
-
-    start = _Stages(
-        stage=jnp.asarray(0, dtype=jnp.int32),
-        accepted=jnp.asarray(False),
-        proposals=jnp.stack([x, x]),
-        logdensities=jnp.stack([logdensity_x, logdensity_x]),
-        log_alphas=jnp.full((2,), -jnp.inf, dtype=x.dtype),
-    )
-    return lax.while_loop(keep_going, one_stage, start)
+    return region(draw)(jax.random.key_data(rng_key) if typed else rng_key)
 
 
-def _paired_stages(logdensity: LogDensityFn, state: DRAMState, normals: Array,
-                   log_uniforms: Array, stage_scales: Array, num_stages: int,
-                   algebra: Algebra) -> _Stages:
-    """Both proposals drawn and evaluated in one batched call (a batch of two; of 2 × chains
-    when the chains are vectorized), then judged as :func:`_staged` judges them: stage 2's
-    value is used only when stage 1 rejects, so the chain is the same to rounding. For a
-    likelihood backend that evaluates a batch for little more than one point
-    (``LikelihoodBackend.batch_width``)."""
-    x, logdensity_x, chol = state.position, state.logdensity, state.chol
-    y = jnp.stack([x + stage_scales[s] * algebra.matmul(chol, normals[s]) for s in range(2)])
-    values = jax.vmap(logdensity)(y)
-    log_alpha1 = _log_alpha1(logdensity_x, values[0])
-    accept1 = log_uniforms[0] < log_alpha1
-    log_alpha2 = stage2_log_acceptance(x, logdensity_x, y[0], values[0], y[1], values[1], chol,
-                                       algebra)
-    accept2 = jnp.logical_not(accept1) & (log_uniforms[1] < log_alpha2)
-    return _Stages(
-        stage=jnp.where(accept1, 1, 2).astype(jnp.int32),
-        accepted=accept1 | accept2,
-        proposals=jnp.stack([y[0], jnp.where(accept1, x, y[1])]),
-        logdensities=jnp.stack([values[0], jnp.where(accept1, logdensity_x, values[1])]),
-        log_alphas=jnp.stack([log_alpha1, jnp.where(accept1, -jnp.inf, log_alpha2)]),
-    )
-
-
-def _finish(state: DRAMState, stages: _Stages, settings: DRAMSettings,
+def _finish(state: DRAMState, stages: Stages, settings: DRAMSettings,
             algebra: Algebra) -> tuple[DRAMState, DRAMInfo]:
     """The move the stages decided, the adaptive-Metropolis update and the step's info."""
     x, logdensity_x, chol = state.position, state.logdensity, state.chol

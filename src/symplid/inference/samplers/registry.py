@@ -182,7 +182,8 @@ def resolve_dram(settings: DRAMSettings, posterior: Any, num_chains: int,
     * ``paired_stages``: paired when the chains are vectorised and their two stages fill the
       backend's batch (``2 × num_chains ≥ batch_width > 1``: four chains on the compiled
       kernel), where one batch of both stages costs less than the stage-by-stage calls.
-    * ``linalg``: LAPACK when the backend is a custom call, else unrolled.
+    * ``linalg``: ``"fused"`` when the backend is a custom call (each stretch of the step
+      between its likelihood calls compiled as one kernel), else unrolled.
     """
     backend = _backend(posterior)
     width = int(getattr(backend, "batch_width", 1))
@@ -192,7 +193,7 @@ def resolve_dram(settings: DRAMSettings, posterior: Any, num_chains: int,
                                         and chain_method == "vectorized"
                                         and 1 < width <= 2 * num_chains)
     if settings.linalg is None:
-        changes["linalg"] = "lapack" if getattr(backend, "custom_call", False) else "unrolled"
+        changes["linalg"] = "fused" if getattr(backend, "custom_call", False) else "unrolled"
     return dataclasses.replace(settings, **changes)
 
 
