@@ -8,8 +8,9 @@ the fit's hook that gives it the draws before they are summarised and written (f
   order; a job that posts nothing ends the waiting all the same; a failing job's error is
   raised from :meth:`WorkerPool.messages`; with one worker the jobs run in this process with
   the same messages and results.
-* ``fit(on_sampled=...)`` sees the draws before ``posterior.nc`` exists and before the
-  summary is made, and they are the draws that are then written (read back, bit for bit).
+* ``fit(on_sampled=...)`` sees the draws before ``posterior.nc`` exists, and they are the
+  draws that are then written (read back, bit for bit), in the data's units also when the
+  fit ran in standardised coordinates.
 """
 
 from __future__ import annotations
@@ -97,7 +98,10 @@ def test_one_worker_runs_the_jobs_here_with_the_same_messages(tmp_path):
 
 
 @pytest.mark.slow
-def test_fit_hands_over_the_draws_before_writing_them(tmp_path):
+@pytest.mark.parametrize("standardise", ["off", "on"])
+def test_fit_hands_over_the_draws_before_writing_them(tmp_path, standardise):
+    """Before ``posterior.nc`` exists, with the MAP and the names; in the data's units also
+    when the fit ran in standardised coordinates: the very draws then written."""
     from symplid.dynamics.systems import get_system
     from symplid.inference.samplers import draws_array
     from symplid.model.simulate import simulate
@@ -110,19 +114,23 @@ def test_fit_hands_over_the_draws_before_writing_them(tmp_path):
     settings = merge_overrides(Settings(), {
         "model.order": 3, "model.dt": 0.25, "map.sensitivity": False, "map.num_starts": 1,
         "initial_state.x0": [float(v) for v in system.initial_state],
-        "sampler.num_iterations": 400, "sampler.burn_in": 200, "sampler.num_chains": 2})
+        "sampler.num_iterations": 400, "sampler.burn_in": 200, "sampler.num_chains": 2,
+        "model.standardise": standardise})
     out, seen = tmp_path / "run", {}
 
-    def sampled(outcome):
-        seen["draws"] = draws_array(outcome.idata).copy()
-        seen["summary"] = dict(outcome.summary)
+    def sampled(done):
+        seen["done"] = done
         seen["written"] = (out / RunFolder.POSTERIOR).exists()
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         outcome = fit(obs, settings, out=out, progress=False, on_sampled=sampled)
-    assert seen["summary"] == {} and seen["written"] is False
+    done = seen["done"]
+    assert seen["written"] is False
     assert outcome.summary and (out / RunFolder.POSTERIOR).exists()
+    assert (outcome.standardised_scale is not None) == (standardise == "on")
+    assert done.param_names == tuple(outcome.posterior.param_names)
+    np.testing.assert_array_equal(done.map_result.theta, outcome.map_result.theta)
     back = draws_array(RunFolder(out, "r").read_posterior())
-    assert seen["draws"].shape == (2, 200, len(outcome.posterior.param_names))
-    np.testing.assert_array_equal(back, seen["draws"])
+    assert done.draws.shape == (2, 200, len(outcome.posterior.param_names))
+    np.testing.assert_array_equal(back, done.draws)

@@ -98,6 +98,20 @@ def test_pin_worker_by_index_wraps_around_the_allowed_cores():
     assert out[0] == str(expected) and out[1] == f"[{expected}]"
 
 
+def test_cores_for_a_while_moves_this_process_and_back():
+    """In a child process (this one's affinity stays untouched): inside the block it runs on
+    the last allowed core only, after it on all of them again; None changes nothing."""
+    code = ("import os; from symplid import runtime; before = runtime.own_cores(); "
+            "cm = runtime.cores_for_a_while(before[-1:])\n"
+            "with cm: inside = sorted(os.sched_getaffinity(0))\n"
+            "with runtime.cores_for_a_while(None): untouched = runtime.own_cores()\n"
+            "print(before, inside, runtime.own_cores(), untouched, sep='|')")
+    before, inside, after, untouched = _python(code).strip().split("|")
+    cores = sorted(os.sched_getaffinity(0))
+    assert before == after == untouched == str(cores)
+    assert inside == str(cores[-1:])
+
+
 def test_worker_environment_keeps_the_users_xla_flags(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/x")
     env = runtime.single_thread_environment()

@@ -49,18 +49,20 @@ import importlib
 import os
 import sys
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 __all__ = [
     "MissingExtraError",
     "XlaFlagsWarning",
     "configure_xla",
+    "cores_for_a_while",
     "default_cache_dir",
     "enable_compilation_cache",
     "limit_threads",
     "merge_xla_flags",
     "one_line_warnings",
+    "own_cores",
     "pin_worker",
     "require_extra",
     "single_thread_environment",
@@ -290,6 +292,35 @@ def worker_environment() -> Iterator[dict[str, str]]:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+
+
+def own_cores() -> list[int] | None:
+    """The cores this process may run on (None where the system cannot say)."""
+    if not hasattr(os, "sched_getaffinity"):
+        return None
+    return sorted(os.sched_getaffinity(0))
+
+
+@contextlib.contextmanager
+def cores_for_a_while(cores: Iterable[int] | None) -> Iterator[None]:
+    """Run this process on ``cores`` only inside the block, then on the cores it had.
+
+    For a parent whose work would otherwise take time from a pinned worker that is still
+    busy: it moves to the core of one that is done. Nothing happens where the system cannot
+    pin or refuses, or when ``cores`` is None.
+    """
+    before = own_cores()
+    moved = False
+    if cores is not None and before is not None:
+        with contextlib.suppress(OSError):
+            os.sched_setaffinity(0, set(cores))
+            moved = True
+    try:
+        yield
+    finally:
+        if moved:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(0, set(before))
 
 
 def pin_worker(counter: object | None = None, index: int | None = None) -> int | None:

@@ -11,6 +11,7 @@ Conventions: the paper's θ1..θ9 are the coefficients of −U; this library rep
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import os
@@ -41,9 +42,9 @@ from symplid.studies.paper_cells import (
     known_initial_state,
     system_defaults,
 )
-from symplid.studies.paper_figures import approach_predictions, draw_figures
+from symplid.studies.paper_figures import approach_predictions, draw_figures, figure_truth
 from symplid.workflow.experiment import Experiment
-from symplid.workflow.fit import fit
+from symplid.workflow.fit import SampledDraws, fit
 from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
 from symplid.workflow.worker_pool import WorkerPool, post
@@ -172,12 +173,11 @@ def _fit_one(args: tuple[PaperConfig, str, str, bool, int]) -> dict[str, Any]:
 
     obs, system = paper_data(config)
 
-    def sampled(outcome: Any) -> None:
+    def sampled(done: SampledDraws) -> None:
         result = ApproachResult(approach, config.integrator(approach),
-                                np.asarray(outcome.map_result.theta, dtype=float),
-                                draws_array(outcome.idata), tuple(outcome.posterior.param_names),
-                                {})  # its summary follows with the return value
-        post({"approach": approach, "result": result,
+                                np.asarray(done.map_result.theta, dtype=float), done.draws,
+                                done.param_names, {})  # its summary follows with the return
+        post({"approach": approach, "result": result, "cores": runtime.own_cores(),
               "predictions": approach_predictions(result, system, config)})
 
     outcome = fit(
@@ -265,6 +265,10 @@ def load_approach(out: Path, approach: str, integrator: str) -> ApproachResult:
     )
 
 
+#: The keys of an approach's summary taken from its fit's summary (None where it has none).
+FIT_FIGURES = ("acceptance_rate", "rhat_max", "ess_min", "restarted_chains")
+
+
 def analyse_approach(
     result: ApproachResult,
     system,
@@ -295,7 +299,6 @@ def analyse_approach(
     )
     truth_on_grid = np.stack([np.interp(times, truth_times, col) for col in truth.T], axis=1)
     horizon = prediction_horizon(times, path, truth_on_grid, threshold, 0)
-    fs = result.fit_summary
     damping = {} if result.gamma_map is None else {"gamma_map": result.gamma_map}
     return {
         **damping,
@@ -304,10 +307,7 @@ def analyse_approach(
         "hamiltonian_rel_error": abs(h_map - h_true) / h_true,
         **_process_noise(result),
         "prediction_horizon_s": float(horizon),
-        "acceptance_rate": fs.get("acceptance_rate"),
-        "rhat_max": fs.get("rhat_max"),
-        "ess_min": fs.get("ess_min"),
-        "restarted_chains": fs.get("restarted_chains"),
+        **_fit_figures(result.fit_summary),
         "map": dict(zip(result.param_names, result.map_theta.tolist(), strict=True)),
     }
 
@@ -354,7 +354,7 @@ def reproduce(
     start = time.perf_counter()
     folder = RunFolder(out, "w", overwrite=True, identity="config.json")  # an earlier reproduce
     # the workers start first: they load while this process makes the data
-    with fit_pool(config, out, progress) as pool:
+    with contextlib.ExitStack() as stack, fit_pool(config, out, progress) as pool:
         obs, system = paper_data(config)
         folder.write_data(obs)
         folder.write_json("config.json", dataclasses.asdict(config))
@@ -363,24 +363,31 @@ def reproduce(
             f"{config.noise_std}; {config.chains} chains × {config.iterations:,} DRAM "
             f"iterations per approach ({config.resolved_burn_in:,} burn-in)"
         )
-        sampled, truth_times, truth = {}, None, None
+        sampled, analysed, truth_times, truth, prepared = {}, {}, None, None, None
         for done in pool.messages():  # each approach's draws, as soon as its sampler ends
             sampled[done["approach"]] = done
-            if truth is None:  # meanwhile the other approach samples: what needs no draws
-                truth_times, truth = _prepare_analysis(done["result"], system, config)
+            if truth is None:  # not before: the workers have both cores until one ends
+                # from now on on the core of the fit that is done sampling, not the other's
+                stack.enter_context(runtime.cores_for_a_while(done["cores"]))
+                truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
+                prepared = figure_truth(system, truth_times, truth, config)
+            if len(sampled) < len(APPROACHES):  # the other one samples: analyse this one
+                analysed[done["approach"]] = analyse_approach(
+                    done["result"], system, truth_times, truth, config.t_end,
+                    config.prediction_dt)
         results = {a: sampled[a]["result"] for a in APPROACHES}
-        # the figures, while the workers summarise and write their draws
+        # the figures and the last analysis, while the workers summarise and write their draws
         draw_figures(folder, results, system, obs, truth_times, truth, config, progress,
-                     predictions={a: sampled[a]["predictions"] for a in APPROACHES})
+                     predictions={a: sampled[a]["predictions"] for a in APPROACHES},
+                     prepared=prepared)
+        for name in [a for a in APPROACHES if a not in analysed]:
+            analysed[name] = analyse_approach(results[name], system, truth_times, truth,
+                                              config.t_end, config.prediction_dt)
         fitted = {done["approach"]: done for done in pool.results()}
-    results = {a: dataclasses.replace(results[a], fit_summary=fitted[a]["summary"])
-               for a in APPROACHES}
     h_true = hamiltonian(system.potential, system.coefficients, system.initial_state)
     summary: dict[str, Any] = {"true_hamiltonian": float(h_true)}
-    for name, result in results.items():
-        summary[name] = analyse_approach(
-            result, system, truth_times, truth, config.t_end, config.prediction_dt
-        )
+    for name in APPROACHES:  # the analysis with the fits' convergence figures filled in
+        summary[name] = {**analysed[name], **_fit_figures(fitted[name]["summary"])}
     summary["process_noise_ratio"] = (
         summary["rk2"]["process_noise_median"] / summary["leapfrog"]["process_noise_median"]
     )
@@ -395,13 +402,9 @@ def reproduce(
     return summary
 
 
-def _prepare_analysis(result: ApproachResult, system, config: PaperConfig) -> tuple[
-        np.ndarray, np.ndarray]:
-    """The true path on the prediction grid, with the analysis's programs compiled (the first
-    approach's fit is done, the other one's still runs)."""
-    truth_times, truth = truth_path(system, config.t_end, config.prediction_dt)
-    analyse_approach(result, system, truth_times, truth, config.t_end, config.prediction_dt)
-    return truth_times, truth
+def _fit_figures(fit_summary: dict[str, Any]) -> dict[str, Any]:
+    """The figures of an approach's summary that come from its fit's summary."""
+    return {key: fit_summary.get(key) for key in FIT_FIGURES}
 
 
 def comparison_table(summary: dict[str, Any]) -> str:

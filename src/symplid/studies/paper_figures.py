@@ -1,11 +1,14 @@
 """The paper's four figures (Section IV) from the two approaches' fits.
 
-Matplotlib (:mod:`symplid.plotting`) is imported where a figure is drawn, not with this
-module: a worker process computes :func:`approach_predictions` without it.
+Matplotlib (:mod:`symplid.plotting`) is imported when the figures are prepared
+(:func:`figure_truth`), not with this module: a worker process computes
+:func:`approach_predictions` without it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from types import ModuleType
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -20,32 +23,53 @@ from symplid.inference.predict import (
 if TYPE_CHECKING:
     from symplid.plotting import Curves
 
-__all__ = ["approach_predictions", "draw_figures", "figure_stride"]
+__all__ = ["FigureTruth", "approach_predictions", "draw_figures", "figure_stride", "figure_truth"]
 
 LABELS = {"leapfrog": "leapfrog", "rk2": "RK2"}
 EVERY = 10  # keep every 10th fine step (0.1 s) in the stored paths
 
 
+@dataclass(frozen=True)
+class FigureTruth:
+    """The true path at the figures' stride, H along it, and the plotting functions."""
+
+    times: np.ndarray
+    states: np.ndarray
+    energy: np.ndarray
+    plotting: ModuleType
+    """:mod:`symplid.plotting`, loaded with the truth (it loads matplotlib)."""
+
+
+def figure_truth(system, truth_times, truth, config) -> FigureTruth:
+    """What the figures need of the truth, computed before any fit's draws are in.
+
+    Called while a fit still samples, it also takes the figures' fixed costs off the end of
+    the run: H along a path of the figures' length compiles once (the approaches' paths
+    reuse it) and matplotlib loads (:mod:`symplid.plotting`).
+    """
+    from symplid import plotting
+
+    stride = figure_stride(config)
+    times, states = truth_times[::stride], truth[::stride]
+    energy = np.asarray(hamiltonian_along(system.potential, system.coefficients, states))
+    return FigureTruth(times, states, energy, plotting)
+
+
 def draw_figures(folder, results, system, obs, truth_times, truth, config, progress=True,
-                 predictions=None) -> None:
+                 predictions=None, prepared: FigureTruth | None = None) -> None:
     """Figures 1–4 into ``folder/figures``.
 
     Every path is integrated from the true initial state by leapfrog at the fine step
     (``config.prediction_dt``) for ``config.t_end``, and stored every ``EVERY`` fine steps of
     0.01 s; Fig. 2(b) also integrates the RK2 model by RK2 at the learning step.
     ``predictions`` maps an approach to its :func:`approach_predictions` when they were
-    computed already (by the process that fitted it); the others are computed here.
+    computed already (by the process that fitted it); the others are computed here;
+    ``prepared`` is :func:`figure_truth`'s result when it was computed already.
     """
-    from symplid.plotting import (
-        plot_hamiltonians,
-        plot_phase_portraits,
-        plot_process_noise,
-        plot_trajectory_bands,
-    )
-
     t_data_end = float(obs.times[-1])
-    stride = figure_stride(config)
-    truth_t, truth_x = truth_times[::stride], truth[::stride]
+    prepared = prepared or figure_truth(system, truth_times, truth, config)
+    plots = prepared.plotting
+    truth_t, truth_x = prepared.times, prepared.states
     done = predictions or {}
     made = {name: done.get(name) or approach_predictions(res, system, config)
             for name, res in results.items()}
@@ -53,7 +77,7 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
     bands = {name: pair[1] for name, pair in made.items()}
 
     # Fig 1: phase portraits (leapfrog at the fine step for 200 s; data over 100 s).
-    plot_phase_portraits(
+    plots.plot_phase_portraits(
         {f"learned with {LABELS[n]}": maps[n][1] for n in results},
         truth_x,
         obs.values[:, :2],
@@ -61,15 +85,15 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
     )
     # Fig 2: H along trajectories; (a) leapfrog at the fine step, (b) RK2 at the learning dt.
     fine, coarse = _energy_curves(results, system, config, maps, bands)
-    plot_hamiltonians(
+    plots.plot_hamiltonians(
         fine,
-        (truth_t, hamiltonian_along(system.potential, system.coefficients, truth_x)),
+        (truth_t, prepared.energy),
         coarse,
         t_data_end=t_data_end,
         path=folder.figure_path("fig2_hamiltonians"),
     )
     # Fig 3: q1 against time with the posterior band, one row per approach.
-    plot_trajectory_bands(
+    plots.plot_trajectory_bands(
         [_q1_curves(LABELS[name], maps[name], bands[name]) for name in results],
         truth=(truth_t, truth_x[:, 0]),
         data=(obs.times, obs.values[:, 0]),
@@ -77,7 +101,7 @@ def draw_figures(folder, results, system, obs, truth_times, truth, config, progr
         path=folder.figure_path("fig3_trajectories"),
     )
     # Fig 4: process-noise posteriors.
-    plot_process_noise(
+    plots.plot_process_noise(
         {LABELS[n]: r.process_noise_draws for n, r in results.items()},
         {
             LABELS[n]: float(r.map_theta[r.param_names.index("process_var")])

@@ -43,6 +43,7 @@ from symplid.workflow.settings_schema import map_start
 
 __all__ = [
     "FitOutcome",
+    "SampledDraws",
     "build_model",
     "build_posterior",
     "chunk_sink",
@@ -71,6 +72,17 @@ class FitOutcome:
     diagnostics: dict[str, Any] | None = None
     """The MAP-level sensitivity checks (:func:`~symplid.workflow.sensitivity.sensitivity_checks`;
     None with ``map.sensitivity = false``), as saved in ``diagnostics.json``."""
+
+
+@dataclass(frozen=True)
+class SampledDraws:
+    """What ``fit(on_sampled=...)`` receives as soon as the chains end, before their draws are
+    made ``InferenceData``, summarised and written (all in the data's units)."""
+
+    map_result: Any
+    draws: np.ndarray
+    """The kept draws of θ, ``(chain, draw, param)``."""
+    param_names: tuple[str, ...]
 
 
 def find_map_for(settings: Settings, posterior) -> Any:
@@ -125,10 +137,12 @@ def sample_for(
     progress_position: int = 0,
     return_state: bool = False,
     sink: Any = None,
+    on_draws: Callable[[np.ndarray], None] | None = None,
 ) -> Any:
     """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``
     (and the chains' final states with ``return_state``, see ``symplid.sample``); ``sink``
-    receives each chunk's draws (:func:`chunk_sink`)."""
+    receives each chunk's draws (:func:`chunk_sink`), ``on_draws`` the kept draws as soon as
+    the chains end (``symplid.sample``)."""
 
     s = settings.sampler
     # The [sampler] section's method-specific keys go to the samplers whose settings class
@@ -156,6 +170,7 @@ def sample_for(
         chunk_size=s.chunk_size,
         sink=sink,
         restart_stuck_chains=s.restart_stuck_chains,
+        on_draws=on_draws,
     )
 
 
@@ -184,7 +199,7 @@ def fit(
     progress_position: int = 0,
     warn: bool = False,
     status: Callable[[str], None] | None = None,
-    on_sampled: Callable[[FitOutcome], None] | None = None,
+    on_sampled: Callable[[SampledDraws], None] | None = None,
 ) -> FitOutcome:
     """The whole fit: MAP, Hessian, sampler and the run folder (when ``out`` is given).
 
@@ -204,8 +219,9 @@ def fit(
     ``FitOutcome.diagnostics``, ``diagnostics.json``); a refit that fails is recorded as not
     available, never raised;
     ``status`` receives a one-line message before the (silent) MAP search and compilation;
-    ``on_sampled`` receives the outcome as soon as the draws are made, before they are
-    summarised and written (``summary`` still empty): a caller can use the draws meanwhile.
+    ``on_sampled`` receives the MAP and the kept draws (:class:`SampledDraws`) as soon as the
+    chains end, before the draws are made ``InferenceData``, summarised and written: a caller
+    can use them meanwhile.
     """
 
     given, settings = settings, resolve_for_data(settings, obs, source)
@@ -262,7 +278,9 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     try:
         idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
                                        progress_label, progress_position, return_state=True,
-                                       sink=None if folder is None else chunk_sink(folder))
+                                       sink=None if folder is None else chunk_sink(folder),
+                                       on_draws=_draws_hook(on_sampled, map_result, posterior,
+                                                            scaling, groups))
     except InterruptedInBurnIn as stop:
         if folder is not None:
             save_burn_in(folder, settings, stop)
@@ -275,9 +293,22 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale,
                          diagnostics=diagnostics)
-    if on_sampled is not None:
-        on_sampled(outcome)
     return save_run(folder, outcome, checkpoint, warn)
+
+
+def _draws_hook(on_sampled, map_result, posterior, scaling,
+                groups) -> Callable[[np.ndarray], None] | None:
+    """The sampler's ``on_draws`` that hands ``on_sampled`` the draws in the data's units."""
+    if on_sampled is None:
+        return None
+    factors = None if scaling is None else np.asarray(scaling.reparameterisation(groups).scale)
+    names = tuple(posterior.param_names)
+
+    def hand_over(theta: np.ndarray) -> None:
+        draws = theta if factors is None else theta * factors
+        on_sampled(SampledDraws(map_result, draws, names))
+
+    return hand_over
 
 
 def _diagnostics(settings, obs, posterior, map_result, folder, timings,

@@ -125,6 +125,7 @@ def sample(
     return_state: bool = False,
     sink: ChunkSink | None = None,
     restart_stuck_chains: bool = True,
+    on_draws: Callable[[np.ndarray], None] | None = None,
 ):
     """Draw from a posterior with a registered sampler (DRAM, NUTS, ...).
 
@@ -180,6 +181,10 @@ def sample(
         Restart, at the end of the burn-in, a chain stuck far below the best one from a good
         chain's state (:mod:`~symplid.inference.samplers.restart`; recorded in
         ``attrs["restarted_chains"]``); without a stuck chain the draws are those of ``False``.
+    on_draws
+        Called with the kept draws of θ, ``(chain, draw, param)`` in ``param_names``' order,
+        as soon as the chains end and before they become ``InferenceData`` (which imports
+        ArviZ): a caller can use them meanwhile (not called when no draw was kept).
 
     Returns
     -------
@@ -218,6 +223,8 @@ def sample(
                      chain_method=chain_method, progress=progress, callback=callback,
                      desc=progress_label or method.upper(), position=progress_position,
                      sink=sink, restart_stuck_chains=bool(restart_stuck_chains))
+    if on_draws is not None and run.draws:
+        on_draws(np.asarray(run.draws["theta"]))
     extra_attrs.update(kernel.final_attrs(run.states))
     return _finished(run, names, make_attrs(run, extra_attrs, init), return_state)
 
