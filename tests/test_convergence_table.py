@@ -180,3 +180,13 @@ def test_constant_and_nan_parameters_as_in_arviz():
     ours = convergence_table(idata)
     assert ours.loc["constant", "ess_bulk"] == 4 * 500  # ArviZ: the number of draws
     assert np.isnan(ours.loc["constant", "r_hat"]) and np.isnan(ours.loc["nan"]).all()
+
+
+@pytest.mark.parametrize("value", [0.1, 2.5, -7.95, 1e-300, 0.0])
+def test_constant_parameters_of_any_value_as_in_arviz(value):
+    # the 5 % quantile of equal draws, (1 − γ)·x + γ·x, may round below x: the indicators
+    # are then all 0 rather than all 1, still constant (ArviZ: ESS = number of draws)
+    idata = az.from_dict(posterior={"c": np.full((4, 101), value)})
+    _assert_equal_to_public(idata, columns=slice(0, 2))
+    np.testing.assert_allclose(_ours(idata), _reference(idata).to_numpy(), rtol=1e-12,
+                               atol=0, equal_nan=True)

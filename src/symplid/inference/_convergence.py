@@ -19,7 +19,8 @@ larger of the rank-normalised split R-hat of the draws and of the folded draws
   chains' mean autocovariance is used), the transform is padded for the lags Geyer's
   sequence reaches (all of them again, with ArviZ's padding, for a statistic whose sequence
   runs further), and Geyer's initial positive and monotone sequences are evaluated as
-  array operations instead of a loop over lags.
+  array operations instead of a loop over lags;
+* the large scratch arrays are reused from one parameter to the next (:class:`Workspace`).
 """
 
 from __future__ import annotations
@@ -60,42 +61,37 @@ class Workspace:
         return array
 
     def arange(self, size: int) -> np.ndarray:
-        """``np.arange(size)``, made once (do not write to it)."""
+        """``np.arange(size)``, made once (not to be written to)."""
         array = self._arrays.get("arange")
         if array is None or array.size != size:
             array = self._arrays["arange"] = np.arange(size)
         return array
 
 
-def _scores(ordered: np.ndarray, order: np.ndarray, table: np.ndarray, out: np.ndarray,
-            work: Workspace) -> np.ndarray:
-    """Rank-normalised values, into the flat ``out``: ``ordered`` are the values sorted,
-    ``order`` the permutation that sorts them; ties get their average rank."""
+def _sorted_scores(ordered: np.ndarray, table: np.ndarray, work: Workspace) -> np.ndarray:
+    """Rank-normalised values of the sorted values ``ordered``, in that order; ties get
+    their average rank."""
     size = ordered.size
     first = work.get("first", (size,), bool)  # where a run of equal values starts
     first[0] = True
     np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
     if first.all():  # no ties: ranks 1, 2, …, size
-        out[order] = table[::2]
-        return out
+        return table[::2]
     # a run from 0-based position s to e has the average rank (s + e)/2 + 1, table entry s + e
-    positions = work.arange(size)
-    start = np.multiply(first, positions, out=work.get("run_start", (size,), np.intp))
-    np.maximum.accumulate(start, out=start)
-    last = work.get("last", (size,), bool)
-    last[:-1] = first[1:]
-    last[-1] = True
-    end = work.get("run_end", (size,), np.intp)
-    end.fill(size)
-    np.copyto(end, positions, where=last)
-    np.minimum.accumulate(end[::-1], out=end[::-1])
-    start += end
-    out[order] = np.take(table, start, out=work.get("sorted_scores", (size,)))
-    return out
+    runs = np.count_nonzero(first)
+    bounds = work.get("bounds", (size + 1,), np.intp)[:runs + 1]  # starts, then the size
+    np.compress(first, work.arange(size), out=bounds[:-1])
+    bounds[-1] = size
+    index = np.add(bounds[:-1], bounds[1:], out=work.get("index", (size,), np.intp)[:runs])
+    index -= 1
+    run_scores = np.take(table, index, out=work.get("run_scores", (size,))[:runs])
+    counts = np.subtract(bounds[1:], bounds[:-1], out=index)
+    return np.repeat(run_scores, counts)
 
 
-def _folded_order(ordered: np.ndarray, order: np.ndarray, median: float, work: Workspace):
-    """Sorted |x − median| and its sorting permutation, from the draws' own sorted order:
+def _folded_scores(ordered: np.ndarray, order: np.ndarray, median: float,
+                   table: np.ndarray, out: np.ndarray, work: Workspace) -> np.ndarray:
+    """Rank-normalised |x − median|, into the flat ``out``, from the draws' sorted order:
     there the folded values fall, then rise; reversing the first run makes two rising runs,
     which a stable sort (Timsort) merges in linear time."""
     size = ordered.size
@@ -103,13 +99,13 @@ def _folded_order(ordered: np.ndarray, order: np.ndarray, median: float, work: W
     runs = work.get("folded_runs", (size,))  # |x − median|, bit for bit: x − m = −(m − x)
     np.subtract(median, ordered[:cut][::-1], out=runs[:cut])
     np.subtract(ordered[cut:], median, out=runs[cut:])
-    runs_order = work.get("folded_runs_order", (size,), np.intp)
-    runs_order[:cut] = order[:cut][::-1]
-    runs_order[cut:] = order[cut:]
     merge = np.argsort(runs, kind="stable")
     folded = np.take(runs, merge, out=work.get("folded", (size,)))
-    folded_order = np.take(runs_order, merge, out=work.get("folded_order", (size,), np.intp))
-    return folded, folded_order
+    in_runs = work.get("folded_scores", (size,))
+    in_runs[merge] = _sorted_scores(folded, table, work)
+    out[order[:cut]] = in_runs[:cut][::-1]
+    out[order[cut:]] = in_runs[cut:]
+    return out
 
 
 def _type7_quantiles(ordered: np.ndarray, probs: np.ndarray) -> np.ndarray:
@@ -123,11 +119,14 @@ def _type7_quantiles(ordered: np.ndarray, probs: np.ndarray) -> np.ndarray:
     return (1.0 - gamma) * ordered[k - 1] + gamma * ordered[k]
 
 
-def _rhat(ary: np.ndarray) -> float:
-    """ArviZ's ``_rhat`` (Gelman–Rubin on already split, normalised chains)."""
+def _rhat(ary: np.ndarray, work: Workspace) -> float:
+    """ArviZ's ``_rhat`` (Gelman–Rubin on already split, normalised chains), with NumPy's
+    ``var`` arithmetic in a scratch array."""
     num_samples = ary.shape[1]
     chain_mean = np.mean(ary, axis=1)
-    chain_var = np.var(ary, axis=1, ddof=1)
+    deviations = np.subtract(ary, chain_mean[:, None], out=work.get("deviations", ary.shape))
+    np.multiply(deviations, deviations, out=deviations)
+    chain_var = deviations.sum(axis=1) / (num_samples - 1)  # np.var(ary, axis=1, ddof=1)
     between = num_samples * np.var(chain_mean, axis=None, ddof=1)
     within = np.mean(chain_var)
     with np.errstate(divide="ignore", invalid="ignore"):  # constant draws: NaN, as ArviZ's
@@ -163,21 +162,22 @@ def parameter_statistics(ary: np.ndarray, table: np.ndarray | None = None,
     order = np.argsort(flat)  # unstable is fine: ties get their average rank
     ordered = np.take(flat, order, out=work.get("ordered", flat.shape))
     stack = work.get("stack", (3, *split.shape))  # normalised draws, two tail indicators
-    _scores(ordered, order, table, stack[0].reshape(-1), work)
+    stack[0].reshape(-1)[order] = _sorted_scores(ordered, table, work)
     full = ordered if draws % 2 == 0 else np.sort(ary, axis=None)
     q05, q95 = _type7_quantiles(full, np.array([0.05, 0.95]))
     np.less_equal(split, q05, out=stack[1])
     np.less_equal(split, q95, out=stack[2])
-    constant = np.array([ordered[0] == ordered[-1], ordered[-1] <= q05, ordered[-1] <= q95])
+    least, most = ordered[0], ordered[-1]  # constant: all draws equal, all on one side
+    constant = np.array([least == most, most <= q05 or least > q05, most <= q95 or least > q95])
     bulk, low, high = ess_batch(stack, work, constant)
     tail = high if high < low else low  # min(low, high), NaN as Python's min has it
     if chains < 2:
         return float(bulk), float(tail), np.nan
     median = (full[(full.size - 1) // 2] + full[full.size // 2]) / 2  # np.median's
-    folded, folded_order = _folded_order(ordered, order, median, work)
-    z_folded = _scores(folded, folded_order, table, work.get("z_folded", flat.shape), work)
-    rhat_bulk = _rhat(stack[0])
-    rhat = max(rhat_bulk, _rhat(z_folded.reshape(split.shape)))  # ArviZ's order, NaN too
+    z_folded = _folded_scores(ordered, order, median, table,
+                              work.get("z_folded", flat.shape), work)
+    rhat_bulk = _rhat(stack[0], work)
+    rhat = max(rhat_bulk, _rhat(z_folded.reshape(split.shape), work))  # ArviZ's order, NaN too
     return float(bulk), float(tail), float(rhat)
 
 
