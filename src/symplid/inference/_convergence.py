@@ -60,13 +60,6 @@ class Workspace:
             array = self._arrays[name] = np.empty(shape, dtype)
         return array
 
-    def arange(self, size: int) -> np.ndarray:
-        """``np.arange(size)``, made once (not to be written to)."""
-        array = self._arrays.get("arange")
-        if array is None or array.size != size:
-            array = self._arrays["arange"] = np.arange(size)
-        return array
-
 
 def _sorted_scores(ordered: np.ndarray, table: np.ndarray, work: Workspace) -> np.ndarray:
     """Rank-normalised values of the sorted values ``ordered``, in that order; ties get
@@ -78,9 +71,10 @@ def _sorted_scores(ordered: np.ndarray, table: np.ndarray, work: Workspace) -> n
     if first.all():  # no ties: ranks 1, 2, …, size
         return table[::2]
     # a run from 0-based position s to e has the average rank (s + e)/2 + 1, table entry s + e
-    runs = np.count_nonzero(first)
+    starts = np.flatnonzero(first)
+    runs = starts.size
     bounds = work.get("bounds", (size + 1,), np.intp)[:runs + 1]  # starts, then the size
-    np.compress(first, work.arange(size), out=bounds[:-1])
+    bounds[:-1] = starts
     bounds[-1] = size
     index = np.add(bounds[:-1], bounds[1:], out=work.get("index", (size,), np.intp)[:runs])
     index -= 1
