@@ -9,7 +9,7 @@ A fit needs only R-hat and the bulk and tail ESS (:func:`convergence_table`): th
 computed as ArviZ's ``summary`` computes them (Vehtari et al. 2021: split chains,
 rank-normalised, the folded draws for R-hat's tail, the 5 % and 95 % indicators for the
 tail ESS), the same numbers to rounding, without the columns nobody reads there (mean, sd,
-HDI, MCSE), and several times faster (:mod:`symplid.inference._convergence`: one sort per
+HDI, MCSE), and several times faster (``symplid.inference._convergence``: one sort per
 parameter, the normal scores looked up, the three ESS of a parameter in one batched FFT,
 Geyer's sequences as array operations).
 """
@@ -133,7 +133,7 @@ def convergence_table(idata: Any, var_names: list[str] | None = None):
     One row per scalar parameter (a vector one row per element, named ``name[i]`` as ArviZ
     names them); NaN where ArviZ gives NaN (fewer than 4 draws per chain, a NaN draw; R-hat
     with one chain). The numbers are ArviZ's to rounding, computed faster (see
-    :mod:`symplid.inference._convergence`).
+    ``symplid.inference._convergence``).
     """
     import pandas as pd
 
