@@ -1,8 +1,8 @@
 """DRAM's step arithmetic around the compiled likelihood: inline, LAPACK, or one kernel per stretch.
 
-Workload: the paper's posterior as in ``speed_tiers.py`` (Hénon–Heiles, cubic U, leapfrog at
-dt = 0.25, 20 full-state observations, Laplace(0, 10) on the coefficients and half-normal(1)
-on the variances, written inline), on the compiled kernel, started at the truth with a fixed
+Workload: the paper's posterior of ``speed_tiers.py`` (its ``paper_target``: Hénon–Heiles,
+cubic U, leapfrog at dt = 0.25, 20 full-state observations, Laplace(0, 10) on the coefficients
+and half-normal(1) on the variances), on the compiled kernel, started at the truth with a fixed
 diagonal proposal covariance; and, to show what the step costs beside the likelihood, a
 Gaussian log density of the same dimension, alone (the whole chunk is then one kernel) and
 with a one-element LAPACK call added (a custom call: the chunk runs operation by operation).
@@ -35,26 +35,11 @@ def _pin() -> None:
 def targets():
     """The three log densities: the paper's posterior, a Gaussian, the Gaussian + a custom call."""
     import jax.numpy as jnp
-    import numpy as np
 
-    import symplid
+    from speed_tiers import paper_target
 
-    system = symplid.get_system("henon-heiles")
-    data = symplid.simulate(system, seed=0)
-    model = symplid.HamiltonianModel(system.potential, integrator="leapfrog", dt=0.25,
-                                     backend="compiled")
-    theta = jnp.asarray(model.pack(system.coefficients, 1e-6, 0.05**2))
-    loglik = model.log_likelihood_fn(data, system.initial_state)
-    is_var = np.zeros(11, bool)
-    is_var[9:] = True
+    theta, _, paper = paper_target("compiled")
     scales = jnp.asarray([1e-6] * 9 + [1e-14, 1e-8])
-
-    def paper(t):
-        prior = jnp.sum(jnp.where(is_var, -0.5 * t**2 + 0.5 * np.log(2 / np.pi),
-                                  -jnp.abs(t) / 10.0 - np.log(20.0)))
-        inside = jnp.all(jnp.where(is_var, t > 0, True))
-        safe = jnp.where(inside, t, jnp.where(is_var, 1.0, t))
-        return jnp.where(inside, prior + loglik(safe), -jnp.inf)
 
     def gaussian(t):
         return -0.5 * jnp.sum((t - theta) ** 2 / scales)

@@ -70,22 +70,41 @@ def best_time(fn, *args, number: int, repeats: int) -> float:
     return best
 
 
-def measure(repeats: int, dram_iterations: int) -> dict[str, float]:
-    """Run in a child process: every row of one tier."""
-    import jax
+def paper_target(backend: str):
+    """The workload of the module docstring: ``(theta, loglik, log_density)``, θ the truth."""
     import jax.numpy as jnp
     import numpy as np
 
     import symplid
-    from symplid.inference.samplers import dram, run_chains
 
     system = symplid.get_system("henon-heiles")
     data = symplid.simulate(system, seed=0)
-    backend = os.environ.get("SYMPLID_BENCH_BACKEND", "jax")
     model = symplid.HamiltonianModel(system.potential, integrator="leapfrog", dt=0.25,
                                      backend=backend)
     theta = jnp.asarray(model.pack(system.coefficients, 1e-6, 0.05**2))
     loglik = model.log_likelihood_fn(data, system.initial_state)
+    is_var = np.zeros(theta.shape[0], bool)
+    is_var[-2:] = True  # the process and observation variances
+
+    def log_density(t):
+        prior = jnp.sum(jnp.where(is_var, -0.5 * t**2 + 0.5 * np.log(2 / np.pi),
+                                  -jnp.abs(t) / 10.0 - np.log(20.0)))
+        inside = jnp.all(jnp.where(is_var, t > 0, True))
+        safe = jnp.where(inside, t, jnp.where(is_var, 1.0, t))
+        return jnp.where(inside, prior + loglik(safe), -jnp.inf)
+
+    return theta, loglik, log_density
+
+
+def measure(repeats: int, dram_iterations: int) -> dict[str, float]:
+    """Run in a child process: every row of one tier."""
+    import jax
+    import jax.numpy as jnp
+
+    from symplid.inference.samplers import dram, run_chains
+
+    backend = os.environ.get("SYMPLID_BENCH_BACKEND", "jax")
+    theta, loglik, log_density = paper_target(backend)
     num_loop = 200
     thetas = theta * (1.0 + 1e-3 * jax.random.normal(jax.random.key(1), (num_loop, 11)))
 
@@ -104,16 +123,6 @@ def measure(repeats: int, dram_iterations: int) -> dict[str, float]:
         "gradient, compiled loop (µs)": best_time(looped(jax.grad(loglik)), thetas[:50],
                                                  number=2, repeats=repeats) / 50 * 1e6,
     }
-
-    is_var = np.zeros(11, bool)
-    is_var[9:] = True
-
-    def log_density(t):
-        prior = jnp.sum(jnp.where(is_var, -0.5 * t**2 + 0.5 * np.log(2 / np.pi),
-                                  -jnp.abs(t) / 10.0 - np.log(20.0)))
-        inside = jnp.all(jnp.where(is_var, t > 0, True))
-        safe = jnp.where(inside, t, jnp.where(is_var, 1.0, t))
-        return jnp.where(inside, prior + loglik(safe), -jnp.inf)
 
     cov = jnp.diag(jnp.asarray([1e-6] * 9 + [1e-14, 1e-8]))
     # What sample() resolves (registry.resolve_dram): around the compiled kernel's custom call

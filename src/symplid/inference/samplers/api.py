@@ -182,9 +182,8 @@ def sample(
         chain's state (:mod:`~symplid.inference.samplers.restart`; recorded in
         ``attrs["restarted_chains"]``); without a stuck chain the draws are those of ``False``.
     on_draws
-        Called with the kept draws of θ, ``(chain, draw, param)`` in ``param_names``' order,
-        as soon as the chains end and before they become ``InferenceData`` (which imports
-        ArviZ): a caller can use them meanwhile (not called when no draw was kept).
+        Given the kept draws of θ ``(chain, draw, param)`` as soon as the chains end, before
+        they become ``InferenceData`` (which imports ArviZ); not called without draws.
 
     Returns
     -------
@@ -204,15 +203,13 @@ def sample(
     init = find_map(posterior, seed=seed) if init is None else init
     theta_map, cov_map, starts, states, extra_attrs, run_key = _chain_starts(
         posterior, spec, kernel, batch_logdensity, init, num_params, int(seed),
-        int(num_chains), float(init_spread), initial_positions,
-    )
-    record_settings = {
-        "method": method, "num_draws": num_draws, "num_chains": int(num_chains),
-        "seed": int(seed), "burn_in": burn_in, "thin": int(thin),
-        "init_spread": float(init_spread), "chunk_size": int(chunk_size),
-        "chain_method": chain_method, "explicit_initial_positions": initial_positions is not None,
-        "restart_stuck_chains": bool(restart_stuck_chains),
-        "kernel": dataclasses.asdict(kernel_settings)}
+        int(num_chains), float(init_spread), initial_positions)
+    record_settings = _recorded_settings(
+        method=method, num_draws=num_draws, num_chains=int(num_chains), seed=int(seed),
+        burn_in=burn_in, thin=int(thin), init_spread=float(init_spread),
+        chunk_size=int(chunk_size), chain_method=chain_method,
+        explicit_initial_positions=initial_positions is not None,
+        restart_stuck_chains=bool(restart_stuck_chains), kernel=kernel_settings)
     make_attrs = functools.partial(_attrs, method, seed, record_settings, names, theta_map,
                                    cov_map, starts)
     if hasattr(sink, "begin"):  # the attributes of the run stopped before its first iteration
@@ -223,19 +220,24 @@ def sample(
                      chain_method=chain_method, progress=progress, callback=callback,
                      desc=progress_label or method.upper(), position=progress_position,
                      sink=sink, restart_stuck_chains=bool(restart_stuck_chains))
-    if on_draws is not None and run.draws:
-        on_draws(np.asarray(run.draws["theta"]))
     extra_attrs.update(kernel.final_attrs(run.states))
-    return _finished(run, names, make_attrs(run, extra_attrs, init), return_state)
+    return _finished(run, names, make_attrs(run, extra_attrs, init), return_state, on_draws)
+
+
+def _recorded_settings(**values: Any) -> dict[str, Any]:
+    """The run's settings as its attributes record them (the kernel's as a dict)."""
+    return {**values, "kernel": dataclasses.asdict(values["kernel"])}
 
 
 def _finished(run: ChainRun, names: tuple[str, ...], attrs: dict[str, Any],
-              return_state: bool) -> Any:
-    """The run's ``InferenceData`` (and checkpoint with ``return_state``); a run stopped in
-    its burn-in raises :class:`InterruptedInBurnIn`."""
+              return_state: bool, on_draws: Callable[[np.ndarray], None] | None = None) -> Any:
+    """The run's ``InferenceData`` (and checkpoint with ``return_state``), the draws first
+    handed to ``on_draws``; a run stopped in its burn-in raises :class:`InterruptedInBurnIn`."""
     checkpoint = SamplerCheckpoint(run.states, int(run.iterations_done), run.monitor)
     if not run.draws:
         raise InterruptedInBurnIn(checkpoint, attrs)
+    if on_draws is not None:
+        on_draws(np.asarray(run.draws["theta"]))
     idata = to_inference_data(run, names, attrs)
     return (idata, checkpoint) if return_state else idata
 

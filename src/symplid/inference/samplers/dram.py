@@ -50,10 +50,11 @@ step between two log-density calls (the random draws, the proposals, the accepta
 adaptive update) is compiled as one kernel of its own (``linalg = "fused"``,
 :func:`symplid.kernel_region.one_kernel`): the paper's posterior on the compiled kernel,
 one chain, 26.6 → 21.9 µs per iteration; four vectorised chains with paired stages,
-40.5 → 36.6 µs (against LAPACK calls, the former choice there; ``benchmarks/dram_regions.py``). A backend that evaluates a
-batch for little more than one point gets both stages' proposals in one call
-(``paired_stages``; stage 2's value is used only when stage 1 rejects, so the chain is the
-same to rounding). :func:`~.registry.resolve_dram` picks both per run.
+40.5 → 36.6 µs (against LAPACK calls, the former choice there;
+``benchmarks/dram_regions.py``). A backend that evaluates a batch for little more than one
+point gets both stages' proposals in one call (``paired_stages``; stage 2's value is used only
+when stage 1 rejects, so the chain is the same to rounding). :func:`~.registry.resolve_dram`
+picks both per run.
 """
 
 from __future__ import annotations
