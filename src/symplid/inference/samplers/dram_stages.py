@@ -48,6 +48,7 @@ Region = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 
 def inline(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` itself: the stretch is compiled with the code around it."""
     return fn
 
 
