@@ -50,18 +50,19 @@ def test_in_a_loop_with_a_custom_call_the_region_is_one_kernel():
     loop that XLA compiles whole (a 'small call'), and the scan's result is the plain one."""
     chol_input, delta, _ = _inputs()
 
-    def body(carry, x):
-        lapack = jnp.linalg.cholesky(carry + jnp.eye(carry.shape[0]))  # a custom call
-        out = region(carry, x * delta, 0.5)
-        return carry + 1e-3 * (lapack @ lapack.T), out["white"]
+    def scan_with(region):
+        def body(carry, x):
+            lapack = jnp.linalg.cholesky(carry + jnp.eye(carry.shape[0]))  # a custom call
+            out = region(carry, x * delta, 0.5)
+            return carry + 1e-3 * (lapack @ lapack.T), out["white"]
 
-    region = one_kernel(_update)
-    run = jax.jit(lambda c: jax.lax.scan(body, c, jnp.linspace(0.1, 1.0, 7)))
+        return jax.jit(lambda c: jax.lax.scan(body, c, jnp.linspace(0.1, 1.0, 7)))
+
+    run = scan_with(one_kernel(_update))
     text = run.lower(chol_input).compile().as_text()
     assert "custom-call" in text
     assert "xla_cpu_small_call" in text
     got = run(chol_input)
-    region = _update
-    want = jax.jit(lambda c: jax.lax.scan(body, c, jnp.linspace(0.1, 1.0, 7)))(chol_input)
+    want = scan_with(_update)(chol_input)
     np.testing.assert_allclose(got[1], want[1], rtol=1e-12)
     np.testing.assert_allclose(got[0], want[0], rtol=1e-13)

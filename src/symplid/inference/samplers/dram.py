@@ -360,12 +360,12 @@ def build_kernel(logdensity_fn: LogDensityFn,
 
 
 def _draws(rng_key: Array, x: Array, region: Region) -> tuple[Array, Array]:
-    """The step's two standard normal vectors and the logs of its two uniforms."""
-    typed = jax.dtypes.issubdtype(rng_key.dtype, jax.dtypes.prng_key)
-    impl = jax.random.key_impl(rng_key) if typed else None
+    """The step's two standard normal vectors and the logs of its two uniforms (a region
+    takes arrays only: the key goes in as its data and is rebuilt inside, same bits)."""
+    impl = jax.random.key_impl(rng_key)
 
     def draw(key_data: Array) -> tuple[Array, Array]:
-        key = jax.random.wrap_key_data(key_data, impl=impl) if typed else key_data
+        key = jax.random.wrap_key_data(key_data, impl=impl)
         key1, key_u1, key2, key_u2 = jax.random.split(key, 4)
         normals = jnp.stack([jax.random.normal(key1, x.shape, dtype=x.dtype),
                              jax.random.normal(key2, x.shape, dtype=x.dtype)])
@@ -373,7 +373,7 @@ def _draws(rng_key: Array, x: Array, region: Region) -> tuple[Array, Array]:
                                           jax.random.uniform(key_u2, dtype=x.dtype)]))
         return normals, log_uniforms
 
-    return region(draw)(jax.random.key_data(rng_key) if typed else rng_key)
+    return region(draw)(jax.random.key_data(rng_key))
 
 
 def _finish(state: DRAMState, stages: Stages, settings: DRAMSettings,
