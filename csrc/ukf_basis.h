@@ -126,6 +126,115 @@ struct FixedBasis {
 
   static constexpr Table kTable = table();
 
+  // The force's components as multivariate Horner schemes, for the fast propagation: per
+  // component j a straight-line program whose op o writes register o. Splitting the terms by
+  // one coordinate at a time, P = x_v P1 + P0 with P1 = (the terms holding x_v) / x_v, split
+  // again by x_v, and P0 = the others, split by the next coordinates; so each term's
+  // coefficient enters once and the dependent chain is (degree + D − 1) multiply-adds long,
+  // where products of powers followed by a sum over the terms take about twice as long. The
+  // component's initial value (a momentum, so that a kick is one program) is added where the
+  // constant term sits. The reference's polynomial, associated differently: equal to rounding.
+  enum HornerKind { kHornerConst, kHornerInit, kHornerFma, kHornerMul };
+  struct HornerOp {
+    int kind = kHornerConst;
+    int var = 0;   // x_var (kHornerFma, kHornerMul)
+    int a = 0;     // x_var r_a (+ r_b)
+    int b = 0;
+    int term = -1; // the coefficient (kHornerConst, kHornerInit; −1: the initial value alone)
+  };
+  static constexpr int kMaxOps = 2 * (kCoef + 1);
+  struct Horner {
+    HornerOp ops[D][kMaxOps] = {};
+    int count[D] = {};
+  };
+  // A set of a component's terms with the powers not yet taken out; term −1 is the initial
+  // value (all powers zero).
+  struct TermSet {
+    int n = 0;
+    int term[kCoef + 1] = {};
+    int e[kCoef + 1][3] = {};
+  };
+
+  // Appends the program of Σ_s coefficient x^e from coordinate v on; returns its register.
+  static constexpr int emit(Horner& h, int j, const TermSet& set, int v) {
+    if (v == D) {  // all powers taken out: one term at most, and perhaps the initial value
+      HornerOp op{};
+      for (int k = 0; k < set.n; ++k) {
+        if (set.term[k] < 0) op.kind = kHornerInit;
+        else op.term = set.term[k];
+      }
+      h.ops[j][h.count[j]] = op;
+      return h.count[j]++;
+    }
+    TermSet with{}, without{};
+    for (int k = 0; k < set.n; ++k) {
+      TermSet& to = set.e[k][v] > 0 ? with : without;
+      to.term[to.n] = set.term[k];
+      for (int i = 0; i < D; ++i) to.e[to.n][i] = set.e[k][i] - (i == v && set.e[k][v] > 0);
+      ++to.n;
+    }
+    if (with.n == 0) return emit(h, j, without, v + 1);
+    const int a = emit(h, j, with, v);
+    HornerOp op{};
+    op.var = v;
+    op.a = a;
+    if (without.n == 0) {
+      op.kind = kHornerMul;
+    } else {
+      op.kind = kHornerFma;
+      op.b = emit(h, j, without, v + 1);
+    }
+    h.ops[j][h.count[j]] = op;
+    return h.count[j]++;
+  }
+
+  static constexpr Horner horner() {
+    Horner h{};
+    for (int j = 0; j < D; ++j) {
+      TermSet all{};
+      for (int t = kTable.start[j]; t < kTable.start[j + 1]; ++t) {
+        all.term[all.n] = t;
+        for (int f = 0; f < kTable.num_factors[t]; ++f) {
+          all.e[all.n][kTable.factor_coord[t][f]] = kTable.factor_power[t][f];
+        }
+        ++all.n;
+      }
+      all.term[all.n++] = -1;  // the initial value
+      emit(h, j, all, 0);
+    }
+    return h;
+  }
+  static constexpr Horner kHorner = horner();
+
+  // acc_j + Σ_t coef(t) x^(e_t) over component j's terms, into acc (the force with acc = 0
+  // and coef(t) = c_m e_mj; a kick p − k ∂U/∂q with acc = p and coef(t) = −k c_m e_mj).
+  // INIT false: acc's values are not read (a force from zero, without adding zeros).
+  template <bool INIT, class T, class Coef>
+  SYMPLID_INLINE static void horner_add(const T (&x)[D], const Coef& coef, T (&acc)[D]) {
+#pragma GCC unroll 16
+    for (int j = 0; j < D; ++j) {
+      T r[kMaxOps];
+#pragma GCC unroll 256
+      for (int o = 0; o < kHorner.count[j]; ++o) {
+        const HornerOp& op = kHorner.ops[j][o];
+        if (op.kind == kHornerConst) {
+          r[o] = coef(op.term);
+        } else if (op.kind == kHornerInit) {
+          if (INIT) {
+            r[o] = op.term < 0 ? acc[j] : acc[j] + coef(op.term);
+          } else {
+            r[o] = op.term < 0 ? T{} : coef(op.term);
+          }
+        } else if (op.kind == kHornerFma) {
+          r[o] = x[op.var] * r[op.a] + r[op.b];
+        } else {
+          r[o] = x[op.var] * r[op.a];
+        }
+      }
+      acc[j] = r[kHorner.count[j] - 1];
+    }
+  }
+
   // True when the runtime program (from the model's exponents) is this table.
   static bool matches(const Settings& s) {
     if (s.d != D || s.order != ORDER || s.ncoef != kCoef || s.num_terms != kTable.start[D]) {

@@ -269,7 +269,10 @@ class Propagator {
 // reloaded every time), the fast path keeps a few vectors of sigma points in registers for the
 // whole gap: a Block holds the state of one vector (or one scalar) of lanes, and several
 // blocks are advanced in the same loop body so that the processor overlaps their dependency
-// chains. The arithmetic is the reference's, associated for short chains (see Block).
+// chains. The arithmetic is the reference's, associated for short chains: the force is a
+// Horner program (FixedBasis::horner_add), and a merged kick folds the momentum and the kick's
+// size into it (CompositionMethod), so that a leapfrog substep's dependent chain is one drift
+// and the force's (degree + d − 1) multiply-adds.
 
 // An explicit Runge–Kutta tableau of S stages for one step size h: h a_ij and h b_i, with
 // flags for the entries that are not zero (Propagator::runge_kutta skips those that are).
@@ -297,42 +300,48 @@ struct RkTableau {
 template <int D, int ORDER, bool MASS, class T>
 struct Block {
   using Basis = FixedBasis<D, ORDER>;
-  static constexpr auto kTable = Basis::kTable;
+  static constexpr int kTerms = Basis::kTable.start[D];
 
   T q[D], p[D];
-  T tc[Basis::kTable.start[D]];  // c_m e_mj per term, for these lanes
+  const Vec* tc = nullptr;  // c_m e_mj per term (a vector of lanes each)
+  int lane = 0;             // a double block's lane within those vectors
 
-  // ∂U/∂q at q into out.
-  SYMPLID_INLINE void force(T (&out)[D]) const { force_at(q, out); }
+  // Term t's entry of a table of one vector per term, for these lanes.
+  SYMPLID_INLINE T coef(const Vec* table, int t) const {
+    if constexpr (std::is_same<T, Vec>::value) {
+      return table[t];
+    } else {
+      return reinterpret_cast<const double*>(table + t)[lane];
+    }
+  }
 
-  // ∂U/∂q at x into out, straight-line: every monomial of degree < ORDER once (a product of
-  // two lower ones), then per component Σ_t (c_m e_mj) monomial_t as a chain of multiply-adds,
-  // in basis order (two chains when there are more than four terms, added at the end). The
-  // reference's polynomial, with products and sums associated differently: equal to rounding.
+  // ∂U/∂q at x into out, as Basis's Horner program.
   SYMPLID_INLINE void force_at(const T (&x)[D], T (&out)[D]) const {
-    T mono[Basis::kMono > 0 ? Basis::kMono : 1];
-#pragma GCC unroll 64
-    for (int c = 0; c < Basis::kMono; ++c) {
-      mono[c] = kTable.mono_b[c] < 0 ? x[kTable.mono_a[c]]
-                                     : mono[kTable.mono_a[c]] * mono[kTable.mono_b[c]];
-    }
+    Basis::template horner_add<false>(
+        x, [this](int t) __attribute__((always_inline)) { return coef(tc, t); }, out);
+  }
+
+  // A kick p ← p − k ∂U/∂q(q) given the table of −k c_m e_mj: the momentum enters the
+  // Horner program as its initial value, so the kick adds no step to the dependent chain.
+  SYMPLID_INLINE void kick_scaled(const Vec* table) {
+    Basis::template horner_add<true>(
+        q, [this, table](int t) __attribute__((always_inline)) { return coef(table, t); }, p);
+  }
+
+  // A kick p ← p − kick ∂U/∂q(q) from the force.
+  SYMPLID_INLINE void kick(double kick) {
+    T f[D];
+    force_at(q, f);
 #pragma GCC unroll 16
-    for (int j = 0; j < D; ++j) {
-      const int first = kTable.start[j], count = kTable.start[j + 1] - first;
-      const int sums = count > 4 ? 2 : 1;
-      T acc[2];
-#pragma GCC unroll 128
-      for (int t = first; t < first + count; ++t) {
-        const int r = (t - first) % sums;
-        const int m = kTable.term_mono[t];
-        if (t - first < sums) {
-          acc[r] = m < 0 ? tc[t] : tc[t] * mono[m];
-        } else {
-          acc[r] = m < 0 ? acc[r] + tc[t] : acc[r] + tc[t] * mono[m];
-        }
-      }
-      out[j] = sums == 1 ? acc[0] : acc[0] + acc[1];
-    }
+    for (int i = 0; i < D; ++i) p[i] = p[i] - kick * f[i];
+  }
+
+  // A drift q ← q + h M⁻¹p.
+  SYMPLID_INLINE void drift(double h, const double* inv_mass) {
+    T vp[D];
+    velocity(p, vp, inv_mass);
+#pragma GCC unroll 16
+    for (int i = 0; i < D; ++i) q[i] = q[i] + h * vp[i];
   }
 
   // M⁻¹ v (v itself without a mass matrix), as Propagator::velocity.
@@ -348,29 +357,6 @@ struct Block {
       for (int j = 1; j < D; ++j) sum = sum + inv_mass[i * D + j] * v[j];
       out[i] = sum;
     }
-  }
-
-  // One leapfrog substep (eqs 5-6) as kick-drift-kick with the half kicks of consecutive
-  // substeps merged: on entry p holds the momenta after this substep's first half kick,
-  // p_k − ½h ∂U(q_k); then q_(k+1) = q_k + h M⁻¹p, and the second half kick −½h ∂U(q_(k+1))
-  // and the next substep's first, −½h' ∂U(q_(k+1)), are one kick of −kick ∂U(q_(k+1)).
-  // Algebraically Propagator::leapfrog's q_(k+1) = q_k + h M⁻¹p_k − ½h² M⁻¹∂U(q_k).
-  SYMPLID_INLINE void merged_step(double h, double kick, const double* inv_mass) {
-    T vp[D], f1[D];
-    velocity(p, vp, inv_mass);
-#pragma GCC unroll 16
-    for (int i = 0; i < D; ++i) q[i] = q[i] + h * vp[i];
-    force(f1);
-#pragma GCC unroll 16
-    for (int i = 0; i < D; ++i) p[i] = p[i] - kick * f1[i];
-  }
-
-  // A kick of −kick ∂U(q) with the force at q (the first half kick of a gap).
-  SYMPLID_INLINE void first_kick(double kick) {
-    T f0[D];
-    force(f0);
-#pragma GCC unroll 16
-    for (int i = 0; i < D; ++i) p[i] = p[i] - kick * f0[i];
   }
 
   // One explicit Runge–Kutta step from the tableau (as Propagator::runge_kutta, operation for
@@ -429,9 +415,8 @@ struct Block {
       get(qs + i * C, at, q[i]);
       get(ps + i * C, at, p[i]);
     }
-    for (int t = 0; t < kTable.start[D]; ++t) {
-      get(tcs + t, std::is_same<T, Vec>::value ? 0 : at % kWidth, tc[t]);
-    }
+    tc = tcs;
+    lane = std::is_same<T, Vec>::value ? 0 : at % kWidth;
   }
   void store(Vec* qs, Vec* ps, int C, int at) const {
     for (int i = 0; i < D; ++i) {
@@ -457,24 +442,41 @@ struct Block {
 
 // How a few blocks advance together over `steps` steps of a gap, per kind of propagator, and
 // how many vector blocks go together at most (more hide more latency until they spill).
-// The composition of leapfrog steps (weights w), kick-drift-kick with the half kicks between
-// substeps merged (one force and one kick per substep, as Propagator::advance's
-// first-same-as-last).
+// The composition of leapfrog steps (weights w_0..w_(m−1)), kick-drift-kick with the half
+// kicks between substeps merged, as Propagator::advance's first-same-as-last: the gap opens
+// with a kick of ½w_0 dt, each substep w drifts w_w dt and then kicks ½(w_w + w_(w+1)) dt
+// (w_m = w_0: the next step's first half), and the gap's last kick is ½w_(m−1) dt. For up to
+// kMaxTables weights, each merged kick has its table of coefficients −kick c_m e_mj, made once
+// per gap, and is one Horner program over the momentum (Block::kick_scaled); the gap's first
+// and last kicks, and the merged ones of longer compositions, scale the force (Block::kick).
+// (Taking the first and last kicks from tables as well, in the same loop, measured slower.)
 struct CompositionMethod {
   static constexpr int kMaxBlocks = 3;
+  static constexpr int kMaxTables = 4;
   template <class... Blocks>
-  SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, Blocks&... blocks) {
+  SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, const Vec* tc,
+                                 Blocks&... blocks) {
     if (steps <= 0) return;
-    const int last = s.ncomp - 1;
-    const double first_half = 0.5 * s.comp_w[0] * dt;
-    (blocks.first_kick(first_half), ...);
+    constexpr int kTerms = std::max({Blocks::kTerms...});
+    const int m = s.ncomp, last = m - 1;
+    const bool tabled = m <= kMaxTables;
+    Vec table[kMaxTables][kTerms];
+    for (int w = 0; tabled && w < m; ++w) {
+      const double kick = 0.5 * (s.comp_w[w] + s.comp_w[w < last ? w + 1 : 0]) * dt;
+      for (int t = 0; t < kTerms; ++t) table[w][t] = -kick * tc[t];
+    }
+    (blocks.kick(0.5 * s.comp_w[0] * dt), ...);
     for (int k = 0; k < steps; ++k) {
-      for (int w = 0; w < s.ncomp; ++w) {
+      for (int w = 0; w < m; ++w) {
         const double h = s.comp_w[w] * dt;
-        // this substep's second half kick and the next one's first (none after the last)
-        const double next =
-            w < last ? s.comp_w[w + 1] * dt : (k + 1 < steps ? 2.0 * first_half : 0.0);
-        (blocks.merged_step(h, 0.5 * h + 0.5 * next, s.inv_mass), ...);
+        (blocks.drift(h, s.inv_mass), ...);
+        const bool end = k + 1 == steps && w == last;
+        if (tabled && !end) {
+          (blocks.kick_scaled(table[w]), ...);
+        } else {
+          const double next = end ? 0.0 : s.comp_w[w < last ? w + 1 : 0] * dt;
+          (blocks.kick(0.5 * h + 0.5 * next), ...);
+        }
       }
     }
   }
@@ -487,7 +489,8 @@ template <int S>
 struct RungeKuttaMethod {
   static constexpr int kMaxBlocks = S <= 2 ? 3 : 2;
   template <class... Blocks>
-  SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, Blocks&... blocks) {
+  SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, const Vec*,
+                                 Blocks&... blocks) {
     const RkTableau<S> tableau(s, dt);
     for (int k = 0; k < steps; ++k) (blocks.template rk_step<S>(tableau, s.inv_mass), ...);
   }
@@ -529,7 +532,7 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
       a.load(q, p, tc, C, c);
       b.load(q, p, tc, C, c + 1);
       e.load(q, p, tc, C, c + 2);
-      Method::run(s, dt, steps, a, b, e);
+      Method::run(s, dt, steps, tc, a, b, e);
       a.store(q, p, C, c);
       b.store(q, p, C, c + 1);
       e.store(q, p, C, c + 2);
@@ -539,7 +542,7 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
       V a, b;
       a.load(q, p, tc, C, c);
       b.load(q, p, tc, C, c + 1);
-      Method::run(s, dt, steps, a, b);
+      Method::run(s, dt, steps, tc, a, b);
       a.store(q, p, C, c);
       b.store(q, p, C, c + 1);
     }
@@ -551,9 +554,9 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
     a.load(q, p, tc, C, c);
     b.load(q, p, tc, C, c + 1);
     if (lone) {
-      Method::run(s, dt, steps, a, b, x);
+      Method::run(s, dt, steps, tc, a, b, x);
     } else {
-      Method::run(s, dt, steps, a, b);
+      Method::run(s, dt, steps, tc, a, b);
     }
     a.store(q, p, C, c);
     b.store(q, p, C, c + 1);
@@ -561,13 +564,13 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
     V a;
     a.load(q, p, tc, C, c);
     if (lone) {
-      Method::run(s, dt, steps, a, x);
+      Method::run(s, dt, steps, tc, a, x);
     } else {
-      Method::run(s, dt, steps, a);
+      Method::run(s, dt, steps, tc, a);
     }
     a.store(q, p, C, c);
   } else if (lone) {
-    Method::run(s, dt, steps, x);
+    Method::run(s, dt, steps, tc, x);
   }
   if (lone) x.store(q, p, C, lane);
 }

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import symplid
+from symplid.dynamics.integrators import symplectic_integrator
 from symplid.dynamics.potentials import FunctionPotential, Polynomial
 from symplid.model import kernel as compiled_kernel
 
@@ -97,6 +98,37 @@ def test_equals_jax_reference(case):
     """Nine random θ (a batch of eight and a single) and one by one equal the JAX filter."""
     rng = np.random.default_rng(CASES.index(case))
     model, prepared, thetas, x0 = _problem(case, rng)
+    P0 = 1e-4 * np.eye(model.state_dim)
+    reference = jax.vmap(lambda th: _jax(model).log_likelihood(th, prepared, x0, P0))(thetas)
+    batched = jax.vmap(lambda th: compiled_kernel.log_likelihood(model, prepared, th, x0, P0))(
+        thetas
+    )
+    assert np.all(np.isfinite(reference))
+    assert _close(batched, reference)
+    single = compiled_kernel.log_likelihood(model, prepared, thetas[0], x0, P0)
+    assert _close(single, reference[0])
+
+
+# Compositions of leapfrog steps the library does not register: four weights (the most whose
+# merged kicks the kernel folds into scaled coefficient tables) and Suzuki's five (more: the
+# kernel kicks with the force instead).
+_SUZUKI = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
+COMPOSITIONS = {
+    "four-weights": symplectic_integrator("four-weights", 2, (0.2, 0.3, 0.3, 0.2), "test"),
+    "suzuki5": symplectic_integrator(
+        "suzuki5", 4, (_SUZUKI, _SUZUKI, 1.0 - 4.0 * _SUZUKI, _SUZUKI, _SUZUKI), "test"
+    ),
+}
+
+
+@pytest.mark.parametrize(
+    "d, order, name",
+    [(1, 4, "four-weights"), (2, 3, "suzuki5"), (3, 4, "suzuki5"), (3, 4, "four-weights")],
+)
+def test_custom_compositions_equal_jax_reference(d, order, name):
+    """A user's composition, with few weights or many, equals the JAX filter."""
+    case = (d, order, COMPOSITIONS[name], "isotropic", "gap", "full", None)
+    model, prepared, thetas, x0 = _problem(case, np.random.default_rng(10 * d + order))
     P0 = 1e-4 * np.eye(model.state_dim)
     reference = jax.vmap(lambda th: _jax(model).log_likelihood(th, prepared, x0, P0))(thetas)
     batched = jax.vmap(lambda th: compiled_kernel.log_likelihood(model, prepared, th, x0, P0))(
