@@ -85,21 +85,14 @@ struct FastPsi {
     }
   }
 
-  // p −= κ ∇U(q) for one block of lanes.
+  // p −= κ ∇U(q) for one block of lanes, the force as Basis's Horner program.
   SYMPLID_INLINE static void kick(const Lanes (&q)[D], Lanes (&p)[D], const Lanes& kappa,
                                   const Lanes (&tc)[kTerms]) {
-    Lanes mono[kMono];
-    monomials(q, mono);
+    Lanes force[D];
+    Basis::template horner_add<false>(
+        q, [&tc](int t) __attribute__((always_inline)) { return tc[t]; }, force);
 #pragma GCC unroll 16
-    for (int j = 0; j < D; ++j) {
-      Lanes acc = Lanes{};
-#pragma GCC unroll 128
-      for (int t = kBasis.start[j]; t < kBasis.start[j + 1]; ++t) {
-        const int m = kBasis.term_mono[t];
-        acc = m < 0 ? acc + tc[t] : acc + tc[t] * mono[m];
-      }
-      p[j] = p[j] - kappa * acc;
-    }
+    for (int j = 0; j < D; ++j) p[j] = p[j] - kappa * force[j];
   }
 
   // The adjoint of kick at q for one block: q̄ −= κ ∇²U(q) p̄, acc_t += κ p̄_j μ_t.
