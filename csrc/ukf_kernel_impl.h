@@ -500,79 +500,81 @@ struct RungeKuttaMethod {
 // lanes of one θ (its npts sigma points), G = kWidth one vector per sigma point.
 using FastAdvanceFn = void (*)(const Settings&, Vec*, Vec*, const Vec*, int, int, double, int);
 
-// Whole vectors of lanes in use; with one θ, a last partly used vector counts as whole (its
-// padding lanes hold finite copies of the centre point) unless it has a single lane, which
-// then goes in a scalar block (lone).
-struct LaneLayout {
-  int full;
-  bool lone;
-};
-inline LaneLayout lane_layout(const Settings& s, int C, int G) {
-  if (G != 1) return {C, false};
-  const int rest = s.npts % kWidth;
-  return {s.npts / kWidth + (rest > 1 ? 1 : 0), rest == 1};
-}
-
-template <int D, int ORDER, bool MASS, class Method>
-void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G, double dt,
-                  int steps) {
-  if (steps <= 0) return;
+// The blocks of a gap for one layout of the lanes, known at compile time: FULL whole vectors
+// per row, and after them a lone scalar lane or not. Three (or two) vectors at a time hide the
+// latency of one step's chain; the leftovers go in a pair or alone, with the lone lane beside
+// them.
+template <int D, int ORDER, bool MASS, class Method, int FULL, bool LONE>
+SYMPLID_INLINE void advance_layout(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C,
+                                   double dt, int steps) {
   using V = Block<D, ORDER, MASS, Vec>;
   using S = Block<D, ORDER, MASS, double>;
-  const auto [full, lone] = lane_layout(s, C, G);
-  const int lane = full * kWidth;  // the lone scalar lane
-  // Only used where the vector registers are many (select_fast_advance): with AVX2 or SSE2
-  // a Vec is already two or four registers and register blocks would spill.
-  int c = 0;
-  // Three (or two) vectors at a time hide the latency of one step's chain; the leftovers go
-  // in a pair or alone, with the lone lane beside them.
-  if constexpr (Method::kMaxBlocks >= 3) {
-    for (; c + 3 <= full; c += 3) {
-      V a, b, e;
-      a.load(q, p, tc, C, c);
-      b.load(q, p, tc, C, c + 1);
-      e.load(q, p, tc, C, c + 2);
-      Method::run(s, dt, steps, tc, a, b, e);
-      a.store(q, p, C, c);
-      b.store(q, p, C, c + 1);
-      e.store(q, p, C, c + 2);
-    }
-  } else {
-    for (; c + 2 < full; c += 2) {  // pairs while more than two are left
-      V a, b;
-      a.load(q, p, tc, C, c);
-      b.load(q, p, tc, C, c + 1);
-      Method::run(s, dt, steps, tc, a, b);
-      a.store(q, p, C, c);
-      b.store(q, p, C, c + 1);
-    }
-  }
-  S x;
-  if (lone) x.load(q, p, tc, C, lane);
-  if (c + 2 == full) {
+  constexpr int kGroup = Method::kMaxBlocks >= 3 ? 3 : 2;
+  // triples while three are left; pairs while more than two are left
+  constexpr int kGroups = kGroup == 3 ? FULL / 3 : (FULL > 2 ? (FULL - 1) / 2 : 0);
+  constexpr int kLeft = FULL - kGroups * kGroup;
+  for (int g = 0; g < kGroups; ++g) {
+    const int c = g * kGroup;
     V a, b;
     a.load(q, p, tc, C, c);
     b.load(q, p, tc, C, c + 1);
-    if (lone) {
+    if constexpr (kGroup == 3) {
+      V e;
+      e.load(q, p, tc, C, c + 2);
+      Method::run(s, dt, steps, tc, a, b, e);
+      e.store(q, p, C, c + 2);
+    } else {
+      Method::run(s, dt, steps, tc, a, b);
+    }
+    a.store(q, p, C, c);
+    b.store(q, p, C, c + 1);
+  }
+  constexpr int c = kGroups * kGroup;
+  S x;
+  if constexpr (LONE) x.load(q, p, tc, C, FULL * kWidth);
+  if constexpr (kLeft == 2) {
+    V a, b;
+    a.load(q, p, tc, C, c);
+    b.load(q, p, tc, C, c + 1);
+    if constexpr (LONE) {
       Method::run(s, dt, steps, tc, a, b, x);
     } else {
       Method::run(s, dt, steps, tc, a, b);
     }
     a.store(q, p, C, c);
     b.store(q, p, C, c + 1);
-  } else if (c + 1 == full) {
+  } else if constexpr (kLeft == 1) {
     V a;
     a.load(q, p, tc, C, c);
-    if (lone) {
+    if constexpr (LONE) {
       Method::run(s, dt, steps, tc, a, x);
     } else {
       Method::run(s, dt, steps, tc, a);
     }
     a.store(q, p, C, c);
-  } else if (lone) {
+  } else if constexpr (LONE) {
     Method::run(s, dt, steps, tc, x);
   }
-  if (lone) x.store(q, p, C, lane);
+  if constexpr (LONE) x.store(q, p, C, FULL * kWidth);
+}
+
+// Only used where the vector registers are many (select_fast_advance): with AVX2 or SSE2 a Vec
+// is already two or four registers and register blocks would spill. The state has n = 2D
+// components, so 4D + 1 sigma points (select_fast_advance checks): with one θ, whole vectors of
+// them, a last partly used vector counting as whole (its padding lanes hold finite copies of
+// the centre point) unless it has a single lane, which then goes in a scalar block; with a
+// group, one vector per sigma point. So only the block layouts that occur are compiled.
+template <int D, int ORDER, bool MASS, class Method>
+void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G, double dt,
+                  int steps) {
+  if (steps <= 0) return;
+  constexpr int kPoints = 4 * D + 1, kRest = kPoints % kWidth;
+  if (G == 1) {
+    advance_layout<D, ORDER, MASS, Method, kPoints / kWidth + (kRest > 1), kRest == 1>(
+        s, q, p, tc, C, dt, steps);
+  } else {
+    advance_layout<D, ORDER, MASS, Method, kPoints, false>(s, q, p, tc, C, dt, steps);
+  }
 }
 
 // fast_advance for a fixed basis, by propagator: a composition of leapfrog steps, or an
@@ -600,7 +602,7 @@ FastAdvanceFn fast_advance_for(const Settings& s) {
 template <bool MANY = kManyRegisters>
 FastAdvanceFn select_fast_advance(const Settings& s) {
   if constexpr (MANY) {
-    if (s.has_mass) return nullptr;
+    if (s.has_mass || s.npts != 4 * s.d + 1) return nullptr;
 #define SYMPLID_TRY_FAST(D, ORDER) \
   if (FixedBasis<D, ORDER>::matches(s)) return fast_advance_for<D, ORDER>(s);
     SYMPLID_TRY_FAST(1, 2) SYMPLID_TRY_FAST(1, 3) SYMPLID_TRY_FAST(1, 4) SYMPLID_TRY_FAST(1, 5)
