@@ -442,9 +442,9 @@ struct Block {
 
 // How a few blocks advance together over `steps` steps of a gap, per kind of propagator, and
 // how many vector blocks go together at most (more hide more latency until they spill).
-// The composition of leapfrog steps (weights w_0..w_(m−1)), kick-drift-kick with the half
-// kicks between substeps merged, as Propagator::advance's first-same-as-last: the gap opens
-// with a kick of ½w_0 dt, each substep w drifts w_w dt and then kicks ½(w_w + w_(w+1)) dt
+// The composition of leapfrog steps (eqs 5-6, weights w_0..w_(m−1)), kick-drift-kick with
+// the half kicks between substeps merged, as Propagator::advance's first-same-as-last: the gap
+// opens with a kick of ½w_0 dt, each substep w drifts w_w dt and then kicks ½(w_w + w_(w+1)) dt
 // (w_m = w_0: the next step's first half), and the gap's last kick is ½w_(m−1) dt. For up to
 // kMaxTables weights, each merged kick has its table of coefficients −kick c_m e_mj, made once
 // per gap, and is one Horner program over the momentum (Block::kick_scaled); the gap's first
