@@ -699,6 +699,15 @@ SYMPLID_INLINE double& lane_at(Vec& v, int w) { return reinterpret_cast<double*>
 SYMPLID_INLINE double lane_at(const double& v, int) { return v; }
 SYMPLID_INLINE double lane_at(const Vec& v, int w) { return v[w]; }
 
+// The sum of a vector's lanes (pairwise: halves, quarters, then the last two).
+SYMPLID_INLINE double lane_sum(const Vec& v) {
+  typedef double Half __attribute__((vector_size(4 * sizeof(double))));
+  typedef double Quarter __attribute__((vector_size(2 * sizeof(double))));
+  const Half four = Half{v[0], v[1], v[2], v[3]} + Half{v[4], v[5], v[6], v[7]};
+  const Quarter two = Quarter{four[0], four[1]} + Quarter{four[2], four[3]};
+  return two[0] + two[1];
+}
+
 // ½ Σ_j log x_j per lane: one logarithm of the product where every x_j is positive and the
 // product a normal number, else the sum of logarithms (−∞ or NaN for an x_j ≤ 0, as there).
 template <class T>
@@ -745,6 +754,10 @@ class Filter {
     x0_ = take(work, n);
     p0_ = take(work, n * n);
     selects_ = selection(s, select_);
+    for (int k = 0; kLaneMoments && k < s.npts && k < kRowVectors * kWidth; ++k) {
+      wm_lanes_[k / kWidth][k % kWidth] = s.wm[k];
+      wc_lanes_[k / kWidth][k % kWidth] = s.wc[k];
+    }
     const int first_obs = s.ncoef + (s.diagonal ? n : 1);
     for (int w = 0; w < lanes(); ++w) {
       const Member& m = members[w % G];
@@ -801,6 +814,9 @@ class Filter {
   // Predicted moments, eq (10): weighted mean and covariance of the propagated points,
   // plus Σ, symmetrised, plus jitter·I (into mean and cov).
   void predicted_moments(const Vec* q, const Vec* p, int C) {
+    if constexpr (kLaneMoments) {
+      if (C == kRowVectors) return predicted_moments_lanes(q, p);
+    }
     const int n = this->n(), d = n / 2, np = NN > 0 ? 2 * NN + 1 : s_.npts;
     const double* wm = s_.wm;
     const double* wc = s_.wc;
@@ -809,9 +825,9 @@ class Filter {
 #pragma GCC unroll 8
     for (int i = 0; i < n; ++i) {
       const T* row = reinterpret_cast<const T*>(i < d ? q + i * C : p + (i - d) * C);
-      T sum = T{} + row[0] * wm[0];
-#pragma GCC unroll 16
-      for (int k = 1; k < np; ++k) sum = sum + row[k] * wm[k];
+      const T sum = weighted_sum(
+          np, [wm](int k) __attribute__((always_inline)) { return wm[k]; },
+          [row](int k) __attribute__((always_inline)) { return row[k]; });
       mean[i] = sum;
 #pragma GCC unroll 16
       for (int k = 0; k < np; ++k) c[i * np + k] = row[k] - sum;
@@ -826,9 +842,69 @@ class Filter {
       for (int k = 0; k < np; ++k) wci[k] = wc[k] * c[i * np + k];
 #pragma GCC unroll 8
       for (int j = 0; j <= i; ++j) {
-        T sum = wci[0] * c[j * np];
+        const T* cj = c + j * np;
+        const T sum = weighted_sum(
+            np, [wci](int k) __attribute__((always_inline)) { return wci[k]; },
+            [cj](int k) __attribute__((always_inline)) { return cj[k]; });
+        cov[i * n + j] = sum;
+        cov[j * n + i] = sum;
+      }
+      cov[i * n + i] = (cov[i * n + i] + process_var_[i]) + s_.jitter;
+    }
+  }
+
+  // Σ_k a_k b_k over the np sigma points. With n known at compile time, in the order of
+  // predicted_moments_lanes: per lane position j = k mod kWidth multiply-adds in k from zero,
+  // then the kWidth partial sums pairwise as lane_sum; so one θ and a group (T = Vec)
+  // give a member the same numbers. Else one chain in k.
+  template <class A, class B>
+  SYMPLID_INLINE static T weighted_sum(int np, const A& a, const B& b) {
+    if constexpr (NN > 0) {
+      T acc[kWidth] = {};  // from zero: each sum then holds one product, so contraction into
+                          // multiply-adds is the same in every lane type
 #pragma GCC unroll 16
-        for (int k = 1; k < np; ++k) sum = sum + wci[k] * c[j * np + k];
+      for (int k = 0; k < np; ++k) acc[k % kWidth] = acc[k % kWidth] + a(k) * b(k);
+      T four[4];
+#pragma GCC unroll 4
+      for (int j = 0; j < 4; ++j) four[j] = acc[j] + acc[j + 4];
+      const T two0 = four[0] + four[2], two1 = four[1] + four[3];
+      return two0 + two1;
+    } else {
+      T sum{};
+      for (int k = 0; k < np; ++k) sum = sum + a(k) * b(k);
+      return sum;
+    }
+  }
+
+  // predicted_moments for one θ with n known at compile time: a row's sigma points are the
+  // lanes of kRowVectors vectors, so each weighted sum is lane-wise multiply-adds and one sum
+  // across the lanes at the end. The weights are zero on the padding lanes, which hold finite
+  // copies of the centre point (sigma_points). The sums are weighted_sum's.
+  void predicted_moments_lanes(const Vec* q, const Vec* p) {
+    constexpr int n = NN, d = NN / 2, CV = kRowVectors;
+    Vec z[NN][CV], wz[NN][CV];
+#pragma GCC unroll 8
+    for (int i = 0; i < n; ++i) {
+      const Vec* row = i < d ? q + i * CV : p + (i - d) * CV;
+      Vec acc{};
+#pragma GCC unroll 4
+      for (int c = 0; c < CV; ++c) acc = acc + wm_lanes_[c] * row[c];
+      const double m = lane_sum(acc);
+      mean[i] = m;
+#pragma GCC unroll 4
+      for (int c = 0; c < CV; ++c) {
+        z[i][c] = row[c] - m;
+        wz[i][c] = wc_lanes_[c] * z[i][c];
+      }
+    }
+#pragma GCC unroll 8
+    for (int i = 0; i < n; ++i) {
+#pragma GCC unroll 8
+      for (int j = 0; j <= i; ++j) {
+        Vec acc{};
+#pragma GCC unroll 4
+        for (int c = 0; c < CV; ++c) acc = acc + wz[i][c] * z[j][c];
+        const double sum = lane_sum(acc);
         cov[i * n + j] = sum;
         cov[j * n + i] = sum;
       }
@@ -953,6 +1029,10 @@ class Filter {
 
  private:
   static constexpr double kLog2Pi = 1.8378770664093454835606594728112;
+  // Moments over lanes (predicted_moments_lanes): one θ, n known at compile time.
+  static constexpr bool kLaneMoments = std::is_same<T, double>::value && NN > 0;
+  static constexpr int kRowVectors = NN > 0 ? (2 * NN + 1 + kWidth - 1) / kWidth : 1;
+  Vec wm_lanes_[kRowVectors] = {}, wc_lanes_[kRowVectors] = {};  // zero on padding lanes
 
   static T* take(T*& work, int size) {
     T* out = work;
