@@ -1204,7 +1204,9 @@ void run_group(const Settings& s, const TrajectoryData& data, const Member* memb
   }
 }
 
-// The filter's sizes: compile-time for full-state or position observations of d = 1..3.
+// The filter's sizes: compile-time for full-state or position observations of d = 1..3;
+// other observations take the run-time sizes and chunk count (one copy of the filter per lane
+// type instead of one per chunk count: the fast propagation is the same either way).
 template <class Chunks, class T, int NN>
 void run_sized(const Settings& s, const TrajectoryData& data, const Member* members, int G,
                Chunks chunks, Workspace& work) {
@@ -1212,7 +1214,8 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member* memb
   if (s.n == NN && s.dy == NN / 2) {
     return run_group<Chunks, T, NN, NN / 2>(s, data, members, G, chunks, work);
   }
-  return run_group<Chunks, T, 0, 0>(s, data, members, G, chunks, work);
+  return run_group<RuntimeChunks, T, 0, 0>(s, data, members, G, RuntimeChunks{chunks.count()},
+                                           work);
 }
 
 // Entry point for this instruction set: compile-time chunk counts and sizes where common

@@ -33,7 +33,7 @@ TIMES = np.array([0.7, 1.5, 2.0, 3.1, 3.6])  # gaps of 3, 4, 2, 5 and 2 substeps
 TOL = 1e-12
 
 # (d, order, integrator, noise, Σ per, observation, mass): every integrator, d = 1..3,
-# orders 2..5, and each option at least once.
+# orders 2..5, and each option at least once, observation matrices included.
 CASES = [
     (1, 2, "leapfrog", "isotropic", "gap", "full", None),
     (2, 3, "yoshida4", "diagonal", "step", "positions", None),
@@ -42,6 +42,10 @@ CASES = [
     (2, 4, "rk2-heun", "isotropic", "step", "full", ((2.0, 0.5), (0.5, 1.0))),
     (3, 2, "rk4", "diagonal", "gap", "positions", None),
     (2, 5, "leapfrog", "isotropic", "gap", "full", None),
+    # a general linear observation (neither the state nor its positions): run-time sizes
+    (2, 3, "leapfrog", "isotropic", "gap", ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.5, 0.0),
+                                            (0.0, 0.0, 0.0, 1.0)), None),
+    (3, 2, "rk4", "diagonal", "step", ((1.0, 1.0, 0.0, 0.0, 0.0, 0.5),), (1.0, 2.0, 3.0)),
 ]
 
 
@@ -53,7 +57,7 @@ def _problem(case, rng: np.random.Generator, num_theta: int = 9):
         dt=0.25,
         noise=noise,
         process_noise_per=per,
-        observation=observation,
+        observation=observation if isinstance(observation, str) else np.array(observation),
         mass=mass,
     )
     values = 0.3 * rng.standard_normal((TIMES.size, model.obs_dim))
