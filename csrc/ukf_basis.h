@@ -1,7 +1,7 @@
 // The compile-time basis of a polynomial potential (eq 13) in D coordinates up to degree ORDER:
-// its monomials, the force's term program and the products that build the monomials, as
-// constexpr tables. Shared by the value kernel (ukf_kernel_impl.h) and the adjoint's fast
-// propagation (ukf_adjoint_fast.cc).
+// its monomials, the force's term program, the products that build the monomials and the
+// force as a Horner program (horner_add), as constexpr tables. Shared by the value kernel
+// (ukf_kernel_impl.h) and the adjoint's fast propagation (ukf_adjoint_fast.cc).
 //
 // Like ukf_kernel_impl.h this file is included inside an instruction set's namespace (and
 // `#pragma GCC target` region) and includes nothing itself: Settings, Vec and the standard
