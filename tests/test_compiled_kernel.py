@@ -32,6 +32,9 @@ pytestmark = pytest.mark.skipif(
 TIMES = np.array([0.7, 1.5, 2.0, 3.1, 3.6])  # gaps of 3, 4, 2, 5 and 2 substeps at dt = 0.25
 TOL = 1e-12
 
+_THREE_OF_FOUR = ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.5, 0.0), (0.0, 0.0, 0.0, 1.0))
+_ONE_OF_SIX = ((1.0, 1.0, 0.0, 0.0, 0.0, 0.5),)
+
 # (d, order, integrator, noise, Σ per, observation, mass): every integrator, d = 1..3,
 # orders 2..5, and each option at least once, observation matrices included.
 CASES = [
@@ -42,10 +45,9 @@ CASES = [
     (2, 4, "rk2-heun", "isotropic", "step", "full", ((2.0, 0.5), (0.5, 1.0))),
     (3, 2, "rk4", "diagonal", "gap", "positions", None),
     (2, 5, "leapfrog", "isotropic", "gap", "full", None),
-    # a general linear observation (neither the state nor its positions): run-time sizes
-    (2, 3, "leapfrog", "isotropic", "gap", ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.5, 0.0),
-                                            (0.0, 0.0, 0.0, 1.0)), None),
-    (3, 2, "rk4", "diagonal", "step", ((1.0, 1.0, 0.0, 0.0, 0.0, 0.5),), (1.0, 2.0, 3.0)),
+    # general linear observations (neither the state nor its positions): run-time sizes
+    (2, 3, "leapfrog", "isotropic", "gap", _THREE_OF_FOUR, None),
+    (3, 2, "rk4", "diagonal", "step", _ONE_OF_SIX, (1.0, 2.0, 3.0)),
 ]
 
 
@@ -97,11 +99,8 @@ def _close(a, b) -> bool:
     return bool(np.all(np.abs(a - b) <= TOL * np.maximum(1.0, np.abs(b))))
 
 
-@pytest.mark.parametrize("case", CASES, ids=lambda c: f"d{c[0]}-l{c[1]}-{c[2]}-{c[3]}-{c[4]}")
-def test_equals_jax_reference(case):
-    """Nine random θ (a batch of eight and a single) and one by one equal the JAX filter."""
-    rng = np.random.default_rng(CASES.index(case))
-    model, prepared, thetas, x0 = _problem(case, rng)
+def _assert_equals_reference(model, prepared, thetas, x0):
+    """The kernel's values, for the batch and for its first θ alone, are the JAX filter's."""
     P0 = 1e-4 * np.eye(model.state_dim)
     reference = jax.vmap(lambda th: _jax(model).log_likelihood(th, prepared, x0, P0))(thetas)
     batched = jax.vmap(lambda th: compiled_kernel.log_likelihood(model, prepared, th, x0, P0))(
@@ -111,6 +110,13 @@ def test_equals_jax_reference(case):
     assert _close(batched, reference)
     single = compiled_kernel.log_likelihood(model, prepared, thetas[0], x0, P0)
     assert _close(single, reference[0])
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"d{c[0]}-l{c[1]}-{c[2]}-{c[3]}-{c[4]}")
+def test_equals_jax_reference(case):
+    """Nine random θ (a batch of eight and a single) and one by one equal the JAX filter."""
+    rng = np.random.default_rng(CASES.index(case))
+    _assert_equals_reference(*_problem(case, rng))
 
 
 # Compositions of leapfrog steps the library does not register: four weights (the most whose
@@ -132,16 +138,7 @@ COMPOSITIONS = {
 def test_custom_compositions_equal_jax_reference(d, order, name):
     """A user's composition, with few weights or many, equals the JAX filter."""
     case = (d, order, COMPOSITIONS[name], "isotropic", "gap", "full", None)
-    model, prepared, thetas, x0 = _problem(case, np.random.default_rng(10 * d + order))
-    P0 = 1e-4 * np.eye(model.state_dim)
-    reference = jax.vmap(lambda th: _jax(model).log_likelihood(th, prepared, x0, P0))(thetas)
-    batched = jax.vmap(lambda th: compiled_kernel.log_likelihood(model, prepared, th, x0, P0))(
-        thetas
-    )
-    assert np.all(np.isfinite(reference))
-    assert _close(batched, reference)
-    single = compiled_kernel.log_likelihood(model, prepared, thetas[0], x0, P0)
-    assert _close(single, reference[0])
+    _assert_equals_reference(*_problem(case, np.random.default_rng(10 * d + order)))
 
 
 @pytest.fixture(scope="module")
