@@ -335,9 +335,9 @@ def pin_worker(counter: object | None = None, index: int | None = None) -> int |
         with counter.get_lock():  # type: ignore[attr-defined]
             index = counter.value  # type: ignore[attr-defined]
             counter.value += 1  # type: ignore[attr-defined]
-    if index is None or not hasattr(os, "sched_setaffinity"):
+    cores = own_cores()
+    if index is None or cores is None or not hasattr(os, "sched_setaffinity"):
         return None
-    cores = sorted(os.sched_getaffinity(0))
     core = cores[index % len(cores)]
     try:
         os.sched_setaffinity(0, {core})
