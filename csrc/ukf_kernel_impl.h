@@ -908,6 +908,8 @@ class Filter {
         cov[i * n + j] = sum;
         cov[j * n + i] = sum;
       }
+      // Σ and jitter here, as in predicted_moments (a separate pass over the diagonal after
+      // both loops measured 10 % slower for one θ)
       cov[i * n + i] = (cov[i * n + i] + process_var_[i]) + s_.jitter;
     }
   }
