@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import symplid  # noqa: F401  (float64)
-from symplid.inference.neural_fit import _diagonal_hessian as diagonal_hessian
+from symplid.inference.map._neural import _diagonal_hessian as diagonal_hessian
 from symplid.model.prior_spec import log_density_sum
 from symplid.model.priors import Normal
 

@@ -94,7 +94,7 @@ def _interval_rows(label, names, truth, result, draws, rhat, sigma_median) -> li
 def fit_seed(seed: int, settings: Settings, iterations: int) -> list[dict]:
     """Both priors' MAP + Laplace and DRAM on one fresh data set; one row per prior and
     coefficient. The log-uniform MAP starts from the half-normal one (the library's
-    :func:`~symplid.inference.homotopy.half_normal_start`, here without refitting)."""
+    :func:`~symplid.inference.map._homotopy.half_normal_start`, here without refitting)."""
     system = get_system("henon-heiles")
     obs = simulate(system, times=5.0 * np.arange(1, 21), noise_std=0.05, seed=seed)
     model = build_model(settings, obs)

@@ -16,7 +16,7 @@ What it shows
    oscillation's parameters has several modes (a wrong frequency can match some of the data):
    L-BFGS-B from θ = 0 (the reference pendulum: equal masses, equal 1 m rods, standard
    gravity) stops in a wrong one, 32 % off. The default search starts from the data instead
-   (:mod:`symplid.inference.map_data_start`: a collocation fit of Hamilton's equations to
+   (:mod:`symplid.inference.map._data_start`: a collocation fit of Hamilton's equations to
    the smoothed angles), which lands within about 10 % of the truth, in the right mode.
 4. Prediction: the MAP pendulum integrated by ``tao4`` at dt = 0.01 beyond the data (to 20 s)
    against the truth, and its energy error along the way.

@@ -8,7 +8,7 @@ potential could take its place. Here U(q; w) is an MLP (``symplid.MLPPotential``
 2 hidden layers, 336 weights, prior Normal(0, 1) on each), fitted to the paper's data
 (Hénon–Heiles, 20 full-state observations 5 s apart, σ = 0.05, data seed 0) by the same UKF
 marginal likelihood with leapfrog at dt = 0.25, known initial state: MAP by Adam then L-BFGS
-and the Gauss–Newton Laplace covariance (``symplid.inference.neural_fit``). The cubic
+and the Gauss–Newton Laplace covariance (``symplid.inference.map._neural``). The cubic
 polynomial is fitted to the same data (MAP, exact Hessian) for comparison.
 
 Printed: each model's learned H at the true initial state against the true 0.12271, its

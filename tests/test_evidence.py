@@ -1,4 +1,4 @@
-"""The log evidence with the variances integrated on their log scale (symplid.inference.evidence).
+"""The log evidence with the variances integrated on their log scale (``inference/map/_evidence``).
 
 The reference is brute force: the harmonic oscillator U = ½ k q² with one unknown coefficient
 k and two unknown variances (process, observation) is linear-Gaussian, so its likelihood is
@@ -21,9 +21,10 @@ from scipy.special import logsumexp
 
 import symplid
 from symplid import FunctionPotential, HamiltonianModel, Observations, Posterior, find_map
-from symplid.inference.evidence import EvidenceSettings, quadrature_evidence
-from symplid.inference.map import _compiled
-from symplid.inference.map_result import MapResult, MultipleOptimaWarning
+from symplid.inference.map._evidence import EvidenceSettings, quadrature_evidence
+from symplid.inference.map._find import _compiled
+from symplid.inference.map._result import MapResult, MultipleOptimaWarning
+from symplid.inference.map._space import SearchSpace
 from symplid.model.params import ParameterSpace
 
 X0 = np.array([1.0, 0.0])
@@ -140,7 +141,7 @@ def test_axis_rule_for_many_variances(case):
     0.14), much nearer than the Laplace evidence (1.3 and 0.7 nats low)."""
     _, posterior, result = case
     space = ParameterSpace.of(posterior)
-    search = space.search(1e-14)
+    search = SearchSpace.of(space, 1e-14)
     fns = _compiled(posterior, search)
     found = quadrature_evidence(fns["value_and_grad"], fns["hessian"], search, space.groups,
                                 space.names, result.theta, EvidenceSettings(max_grid_dims=1))

@@ -29,6 +29,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS = {
     "registry": 0,
     "compiled": 0,
+    "_jsonfloat": 0,
     "kernel_region": 0,
     "runtime": 0,
     "stopping": 0,

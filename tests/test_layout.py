@@ -17,6 +17,7 @@ import pytest
 import symplid  # noqa: F401  (float64)
 from symplid import HamiltonianModel, Observations, Polynomial, Posterior
 from symplid.dynamics.user_models import UserPotential
+from symplid.inference.map._space import SearchSpace
 from symplid.inference.samplers.registry import LogVariances
 from symplid.model.layout import Block, ParameterLayout
 from symplid.model.params import ParameterProperties, ParameterSpace, Reparameterisation
@@ -222,7 +223,7 @@ def test_every_consumer_selects_from_the_one_object():
         ParameterProperties("r", "obs_var", Uniform(0.0, 1.0), 0.0, 1.0),
     ])
     assert space.bijectors == ("identity", "log", "log", "logit")
-    search = space.search(1e-14)  # the MAP: every entry bounded below only
+    search = SearchSpace.of(space, 1e-14)  # the MAP: every entry bounded below only
     np.testing.assert_array_equal(search.log, [False, True, True, False])
     theta = np.array([0.3, 0.75, 1e-20, 0.4])
     u = search.to_u(theta)

@@ -16,8 +16,9 @@ import pytest
 import scipy.optimize
 
 from symplid.inference.map import find_map
-from symplid.inference.map_result import StartResult
-from symplid.inference.map_search import Objective, active_bounds, judge_with_hessian
+from symplid.inference.map._result import StartResult
+from symplid.inference.map._search import Objective, active_bounds, judge_with_hessian
+from symplid.inference.map._space import SearchSpace
 from symplid.model.params import ParameterSpace
 
 
@@ -129,7 +130,7 @@ class NonlinearInflated:
 
 
 def _objective(posterior) -> tuple[Objective, ParameterSpace]:
-    space = ParameterSpace.of(posterior).search(1e-14)
+    space = SearchSpace.of(ParameterSpace.of(posterior), 1e-14)
     vg = jax.jit(jax.value_and_grad(lambda u: -posterior.log_density(space.to_theta(u))))
     return Objective(space, vg), space
 
@@ -147,7 +148,7 @@ def _hessian(posterior, theta) -> np.ndarray:
 
 
 def test_positive_range_is_searched_on_log_theta():
-    space = ParameterSpace.of(InflatedRegression()).search(1e-14)
+    space = SearchSpace.of(ParameterSpace.of(InflatedRegression()), 1e-14)
     np.testing.assert_array_equal(space.log_box, [False, False, True])
     lo, hi = space.bounds()[2]
     assert math.exp(lo) >= 1e-10 and math.exp(hi) <= 1e-2

@@ -20,10 +20,11 @@ from click.testing import CliRunner
 import symplid
 from symplid.cli import main
 from symplid.dynamics.potentials import FunctionPotential
-from symplid.inference import map_checks
-from symplid.inference.map_data_start import data_start, difference_variance, position_rows
-from symplid.inference.map_result import MapConvergenceWarning, StartResult
-from symplid.inference.map_starts import default_start
+from symplid.inference.map import _checks as map_checks
+from symplid.inference.map._data_start import data_start, difference_variance, position_rows
+from symplid.inference.map._result import MapConvergenceWarning, StartResult
+from symplid.inference.map._space import SearchSpace
+from symplid.inference.map._starts import default_start
 from symplid.model.data import Observations
 from symplid.model.params import ParameterSpace
 from symplid.model.priors import HalfNormal, Laplace, Normal
@@ -193,10 +194,10 @@ def _start(theta, start=None, success=True) -> StartResult:
 
 def test_judge_names_each_way_a_point_is_not_a_map():
     """Each failure of map_checks on a hand-made point whose answer is known."""
-    space = ParameterSpace.from_priors(
+    space = SearchSpace.of(ParameterSpace.from_priors(
         ["c", "obs_var"], ["coefficients", "obs_var"],
         [Laplace(0.0, 10.0), HalfNormal(1.0)],
-    ).search(1e-14)
+    ), 1e-14)
     groups = ("coefficients", "obs_var")
     good, pd = _start([1.0, 0.01], start=[0.0, 0.1]), np.eye(2)
     noise = np.array([0.01])

@@ -14,7 +14,7 @@ import symplid
 from symplid.dynamics.integrators import get_integrator, make_dynamics
 from symplid.dynamics.neural import MLPPotential
 from symplid.dynamics.trajectory import propagate
-from symplid.inference.neural_fit import find_map_neural, ggn_precision, neural_posterior
+from symplid.inference.map._neural import find_map_neural, ggn_precision, neural_posterior
 
 
 @pytest.fixture(scope="module")

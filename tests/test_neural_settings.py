@@ -133,7 +133,7 @@ def test_fit_path_for_a_network_is_the_scalable_one(hh_data):
     assert np.linalg.norm(g1) < 1e-3 * np.linalg.norm(g0)
     # its Laplace covariance is the inverse of the Gauss–Newton precision, and the evidence
     # is log π(θ*) + ½ log det(2πΣ)
-    from symplid.inference.neural_fit import ggn_precision
+    from symplid.inference.map._neural import ggn_precision
 
     np.testing.assert_allclose(
         np.linalg.inv(ggn_precision(posterior, result.theta)), result.covariance,

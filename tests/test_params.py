@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import symplid  # noqa: F401  (float64)
+from symplid.inference.map._space import SearchSpace
 from symplid.model.params import (
     MAX_UNCONSTRAINED_VARIANCE,
     ParameterProperties,
@@ -71,7 +72,7 @@ def test_bounds_from_priors_and_positive_groups():
 
 
 def test_search_space_bounds_and_floor(space):
-    search = space.search(1e-14)
+    search = SearchSpace.of(space, 1e-14)
     np.testing.assert_array_equal(search.log, [False, True, False, False])
     assert search.bounds() == [(None, None), (math.log(1e-14), None), (None, 2.0), (-1.0, 3.0)]
     theta = np.array([0.3, 1e-20, 1.0, 2.0])  # the variance below the floor

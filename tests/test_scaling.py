@@ -73,7 +73,7 @@ def test_map_result_covariance_and_hessian_map_consistently():
     rng = np.random.default_rng(0)
     root = rng.standard_normal((6, 6))
     cov = root @ root.T + np.eye(6)
-    from symplid.inference.map_result import MapResult
+    from symplid.inference.map._result import MapResult
 
     result = MapResult(np.ones(6), -3.0, True, "ok", 1, (), np.linalg.inv(cov), cov, False,
                        2.0, tuple("abcdef"))

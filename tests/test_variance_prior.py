@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import symplid  # noqa: F401  (float64)
-from symplid.inference.homotopy import half_normal_start
+from symplid.inference.map._homotopy import half_normal_start
 from symplid.model.data import Observations
 from symplid.model.prior_spec import PriorSpec
 from symplid.model.priors import LogUniform

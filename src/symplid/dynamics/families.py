@@ -94,7 +94,7 @@ class Family:
         default prior is decided; ``priors.coefficients`` in the settings overrides it.
     neural
         The coefficients are many network weights: the run's MAP takes the scalable path
-        (:mod:`symplid.inference.neural_fit`: Adam then L-BFGS, Gauss–Newton Laplace) instead
+        (:mod:`symplid.inference.map._neural`: Adam then L-BFGS, Gauss–Newton Laplace) instead
         of multistart L-BFGS-B with the exact Hessian, and random-walk DRAM is refused.
     """
 

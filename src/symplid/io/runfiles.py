@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from symplid.inference.jsonfloat import decode, encode_float
+from symplid._jsonfloat import decode, encode_float
 from symplid.io.files import RunFolderError, read_with, write_text
 
 __all__ = [

@@ -191,12 +191,12 @@ class Posterior:
 
     def with_model(self, model: Any) -> Posterior:
         """The same data, priors and initial states for another model (e.g. the one with
-        process noise beside one without: :mod:`symplid.inference.homotopy`)."""
+        process noise beside one without: :mod:`symplid.inference.map._homotopy`)."""
         return Posterior(model, **self._arguments)
 
     def with_prior(self, prior: PriorSpec) -> Posterior:
         """The same model, data and initial states under other priors (e.g. the paper's
-        HalfNormal(1) on Σ beside a log-uniform one: :mod:`symplid.inference.homotopy`)."""
+        HalfNormal(1) on Σ beside a log-uniform one: :mod:`symplid.inference.map._homotopy`)."""
         return Posterior(self.model, **{**self._arguments, "prior": prior})
 
     # ------------------------------------------------------------------ construction steps

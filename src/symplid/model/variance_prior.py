@@ -16,7 +16,7 @@ where the data cannot tell Σ from zero: the posterior can follow Σ down to whe
 is effectively deterministic. The same mass makes the prior's density 1/Σ highest at the
 low end: when the data do not resolve Σ, its MAP is the bound b·1e-8 itself (reported in
 ``MapResult.at_bounds``), a property of this range and not a measurement; the MAP search
-runs on log Σ within the range (:class:`symplid.model.params.SearchSpace`). It is opt-in
+runs on log Σ within the range (:class:`symplid.inference.map._space.SearchSpace`). It is opt-in
 (``priors.process_var = "log-uniform"``): what was measured with it on the paper's setting,
 and why it is not the default, is in ``docs/howto/process-noise.md`` (section "The prior of
 Σ").

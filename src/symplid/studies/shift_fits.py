@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.inference.laplace import LowOptimisationJit
+from symplid.inference.map import LowOptimisationJit
 
 __all__ = ["ConditionalMode", "ModeFit", "stack_data"]
 

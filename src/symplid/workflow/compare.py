@@ -9,7 +9,7 @@ them: it rewards fit and penalises parameters the data do not need (the Occam fa
 :func:`compare_models` fits every (order, integrator, damping) candidate of a grid by MAP and
 Hessian (:func:`symplid.inference.map.find_map`; no sampling) and ranks them by its log
 evidence: Gaussian in the coefficients, the noise variances and a damped candidate's γ
-integrated by quadrature on their log scale (:mod:`symplid.inference.evidence`). Laplace's
+integrated by quadrature on their log scale (:mod:`symplid.inference.map._evidence`). Laplace's
 
     log p(Y | model) ≈ log π(θ*) + log L(θ*) + (d/2) log 2π − ½ log det H
 
@@ -48,8 +48,7 @@ import numpy as np
 import pandas as pd
 
 from symplid.dynamics.integrators import INTEGRATORS, get_integrator
-from symplid.inference.homotopy import filter_start, without_process_var
-from symplid.inference.map import find_map
+from symplid.inference.map import filter_start, find_map, without_process_var
 from symplid.io import observation_layout
 from symplid.model.data import DataError, Observations
 from symplid.model.statespace import PROCESS_NOISE_CHOICES
@@ -230,7 +229,7 @@ def fit_candidates(
     ``model.order``, ``model.integrator``, ``model.damping`` and ``model.process_noise_per``
     replaced, and the MAP search of ``settings.map`` (its seed and number of starts), without
     the sampler. A candidate without process noise starts its MAP search from the MAP of the
-    same candidate with process noise (:mod:`symplid.inference.homotopy`): the one fitted in
+    same candidate with process noise (:mod:`symplid.inference.map._homotopy`): the one fitted in
     this grid when there is one; otherwise a user model's declared starts come first.
     """
 

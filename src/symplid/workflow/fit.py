@@ -22,10 +22,14 @@ from typing import Any
 import numpy as np
 
 from symplid.inference.diagnostics import summary as diagnostics_summary
-from symplid.inference.homotopy import filter_start, half_normal_start
-from symplid.inference.map import find_map
-from symplid.inference.map_checks import MapFailedError, failure_message
-from symplid.inference.map_result import MapConvergenceWarning
+from symplid.inference.map import (
+    MapConvergenceWarning,
+    MapFailedError,
+    failure_message,
+    filter_start,
+    find_map,
+    half_normal_start,
+)
 from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
 from symplid.io.chunks import ChunkWriter
 from symplid.model.data import Observations
@@ -91,17 +95,17 @@ def find_map_for(settings: Settings, posterior) -> Any:
     A polynomial (or any family with few coefficients): bounded quasi-Newton from
     ``settings.map.num_starts`` seeded starts and the exact Hessian (without process noise,
     ``model.process_noise_per = "none"``, the first start is the MAP with process noise:
-    :func:`~symplid.inference.homotopy.filter_start`; with a log-uniform prior on Σ, the MAP
-    under the half-normal one: :func:`~symplid.inference.homotopy.half_normal_start`). A
+    :func:`~symplid.inference.map._homotopy.filter_start`; with a log-uniform prior on Σ, the MAP
+    under the half-normal one: :func:`~symplid.inference.map._homotopy.half_normal_start`). A
     neural family
     (:attr:`~symplid.dynamics.families.Family.neural`, e.g. ``"mlp"``): Adam then L-BFGS and
-    the Gauss–Newton covariance (:func:`~symplid.inference.neural_fit.find_map_neural`),
-    returned as a :class:`~symplid.inference.map_result.MapResult`.
+    the Gauss–Newton covariance (:func:`~symplid.inference.map._neural.find_map_neural`),
+    returned as a :class:`~symplid.inference.map._result.MapResult`.
     """
 
     m = settings.map
     if not model_family(settings.model).neural:
-        # without process noise: start from the filter's MAP (symplid.inference.homotopy);
+        # without process noise: start from the filter's MAP (symplid.inference.map._homotopy);
         # otherwise from a user model's declared starts, if any
         init = filter_start(posterior, seed=m.seed, num_starts=m.num_starts)
         if init is None:  # a log-uniform Σ: from the half-normal MAP (the same homotopy)
@@ -116,7 +120,7 @@ def find_map_for(settings: Settings, posterior) -> Any:
             if not issubclass(w.category, MapConvergenceWarning):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         return result
-    from symplid.inference.neural_fit import find_map_neural
+    from symplid.inference.map import find_map_neural
 
     start = time.perf_counter()
     ggn = (posterior.model.observation_matrix is not None and not posterior.learn_initial_state
@@ -211,8 +215,8 @@ def fit(
     it with a message that says what to do); a stop asked for during the MAP search comes at
     its next evaluation (:mod:`symplid.stopping`). A
     failure or an interruption before sampling records its reason in the marker; a MAP
-    search that failed (:mod:`symplid.inference.map_checks`) raises
-    :class:`~symplid.inference.map_checks.MapFailedError` before any sampling. ``warn``
+    search that failed (:mod:`symplid.inference.map._checks`) raises
+    :class:`~symplid.inference.map._checks.MapFailedError` before any sampling. ``warn``
     issues :class:`~symplid.inference.diagnostics.ConvergenceWarning` for R-hat and ESS.
     Between the MAP and the sampler, with ``map.sensitivity`` (the default), the MAP is refitted
     at dt/2 and with the other process-noise model (:mod:`symplid.workflow.sensitivity`;

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from symplid.inference.map_result import MapResult
+from symplid.inference.map import MapResult
 from symplid.inference.samplers import InterruptedInBurnIn
 from symplid.inference.samplers.resume import inference_data, resume_sampling
 from symplid.io.chunks import read_chunks, remove_chunks

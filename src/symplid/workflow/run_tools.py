@@ -10,7 +10,7 @@ import numpy as np
 
 from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD, quiet_arviz
 from symplid.inference.diagnostics import summary as diagnostics_summary
-from symplid.inference.map_result import MapResult
+from symplid.inference.map import MapResult
 from symplid.inference.samplers import draws_array
 from symplid.inference.samplers.restart import restart_threshold, restarted_message
 from symplid.io import as_list

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from symplid.dynamics.potentials import monomial_exponents
-from symplid.inference.map_result import MapResult
+from symplid.inference.map import MapResult
 from symplid.io import observation_layout
 from symplid.model.data import Observations
 from symplid.model.params import Reparameterisation

@@ -17,7 +17,7 @@ standard deviations (the Laplace sds of its MAP):
 :func:`sensitivity_checks` runs both and returns a JSON-ready dict; :func:`sensitivity_lines`
 turns it into the Markdown of a report. The refits start from the fit's MAP (without its
 process variance for the refit without process noise, the homotopy of
-:mod:`symplid.inference.homotopy`), so each costs a short search and one compilation.
+:mod:`symplid.inference.map._homotopy`), so each costs a short search and one compilation.
 
 A user's fit runs both right after its MAP (``map.sensitivity = true``, the default;
 :func:`symplid.workflow.fit.fit`), saves them as ``diagnostics.json`` in the run folder and
@@ -36,8 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from symplid.inference.homotopy import without_process_var
-from symplid.inference.map import find_map
+from symplid.inference.map import find_map, without_process_var
 from symplid.io import as_list
 from symplid.workflow.building import build_model, build_posterior
 from symplid.workflow.model_builder import model_family
@@ -146,7 +145,7 @@ def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any
 
 
 def _refit_found(result: Any) -> None:
-    """Refuse a refit whose MAP search failed (:mod:`symplid.inference.map_checks`): its
+    """Refuse a refit whose MAP search failed (:mod:`symplid.inference.map._checks`): its
     shifts would measure the search, not the setting."""
     if getattr(result, "failure", ""):
         raise ValueError(f"the refit's MAP search failed (the best point {result.failure})")

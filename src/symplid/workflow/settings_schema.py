@@ -257,10 +257,10 @@ class MapSettings:
     """The MAP search: bounded quasi-Newton from several seeded starts.
 
     A neural family (``model.potential = "mlp"``) takes the scalable path instead
-    (:func:`~symplid.inference.neural_fit.find_map_neural`): ``adam_steps`` of Adam with step
+    (:func:`~symplid.inference.map._neural.find_map_neural`): ``adam_steps`` of Adam with step
     ``learning_rate``, then ``lbfgs_steps`` of L-BFGS, and the Gauss–Newton Laplace covariance;
     ``num_starts`` is not used there. ``evidence``: ``"quadrature"`` integrates the noise
-    variances over their logarithms (:mod:`symplid.inference.evidence`; right when a variance
+    variances over their logarithms (:mod:`symplid.inference.map._evidence`; right when a variance
     piles against its floor, a few seconds more per fit), ``"laplace"`` the Gaussian
     approximation alone (what a study that never reads the evidence needs).
     """

@@ -16,9 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from symplid.inference.laplace import newton_decrement
-from symplid.inference.map_result import StartResult
-from symplid.model.params import SearchSpace
+from symplid.inference.map._laplace import newton_decrement
+from symplid.inference.map._result import StartResult
+from symplid.inference.map._space import SearchSpace
 from symplid.stopping import check as check_stop
 
 

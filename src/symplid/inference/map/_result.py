@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from symplid.inference.jsonfloat import decode as _decode
-from symplid.inference.jsonfloat import encode_array as _json_list
-from symplid.inference.jsonfloat import encode_float as _json_float
+from symplid._jsonfloat import decode as _decode
+from symplid._jsonfloat import encode_array as _json_list
+from symplid._jsonfloat import encode_float as _json_float
 
 
 class BoundWarning(UserWarning):
@@ -113,7 +113,7 @@ class MapResult:
     log_evidence
         log p(Y) by ``evidence_method`` (NaN when the Hessian was not computed):
         ``"quadrature"`` / ``"axis-quadrature"`` integrate the variances on their log scale
-        (:mod:`symplid.inference.evidence`), ``"laplace"`` is the Laplace approximation.
+        (:mod:`symplid.inference.map._evidence`), ``"laplace"`` is the Laplace approximation.
     param_names
         Names of θ's entries.
     at_bounds
@@ -121,16 +121,16 @@ class MapResult:
     seed, seconds
         The seed of the starts, and the wall time of the whole search (evidence included).
     log_evidence_laplace
-        The Laplace approximation of log p(Y) (:mod:`symplid.inference.laplace`), kept for
+        The Laplace approximation of log p(Y) (:mod:`symplid.inference.map._laplace`), kept for
         comparison; it is too low when a variance's posterior is skewed against zero.
     evidence_method, evidence
         How ``log_evidence`` was computed, and the details (nodes, timing, error estimate).
     optima
         The distinct optima the starts ended in, best first
-        (:func:`~symplid.inference.map_starts.distinct_optima`); more than one means the log
+        (:func:`~symplid.inference.map._starts.distinct_optima`); more than one means the log
         posterior has several local maxima within reach of the starts.
     failure
-        Why the search failed ("" when it did not; :mod:`symplid.inference.map_checks`).
+        Why the search failed ("" when it did not; :mod:`symplid.inference.map._checks`).
         Where the best point is no optimum, ``log_evidence`` is NaN.
     """
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from symplid.inference.map import find_map
+from symplid.inference.map._find import find_map
 from symplid.model.priors import HalfNormal, LogUniform
 
 __all__ = ["filter_start", "half_normal_start", "with_process_noise", "without_process_var"]

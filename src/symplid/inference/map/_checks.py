@@ -4,7 +4,7 @@ A MAP is reported failed (``MapResult.success`` is False, ``MapResult.failure`` 
 when any of these holds at the best start's end point:
 
 1. **Not converged**: the best start did not pass the convergence test of
-   :class:`~symplid.inference.map_result.StartResult` (L-BFGS-B stopped by its own test and
+   :class:`~symplid.inference.map._result.StartResult` (L-BFGS-B stopped by its own test and
    the Newton decrement ½ gᵀH⁻¹g over the parameters no bound holds is below 1e-3), and no
    start that did ended within 0.1 nats of it.
 2. **Never moved**: the best point is its own start (every coordinate within 1e-9 in the
@@ -15,7 +15,7 @@ when any of these holds at the best start's end point:
    positive definite (a saddle, a flat direction, non-finite entries).
 4. **Residuals contradict the noise**: the MAP's observation-noise variance is more than
    :data:`NOISE_RATIO_LIMIT` times the variance that the data show without any model
-   (:func:`~symplid.inference.map_data_start.difference_variance`: differences of the
+   (:func:`~symplid.inference.map._data_start.difference_variance`: differences of the
    measured series remove any smooth signal and keep the noise). A MAP that calls the
    motion itself noise (an orbit fitted as "no force, noise of the orbit's size") has
    explained nothing, whatever its log posterior.
@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from symplid.inference.map_data_start import difference_variance
-from symplid.inference.map_result import StartResult
-from symplid.inference.map_starts import OPTIMUM_LOG_POSTERIOR_TOL
-from symplid.model.params import SearchSpace
+from symplid.inference.map._data_start import difference_variance
+from symplid.inference.map._result import StartResult
+from symplid.inference.map._space import SearchSpace
+from symplid.inference.map._starts import OPTIMUM_LOG_POSTERIOR_TOL
 
 NOISE_RATIO_LIMIT = 25.0
 """Largest ratio of the MAP's observation variance to the model-free noise variance (a

@@ -2,7 +2,7 @@
 
 Why not Laplace alone
 ---------------------
-The Laplace evidence (:mod:`symplid.inference.laplace`) treats the posterior as Gaussian in θ.
+The Laplace evidence (:mod:`symplid.inference.map._laplace`) treats the posterior as Gaussian in θ.
 The coefficients are close to Gaussian, but a noise variance often is not: with little or
 no detectable process noise its posterior is skewed against zero (MAP 4e-6, median 1.6e-4),
 and a Gaussian (or the 1-D scan from a bound) centred on the MAP misses 1.8–2 nats of mass.
@@ -25,7 +25,7 @@ The rule
    Hessian (L-BFGS-B when c has bounds or Newton fails; the MAP search's compiled objective
    with the variances held; warm-started from a neighbouring node), and
    ``g(s) = log ∫ exp(log π(c, v(s))) dc + Σ s_j`` is the Gaussian integral over c from the
-   Hessian block there (the compiled MAP Hessian), with laplace.py's 1-D scan for any entry
+   Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for any entry
    of c on a bound. No new program is compiled.
 3. **Centre and axes.** The joint mode of log π + Σ s over (c, s) (L-BFGS-B from the MAP) is
    the centre s̄; the marginal covariance Σ_s of s from the Hessian in (c, s) there gives
@@ -71,8 +71,9 @@ import numpy as np
 import scipy.optimize
 from scipy.special import logsumexp
 
-from symplid.inference.laplace import laplace_covariance, repaired_eigenvalues, scan_from_bound
-from symplid.model.params import POSITIVE_GROUPS, SearchSpace
+from symplid.inference.map._laplace import laplace_covariance, repaired_eigenvalues, scan_from_bound
+from symplid.inference.map._space import SearchSpace
+from symplid.model.params import POSITIVE_GROUPS
 from symplid.stopping import check as check_stop
 
 Warm = tuple[np.ndarray, np.ndarray | None]

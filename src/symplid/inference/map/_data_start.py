@@ -41,7 +41,7 @@ the smoothed path at t0 with the fitted momentum (one trapezoidal step back when
 The method needs a linear observation operator that measures every position directly (rows
 of the form y_j = c·q_i), at least five observations per trajectory, and a separable or
 non-separable H that the model can evaluate; otherwise :func:`data_start` returns None and
-:func:`~symplid.inference.map_starts.default_start` is used.
+:func:`~symplid.inference.map._starts.default_start` is used.
 """
 
 from __future__ import annotations

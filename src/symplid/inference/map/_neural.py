@@ -49,8 +49,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import cached
-from symplid.inference.map import default_start
-from symplid.inference.map_result import MapResult, StartResult
+from symplid.inference.map._find import default_start
+from symplid.inference.map._result import MapResult, StartResult
 from symplid.model.posterior import Posterior
 from symplid.model.priors import Normal
 from symplid.stopping import check as check_stop
@@ -107,7 +107,7 @@ class NeuralMapResult:
         return self.log_posterior + 0.5 * logdet if sign > 0 else math.nan
 
     def to_map_result(self, seconds: float = 0.0, seed: int = 0) -> MapResult:
-        """The same point as a :class:`~symplid.inference.map_result.MapResult` (one "start"),
+        """The same point as a :class:`~symplid.inference.map._result.MapResult` (one "start"),
         so run folders, samplers and summaries take it like the polynomial MAP."""
         start = StartResult(
             self.theta if self.start is None else self.start, self.theta, self.log_posterior,

@@ -10,8 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.inference.map_result import MultipleOptimaWarning, Optimum, StartResult
-from symplid.model.params import SearchSpace
+from symplid.inference.map._result import MultipleOptimaWarning, Optimum, StartResult
+from symplid.inference.map._space import SearchSpace
 
 Array = jax.Array
 

@@ -31,7 +31,7 @@ the textbook formula. It assumes normalised priors (a prior cut by a bound, such
 prior on a variance, is not renormalised) and is rougher when a parameter is on a bound,
 which is warned about. It is 1–2 nats too low when a noise variance's posterior is skewed
 against zero, on its bound or not; ``MapResult.log_evidence`` therefore integrates the
-variances by quadrature over their logarithms (:mod:`symplid.inference.evidence`, which
+variances by quadrature over their logarithms (:mod:`symplid.inference.map._evidence`, which
 uses this module's Gaussian integral for the other parameters) and keeps this value as
 ``log_evidence_laplace``.
 """
@@ -45,7 +45,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from symplid.model.params import SearchSpace
+from symplid.inference.map._space import SearchSpace
 
 _LOG_2PI = math.log(2.0 * math.pi)
 EIGEN_FLOOR = 1e-12

@@ -7,23 +7,22 @@ Hessian of the negative log posterior there as the first DRAM proposal; so does 
 
 Search space
 ------------
-Parameters bounded below only (the variances, bound 0) are searched as u = log(θ − a), with
-the bound u ≥ log(``positive_floor``) (default 1e-14, below the filter's 1e-12 jitter, where
-the likelihood no longer changes); parameters in a positive range 0 < a < b < ∞ (a
-log-uniform process variance, :mod:`symplid.model.variance_prior`) as u = log θ within
-[log a, log b] (:class:`~symplid.model.params.SearchSpace`); every other parameter is searched as
-itself, with its bounds given to L-BFGS-B. The log scale lets one method handle coefficients
-of order one and variances of order 1e-7. The MAP is a property of the density over θ, so no
-Jacobian is added: the point found is the mode of π(θ | Y). Because the gradient in u
-vanishes as θ approaches its bound, a log-searched parameter is finally moved onto the floor
-when the log posterior there is no lower, and is then reported as sitting on its bound (with
-the paper's data and leapfrog this happens to the process variance: no process noise is
-detectable).
+Parameters bounded below only (the variances, bound 0) are searched as u = log(θ − a), with the
+bound u ≥ log(``positive_floor``) (default 1e-14, below the filter's 1e-12 jitter, where the
+likelihood no longer changes); parameters in a positive range 0 < a < b < ∞ (a log-uniform
+process variance, :mod:`symplid.model.variance_prior`) as u = log θ within [log a, log b]
+(:class:`~symplid.inference.map._space.SearchSpace`); every other parameter is searched as
+itself, with its bounds given to L-BFGS-B. The log scale lets one method handle coefficients of
+order one and variances of order 1e-7. The MAP is a property of the density over θ, so no
+Jacobian is added: the point found is the mode of π(θ | Y). Because the gradient in u vanishes
+as θ approaches its bound, a log-searched parameter is finally moved onto the floor when the log
+posterior there is no lower, and is then reported as sitting on its bound (with the paper's data
+and leapfrog this happens to the process variance: no process noise is detectable).
 
 Starting points
 ---------------
 Start 0 is ``init`` when given; otherwise the **data start** of
-:mod:`symplid.inference.map_data_start`: the dynamic parameters (and the momenta) from a
+:mod:`symplid.inference.map._data_start`: the dynamic parameters (and the momenta) from a
 collocation fit of Hamilton's equations to a smoothing spline of the measured positions, the
 observation variances at a model-free noise estimate, the process variance at the fit's
 momentum defect, and a learned initial state on the smoothed path. Start 1 is the same point
@@ -37,7 +36,7 @@ the variances; a start with a non-finite log posterior is drawn again with half 
 
 When the model or the data do not allow a data start (a nonlinear observation operator,
 unmeasured positions, fewer than five observations), start 0 is the **default start**
-(:func:`~.map_starts.default_start`): coefficients at their prior median, the process
+(:func:`~._starts.default_start`): coefficients at their prior median, the process
 variance at the data's variance and the observation variance at a tenth of it, a learned
 initial state at its prior's centre; starts 1, ... then perturb it by ``start_spread`` ×
 each prior's standard deviation (variances by a factor exp(N(0, 1))). Draws use
@@ -47,16 +46,16 @@ A non-finite objective (a failed filter, an overflow) is returned to L-BFGS-B as
 value, so its line search backs off. A start counts as converged only when L-BFGS-B says so
 and the Newton decrement ½ gᵀH⁻¹g there, over the parameters that no bound holds (a bound
 holds a parameter when the gradient of −log π points out of its range there: the KKT sign
-condition, :func:`~.map_search.active_bounds`), is below 1e-3 (see :class:`StartResult`); the best
+condition, :func:`~._search.active_bounds`), is below 1e-3 (see :class:`StartResult`); the best
 start (highest log posterior) gives the MAP. It is reported failed (``success`` False, the
 reason in ``failure``, a :class:`MapConvergenceWarning`) when it did not converge, never
 moved from its start, is not a maximum, or explains the data as noise
-(:mod:`symplid.inference.map_checks`); at a point that is no optimum the evidence is NaN.
+(:mod:`symplid.inference.map._checks`); at a point that is no optimum the evidence is NaN.
 
-The Hessian, the covariance and the Laplace evidence are :mod:`symplid.inference.laplace`'s;
+The Hessian, the covariance and the Laplace evidence are :mod:`symplid.inference.map._laplace`'s;
 ``MapResult.log_evidence`` integrates the variances on their log scale by quadrature
-(:mod:`symplid.inference.evidence`), the Laplace value is kept as ``log_evidence_laplace``.
-Starts that end in different optima are grouped (:func:`~.map_starts.distinct_optima`),
+(:mod:`symplid.inference.map._evidence`), the Laplace value is kept as ``log_evidence_laplace``.
+Starts that end in different optima are grouped (:func:`~._starts.distinct_optima`),
 recorded as ``MapResult.optima`` and reported in one line (:class:`MultipleOptimaWarning`).
 """
 
@@ -73,23 +72,24 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import cached_or_built
-from symplid.inference.evidence import EvidenceSettings, quadrature_evidence
-from symplid.inference.laplace import (
+from symplid.inference.map._checks import failure_message, is_optimum, judge, model_free_noise
+from symplid.inference.map._data_start import data_start
+from symplid.inference.map._evidence import EvidenceSettings, quadrature_evidence
+from symplid.inference.map._laplace import (
     hessian_function,
     laplace_covariance,
     scan_from_bound,
 )
-from symplid.inference.map_checks import failure_message, is_optimum, judge, model_free_noise
-from symplid.inference.map_data_start import data_start
-from symplid.inference.map_result import (
+from symplid.inference.map._result import (
     BoundWarning,
     MapConvergenceWarning,
     MapResult,
     MultipleOptimaWarning,
     StartResult,
 )
-from symplid.inference.map_search import Objective, judge_with_hessian, run_start
-from symplid.inference.map_starts import (
+from symplid.inference.map._search import Objective, judge_with_hessian, run_start
+from symplid.inference.map._space import SearchSpace
+from symplid.inference.map._starts import (
     as_theta,
     default_start,
     distinct_optima,
@@ -98,7 +98,7 @@ from symplid.inference.map_starts import (
     scaled_start,
     warn_optima,
 )
-from symplid.model.params import ParameterSpace, SearchSpace
+from symplid.model.params import ParameterSpace
 
 Array = jax.Array
 EVIDENCE_METHODS = ("quadrature", "laplace")
@@ -181,7 +181,7 @@ def find_map(
         Compute the Hessian, covariance and evidence (one extra compilation).
     evidence
         ``"quadrature"`` (default): the variances integrated on their log scale, Gaussian
-        in the other parameters (:mod:`symplid.inference.evidence`); ``"laplace"``: the
+        in the other parameters (:mod:`symplid.inference.map._evidence`); ``"laplace"``: the
         Laplace evidence only (no extra fits). Both are recorded when computed.
     warn
         Warn (:class:`BoundWarning`) when the MAP is on a bound, and
@@ -195,7 +195,7 @@ def find_map(
     _check_options(num_starts, positive_floor, start_spread, evidence)
     names = tuple(str(n) for n in posterior.param_names)
     parameter_space = ParameterSpace.of(posterior)
-    space = parameter_space.search(positive_floor)
+    space = SearchSpace.of(parameter_space, positive_floor)
     fns = _compiled(posterior, space)
     objective = Objective(space, fns["value_and_grad"])
     options = {"maxiter": int(maxiter), "ftol": float(ftol), "gtol": float(gtol),
@@ -333,7 +333,7 @@ def _laplace(
     u_best: np.ndarray,
     warn: bool,
 ) -> tuple[np.ndarray, bool, float]:
-    """(covariance, repaired?, log evidence) at the MAP (:mod:`symplid.inference.laplace`)."""
+    """(covariance, repaired?, log evidence) at the MAP (:mod:`symplid.inference.map._laplace`)."""
     theta, log_post = best.theta, best.log_posterior
     scans = [
         scan_from_bound(objective.log_density, theta, i, objective.space, u_best, log_post)
@@ -362,7 +362,7 @@ def _warn_outcome(
     u_best: np.ndarray,
 ) -> None:
     """:class:`BoundWarning` for a MAP on a bound; :class:`MapConvergenceWarning` when the
-    search failed (:mod:`symplid.inference.map_checks`)."""
+    search failed (:mod:`symplid.inference.map._checks`)."""
     if at_bounds:
         desc = []
         for n in at_bounds:
