@@ -278,3 +278,31 @@ def test_solve_rejects_bad_counts(hh_dynamics):
     with pytest.raises(ValueError, match="num_steps must be an integer ≥ 0"):
         solve("leapfrog", hh_dynamics, POINT, 0.1, 2.5)
     np.testing.assert_array_equal(solve("leapfrog", hh_dynamics, POINT, 0.1, 0), POINT[None])
+
+
+def test_schemes_check_their_shape_and_declared_order():
+    """A method given as data is checked when it is made: the registered ones pass Butcher's and
+    the composition's conditions of their declared order; a weight or tableau entry off by a
+    typo, or a declared order the method lacks, is a ValueError (not a silently worse method)."""
+    from symplid.dynamics.integrators import runge_kutta_integrator, symplectic_integrator
+    from symplid.dynamics.schemes import ButcherTableau, Composition
+
+    rk4 = get_integrator("rk4").scheme
+    assert isinstance(rk4, ButcherTableau)
+    assert max(rk4.order_residuals().values()) < 1e-15
+    assert isinstance(get_integrator("yoshida4").scheme, Composition)
+    # Heun's method is of order 2, not 3: Σ b c² = 1/2 and Σ b a c = 0 against 1/3 and 1/6
+    heun = get_integrator("rk2-heun").scheme
+    assert heun.order_residuals()[3] == pytest.approx(1 / 6)
+    with pytest.raises(ValueError, match="order-3 condition"):
+        runge_kutta_integrator("bad", 3, heun.a, heun.b, "")
+    third = (1 / 3, 1 / 3, 1 / 3)  # symmetric and consistent, but Σ w³ = 1/9, not 0
+    assert Composition(third).weights == third
+    with pytest.raises(ValueError, match="Σ w³ = 0"):
+        symplectic_integrator("bad", 4, third, "")
+    with pytest.raises(ValueError, match="sum to 1"):
+        Composition((0.5, 0.6, 0.5))
+    with pytest.raises(ValueError, match="palindrome"):
+        Composition((0.2, 0.8))
+    with pytest.raises(ValueError, match="lower-triangular"):
+        ButcherTableau(((0.0, 1.0), (0.5, 0.0)), (0.5, 0.5))

@@ -2,8 +2,8 @@
 
 JSON has no NaN or infinity; writing them as the strings ``"nan"``, ``"inf"`` and ``"-inf"``
 (rather than ``null``) keeps which one it was, and the files stay strict JSON. Used by
-:class:`~symplid.inference.map._result.MapResult` (``map.json``) and the run files (``symplid.io``); it sits below every layer that
-writes or reads them.
+:class:`~symplid.inference.map.MapResult` (``map.json``) and the run files (``symplid.io``);
+it sits below every layer that writes or reads them.
 """
 
 from __future__ import annotations

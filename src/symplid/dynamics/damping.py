@@ -54,6 +54,7 @@ from symplid.dynamics.integrators import (
     make_dynamics,
     runge_kutta,
 )
+from symplid.dynamics.schemes import ButcherTableau, Composition
 
 Array = jax.Array
 
@@ -188,18 +189,18 @@ def _build(base: Integrator) -> DampedIntegrator:
             f"the integrator {base.name!r} cannot be damped: it is a step function without "
             "composition weights or a Butcher tableau"
         )
-    kind, *numbers = base.scheme
-    if kind == "composition":
-        step, force_step = conformal_composition(numbers[0])
+    if isinstance(base.scheme, Composition):
+        step, force_step = conformal_composition(base.scheme.weights)
         text = f"conformally symplectic {base.name}: exact damping half-flows around each sub-step"
         return DampedIntegrator(f"damped-{base.name}", base.order, False, step, text,
                                 force_step=force_step, base=base, conformal=True)
-    if kind == "runge-kutta":
-        step = damped_runge_kutta(numbers[0], numbers[1])
+    if isinstance(base.scheme, ButcherTableau):
+        step = damped_runge_kutta(base.scheme.a, base.scheme.b)
         text = f"{base.name} applied to the damped vector field (not structure preserving)"
         return DampedIntegrator(f"damped-{base.name}", base.order, False, step, text,
                                 base=base, conformal=False)
-    raise ValueError(f"the integrator {base.name!r} has a scheme of unknown kind {kind!r}")
+    raise ValueError(f"the integrator {base.name!r} has a scheme of unknown kind "
+                     f"{type(base.scheme).__name__}")
 
 
 def is_damped(integrator: Any) -> bool:

@@ -39,6 +39,7 @@ from symplid.dynamics.onestep import (
     as_general,
     make_dynamics,
 )
+from symplid.dynamics.schemes import ButcherTableau, Composition
 from symplid.registry import Registry
 
 __all__ = [
@@ -135,8 +136,8 @@ def symplectic_integrator(
         A separable-only integrator that carries its weights as data (``scheme``), so the
         compiled likelihood kernel runs it too.
     """
-    step, force_step = symplectic_composition(weights)
-    scheme = ("composition", tuple(float(w) for w in weights))
+    scheme = Composition(weights)  # checks symmetry, Σ w = 1 and the order conditions
+    step, force_step = symplectic_composition(scheme.weights)
     return Integrator(name, order, True, step, description, force_step, scheme)
 
 
@@ -148,8 +149,7 @@ def runge_kutta_integrator(
     description: str,
 ) -> Integrator:
     """An explicit Runge–Kutta integrator from its Butcher tableau (not symplectic)."""
-    scheme = ("runge-kutta", tuple(tuple(float(x) for x in row) for row in a),
-              tuple(float(x) for x in b))
+    scheme = ButcherTableau(a, b)  # checks the shape and, with the order, Butcher's conditions
     return Integrator(
         name, order, False, runge_kutta(a, b), description, scheme=scheme, nonseparable=True
     )

@@ -16,6 +16,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from symplid.dynamics.schemes import Scheme
 from symplid.dynamics.separable import has_kinetic
 
 Array = jax.Array
@@ -119,13 +120,18 @@ class Integrator:
     force_step: ForceStepFn | None = None
     """Optional ``(dynamics, q, p, ∂U(q), dt) -> (q⁺, p⁺, ∂U(q⁺))``: the same step, reusing the
     force at the start (first-same-as-last), so a run of steps costs one force per step."""
-    scheme: tuple | None = None
-    """The method as data, for compiled backends: ``("composition", weights)`` (leapfrog
-    sub-steps of ``w·Δt``) or ``("runge-kutta", a, b)`` (a Butcher tableau); None when the
-    step is only a function."""
+    scheme: Scheme | None = None
+    """The method as data, for compiled backends and damped forms: a
+    :class:`~symplid.dynamics.schemes.Composition` (leapfrog sub-steps of ``w·Δt``) or a
+    :class:`~symplid.dynamics.schemes.ButcherTableau`; None when the step is only a function.
+    A scheme is checked against :attr:`order` when the integrator is made."""
     nonseparable: bool = False
     """Whether ``step`` also accepts :class:`~symplid.dynamics.integrators.GeneralDynamics` (a
     non-separable H)."""
     start: Callable[[GeneralDynamics, Array, Array], Array] | None = None
     """Optional ``(dynamics, q, p) -> aux``: what ``force_step`` carries in its third slot at
     the start of a run, when that is not the force ∂U(q) (Tao's copies of the state)."""
+
+    def __post_init__(self) -> None:
+        if self.scheme is not None:
+            self.scheme.check_order(self.order)

@@ -42,6 +42,7 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
 from symplid.dynamics.potentials import Polynomial, inverse_mass
+from symplid.dynamics.schemes import Composition
 from symplid.filters import unscented_weights
 from symplid.filters.backends import LikelihoodBackend
 from symplid.model.likelihood import (
@@ -182,20 +183,21 @@ def _attributes(model: StateSpaceModel, prepared: PreparedData) -> dict[str, Any
     """The model's static settings as FFI attributes (numbers and 1-D arrays)."""
     potential = model.hamiltonian
     d = potential.dim
-    kind, *numbers = model.integrator.scheme
+    scheme = model.integrator.scheme
     weights = unscented_weights(model.state_dim, model.alpha, model.beta, model.kappa)
     inv_mass = inverse_mass(model.mass, d)
     placeholder = np.zeros(1)
-    if kind == "composition":
-        comp_weights, rk_a, rk_b = np.asarray(numbers[0], float), placeholder, placeholder
+    composition = isinstance(scheme, Composition)
+    if composition:
+        comp_weights, rk_a, rk_b = np.asarray(scheme.weights, float), placeholder, placeholder
     else:
         comp_weights = placeholder
-        rk_a, rk_b = np.asarray(numbers[0], float).ravel(), np.asarray(numbers[1], float)
+        rk_a, rk_b = np.asarray(scheme.a, float).ravel(), np.asarray(scheme.b, float)
     return {
         "dim": np.int64(d),
         "order": np.int64(potential.order),
         "exponents": np.asarray(potential.exponents, dtype=np.int64).ravel(),
-        "composition": np.int64(kind == "composition"),
+        "composition": np.int64(composition),
         "comp_weights": comp_weights,
         "rk_a": rk_a,
         "rk_b": rk_b,
@@ -241,7 +243,7 @@ def _gradient_unsupported_reason(model: StateSpaceModel) -> str | None:
     """Why the compiled gradient (the kernel's adjoint) does not carry this model, or None:
     it covers the symplectic compositions with Σ added once per gap (the kernel's
     ``adjoint_supports``); Runge–Kutta propagators and Σ per substep keep the JAX tier's."""
-    if model.integrator.scheme[0] != "composition":
+    if not isinstance(model.integrator.scheme, Composition):
         return f"the integrator {model.integrator.name!r} is not a composition of leapfrog steps"
     if model.process_noise_per == "step":
         return "Σ is added after every substep"
