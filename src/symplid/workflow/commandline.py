@@ -108,15 +108,22 @@ def user_errors(fn: Callable) -> Callable:
             except StorageError as err:  # a full disk, a file-size limit: not the user's
                 raise EnvironmentFault(str(err)) from None
             except KeyboardInterrupt as err:
-                kept = (f" in the burn-in after {err.checkpoint.iterations_done:,} iterations "
-                        "per chain; the chains' state is kept: continue with 'symplid fit "
-                        "--resume'" if hasattr(err, "checkpoint") else "")
-                click.echo(f"symplid: interrupted{kept}", err=True)
+                click.echo(f"symplid: interrupted{_burn_in_words(err)}", err=True)
                 sys.exit(exit_code())
             except Interrupted:  # the command said so in its result line
                 sys.exit(exit_code())
 
     return wrapper
+
+
+def _burn_in_words(stop: BaseException) -> str:
+    """What the one line of a stop in the burn-in adds: where, and that ``--resume`` goes on."""
+    if not hasattr(stop, "checkpoint"):
+        return ""
+    done = stop.checkpoint.iterations_done
+    where = (f" in the burn-in after {done:,} iterations per chain" if done
+             else " before the sampler's first iteration")
+    return f"{where}; the chains' state is kept: continue with 'symplid fit --resume'"
 
 
 class OneLineErrors(click.Group):
