@@ -175,7 +175,7 @@ def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool
     ``num_active`` (a run-time number) are run; the records past them are zeros.
 
     The loop's trip count is an argument, so one compiled program runs any part of a chunk at
-    the cost of that part (:class:`~.pacing.Pacer` cuts slow chunks into pieces of about a second);
+    the cost of that part (:class:`~.pacing.Pacer` cuts slow chunks into half-second pieces);
     each iteration computes what a ``lax.scan`` over the whole chunk computed. ``batched``
     vmaps over the chains; otherwise the chunk advances one chain (leading axis of length 1).
     """
@@ -457,7 +457,7 @@ class _Loop:
 
     def _compute(self, states: Any, start: int, num_active: int) -> tuple[Any, dict, int]:
         """The compiled chunk from iteration ``start`` for ``num_active`` iterations, run as
-        pieces of about a second (:class:`~.pacing.Pacer`; the first, which compiles, in a
+        pieces of about half a second (:class:`~.pacing.Pacer`; the first, which compiles, in a
         worker thread: :func:`symplid.stopping.waiting`); a stop requested between two pieces
         (:mod:`symplid.stopping`) ends it early. Returns the states, the records of the
         iterations run and their number."""
