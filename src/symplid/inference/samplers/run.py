@@ -412,7 +412,7 @@ class _Loop:
             try:
                 if self.sink is not None:
                     extra = {"monitor": self.restarts.arrays()} if self.sink_takes_monitor else {}
-                    self.sink(chunk, states, self.done - num_active, self.done,
+                    self.sink(chunk, states, self.done - ran, self.done,
                               time.perf_counter() - started, **extra)
                 if self.callback is not None:
                     self.callback(ChunkReport(chunk_index, self.done, self.total,
