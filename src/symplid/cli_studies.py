@@ -53,6 +53,10 @@ def paper_claims(out, seeds, budget, variants, quick, no_variants, scheduler, wo
     """How often the paper's claims hold over many data seeds, per variant; calibration."""
     from symplid.studies.paper_study import run_paper_claims
 
+    if update_readme is not None:  # before the study: not an error after its success line
+        from symplid.studies.claims_readme import check_readme
+
+        check_readme(update_readme)
     claims = run_paper_claims(
         out,
         seeds=seeds,

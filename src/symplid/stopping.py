@@ -20,8 +20,13 @@ sets it, and Python's own Ctrl-C (``KeyboardInterrupt``) behaves as before.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
 
-__all__ = ["StopRequested", "check", "clear", "request", "requested"]
+_T = TypeVar("_T")
+
+__all__ = ["POLL", "StopRequested", "abandoned", "check", "clear", "request", "requested",
+           "waiting"]
 
 
 class StopRequested(KeyboardInterrupt):
@@ -66,3 +71,48 @@ def clear() -> None:
     """Forget every request (a new command starts)."""
     with _LOCK:
         _RECEIVED.clear()
+
+
+#: How often :func:`waiting` looks for a stop request (seconds).
+POLL = 0.05
+
+
+def waiting(fn: Callable[..., _T], *args: Any) -> _T:
+    """``fn(*args)`` run in a worker thread while this one waits, looking for a stop request
+    every :data:`POLL` seconds; a request raises :class:`StopRequested` at once.
+
+    For a call that cannot be cut short and may be long, a compilation above all (XLA compiles
+    in one C call, for seconds to minutes): the caller stops within a fraction of a second,
+    the call goes on in its (daemon) thread and its result is dropped. The process must then
+    end without waiting for it (:func:`abandoned` says whether one is still running). An
+    exception of ``fn`` is raised here.
+    """
+    done: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            done["value"] = fn(*args)
+        except BaseException as err:  # handed over to the waiting thread
+            done["error"] = err
+
+    worker = threading.Thread(target=run, daemon=True, name="symplid-compile")
+    worker.start()
+    while worker.is_alive():
+        worker.join(POLL)
+        signum = requested()
+        if signum is not None and worker.is_alive():
+            _ABANDONED.append(worker)
+            raise StopRequested(signum)
+    if "error" in done:
+        raise done["error"]
+    return done["value"]
+
+
+_ABANDONED: list[threading.Thread] = []
+
+
+def abandoned() -> bool:
+    """True while a call that :func:`waiting` gave up on is still running (a compilation): the
+    process should end with :func:`os._exit`, its files written, rather than tear the
+    interpreter down under it."""
+    return any(thread.is_alive() for thread in _ABANDONED)

@@ -10,7 +10,9 @@ The sampler runs in chunks (:func:`symplid.inference.samplers.run.run_chains`). 
   ``leaf_<i>``, ``treedef``, ``iterations_done`` and, in a run that restarts stuck chains,
   ``monitor_<name>``), what ``fit --resume`` continues from;
 * ``start`` and ``done`` (iterations per chain before and after it) and ``elapsed`` (sampling
-  seconds so far).
+  seconds so far);
+* ``run``: the fingerprint of the run that wrote it (its settings and data), so that a chunk
+  file copied in from another run is recognised.
 
 A file is there whole or not at all, so a crash, a SIGKILL or the out-of-memory killer loses
 at most the chunk being computed. The files are not flushed to the disk one by one (``fsync``
@@ -19,9 +21,10 @@ the operating system writes them whatever happens to the process, and only a cra
 whole system can leave the last ones empty or short, which :func:`read_chunks` detects.
 
 :func:`read_chunks` gathers the chunks of a folder: they must follow one another from
-iteration 0 (each ``start`` the ``done`` of the one before); the first that is unreadable
-(truncated, a disk fault) or out of line ends the run there, and its name is given back in
-one line (:attr:`Chunks.note`).
+iteration 0 (each ``start`` the ``done`` of the one before) and come from the run being read
+(the same ``run``); the first that is unreadable (truncated, a disk fault), out of line or
+another run's ends the run there, and its name is given back in one line
+(:attr:`Chunks.note`).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ __all__ = ["CHUNKS_DIR", "ChunkWriter", "Chunks", "read_chunks", "remove_chunks"
 CHUNKS_DIR = "draws"
 _NAME = re.compile(r"^chunk-(\d{6})\.npz$")
 _DRAW = "draw_"
+_RUN = "run"
 
 
 def chunk_path(folder: Path, index: int) -> Path:
@@ -65,12 +69,14 @@ class ChunkWriter:
         ``sink.begin``), e.g. to save them next to the chunks.
     elapsed
         Sampling seconds before this writer's first chunk (a continued run's).
+    run
+        The run's fingerprint, written into every chunk (``""``: none).
     """
 
     def __init__(self, folder: str | Path, first_index: int = 0,
-                 begin: Any = None, elapsed: float = 0.0) -> None:
+                 begin: Any = None, elapsed: float = 0.0, run: str = "") -> None:
         self.folder, self.index, self._begin = Path(folder), int(first_index), begin
-        self.elapsed = float(elapsed)
+        self.elapsed, self.run = float(elapsed), str(run)
 
     def begin(self, attrs: Mapping[str, Any]) -> None:
         if self._begin is not None:
@@ -87,6 +93,8 @@ class ChunkWriter:
                                                           else dict(monitor))))
         arrays.update(start=np.asarray(int(start)), done=np.asarray(int(done)),
                       elapsed=np.asarray(self.elapsed + float(elapsed)))
+        if self.run:
+            arrays[_RUN] = np.asarray(self.run)
         write_with(chunk_path(self.folder, self.index),
                    lambda buffer: np.savez(buffer, **arrays), durable=False)
         self.index += 1
@@ -131,13 +139,15 @@ def _numbered(folder: Path) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
-def read_chunks(folder: str | Path) -> Chunks:
+def read_chunks(folder: str | Path, run: str = "") -> Chunks:
     """Gather the chunk files of ``folder`` (see the module docstring); an empty
-    :class:`Chunks` when there are none."""
+    :class:`Chunks` when there are none. With ``run`` (the fingerprint the run's
+    :class:`ChunkWriter` was given), a chunk written by another run ends them like a damaged
+    one (a chunk of an older version, without a fingerprint, is read)."""
     folder = Path(folder)
     out, parts = Chunks(), {}
     for index, path in _numbered(folder):
-        why, arrays = _checked(path, index, out)
+        why, arrays = _checked(path, index, out, run)
         if why is None:
             for key, value in arrays.items():
                 if key.startswith(_DRAW):
@@ -155,7 +165,7 @@ def read_chunks(folder: str | Path) -> Chunks:
     return out
 
 
-def _checked(path: Path, index: int, so_far: Chunks) -> tuple[str | None, dict]:
+def _checked(path: Path, index: int, so_far: Chunks, run: str = "") -> tuple[str | None, dict]:
     """The chunk file's arrays, and why it cannot continue the chunks read so far (None: it
     can)."""
     if index != so_far.count:
@@ -167,9 +177,12 @@ def _checked(path: Path, index: int, so_far: Chunks) -> tuple[str | None, dict]:
         start, done = int(arrays["start"]), int(arrays["done"])
     except UNREADABLE as err:
         return f"unreadable ({type(err).__name__})", {}
+    if run and _RUN in arrays and str(arrays[_RUN]) != run:
+        return "it was written by another run (other settings or data)", {}
     if start != so_far.iterations_done or done <= start:
         return (f"it covers iterations {start:,} to {done:,} but the chunks before end at "
                 f"{so_far.iterations_done:,}"), {}
+    arrays.pop(_RUN, None)
     return None, arrays
 
 

@@ -36,6 +36,7 @@ import json
 import os
 import signal
 import threading
+import time
 import tomllib
 import zipfile
 from collections.abc import Callable, Iterator
@@ -296,8 +297,14 @@ class FolderLock:
         return None
 
     def _holder(self) -> str:
-        pid = self.holder()
-        return "" if pid is None else f" (pid {pid})"
+        """`` (pid N)`` for the message of a refusal; the holder writes its pid just after it
+        takes the lock, so an empty file is read again for a moment."""
+        for _ in range(50):
+            pid = self.holder()
+            if pid is not None:
+                return f" (pid {pid})"
+            time.sleep(0.01)
+        return ""
 
     def __del__(self) -> None:
         self.release()

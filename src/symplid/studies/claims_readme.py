@@ -33,6 +33,7 @@ __all__ = [
     "END",
     "FIGURES_DIR",
     "calibration_block",
+    "check_readme",
     "readme_block",
     "update_readme",
 ]
@@ -316,6 +317,23 @@ def _replace_block(text: str, begin: str, end: str, block: str) -> str | None:
     if start < 0 or stop < start:
         return None
     return text[: start + len(begin)] + "\n" + block + "\n" + text[stop:]
+
+
+def check_readme(readme: str | os.PathLike) -> None:
+    """Refuse, before a study runs, a README that :func:`update_readme` could not rewrite:
+    missing, unreadable, or with neither pair of markers (one line, a :class:`ValueError`),
+    so that a long study does not end in an error after its success line."""
+    path = Path(readme)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        why = "no such file" if isinstance(err, FileNotFoundError) else type(err).__name__
+        raise ValueError(f"{path}: cannot be read ({why}); --update-readme rewrites an "
+                         "existing README") from None
+    if all(_replace_block(text, begin, end, "") is None
+           for begin, end in ((BEGIN, END), (CALIBRATION_BEGIN, CALIBRATION_END))):
+        raise ValueError(f"{path}: no '{BEGIN}' ... '{END}' or '{CALIBRATION_BEGIN}' ... "
+                         f"'{CALIBRATION_END}' block to rewrite")
 
 
 def update_readme(

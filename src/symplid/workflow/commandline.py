@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -93,11 +95,9 @@ def user_errors(fn: Callable) -> Callable:
 
         with supervised():
             try:
+                stopping.check()  # a safe point: a signal during the imports stops here
                 result = fn(*args, **kwargs)
-                if stopping.requested() is not None:  # no safe point came after the signal
-                    click.echo("symplid: interrupted (the command finished first; its results "
-                               "are kept)", err=True)
-                    sys.exit(exit_code())
+                _exit_if_stopped()  # no safe point came after the signal
                 return result
             except (DataError, SettingsError, FileNotFoundError, FileExistsError) as err:
                 raise UserError(str(err)) from None
@@ -108,9 +108,7 @@ def user_errors(fn: Callable) -> Callable:
             except StorageError as err:  # a full disk, a file-size limit: not the user's
                 raise EnvironmentFault(str(err)) from None
             except KeyboardInterrupt as err:
-                kept = ("; the chains' state is kept: continue with 'symplid fit --resume'"
-                        if hasattr(err, "checkpoint") else "")
-                click.echo(f"symplid: interrupted{kept}", err=True)
+                click.echo(f"symplid: interrupted{_burn_in_words(err)}", err=True)
                 sys.exit(exit_code())
             except Interrupted:  # the command said so in its result line
                 sys.exit(exit_code())
@@ -118,15 +116,51 @@ def user_errors(fn: Callable) -> Callable:
     return wrapper
 
 
+def _burn_in_words(stop: BaseException) -> str:
+    """What the one line of a stop in the burn-in adds: where, and that ``--resume`` goes on."""
+    if not hasattr(stop, "checkpoint"):
+        return ""
+    done = stop.checkpoint.iterations_done
+    where = (f" in the burn-in after {done:,} iterations per chain" if done
+             else " before the sampler's first iteration")
+    return f"{where}; the chains' state is kept: continue with 'symplid fit --resume'"
+
+
 class OneLineErrors(click.Group):
     """A group whose usage errors (a bad option value, a missing argument) are one line, like
-    every other error, instead of click's usage block."""
+    every other error, instead of click's usage block.
+
+    The signal handlers (:func:`symplid.workflow.interrupts.supervised`) are installed first,
+    before the group's callback and the commands import JAX: a signal during the imports is
+    recorded (not raised inside a library's callback, where JAX swallowed it, nor left to
+    SIGHUP's default, which killed the process without a word) and obeyed when the command
+    starts (:func:`user_errors`).
+    """
 
     def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
         if not standalone_mode:
             return super().main(*args, standalone_mode=False, **kwargs)
+        from symplid import stopping
+        from symplid.workflow.interrupts import supervised
+
         try:
-            result = super().main(*args, standalone_mode=False, **kwargs)
+            with supervised():
+                result = self._one_line_main(*args, **kwargs)
+                _exit_if_stopped()  # a command without a safe point (--help, --version)
+            sys.exit(result if isinstance(result, int) else 0)
+        except SystemExit as done:
+            if not stopping.abandoned():
+                raise
+            # A compilation the stop did not wait for still runs in its thread: the files
+            # are written, so end here rather than tear the interpreter down under it.
+            sys.stdout.flush()
+            sys.stderr.flush()
+            code = done.code
+            os._exit(code if isinstance(code, int) else 0 if code is None else 1)
+
+    def _one_line_main(self, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return super().main(*args, standalone_mode=False, **kwargs)
         except click.UsageError as err:
             where = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
             message = " ".join(err.format_message().split())
@@ -138,7 +172,17 @@ class OneLineErrors(click.Group):
         except click.exceptions.Abort:
             click.echo("symplid: interrupted", err=True)
             sys.exit(EXIT_INTERRUPTED)
-        sys.exit(result if isinstance(result, int) else 0)
+
+
+def _exit_if_stopped() -> None:
+    """Exit with 128 + the signal's number, after one line, when a stop was requested."""
+    from symplid import stopping
+
+    signum = stopping.requested()
+    if signum is not None:
+        click.echo("symplid: interrupted (the command finished first; its results are kept)",
+                   err=True)
+        sys.exit(128 + signum)
 
 
 # Registries are read when a help text or a value needs them: importing symplid (and JAX) at
@@ -333,7 +377,14 @@ def compare_candidates(obs: Any, files: str, config: Path | None, orders: str | 
     paths = [Path(p.strip()) for p in files.split(",") if p.strip()]
     if len(paths) < 2:
         raise UserError(f"--candidates needs two settings files or more, got {files!r}")
-    pairs = [(p.stem, settings_from_options(p, dict(overrides), sets)[0]) for p in paths]
+    twice = [str(p) for k, p in enumerate(paths) if p.resolve() in
+             {q.resolve() for q in paths[:k]}]
+    if twice:
+        raise UserError(f"--candidates names {twice[0]} twice; give each model once")
+    stems = [p.stem for p in paths]
+    labels = stems if len(set(stems)) == len(stems) else [str(p) for p in paths]
+    pairs = [(label, settings_from_options(p, dict(overrides), sets)[0])
+             for label, p in zip(labels, paths, strict=True)]
     return compare_settings(obs, pairs, integrators, out, progress, dampings)
 
 
@@ -501,6 +552,17 @@ def run_fit(paths: tuple[Path, ...], out: Path, config: Path | None, overrides: 
             resume: bool, no_progress: bool) -> tuple[Any, Any]:
     """``symplid fit``: a new run from the data files, or ``--resume`` of an interrupted one.
     Returns the outcome and the held-out observations (or None)."""
+    from symplid.inference.samplers import SamplingInterrupted
+
+    with warnings.catch_warnings():
+        # The fit's own line says that (and where) the sampler was stopped: the sampler's
+        # warning would be a second line.
+        warnings.simplefilter("ignore", SamplingInterrupted)
+        return _run_fit(paths, out, config, overrides, sets, holdout, overwrite, resume,
+                        no_progress)
+
+
+def _run_fit(paths, out, config, overrides, sets, holdout, overwrite, resume, no_progress):
     from symplid.workflow.fit import fit
 
     status = None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True)

@@ -23,9 +23,12 @@ from symplid.workflow.compare import (
     write_comparison,
 )
 from symplid.workflow.model_builder import model_family
-from symplid.workflow.settings import Settings
+from symplid.workflow.settings import Settings, settings_to_dict
 
-__all__ = ["candidate_orders", "compare_settings"]
+__all__ = ["MODEL_SECTIONS", "candidate_orders", "check_distinct", "compare_settings"]
+
+#: The sections of the settings that make a model (what its evidence depends on).
+MODEL_SECTIONS = ("model", "priors", "initial_state")
 
 
 def candidate_orders(settings: Settings, orders: str | None) -> list[int] | None:
@@ -40,6 +43,22 @@ def candidate_orders(settings: Settings, orders: str | None) -> list[int] | None
                          f"{family!r} (one candidate): drop --orders")
     return None
 
+
+def check_distinct(candidates: Sequence[tuple[str, Settings]]) -> None:
+    """Refuse (one line) two candidates with one label, or two that are the same model
+    (equal :data:`MODEL_SECTIONS`): the table would rank a model against itself, at even
+    odds, without a word."""
+    seen: dict[str, str] = {}
+    for label, settings in candidates:
+        as_dict = settings_to_dict(settings)
+        key = repr([as_dict.get(name) for name in MODEL_SECTIONS])
+        if label in seen.values():
+            raise ValueError(f"two candidates are named {label!r}; give each model once, "
+                             "under its own name")
+        if key in seen:
+            raise ValueError(f"candidates {seen[key]!r} and {label!r} are the same model "
+                             f"(equal [{'], ['.join(MODEL_SECTIONS)}]); give each model once")
+        seen[key] = label
 
 
 def compare_settings(
@@ -60,6 +79,7 @@ def compare_settings(
     """
     if len(candidates) < 1:
         raise ValueError("give at least one candidate")
+    check_distinct(candidates)
     fits: list[CandidateFit] = []
     for label, settings in candidates:
         fits += fit_candidates(obs, settings, None, integrators, progress, label, dampings,

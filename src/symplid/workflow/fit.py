@@ -12,6 +12,7 @@ a function of plain inputs, so a notebook can run them one at a time:
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import time
 import warnings
 from collections.abc import Callable
@@ -53,6 +54,7 @@ __all__ = [
     "chunk_sink",
     "find_map_for",
     "fit",
+    "run_fingerprint",
     "save_burn_in",
     "save_run",
 ]
@@ -189,7 +191,18 @@ def chunk_sink(folder: RunFolder, first_index: int = 0, attrs: bool = True,
         folder.write_json(RunFolder.SAMPLER_ATTRS, values)
 
     return ChunkWriter(folder.file(RunFolder.CHUNKS), first_index, begin if attrs else None,
-                       elapsed)
+                       elapsed, run=run_fingerprint(folder))
+
+
+def run_fingerprint(folder: RunFolder) -> str:
+    """What the run's chunk files carry to be told from another run's: a digest of its
+    ``settings.toml`` and ``data.csv`` (the seed, the model, the sampler, the data)."""
+    digest = hashlib.sha256()
+    for name in (RunFolder.SETTINGS, RunFolder.DATA):
+        path = folder.file(name)
+        digest.update(path.read_bytes() if path.exists() else b"")
+        digest.update(b"\0")
+    return digest.hexdigest()[:16]
 
 
 def fit(

@@ -79,7 +79,12 @@ def supervised() -> Iterator[None]:
 
     Requests are forgotten on entry and on exit: inside the block,
     :func:`symplid.stopping.requested` tells whether (and by which signal) a stop was asked.
+    A block inside another (the command line supervises the whole process from its start,
+    each command its own body) changes nothing: a signal recorded before it is kept.
     """
+    if _active.is_set() and _main_thread():  # nested: the outer block holds the signals
+        yield
+        return
     stopping.clear()
     if not _main_thread():
         yield

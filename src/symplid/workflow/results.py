@@ -195,20 +195,18 @@ class RunFolder:
         path = self.path
         if path.exists() and not path.is_dir():
             raise RunFolderError(f"{path}: exists and is not a folder")
-        overwriting = path.is_dir() and any(p.name != FolderLock.NAME for p in path.iterdir())
-        if overwriting:
-            if not overwrite:
-                raise RunFolderError(
-                    f"{path}: the folder already exists and is not empty; choose another "
-                    "output folder or allow overwriting"
-                )
-            if not self._looks_like_run():
-                raise RunFolderError(
-                    f"{path}: not a run folder (no {self.SETTINGS} or {self.MARKER}); "
-                    "refusing to overwrite it"
-                )
+        # The lock first: of two commands started into one folder at the same instant, the
+        # second is refused naming the first, not told that the folder (the first's files,
+        # being written) "already exists" and may be overwritten.
         make_folder(path)
         self._lock.acquire()  # held until the run is finished, marked or failed
+        try:
+            overwriting = any(p.name != FolderLock.NAME for p in path.iterdir())
+            if overwriting:
+                self._check_overwrite(overwrite)
+        except BaseException:
+            self._lock.release()
+            raise
         if overwriting:
             self._write_marker("run started (overwriting an earlier run)")
             try:
@@ -221,6 +219,21 @@ class RunFolder:
             except OSError as err:
                 raise write_fault(path, err) from None
         self._write_marker("run started")
+
+    def _check_overwrite(self, overwrite: bool) -> None:
+        """Refuse to write into a folder that is not empty, unless ``overwrite`` and it holds
+        an earlier run."""
+        path = self.path
+        if not overwrite:
+            raise RunFolderError(
+                f"{path}: the folder already exists and is not empty; choose another "
+                "output folder or allow overwriting"
+            )
+        if not self._looks_like_run():
+            raise RunFolderError(
+                f"{path}: not a run folder (no {self.SETTINGS} or {self.MARKER}); "
+                "refusing to overwrite it"
+            )
 
     def _looks_like_run(self) -> bool:
         """Whether the folder holds an earlier run: its settings, its marker, or the file that

@@ -33,6 +33,7 @@ from symplid.workflow.fit import (
     build_model,
     build_posterior,
     chunk_sink,
+    run_fingerprint,
     save_burn_in,
     save_run,
 )
@@ -133,7 +134,7 @@ def _where_sampling_stopped(folder: RunFolder) -> tuple[Any, dict[str, Any], Any
     again); else from ``posterior.nc`` (or ``sampler_attrs.json``) and ``sampler_state.npz``,
     as a run stopped before its first chunk (or by an older version) left them.
     """
-    chunks = read_chunks(folder.file(RunFolder.CHUNKS))
+    chunks = read_chunks(folder.file(RunFolder.CHUNKS), run=run_fingerprint(folder))
     if chunks.note:
         warnings.warn(chunks.note, ChunkIgnoredWarning, stacklevel=3)
         remove_chunks(folder.file(RunFolder.CHUNKS), keep=chunks.count)  # made again

@@ -8,17 +8,22 @@ a batched kernel and lets data-dependent branches skip work). Between
 chunks control returns to Python: the progress bar moves, the chunk's draws and the chains'
 states go to the ``sink`` (a run folder streams them to disk), a callback runs, and a stop
 requested by a signal (:mod:`symplid.stopping`: checked before every chunk) or a
-``KeyboardInterrupt`` ends the run while keeping every draw already made. A chunk is the unit
-of both: a stop is obeyed within one chunk's time, and a crash loses at most one chunk.
+``KeyboardInterrupt`` ends the run while keeping every draw already made. A chunk whose
+iterations are slow runs as several compiled calls of about half a second each
+(:mod:`~symplid.inference.samplers.pacing`), and a stop requested between two of them ends
+the run there, the iterations done kept as a shorter last chunk: a stop is obeyed within
+about a second whatever an iteration costs (the first call, which compiles, is waited for in
+a worker thread, :func:`symplid.stopping.waiting`), and a crash loses at most one chunk.
 
 Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c], t)`` with
 ``chain_key = split(rng_key, num_chains)``. The draws therefore depend only on the key and
 the kernel, not on the chunk size, and an interrupted run is a prefix of the full run.
 Every chunk has the same length (``total`` is split into equal chunks of at most
-``chunk_size``; the few iterations the last chunk has too many are computed and discarded),
-so a run compiles exactly once; the compiled chunk is kept on the ``step`` function object
-(:func:`symplid.compiled.cached`, keyed by ``record`` and the chunk's shape), so a second run
-of the same kernel does not compile, and nothing outlives the kernel.
+``chunk_size``), and the compiled chunk runs as many of its iterations as it is asked (a
+loop whose trip count is an argument), so a run compiles exactly once; the compiled chunk is
+kept on the ``step`` function object (:func:`symplid.compiled.cached`, keyed by ``record``
+and the chunk's shape), so a second run of the same kernel does not compile, and nothing
+outlives the kernel.
 A single chain runs unbatched.
 """
 
@@ -37,12 +42,14 @@ import numpy as np
 from jax import lax
 
 from symplid.compiled import cached_or_built
+from symplid.inference.samplers.pacing import Pacer
 from symplid.inference.samplers.restart import (
     BurnInMonitor,
     restart_threshold,
     restarted_message,
 )
 from symplid.stopping import requested as stop_requested
+from symplid.stopping import waiting
 
 __all__ = ["ChainRun", "ChunkReport", "ChunkSink", "DataStep", "SamplingInterrupted",
            "StuckChainsRestarted", "run_chains"]
@@ -164,10 +171,13 @@ def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
 
 
 def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
-    """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` count.
+    """Compile one chunk: room for ``chunk_len`` iterations, of which the first
+    ``num_active`` (a run-time number) are run; the records past them are zeros.
 
-    ``batched`` vmaps over the chains; otherwise the chunk advances one chain (leading axis
-    of length 1).
+    The loop's trip count is an argument, so one compiled program runs any part of a chunk at
+    the cost of that part (:class:`~.pacing.Pacer` cuts slow chunks into half-second pieces);
+    each iteration computes what a ``lax.scan`` over the whole chunk computed. ``batched``
+    vmaps over the chains; otherwise the chunk advances one chain (leading axis of length 1).
     """
 
     reads = isinstance(step, DataStep)
@@ -181,17 +191,24 @@ def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool
 
         advance = _over_chains(one_chain, batched)
 
-        def body(carry, i):
-            t = jnp.broadcast_to(start + i, chain_keys.shape[:1])
-            new, records = advance(chain_keys, carry, t)
-            # Iterations past `num_active` (a few, at the end of the last chunk) are computed
-            # and thrown away: a select, which unlike a cond around the whole step does not
-            # slow the loop down.
-            active = i < num_active
-            new = jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry)
-            return new, records
+        def at(i):
+            return jnp.broadcast_to(start + i, chain_keys.shape[:1])
 
-        return lax.scan(body, states, jnp.arange(chunk_len))
+        shapes = jax.eval_shape(lambda s: advance(chain_keys, s, at(0))[1], states)
+        room = jax.tree.map(lambda a: jnp.zeros((chunk_len, *a.shape), a.dtype), shapes)
+
+        def body(carry):
+            i, current, records = carry
+            new, kept = advance(chain_keys, current, at(i))
+            records = jax.tree.map(
+                lambda all_, one: lax.dynamic_update_index_in_dim(all_, one, i, 0),
+                records, kept)
+            return i + 1, new, records
+
+        first = jnp.zeros((), jnp.asarray(num_active).dtype)
+        _, states, records = lax.while_loop(lambda carry: carry[0] < num_active, body,
+                                            (first, states, room))
+        return states, records
 
     return functools.partial(jax.jit(chunk), data=data)
 
@@ -374,6 +391,7 @@ class _Loop:
         self.done = start
         self.draws_kept = max(0, start - burn_in) // thin
         self.interrupted = False
+        self.pacer = Pacer(chunk_len)
 
     def run(self, states: Any, bar: Any, started: float) -> Any:
         chunk_index = 0
@@ -384,17 +402,17 @@ class _Loop:
             # Chunks on the whole run's grid (a resumed run starts at a chunk's end).
             num_active = min(self.chunk_len - self.done % self.chunk_len, self.total - self.done)
             try:
-                states, chunk = self._advance(states, num_active)
+                states, chunk, ran = self._advance(states, num_active)
             except KeyboardInterrupt:
                 self.interrupted = True
                 break
-            self.done += num_active
+            self.done += ran
             if bar is not None:
-                bar.update(num_active)
+                bar.update(ran)
             try:
                 if self.sink is not None:
                     extra = {"monitor": self.restarts.arrays()} if self.sink_takes_monitor else {}
-                    self.sink(chunk, states, self.done - num_active, self.done,
+                    self.sink(chunk, states, self.done - ran, self.done,
                               time.perf_counter() - started, **extra)
                 if self.callback is not None:
                     self.callback(ChunkReport(chunk_index, self.done, self.total,
@@ -402,39 +420,63 @@ class _Loop:
             except KeyboardInterrupt:
                 self.interrupted = self.done < self.total
                 break
+            if ran < num_active:  # stopped inside the chunk: its finished pieces are kept
+                self.interrupted = True
+                break
             chunk_index += 1
         return states
 
-    def _advance(self, states: Any, num_active: int) -> tuple[Any, dict[str, np.ndarray]]:
-        """One chunk of the grid: the states after it and its kept draws. When the burn-in
-        ends inside it and the restart rule is to decide, the chunk runs as two calls with
-        the decision between them: the same draws, and from outside (sink, callback, stops)
-        the same one chunk. A ``KeyboardInterrupt`` leaves the loop as the chunk found it."""
+    def _advance(self, states: Any,
+                 num_active: int) -> tuple[Any, dict[str, np.ndarray], int]:
+        """One chunk of the grid: the states after it, its kept draws and the iterations
+        run (``num_active``, or fewer when a stop came between two of its pieces). When the
+        burn-in ends inside it and the restart rule is to decide, the chunk runs as two calls
+        with the decision between them: the same draws, and from outside (sink, callback,
+        stops) the same one chunk. A ``KeyboardInterrupt`` leaves the loop as the chunk
+        found it."""
         cut = num_active
         if self.restarts is not None and self.restarts.pending and self.done < self.burn_in:
             cut = min(num_active, self.burn_in - self.done)
-        states, records = self._compute(states, self.done, cut)
-        chunk = self._keep(records, cut, self.done)
+        states, records, ran = self._compute(states, self.done, cut)
+        chunk = self._keep(records, ran, self.done)
+        if ran < cut:
+            return states, chunk, ran
         saved = None if self.restarts is None else (self.restarts.window.copy(),
                                                     self.restarts.restarted)
         states = self._restart_stuck(states, records, self.done + cut)
         if cut == num_active:
-            return states, chunk
+            return states, chunk, ran
         try:
-            states, records = self._compute(states, self.done + cut, num_active - cut)
+            states, records, ran = self._compute(states, self.done + cut, num_active - cut)
         except KeyboardInterrupt:  # the decision is taken again when the chunk is
             self.restarts.window, self.restarts.restarted = saved
             raise
-        rest = self._keep(records, num_active - cut, self.done + cut)
-        return states, {k: np.concatenate([chunk[k], v], axis=1) for k, v in rest.items()}
+        rest = self._keep(records, ran, self.done + cut)
+        return (states, {k: np.concatenate([chunk[k], v], axis=1) for k, v in rest.items()},
+                cut + ran)
 
-    def _compute(self, states: Any, start: int, num_active: int) -> tuple[Any, dict]:
-        """The compiled chunk from iteration ``start``, ``num_active`` iterations counting."""
-        new_states, records = self.chunk_fn(states, self.chain_keys, jnp.int64(start),
-                                            jnp.int64(num_active))
-        records = jax.device_get(records)
-        jax.block_until_ready(new_states)
-        return new_states, records
+    def _compute(self, states: Any, start: int, num_active: int) -> tuple[Any, dict, int]:
+        """The compiled chunk from iteration ``start`` for ``num_active`` iterations, run as
+        pieces of about half a second (:class:`~.pacing.Pacer`; the first, which compiles, in a
+        worker thread: :func:`symplid.stopping.waiting`); a stop requested between two pieces
+        (:mod:`symplid.stopping`) ends it early. Returns the states, the records of the
+        iterations run and their number."""
+        parts, ran = [], 0
+        while ran < num_active and (ran == 0 or stop_requested() is None):
+            piece = self.pacer.length(num_active - ran)
+            began = time.perf_counter()
+            args = (states, self.chain_keys, jnp.int64(start + ran), jnp.int64(piece))
+            # The first call compiles (seconds to minutes): a stop need not wait for it.
+            states, records = (waiting(self.chunk_fn, *args) if self.pacer.first
+                               else self.chunk_fn(*args))
+            records = jax.device_get(records)
+            jax.block_until_ready(states)
+            self.pacer.took(piece, time.perf_counter() - began)
+            parts.append({name: np.asarray(value)[:piece] for name, value in records.items()})
+            ran += piece
+        if len(parts) == 1:
+            return states, parts[0], ran
+        return states, {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}, ran
 
     def _restart_stuck(self, states: Any, records: dict[str, Any], done: int) -> Any:
         """At the end of the burn-in (``done``), the states with the stuck chains restarted
