@@ -283,7 +283,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior)
     check_stop()  # a safe point between the phases (symplid.stopping)
-    if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map_checks)
+    if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map._checks)
         raise MapFailedError(failure_message(map_fit.failure))
     groups = posterior.param_groups
     map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
