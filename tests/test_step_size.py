@@ -126,3 +126,34 @@ def test_report_lines_name_the_step_and_its_check(chosen):
     assert "Warning" not in text
     failed = {**record, "passed": False}
     assert "Warning" in "\n".join(step_lines(failed))
+
+
+@pytest.mark.slow
+def test_fit_with_dt_auto_records_the_step_everywhere(tmp_path):
+    """``symplid fit --dt auto``: the fit's line, summary.json, settings.toml, the report and
+    the step-size check (the search's last halving, not a second refit) agree."""
+    import json
+
+    from click.testing import CliRunner
+
+    from symplid.cli import main
+
+    def run(*args):
+        return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+    data, out = tmp_path / "harmonic.csv", tmp_path / "run"
+    assert run("simulate", "harmonic", "--out", data, "--num-obs", "15", "--t-end", "15",
+               "--noise-std", "0.02", "--seed", "3").exit_code == 0
+    result = run("fit", data, "--out", out, "--order", "2", "--x0", "1,0", "--dt", "auto",
+                 "--iterations", "600", "--burn-in", "300", "--chains", "2", "--no-progress")
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "summary.json").read_text())["learning_step"]
+    assert record["passed"] and record["dt"] <= record["smallest_gap"] == pytest.approx(1.0)
+    assert f"dt = {record['dt']:.4g} (auto, leapfrog" in result.output
+    assert f"dt = {record['dt']!r}" in (out / "settings.toml").read_text()
+    checks = json.loads((out / "diagnostics.json").read_text())["step_size"]
+    assert checks["shifts"] == pytest.approx(record["shifts"])
+    assert checks["dt_refit"] == pytest.approx(record["dt"] / 2)
+    assert "## Learning step" in (out / "report.md").read_text()
+    bad = run("fit", data, "--out", tmp_path / "bad", "--dt", "fast", "--no-progress")
+    assert bad.exit_code == 2 and "model.dt must be a number or 'auto'" in bad.output
