@@ -157,3 +157,14 @@ def test_fit_with_dt_auto_records_the_step_everywhere(tmp_path):
     assert "## Learning step" in (out / "report.md").read_text()
     bad = run("fit", data, "--out", tmp_path / "bad", "--dt", "fast", "--no-progress")
     assert bad.exit_code == 2 and "model.dt must be a number or 'auto'" in bad.output
+
+
+@pytest.mark.slow
+def test_compare_shares_one_chosen_step(chosen):
+    """``compare`` with dt = "auto" chooses the step once (the settings' own model) and every
+    candidate uses it: here the same step as the search on its own."""
+    from symplid.workflow.compare import fit_candidates
+
+    obs, settings, choice = chosen[1.0]
+    fits = fit_candidates(obs, settings, integrators=["leapfrog", "yoshida4"], progress=False)
+    assert [f.settings.model.dt for f in fits] == [choice.record["dt"]] * 2

@@ -180,9 +180,12 @@ class _Search:
 
 
 def _found(result: Any, dt: float) -> None:
+    """Refuse a refit whose MAP search failed: the fit stops in one line, as for its own MAP."""
     if getattr(result, "failure", ""):
-        raise ValueError(f"the MAP refit at dt = {dt:g} failed (the best point "
-                         f"{result.failure})")
+        from symplid.inference.map import MapFailedError, failure_message
+
+        raise MapFailedError(f'model.dt = "auto": at dt = {dt:g}, '
+                             f"{failure_message(result.failure)}")
 
 
 def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
