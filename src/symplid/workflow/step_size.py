@@ -150,7 +150,7 @@ class _Search:
     sds: np.ndarray
     sds_dt: float
     maps: dict[float, np.ndarray]
-    candidates: list[dict[str, Any]] = field(default_factory=list)
+    candidates: list[tuple[float, float]] = field(default_factory=list)
     refits: int = 0
 
     def theta_at(self, dt: float) -> np.ndarray:
