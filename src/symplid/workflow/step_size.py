@@ -150,7 +150,7 @@ class _Search:
     sds: np.ndarray
     sds_dt: float
     maps: dict[float, np.ndarray]
-    candidates: list[tuple[float, float]] = field(default_factory=list)
+    candidates: list[tuple[float, float, bool]] = field(default_factory=list)
     refits: int = 0
 
     def theta_at(self, dt: float) -> np.ndarray:
@@ -175,7 +175,7 @@ class _Search:
         """The moves from the MAP at ``dt`` to the MAP at dt/2, in the current sds."""
         moves = _moves(self.names, self.groups, self.theta_at(dt), self.theta_at(dt / 2),
                        self.sds)
-        self.candidates.append((dt, _largest(moves)))
+        self.candidates.append((dt, _largest(moves), self.sds_dt == dt))
         return moves
 
 
@@ -257,10 +257,11 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
             passed = True
             break
         dt = max(dt / 2 ** _halvings(largest, order), smallest)
-        if dt == smallest and any(c == dt for c, _ in state.candidates):
+        if dt == smallest and any(c[0] == dt for c in state.candidates):
             break
-    dt = min(dt, *(c for c, _ in state.candidates))
-    tried = ", ".join(f"{c:.4g}: {z:.3g}" for c, z in state.candidates)
+    dt = min(dt, *(c[0] for c in state.candidates))
+    tried = ", ".join(f"{c:.4g}: {z:.3g}" + (" (its own sds)" if own else "")
+                      for c, z, own in state.candidates)
     record = {**base, "dt": dt, "shifts": moves, "largest_shift_sd": _largest(moves),
               "passed": passed, "tried": tried, "refits": state.refits + tries,
               "seconds": time.perf_counter() - start}
