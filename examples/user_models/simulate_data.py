@@ -1,4 +1,4 @@
-"""Simulated data for the user-model examples: a Kepler orbit, Lotka–Volterra, a pendulum.
+"""Simulated data for the user-model examples: a Kepler orbit, Lotka–Volterra, pendulums.
 
 Each system is integrated by SciPy's adaptive Runge–Kutta (``solve_ivp``, DOP853, tolerance
 1e-11), independently of symplid's integrators, and observed with Gaussian noise. The files
@@ -12,6 +12,11 @@ are what a user would bring: a CSV with ``t`` and the observed columns.
   0.05), 50 observations over 30 time units.
 * ``pendulum``: θ̈ = −k sin θ with k = 2 (angle and momentum observed, noise sd 0.05), 40
   observations over 10 s, from (1, 0) at t = 0.
+* ``elastic-pendulum``: a unit mass on a spring of stiffness k = 40 and rest length L = 1
+  swinging in the vertical plane under g = 9.81 (y up, the pivot at the origin), U = k/2
+  (|q| − L)² + g·q2; positions only (``t, q1, q2``), 30 observations 0.2 s apart, noise sd
+  0.02, from q = (0.8, −1.0) at rest at t = 0. The spring's period is about 1 s, the swing's
+  about 2.2 s.
 
 Run: ``python simulate_data.py SYSTEM OUT.csv [--seed N]``.
 """
@@ -48,6 +53,16 @@ def _pendulum(_t: float, x: np.ndarray) -> list[float]:
     return [x[1], -2.0 * np.sin(x[0])]
 
 
+ELASTIC = {"k": 40.0, "L": 1.0, "g": 9.81}
+
+
+def _elastic_pendulum(_t: float, x: np.ndarray) -> list[float]:
+    k, length, g = ELASTIC["k"], ELASTIC["L"], ELASTIC["g"]
+    r = np.hypot(x[0], x[1])
+    pull = k * (r - length) / r  # −∂U/∂q = −pull·q − (0, g)
+    return [x[2], x[3], -pull * x[0], -pull * x[1] - g]
+
+
 SYSTEMS = {
     # name: (vector field, x0, times, observed columns, noise sd, column names)
     "kepler": (_kepler, kepler_state(), np.linspace(16.0, 400.0, 25), [0, 1], 1e-3,
@@ -56,6 +71,8 @@ SYSTEMS = {
                        np.linspace(0.6, 30.0, 50), [0, 1], 0.05, ["q1", "p1"]),
     "pendulum": (_pendulum, np.array([1.0, 0.0]), np.linspace(0.25, 10.0, 40), [0, 1], 0.05,
                  ["q1", "p1"]),
+    "elastic-pendulum": (_elastic_pendulum, np.array([0.8, -1.0, 0.0, 0.0]),
+                         0.2 * np.arange(1, 31), [0, 1], 0.02, ["q1", "q2"]),
 }
 
 

@@ -228,7 +228,8 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
               "H(q, p, params)); its parameters in [model.parameters].")
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
               help="Learning propagator: {choices}.")
-@click.option("--dt", type=float, default=None, help="Learning step.")
+@click.option("--dt", type=str, default=None,
+              help='Learning step: a number, or "auto" (chosen from the data by step doubling).')
 @click.option("--damping", is_flag=True, default=None,
               help="Learn a damping rate γ (ṗ = −∂U/∂q − γM⁻¹p; model.damping = true).")
 @click.option("--observation-noise", type=LazyChoice(noise_model_names), default=None,
@@ -288,7 +289,7 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
         "model.potential": model_text(potential),
         "model.hamiltonian": model_text(hamiltonian),
         "model.integrator": integrator,
-        "model.dt": dt,
+        "model.dt": time_or_word(dt, "--dt"),
         "model.damping": True if damping else None,
         "model.observation_noise": observation_noise,
         "sampler.method": method,

@@ -515,6 +515,9 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
     )
     truth_theta = true_values(system, outcome.model, float(cell_data_noise(cell, system)))
     metrics["calibration"] = cell_calibration(result.param_names, result.draws, truth_theta)
+    if outcome.learning_step is not None:  # dt = "auto": the step the fit chose
+        metrics["learning_dt"] = float(outcome.learning_step["dt"])
+        metrics["learning_step_s"] = outcome.timings.get("learning_step_s")
     metrics["map_s"] = outcome.timings.get("map_s")
     metrics["sampler_s"] = outcome.timings.get("sampler_s")
     metrics["wall_time_s"] = time.perf_counter() - start

@@ -62,7 +62,8 @@ CELL_KEYS: dict[str, Spec] = {
     "num_obs": Spec(int, None, "number of observations", minimum=1),
     "obs_interval": Spec(float, None, "time between observations", minimum=0.0, strict=True),
     "integrator": _mapped(str, "model.integrator", "learning propagator", choices=INTEGRATORS),
-    "dt": _mapped(float, "model.dt", "learning step (eq. 14)", minimum=0.0, strict=True),
+    "dt": _mapped(float, "model.dt", 'learning step (eq. 14); "auto": chosen from the data',
+                  minimum=0.0, strict=True, words=("auto",)),
     "order": _mapped(int, "model.order", "order of the polynomial potential", minimum=1),
     "sampler": _mapped(str, "sampler.method", "MCMC method", choices=SAMPLERS),
     "num_iterations": _mapped(

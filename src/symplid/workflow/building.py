@@ -30,6 +30,10 @@ def build_model(settings: Settings, obs: Observations | list[Observations]) -> H
     (one trajectory, or a list of them observed the same way)."""
 
     m = settings.model
+    if m.dt == "auto":
+        raise ValueError('model.dt = "auto" is chosen by the fit from the data '
+                         "(symplid.workflow.step_size.choose_step); give a number to build a "
+                         "model without it")
     layout = observation_layout(as_list(obs)[0])
     observation = layout.kind if m.observation == "auto" else m.observation
     return HamiltonianModel(

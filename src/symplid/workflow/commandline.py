@@ -441,6 +441,10 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
         extra += (f"; the {outcome.settings.map.num_starts} MAP starts ended in "
                   f"{s['map_optima']} different optima (spread {s['map_optima_spread']:.2f} "
                   "nats; the best is used)")
+    if s.get("learning_step"):
+        from symplid.workflow.step_size import step_line
+
+        head += f"{step_line(s['learning_step'])}; "
     return (
         f"{head}MAP log posterior {s['map_log_posterior']:.2f}, log evidence "
         f"{s['log_evidence']:.2f} ({s['evidence_method']}; Laplace "

@@ -17,7 +17,9 @@ is kept beside it (``log_evidence_laplace``): it is 1–2 nats too low whenever 
 posterior is skewed against zero, which with leapfrog happens to the process variance in
 nearly every fit, so it cannot rank candidates that differ in that respect.
 Everything else in the settings (priors, dt, noise model, initial state, MAP starts and seed)
-is the same for every candidate (with ``model.standardise`` on, every candidate is fitted in
+is the same for every candidate (``model.dt = "auto"`` is chosen once, for the settings' own
+model, by :func:`symplid.workflow.step_size.choose_step`, and shared, so that the evidences
+compare the models at one step) (with ``model.standardise`` on, every candidate is fitted in
 the same standardised coordinates and reported in the data's units, so the evidences stay
 comparable: :mod:`symplid.workflow.scaling`), so the priors must be proper: the evidence of
 a candidate depends on the width of its coefficients' prior, and it is this width that makes
@@ -60,11 +62,12 @@ from symplid.workflow.compare_table import (
     num_measured,
     write_comparison,
 )
-from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.fit import build_model, build_posterior, find_map_for
 from symplid.workflow.model_builder import model_family
 from symplid.workflow.scaling import resolve_standardise, scaling_for
 from symplid.workflow.settings import Settings, resolve_for_data
 from symplid.workflow.settings_schema import map_start
+from symplid.workflow.step_size import choose_step
 
 __all__ = [
     "COLUMNS",
@@ -239,6 +242,9 @@ def fit_candidates(
         [settings.model.integrator] if integrators is None else parse_integrators(integrators)
     )
     base = _resolve_all(settings, datasets, source)
+    if base.model.dt == "auto":  # one step for all: the settings' own model's
+        base = choose_step(base, datasets if len(datasets) > 1 else datasets[0],
+                           search=find_map_for).settings
     damping_list = [settings.model.damping] if dampings is None else _dampings(dampings)
     noise_list = ([settings.model.process_noise_per] if process_noises is None
                   else _process_noises(process_noises))

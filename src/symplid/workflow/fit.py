@@ -45,6 +45,7 @@ from symplid.workflow.scaling import scaling_for
 from symplid.workflow.sensitivity import sensitivity_checks
 from symplid.workflow.settings import Settings, resolve_for_data
 from symplid.workflow.settings_schema import map_start
+from symplid.workflow.step_size import StepChoice, choose_step, step_check, step_line
 
 __all__ = [
     "FitOutcome",
@@ -78,6 +79,9 @@ class FitOutcome:
     diagnostics: dict[str, Any] | None = None
     """The MAP-level sensitivity checks (:func:`~symplid.workflow.sensitivity.sensitivity_checks`;
     None with ``map.sensitivity = false``), as saved in ``diagnostics.json``."""
+    learning_step: dict[str, Any] | None = None
+    """How ``model.dt = "auto"`` chose the step (:func:`~symplid.workflow.step_size.choose_step`;
+    None for a given dt)."""
 
 
 @dataclass(frozen=True)
@@ -91,8 +95,12 @@ class SampledDraws:
     param_names: tuple[str, ...]
 
 
-def find_map_for(settings: Settings, posterior) -> Any:
+def find_map_for(settings: Settings, posterior, start: np.ndarray | None = None) -> Any:
     """The MAP and its Laplace covariance, by the path the model's family calls for.
+
+    ``start`` (θ in the posterior's coordinates), given, is the one start of a polynomial's
+    search: the MAP found at the same settings already (``model.dt = "auto"``,
+    :mod:`symplid.workflow.step_size`), only polished and given its Laplace covariance.
 
     A polynomial (or any family with few coefficients): bounded quasi-Newton from
     ``settings.map.num_starts`` seeded starts and the exact Hessian (without process noise,
@@ -109,15 +117,18 @@ def find_map_for(settings: Settings, posterior) -> Any:
     if not model_family(settings.model).neural:
         # without process noise: start from the filter's MAP (symplid.inference.map._homotopy);
         # otherwise from a user model's declared starts, if any
-        init = filter_start(posterior, seed=m.seed, num_starts=m.num_starts)
-        if init is None:  # a log-uniform Σ: from the half-normal MAP (the same homotopy)
+        init = None if start is not None else filter_start(posterior, seed=m.seed,
+                                                            num_starts=m.num_starts)
+        if init is None and start is None:  # a log-uniform Σ: from the half-normal MAP
             init = half_normal_start(posterior, seed=m.seed, num_starts=m.num_starts)
+        num_starts = m.num_starts if start is None else 1
         # a failed search is raised by the caller in one line: its warnings would only repeat
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            result = find_map(posterior, seed=m.seed, num_starts=m.num_starts,
+            result = find_map(posterior, seed=m.seed, num_starts=num_starts,
                               evidence=m.evidence,
-                              init=map_start(settings) if init is None else init)
+                              init=start if start is not None else
+                              map_start(settings) if init is None else init)
         for w in caught if not result.failure else ():
             if not issubclass(w.category, MapConvergenceWarning):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -271,7 +282,9 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
         folder.write_settings(settings)
         folder.write_data(obs)
     check_stop()  # a safe point: nothing compiled yet
-    if status is not None:
+    step = _learning_step(settings, obs, folder, timings, status)
+    settings = settings if step is None else step.settings
+    if status is not None and step is None:
         status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
                "filter: this can take a minute)...")
     start = time.perf_counter()
@@ -281,7 +294,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     fit_obs = obs if scaling is None else scaling.observations(obs)
     model = build_model(fit_settings, fit_obs)
     posterior = build_posterior(fit_settings, fit_obs, model)
-    map_fit = find_map_for(settings, posterior)
+    map_fit = find_map_for(settings, posterior, _warm_start(step, scaling, posterior))
     check_stop()  # a safe point between the phases (symplid.stopping)
     if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map._checks)
         raise MapFailedError(failure_message(map_fit.failure))
@@ -290,7 +303,8 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     timings["map_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_map(map_result)
-    diagnostics = _diagnostics(settings, obs, posterior, map_result, folder, timings, status)
+    diagnostics = _diagnostics(settings, obs, posterior, map_result, folder, timings, status,
+                               step)
     start, handing_over = time.perf_counter(), [0.0]  # the caller's time is not the sampler's
     try:
         idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
@@ -309,7 +323,8 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
         posterior = build_posterior(settings, obs, model)
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale,
-                         diagnostics=diagnostics)
+                         diagnostics=diagnostics,
+                         learning_step=None if step is None else step.record)
     return save_run(folder, outcome, checkpoint, warn)
 
 
@@ -331,19 +346,47 @@ def _draws_hook(on_sampled, map_result, posterior, scaling, groups,
     return hand_over
 
 
+def _learning_step(settings, obs, folder, timings, status) -> StepChoice | None:
+    """``model.dt = "auto"``: the step chosen from the data (:mod:`symplid.workflow.step_size`),
+    the run folder's settings rewritten with it; None for a given dt."""
+    if settings.model.dt != "auto":
+        return None
+    start = time.perf_counter()
+    step = choose_step(settings, obs, search=find_map_for, status=status)
+    timings["learning_step_s"] = time.perf_counter() - start
+    if folder is not None:
+        folder.write_settings(step.settings)
+    if status is not None:
+        status(f"learning step: {step_line(step.record)}")
+    check_stop()  # a safe point between the phases
+    return step
+
+
+def _warm_start(step: StepChoice | None, scaling, posterior) -> np.ndarray | None:
+    """The MAP at the chosen step (data units) as a start in the fit's coordinates."""
+    if step is None or step.theta is None:
+        return None
+    if scaling is None:
+        return step.theta
+    return scaling.reparameterisation(posterior.param_groups).to_unconstrained(step.theta)
+
+
 def _diagnostics(settings, obs, posterior, map_result, folder, timings,
-                 status) -> dict[str, Any] | None:
+                 status, step: StepChoice | None = None) -> dict[str, Any] | None:
     """The MAP-level sensitivity checks between the MAP and the sampler
     (:mod:`symplid.workflow.sensitivity`, with ``map.sensitivity``), saved as
-    ``diagnostics.json``. A check that fails is recorded as not available; a stop asked for
-    meanwhile ends the run here, its MAP kept (:mod:`symplid.stopping`)."""
+    ``diagnostics.json`` (a step chosen by ``model.dt = "auto"`` has had its step-size check: the
+    search's last halving, no refit). A check that fails is recorded as not
+    available; a stop asked for meanwhile ends the run here, its MAP kept
+    (:mod:`symplid.stopping`)."""
     if not settings.map.sensitivity:
         return None
     if status is not None:
         status("sensitivity checks: the MAP refitted at dt/2 and with the other process-noise "
                "model (map.sensitivity = false skips them)...")
     start = time.perf_counter()
-    checks = sensitivity_checks(settings, obs, posterior, map_result)
+    checks = sensitivity_checks(settings, obs, posterior, map_result,
+                                step_size=None if step is None else step_check(step.record))
     timings["diagnostics_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_json(RunFolder.DIAGNOSTICS, checks)
@@ -376,6 +419,8 @@ def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = No
                                     columns="convergence")  # only R-hat and ESS are read
         summary = fit_summary(outcome.posterior, outcome.map_result, idata, table)
         summary["timings"] = outcome.timings
+        if outcome.learning_step is not None:
+            summary["learning_step"] = outcome.learning_step
         if outcome.standardised_scale is not None:
             summary["standardised_scale"] = outcome.standardised_scale
         summary["interrupted"] = interrupted

@@ -21,6 +21,7 @@ from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder, format_summary
 from symplid.workflow.run_figures import ReportFigure, report_figures, trajectory_paths
 from symplid.workflow.sensitivity import sensitivity_checks, sensitivity_lines
+from symplid.workflow.step_size import step_lines
 
 __all__ = ["predict_run", "report_run", "run_diagnostics", "save_atomically"]
 
@@ -164,6 +165,8 @@ def report_run(run: str | Path) -> str:
     if table is not None:
         lines += ["## Convergence", "", table, ""]
         lines += _restart_lines(idata)
+    if summary.get("learning_step"):
+        lines += step_lines(summary["learning_step"])
     checks = run_diagnostics(folder, settings, obs, posterior)
     if checks is not None:
         lines += sensitivity_lines(checks)

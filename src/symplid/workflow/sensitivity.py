@@ -62,13 +62,15 @@ coefficients, a user model's parameters, the damping rate), not the noise varian
 
 
 def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
-              compute_hessian: bool = True) -> tuple[Any, Any]:
+              compute_hessian: bool = True, search: Any = None) -> tuple[Any, Any]:
     """(MAP result in the data's units, posterior) of ``settings`` on ``obs``, one start.
 
     The fit runs in standardised coordinates when ``settings`` ask for them (as a fit does,
     :mod:`symplid.workflow.scaling`); ``init`` is a θ in the data's units, or None for the
     default start. Without ``compute_hessian`` the refit has no covariance and no evidence
     (the step-size check needs neither: one compilation and the quadrature saved).
+    ``search(settings, posterior)``, given, replaces the one start (without ``init``): the
+    fit's whole search (:func:`symplid.workflow.fit.find_map_for`) in the fit's coordinates.
     """
     scaling = scaling_for(settings, obs)
     fit_settings = settings if scaling is None else scaling.settings(settings)
@@ -83,9 +85,12 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
         start = np.asarray(init, dtype=float)
         if scaling is not None:
             start = scaling.reparameterisation(groups).to_unconstrained(start)
-    result = find_map(posterior, seed=settings.map.seed, num_starts=1, init=start,
-                      evidence=settings.map.evidence, warn=False,
-                      compute_hessian=compute_hessian)
+    if search is not None and start is None:
+        result = search(fit_settings, posterior)
+    else:
+        result = find_map(posterior, seed=settings.map.seed, num_starts=1, init=start,
+                          evidence=settings.map.evidence, warn=False,
+                          compute_hessian=compute_hessian)
     if scaling is not None:
         result = scaling.map_result(result, groups, obs)
     return result, posterior
@@ -171,7 +176,8 @@ def _safely(check: Any, *args: Any) -> dict:
         return {"not_available": f"{type(err).__name__}: {text}"}
 
 
-def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
+def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any,
+                       step_size: dict | None = None) -> dict:
     """The step-size and process-noise checks of a fit (module docstring).
 
     Parameters
@@ -182,6 +188,10 @@ def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any)
         Its data (one :class:`~symplid.model.data.Observations` or a list), in the data's units.
     posterior, map_result
         The fit's posterior and MAP (with its Laplace covariance), in the data's units.
+    step_size
+        The step-size check made already (``dt``, ``dt_refit``, ``shifts``: the last halving
+        of ``model.dt = "auto"``, :func:`symplid.workflow.step_size.step_check`): used
+        instead of a refit at dt/2.
 
     Returns
     -------
@@ -194,8 +204,10 @@ def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any)
     start = time.perf_counter()
     why = _unavailable(settings, map_result)
     args = (settings, obs, posterior, map_result)
+    step = ({**step_size, "flagged": _check(step_size["shifts"])} if step_size is not None
+            else {"not_available": why} if why else _safely(step_size_check, *args))
     return {"threshold_sd": THRESHOLD_SD,
-            "step_size": {"not_available": why} if why else _safely(step_size_check, *args),
+            "step_size": step,
             "process_noise": ({"not_available": why} if why
                               else _safely(process_noise_check, *args)),
             "seconds": time.perf_counter() - start}

@@ -20,7 +20,8 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     network_seed = 0              #   seed of the initial weights
     integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
     binding = 0.0                 # Tao's ω for "tao"/"tao4" (non-separable H); 0: ω = 1/dt
-    dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14)
+    dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14);
+                                  # "auto": chosen from the data by step doubling
     process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep;
                                   # "none": no Σ, one integrated path, no filter)
     noise = "auto"                # "isotropic": Σ = θ_Σ I, Γ = θ_Γ I; "diagonal": one variance per

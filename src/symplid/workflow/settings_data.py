@@ -135,12 +135,15 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
                 't0 = "first" puts the initial state at the first observation',
             )
         starts = np.concatenate([[float(init.t0)], times[:-1]])
-    steps = np.ceil((times[-starts.size :] - starts) / model.dt)
+    gaps = times[-starts.size :] - starts
+    # "auto": the first step the fit tries is the smallest gap (symplid.workflow.step_size)
+    dt = float(np.min(gaps[gaps > 0], initial=np.inf)) if model.dt == "auto" else model.dt
+    steps = np.ceil(gaps / dt)
     if np.max(steps) > MAX_SUBSTEPS_PER_GAP:
         k = int(np.argmax(steps))
         raise DataError(
             f"the gap from t = {starts[k]:g} to the next observation needs {steps[k]:.3g} "
-            f"integrator steps of model.dt = {model.dt:g}; at most {MAX_SUBSTEPS_PER_GAP:,} "
+            f"integrator steps of model.dt = {dt:g}; at most {MAX_SUBSTEPS_PER_GAP:,} "
             "are allowed per gap (check the time column, or raise model.dt)"
         )
     if init.mode == "learned" and not init.x0 and not init.at_first_observation:

@@ -114,9 +114,13 @@ class ModelSettings:
         0.0, minimum=0.0,
         doc="Tao's binding ω (``\"tao\"``, ``\"tao4\"``); 0: ω = 1/dt.",
     )
-    dt: float = setting(
-        0.25, minimum=0.0, strict=True,
-        doc="Learning step: each observation gap is split into ⌈gap/dt⌉ equal substeps.",
+    dt: float | str = setting(
+        0.25, minimum=0.0, strict=True, words=("auto",),
+        doc=(
+            "Learning step: each observation gap is split into ⌈gap/dt⌉ equal substeps; "
+            "``\"auto\"``: the largest step whose halving moves no dynamics parameter by more "
+            "than 0.1 posterior sds at the MAP, at most the data's smallest gap."
+        ),
     )
     process_noise_per: str = setting(
         "gap", choices=PROCESS_NOISE_CHOICES,
