@@ -378,7 +378,7 @@ def test_resolve_fills_observation_from_columns(full_data, q_data):
         ({"model": {"observation": "full"}}, "model.observation", "only positions"),
         ({"initial_state": {"x0": []}}, "initial_state.x0", "mode is 'known'"),
         ({"initial_state": {"x0": [1.0, 2.0]}}, "initial_state.x0", "4-dimensional"),
-        ({"initial_state": {"x0": [0, 0, 0, 0], "t0": 1.0}}, "initial_state.t0", "before"),
+        ({"initial_state": {"x0": [0, 0, 0, 0], "t0": 1.5}}, "initial_state.t0", "before"),
         ({"model": {"mass": [1.0]}}, "model.mass", "expected 2"),
     ],
 )

@@ -193,7 +193,8 @@ class InitialStateSettings:
     )
     t0: float | str = setting(
         0.0, words=("first",),
-        doc="Time of the initial state; ``\"first\"``: at the first observation.",
+        doc=("Time of the initial state; ``\"first\"``: at the first observation (as is a "
+             "t0 equal to the first observation time)."),
     )
 
     @property
