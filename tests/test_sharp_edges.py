@@ -58,3 +58,50 @@ def test_a_t0_before_the_data_is_kept_and_one_after_is_refused(tmp_path):
     late = merge_overrides(learned, {"initial_state.t0": 2.0})
     with pytest.raises(ValueError, match="must be before the first observation time"):
         resolve_for_data(late, obs)
+
+
+# ----------------------------------------------------------------------------- advice
+NONSEPARABLE = "0.5*(1 + a*q1^2)*p1^2 + 0.5*q1^2"
+
+
+def _resolved(tmp_path, overrides):
+    from symplid.workflow.settings import settings_from_dict
+
+    t = np.arange(0.0, 12.0)
+    obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
+    return resolve_for_data(merge_overrides(settings_from_dict({
+        "initial_state": {"mode": "learned"},
+        "model": {"parameters": {"a": {"prior": "normal", "loc": 0.0, "scale": 1.0}}}
+        if "model.hamiltonian" in overrides else {}}), overrides), obs), obs
+
+
+@pytest.mark.parametrize(("overrides", "advice"), [
+    ({"model.order": 2}, "use a smaller dt or yoshida4"),
+    ({"model.order": 2, "model.damping": True}, "use a smaller dt or yoshida4"),
+    ({"model.order": 2, "model.integrator": "yoshida4"}, "use a smaller dt"),
+    ({"model.hamiltonian": NONSEPARABLE}, "use a smaller dt or tao4"),
+    ({"model.hamiltonian": NONSEPARABLE, "model.integrator": "tao4"}, "use a smaller dt"),
+])
+def test_step_advice_names_only_what_the_model_accepts(tmp_path, overrides, advice):
+    """The step-size warning's advice, and the model built with the integrator it names."""
+    import dataclasses
+
+    from symplid.workflow.building import build_model
+    from symplid.workflow.sensitivity import sensitivity_lines, sensitivity_summary, step_advice
+
+    settings, obs = _resolved(tmp_path, overrides)
+    assert step_advice(settings, obs) == advice
+    named = advice.rpartition(" or ")[2]
+    if " or " in advice:
+        build_model(dataclasses.replace(settings, model=dataclasses.replace(
+            settings.model, integrator=named)), obs)
+    step = {"dt": 0.25, "dt_refit": 0.125, "shifts": {"a": 1.0}, "flagged": ["a"],
+            "advice": advice}
+    noise = {"not_available": "skipped"}
+    text = "\n".join([*sensitivity_lines({"threshold_sd": 0.3, "step_size": step,
+                                          "process_noise": noise}),
+                      *sensitivity_summary({"threshold_sd": 0.3, "step_size": step,
+                                            "process_noise": noise})])
+    assert text.count(advice) == 2
+    if "yoshida4" not in advice:
+        assert "yoshida4" not in text
