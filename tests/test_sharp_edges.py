@@ -105,3 +105,157 @@ def test_step_advice_names_only_what_the_model_accepts(tmp_path, overrides, advi
     assert text.count(advice) == 2
     if "yoshida4" not in advice:
         assert "yoshida4" not in text
+
+
+# ----------------------------------------------------------------------------- expressions
+def _refusal(text: str, names=("k",), dim: int = 1, kind: str = "potential", **kwargs) -> str:
+    from symplid.dynamics.user_models import UserModelError, build_user_model
+
+    with pytest.raises(UserModelError) as info:
+        build_user_model(text, kind, dim, list(names), **kwargs)
+    message = str(info.value)
+    assert "\n" not in message
+    return message
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    ("k*q1^2/(q1 - q1)", ["division by zero in 1/(q1 - q1)", "(q1 - q1 is 0)"]),
+    ("k*q1^2 + 1/0", ["division by zero in 1/0"]),
+    ("k*q1^2 + 0/0", ["division by zero"]),
+    ("k*q1^2 + log(0)", ["log(0) is infinite"]),
+    ("k*q1^2 + sqrt(-1)", ["not real", "sqrt(-1)"]),
+    ("k*q1^2 + atan2(0, 0)", ["undefined value"]),
+    ("k*q1^2 \u2212 q1", ["U+2212 MINUS SIGN", "character 8", "looks like '-'"]),
+    ("k*q1^2 + \uff4b*q1", ["U+FF4B FULLWIDTH LATIN SMALL LETTER K", "looks like 'k'"]),
+    ("k*q1\u00b2", ["looks like '^2'"]),
+    ("k*q1^2 + 2\u00d7q1", ["looks like '*'"]),
+    ("k*q1^2 + \u2603", ["U+2603", "is not allowed"]),
+])
+def test_expression_errors_name_the_real_cause(text, words):
+    message = _refusal(text)
+    for word in words:
+        assert word in message, message
+    assert "do not appear" not in message and "' ' is not allowed" not in message
+
+
+def test_a_greek_parameter_name_is_still_a_name():
+    import jax.numpy as jnp
+
+    from symplid.dynamics.user_models import build_user_model
+
+    pot = build_user_model("\u03b1*q1^2", "potential", 1, ["\u03b1"])
+    assert float(pot.value(jnp.array([0.5]), jnp.array([2.0]))) == pytest.approx(0.5)
+
+
+def test_a_lookalike_parameter_name_is_refused():
+    from symplid.workflow.settings import settings_from_dict
+    from symplid.workflow.validate import SettingsError
+
+    with pytest.raises(SettingsError, match="read as 'k'"):
+        settings_from_dict({"model": {"potential": "k*q1^2", "parameters": {
+            "\uff4b": {"prior": "normal", "loc": 0, "scale": 1}}}})
+
+
+def test_a_huge_expression_is_refused_in_one_short_line():
+    """10,000 terms: refused by the size limit, quoting no more than ~200 characters; with the
+    limit raised, the parser's own failure is quoted as briefly."""
+    huge = " + ".join(["k*q1^2", *(f"{i}*q1^{i}" for i in range(2, 10_001))])
+    assert len(huge) > 100_000
+    message = _refusal(huge)
+    assert "model.max_expression_size" in message and "limit of 2,000" in message
+    assert len(message) < 500 and "characters" not in message
+    bad = huge + " + x"
+    for kwargs in ({}, {"max_size": 10**6}):
+        message = _refusal(bad, **kwargs)
+        assert len(message) < 500, message[:600]
+
+
+def test_the_size_limit_is_a_setting(tmp_path):
+    from symplid.workflow.settings import settings_from_dict
+    from symplid.workflow.validate import SettingsError
+
+    t = np.arange(0.0, 12.0)
+    obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
+    small = settings_from_dict({"initial_state": {"mode": "learned"}, "model": {
+        "potential": "k*q1^2 + k*q1^3 + k*q1^4",
+        "parameters": {"k": {"prior": "normal", "loc": 0.0, "scale": 1.0}}}})
+    resolve_for_data(small, obs)  # 17 tokens, under the default
+    tight = merge_overrides(small, {"model.max_expression_size": 10})
+    with pytest.raises(SettingsError, match="17 tokens, more than the limit of 10"):
+        resolve_for_data(tight, obs)
+
+
+CSE_MODELS = [
+    ("-GM/sqrt(q1^2 + q2^2)", "potential", 2, ("GM",)),
+    ("beta*exp(q1) - alpha*q1 + delta*exp(p1) - gamma*p1", "hamiltonian", 1,
+     ("alpha", "beta", "gamma", "delta")),
+    ("0.5*(1 + a*q1^2)*p1^2 + 0.5*q1^2", "hamiltonian", 1, ("a",)),
+    ("k*(1 - cos(q1))", "potential", 1, ("k",)),
+    ("k*exp(-(q1^2 + q2^2))*(q1^2 + q2^2) + sqrt(q1^2 + q2^2)*(q1^2 + q2^2)^2 "
+     "+ c*(q1*p2 - q2*p1)^2 + 0.5*(p1^2 + p2^2)", "hamiltonian", 2, ("k", "c")),
+]
+
+
+@pytest.mark.parametrize(("text", "kind", "dim", "names"), CSE_MODELS)
+def test_common_subexpressions_keep_value_and_gradient(text, kind, dim, names):
+    """The code generated after SymPy's common subexpression elimination against SymPy's
+    plain code generation of the same expression: values and gradients to 1e-12."""
+    import jax
+    import jax.numpy as jnp
+    import sympy
+
+    from symplid.dynamics.hamiltonians import is_hamiltonian
+    from symplid.dynamics.user_models import build_user_model, parse_expression
+
+    model = build_user_model(text, kind, dim, list(names))
+    expr = parse_expression(text, list(names), require_all=True).expr
+    qs = [sympy.Symbol(f"q{i + 1}", real=True) for i in range(dim)]
+    ps = [sympy.Symbol(f"p{i + 1}", real=True) for i in range(dim)]
+    cs = [sympy.Symbol(n, real=True) for n in names]
+    plain = sympy.lambdify([*qs, *ps, *cs], expr, modules="jax")
+
+    def reference(q, p, c):
+        return plain(*q, *p, *c)
+
+    def ours(q, p, c):
+        if is_hamiltonian(model):
+            return model.value(q, p, c)
+        if kind == "hamiltonian":  # split into T(p) + U(q)
+            return model.value(q, c) + model.kinetic(p, c)
+        return model.value(q, c) + 0.0 * jnp.sum(p)
+
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        q, p = jnp.asarray(rng.uniform(0.3, 1.2, dim)), jnp.asarray(rng.uniform(-1, 1, dim))
+        c = jnp.asarray(rng.uniform(0.2, 1.5, len(names)))
+        np.testing.assert_allclose(ours(q, p, c), reference(q, p, c), rtol=1e-12, atol=0)
+        for arg in range(3 if kind == "hamiltonian" else 1):
+            if arg == 1 and kind == "potential":
+                continue
+            got = jax.grad(ours, argnums=arg)(q, p, c)
+            want = jax.grad(reference, argnums=arg)(q, p, c)
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize(("potential", "words"), [
+    ("k*q1^2/(q1 - q1)", "division by zero in 1/(q1 - q1)"),
+    ("k*q1^2 \u2212 q1", "U+2212 MINUS SIGN"),
+])
+def test_the_command_line_says_it_in_one_line_with_exit_2(tmp_path, potential, words):
+    from click.testing import CliRunner
+
+    from symplid.cli import main
+
+    t = np.arange(0.0, 12.0)
+    data = write_csv(tmp_path / "h.csv", t, harmonic(t))
+    config = tmp_path / "m.toml"
+    config.write_text('[model]\npotential = "k*q1^2"\n[model.parameters]\n'
+                      'k = { prior = "half-normal", scale = 2 }\n'
+                      '[initial_state]\nmode = "learned"\n', encoding="utf-8")
+    result = CliRunner().invoke(main, ["fit", str(data), "--config", str(config), "--potential",
+                                       potential, "--out", str(tmp_path / "r"), "--no-progress"],
+                                catch_exceptions=False)
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("symplid: error:"), result.output
+    assert words in lines[0]

@@ -7,8 +7,19 @@ Two forms name a model (``model.potential`` / ``model.hamiltonian`` in the run s
   - gamma*p1"``. ``^`` is a power. The text is checked token by token first (names must be
   coordinates, declared parameters or the functions of :data:`FUNCTIONS`; no attributes,
   subscripts, strings or keywords), then read by SymPy's parser with a dictionary that holds
-  only those names, and compiled to ``jax.numpy`` by ``sympy.lambdify``: nothing of the text
-  is ever run as Python. Gradients and Hessians are JAX's.
+  only those names, and compiled to ``jax.numpy`` by ``sympy.lambdify`` after SymPy's common
+  subexpression elimination (``cse=True``: each repeated subexpression is evaluated once, and
+  traced and compiled once): nothing of the text is ever run as Python. Gradients and
+  Hessians are JAX's.
+
+  What is refused, in one line that quotes at most :data:`QUOTE_LIMIT` characters of the
+  text: a character that only looks like an ASCII one (a Unicode minus ``−``, a fullwidth
+  ``ｋ``, ``×``: Python would fold some of them into another name), a division by zero or a
+  value that is undefined or not real wherever the coordinates are (``1/(q1 - q1)``,
+  ``log(0)``, ``sqrt(-1)``), and an expression of more than ``max_size`` tokens
+  (:data:`MAX_EXPRESSION_SIZE`, the setting ``model.max_expression_size``): the compile time
+  of the likelihood grows faster than the size of the expression (a polynomial of 100
+  monomials took minutes, one of 1,000 more than ten).
 * a **Python file**, ``"file:model.py:U"``: ``U(q, params)`` (a potential) or
   ``H(q, p, params)`` (a Hamiltonian) written with ``jax.numpy``, where ``q`` and ``p`` have
   shape ``(d,)`` and ``params`` maps each declared parameter name to its value.
@@ -27,6 +38,7 @@ import io
 import re
 import sys
 import tokenize
+import unicodedata
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +56,9 @@ Array = jax.Array
 __all__ = [
     "CONSTANTS",
     "FUNCTIONS",
+    "MAX_EXPRESSION_SIZE",
     "QUADRATIC",
+    "QUOTE_LIMIT",
     "UserHamiltonian",
     "UserModelError",
     "UserPotential",
@@ -52,6 +66,7 @@ __all__ = [
     "is_user_model",
     "load_function",
     "parse_expression",
+    "quoted",
 ]
 
 #: The kinetic energy ½pᵀM⁻¹p (``model.kinetic``'s default).
@@ -66,8 +81,19 @@ FUNCTIONS = {
 #: Constants an expression may name.
 CONSTANTS = ("pi",)
 
+#: The most tokens (numbers, names, operators) an expression may have by default
+#: (``model.max_expression_size``): compile time grows faster than the size.
+MAX_EXPRESSION_SIZE = 2000
+#: The most characters of an expression an error message quotes.
+QUOTE_LIMIT = 200
+
 _COORDINATE = re.compile(r"^([qp])([1-9][0-9]*)$")
 _OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")", ","}
+#: Characters that look like an ASCII operator, and what to type instead (NFKC folds the
+#: others that look like ASCII, such as fullwidth letters and digits).
+_LOOKALIKES = {"\u2212": "-", "\u2010": "-", "\u2011": "-", "\u2012": "-", "\u2013": "-",
+               "\u2014": "-", "\u00d7": "*", "\u00b7": "*", "\u2219": "*", "\u22c5": "*",
+               "\u2217": "*", "\u00f7": "/", "\u2215": "/", "\u00b2": "^2", "\u00b3": "^3"}
 
 
 class UserModelError(ValueError):
@@ -109,13 +135,50 @@ class Expression:
     parameters: tuple[str, ...]
 
 
-def _check_tokens(text: str, names: Sequence[str], key: str) -> None:
-    """Refuse anything but numbers, the allowed operators and the allowed names."""
+def quoted(text: str, limit: int = QUOTE_LIMIT) -> str:
+    """``repr(text)``, or for a text longer than ``limit`` its start and end around ``…``
+    with its length: what an error line may quote of an expression."""
+    if len(text) <= limit:
+        return repr(text)
+    head, tail = text[: (2 * limit) // 3], text[-(limit // 3):]
+    return f"{head!r} … {tail!r} ({len(text):,} characters)"
+
+
+def _check_characters(text: str, key: str) -> None:
+    """Refuse a non-ASCII character that looks like an ASCII one, or is no letter or digit
+    of a name (a Greek letter may name a parameter)."""
+    for at, ch in enumerate(text):
+        if ch.isascii():
+            continue
+        folded = unicodedata.normalize("NFKC", ch)
+        instead = _LOOKALIKES.get(ch) or (folded if folded != ch and folded.isascii() else "")
+        what = f"{ch!r} (U+{ord(ch):04X} {unicodedata.name(ch, 'unnamed character')})"
+        where = f"at character {at + 1} of {quoted(text)}"
+        if instead:
+            raise UserModelError(f"{key}: {what} {where} looks like {instead.strip()!r} but is "
+                                 f"not it; type {instead.strip()!r}")
+        if folded != ch or not (ch.isalpha() or ch.isdigit()):
+            raise UserModelError(f"{key}: {what} {where} is not allowed in an expression; "
+                                 "use numbers, + - * / ^ ( ) and names")
+
+
+def _check_tokens(text: str, names: Sequence[str], key: str,
+                  max_size: int = MAX_EXPRESSION_SIZE) -> None:
+    """Refuse anything but numbers, the allowed operators and the allowed names, and more
+    than ``max_size`` tokens."""
     allowed = set(names) | set(FUNCTIONS) | set(CONSTANTS)
+    _check_characters(text, key)
     try:
         tokens = list(tokenize.generate_tokens(io.StringIO(text).readline))
     except (tokenize.TokenError, IndentationError, SyntaxError) as err:
-        raise UserModelError(f"{key}: cannot read the expression {text!r} ({err})") from None
+        raise UserModelError(f"{key}: cannot read the expression {quoted(text)} "
+                             f"({err})") from None
+    size = sum(tok.type in (tokenize.NAME, tokenize.NUMBER, tokenize.OP) for tok in tokens)
+    if size > max_size:
+        raise UserModelError(f"{key}: the expression has {size:,} tokens, more than the limit "
+                             f"of {max_size:,} (model.max_expression_size): its likelihood "
+                             "would take very long to compile; write it with fewer terms, or "
+                             "raise the limit")
     previous = None
     for tok in tokens:
         if tok.type in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER, tokenize.INDENT,
@@ -125,61 +188,135 @@ def _check_tokens(text: str, names: Sequence[str], key: str) -> None:
             if not (tok.string in allowed or _COORDINATE.match(tok.string)):
                 declared = ", ".join(names) or "none"
                 raise UserModelError(
-                    f"{key}: unknown symbol {tok.string!r} in {text!r}: not a coordinate "
+                    f"{key}: unknown symbol {tok.string!r} in {quoted(text)}: not a coordinate "
                     f"(q1.., p1..), a function ({', '.join(FUNCTIONS)}) or a parameter "
                     f"declared in [model.parameters] (declared: {declared})")
         elif tok.type == tokenize.OP and tok.string in _OPERATORS:
             if tok.string == "(" and previous is not None and previous.type == tokenize.NAME \
                     and previous.string not in FUNCTIONS:
                 raise UserModelError(f"{key}: {previous.string!r} is not a function "
-                                     f"({', '.join(FUNCTIONS)}) in {text!r}")
+                                     f"({', '.join(FUNCTIONS)}) in {quoted(text)}")
         elif tok.type != tokenize.NUMBER or tok.string[-1] in "jJ":
             raise UserModelError(f"{key}: {tok.string!r} is not allowed in an expression "
-                                 f"({text!r}); use numbers, + - * / ^ ( ) and names")
+                                 f"({quoted(text)}); use numbers, + - * / ^ ( ) and names")
         previous = tok
 
 
-def parse_expression(text: str, names: Sequence[str], key: str = "model.potential",
-                     require_all: bool = True) -> Expression:
-    """Read ``text`` safely into a SymPy expression (module docstring).
-
-    ``require_all``: every name of ``names`` must appear (else only those that do are kept).
-
-    Raises
-    ------
-    UserModelError
-        For an unknown symbol, a forbidden token, a declared parameter it does not use, or
-        text that is not an expression.
-    """
+def _sympy_parse(text: str, names: Sequence[str], evaluate: bool = True) -> Any:
+    """SymPy's parser on checked ``text``, with only the allowed names in reach."""
     import sympy
     from sympy.parsing.sympy_parser import convert_xor, parse_expr, standard_transformations
 
-    _check_tokens(text, names, key)
     coords = set(re.findall(r"\b[qp][1-9][0-9]*\b", text))
     local = {n: sympy.Symbol(n, real=True) for n in [*names, *coords]}
     glob: dict[str, Any] = {"__builtins__": {}, "Integer": sympy.Integer,
                             "Float": sympy.Float, "Rational": sympy.Rational,
                             "Symbol": sympy.Symbol, "pi": sympy.pi}
+    if not evaluate:  # the parser then writes the operators as SymPy's classes
+        glob |= {"Add": sympy.Add, "Mul": sympy.Mul, "Pow": sympy.Pow}
     glob |= {name: getattr(sympy, fn) for name, fn in FUNCTIONS.items()}
+    return parse_expr(text, local_dict=local, global_dict=glob,
+                      transformations=(*standard_transformations, convert_xor),
+                      evaluate=evaluate)
+
+
+def _first_line(err: BaseException, limit: int = 120) -> str:
+    """``Type: message`` of an exception, its first line, at most ``limit`` characters."""
+    lines = str(err).strip().splitlines()
+    text = lines[0] if lines else ""
+    text = text if len(text) <= limit else text[:limit] + " …"
+    return f"{type(err).__name__}: {text}" if text else type(err).__name__
+
+
+def _not_finite_or_real(expr: Any) -> bool:
+    """Whether ``expr`` holds an infinite or undefined number, or a number that is not real."""
+    import sympy
+
+    if expr.has(sympy.zoo, sympy.oo, -sympy.oo, sympy.nan):
+        return True
+    return any(node.is_number and node.is_extended_real is False
+               for node in sympy.preorder_traversal(expr))
+
+
+def _undefined_cause(text: str, names: Sequence[str]) -> str:
+    """What makes the expression infinite, undefined or complex: the innermost part of the
+    text as written (parsed without evaluation) whose value is."""
+    import sympy
+
     try:
-        expr = parse_expr(text, local_dict=local, global_dict=glob,
-                          transformations=(*standard_transformations, convert_xor),
-                          evaluate=True)
+        raw = _sympy_parse(text, names, evaluate=False)
+    except Exception:  # the evaluated parse succeeded; keep the general answer
+        return "it has an infinite, undefined or complex value"
+    for node in sympy.postorder_traversal(raw):
+        if not isinstance(node, sympy.Expr):
+            continue
+        value = node.doit()
+        if not _not_finite_or_real(value):
+            continue
+        written = sympy.sstr(node, order="none")
+        if isinstance(node, sympy.Pow) and node.exp.is_negative and node.base.doit() == 0:
+            base = sympy.sstr(node.base, order="none")
+            return f"division by zero in {written}" + ("" if node.base.is_Number
+                                                       else f" ({base} is 0)")
+        if value.has(sympy.nan):
+            return f"an undefined value: {written} is not a number"
+        if value.has(sympy.zoo, sympy.oo, -sympy.oo):
+            return f"an undefined value: {written} is infinite"
+        return f"a value that is not real: {written} is {sympy.sstr(value)}"
+    return "it has an infinite, undefined or complex value"
+
+
+def parse_expression(text: str, names: Sequence[str], key: str = "model.potential",
+                     require_all: bool = True, max_size: int = MAX_EXPRESSION_SIZE
+                     ) -> Expression:
+    """Read ``text`` safely into a SymPy expression (module docstring).
+
+    ``require_all``: every name of ``names`` must appear (else only those that do are kept).
+    ``max_size``: the most tokens the text may have.
+
+    Raises
+    ------
+    UserModelError
+        For a lookalike or other non-ASCII character, an unknown symbol, a forbidden token,
+        more than ``max_size`` tokens, a division by zero or a value that is undefined or not
+        real, a declared parameter it does not use, or text that is not an expression.
+    """
+    import sympy
+
+    _check_tokens(text, names, key, max_size)
+    try:
+        expr = _sympy_parse(text, names)
     except Exception as err:  # SymPy raises many kinds for malformed text
-        raise UserModelError(f"{key}: cannot read the expression {text!r} "
-                             f"({type(err).__name__}: {err})") from None
+        raise UserModelError(f"{key}: cannot read the expression {quoted(text)} "
+                             f"({_first_line(err)})") from None
     if not isinstance(expr, sympy.Expr):
-        raise UserModelError(f"{key}: {text!r} is not a scalar expression")
+        raise UserModelError(f"{key}: {quoted(text)} is not a scalar expression")
+    if _not_finite_or_real(expr):
+        raise UserModelError(f"{key}: {quoted(text)} cannot be used: "
+                             f"{_undefined_cause(text, names)}")
     used = {s.name for s in expr.free_symbols}
     unused = [n for n in names if n not in used]
     if not require_all:
         names = [n for n in names if n in used]
     elif unused:
         raise UserModelError(f"{key}: the declared parameter(s) {', '.join(unused)} do not "
-                             f"appear in {text!r}; remove them from [model.parameters]")
+                             f"appear in {quoted(text)}; remove them from [model.parameters]")
     q = tuple(sorted(int(n[1:]) for n in used if n.startswith("q") and _COORDINATE.match(n)))
     p = tuple(sorted(int(n[1:]) for n in used if n.startswith("p") and _COORDINATE.match(n)))
     return Expression(expr, q, p, tuple(names))
+
+
+def _to_jax(symbols: Sequence[Any], expr: Any) -> Callable:
+    """``expr`` as a ``jax.numpy`` function of ``symbols`` by ``sympy.lambdify``, after SymPy's
+    common subexpression elimination (``cse=True``: the generated code assigns each repeated
+    subexpression once and reuses it, so JAX traces, differentiates and compiles it once)."""
+    import sympy
+
+    try:
+        return sympy.lambdify(list(symbols), expr, modules="jax", cse=True)
+    except Exception as err:  # a construct SymPy cannot print for JAX
+        raise UserModelError(f"cannot turn {quoted(str(expr))} into a JAX function "
+                             f"({_first_line(err)})") from None
 
 
 def _lambdified(expr: Any, dim: int, names: Sequence[str], of: str) -> Callable:
@@ -188,7 +325,7 @@ def _lambdified(expr: Any, dim: int, names: Sequence[str], of: str) -> Callable:
 
     xs = [sympy.Symbol(f"{of}{i + 1}", real=True) for i in range(dim)]
     ps = [sympy.Symbol(n, real=True) for n in names]
-    raw = sympy.lambdify([*xs, *ps], expr, modules="jax")
+    raw = _to_jax([*xs, *ps], expr)
 
     def fn(x: Array, params: Array) -> Array:
         value = raw(*(x[i] for i in range(dim)), *(params[j] for j in range(len(names))))
@@ -221,10 +358,10 @@ def _check_dim(parsed: Expression, dim: int, key: str) -> None:
 
 
 def _expression_model(text: str, kind: str, dim: int, names: tuple[str, ...],
-                      kinetic: str) -> Any:
+                      kinetic: str, max_size: int) -> Any:
     key = f"model.{kind}"
     separate_t = kind == "potential" and kinetic != QUADRATIC
-    parsed = parse_expression(text, names, key, require_all=not separate_t)
+    parsed = parse_expression(text, names, key, require_all=not separate_t, max_size=max_size)
     _check_dim(parsed, dim, key)
     if kind == "potential":
         if parsed.momenta:
@@ -233,7 +370,7 @@ def _expression_model(text: str, kind: str, dim: int, names: tuple[str, ...],
         u = _lambdified(parsed.expr, dim, names, "q")
         if kinetic == QUADRATIC:
             return UserPotential(u, dim, len(names), names)
-        t = kinetic_function(kinetic, dim, names, parsed.parameters)
+        t = kinetic_function(kinetic, dim, names, parsed.parameters, max_size)
         return SeparablePotential(u, t, dim, len(names), names)
     parts = _split(parsed.expr)
     if parts is not None:
@@ -248,7 +385,7 @@ def _nonseparable(expr: Any, dim: int, names: tuple[str, ...]) -> UserHamiltonia
     qs = [sympy.Symbol(f"q{i + 1}", real=True) for i in range(dim)]
     ps = [sympy.Symbol(f"p{i + 1}", real=True) for i in range(dim)]
     cs = [sympy.Symbol(n, real=True) for n in names]
-    raw = sympy.lambdify([*qs, *ps, *cs], expr, modules="jax")
+    raw = _to_jax([*qs, *ps, *cs], expr)
 
     def h(q: Array, p: Array, params: Array) -> Array:
         value = raw(*(q[i] for i in range(dim)), *(p[i] for i in range(dim)),
@@ -259,15 +396,17 @@ def _nonseparable(expr: Any, dim: int, names: tuple[str, ...]) -> UserHamiltonia
 
 
 def kinetic_function(text: str, dim: int, names: tuple[str, ...],
-                     used_by_u: Sequence[str] | None = None) -> Callable:
+                     used_by_u: Sequence[str] | None = None,
+                     max_size: int = MAX_EXPRESSION_SIZE) -> Callable:
     """T(p, params) of ``model.kinetic``: an expression in p1..pd, or ``file:PATH:NAME``.
 
     ``used_by_u``: the parameters the potential's expression uses; every declared parameter
-    must appear in U or in T.
+    must appear in U or in T. ``max_size``: the most tokens of the expression.
     """
     if text.startswith("file:"):
         return _checked_file_function(text, "kinetic", dim, names)
-    parsed = parse_expression(text, names, "model.kinetic", require_all=False)
+    parsed = parse_expression(text, names, "model.kinetic", require_all=False,
+                              max_size=max_size)
     unused = [n for n in names if n not in parsed.parameters and n not in (used_by_u or ())]
     if used_by_u is not None and unused:
         raise UserModelError(f"model.potential: the declared parameter(s) {', '.join(unused)} "
@@ -343,7 +482,7 @@ def _checked_file_function(spec: str, kind: str, dim: int, names: tuple[str, ...
 
 
 def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
-                     kinetic: str = QUADRATIC) -> Any:
+                     kinetic: str = QUADRATIC, max_size: int = MAX_EXPRESSION_SIZE) -> Any:
     """The potential or Hamiltonian of a user model (module docstring).
 
     Parameters
@@ -358,6 +497,8 @@ def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
         The declared parameters, in θ's order.
     kinetic
         T(p) for a potential: ``"quadratic"`` (½pᵀM⁻¹p), an expression or ``file:PATH:NAME``.
+    max_size
+        The most tokens an expression may have (:data:`MAX_EXPRESSION_SIZE`).
 
     Returns
     -------
@@ -368,10 +509,11 @@ def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
     if kind not in ("potential", "hamiltonian"):
         raise ValueError(f"kind must be 'potential' or 'hamiltonian', got {kind!r}")
     if not text.startswith("file:"):
-        return _expression_model(text, kind, dim, names, kinetic)
+        return _expression_model(text, kind, dim, names, kinetic, max_size)
     fn = _checked_file_function(text, kind, dim, names)
     if kind == "hamiltonian":
         return UserHamiltonian(fn, dim, len(names), names)
     if kinetic == QUADRATIC:
         return UserPotential(fn, dim, len(names), names)
-    return SeparablePotential(fn, kinetic_function(kinetic, dim, names), dim, len(names), names)
+    t = kinetic_function(kinetic, dim, names, max_size=max_size)
+    return SeparablePotential(fn, t, dim, len(names), names)

@@ -54,6 +54,7 @@ def family_options(model: ModelSettings) -> FamilyOptions:
         network_seed=model.network_seed,
         parameters=tuple(p.name for p in model.parameters),
         kinetic=model.kinetic,
+        max_expression_size=model.max_expression_size,
     )
 
 

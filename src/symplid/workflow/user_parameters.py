@@ -23,6 +23,7 @@ from __future__ import annotations
 import keyword
 import math
 import re
+import unicodedata
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,6 +74,10 @@ def _number(value: Any, key: str, source: str) -> float:
 
 
 def _one(name: str, table: Any, key: str, source: str) -> UserParameter:
+    folded = unicodedata.normalize("NFKC", name)
+    if folded != name:
+        raise SettingsError(source, key, f"is not a usable parameter name: it is read as "
+                            f"{folded!r} (a character that looks like another); type {folded!r}")
     if (not name.isidentifier() or keyword.iskeyword(name) or _COORDINATE.match(name)
             or name in FUNCTIONS or name in CONSTANTS or name.startswith("_")):
         raise SettingsError(source, key, "is not a usable parameter name (a letter, then letters,"
