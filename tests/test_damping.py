@@ -291,7 +291,7 @@ def test_damping_needs_a_separable_h_and_a_scheme():
 
 def test_settings_key_and_prior_of_damping():
     s = settings_from_dict(
-        {"model": {"damping": True}, "priors": {"damping": {"family": "half-normal", "scale": 0.3}}}
+        {"model": {"damping": True}, "priors": {"damping": {"prior": "half-normal", "scale": 0.3}}}
     )
     assert s.model.damping is True and s.priors.damping == symplid.HalfNormal(0.3)
     assert settings_from_dict(settings_to_dict(s)) == s

@@ -259,3 +259,53 @@ def test_the_command_line_says_it_in_one_line_with_exit_2(tmp_path, potential, w
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("symplid: error:"), result.output
     assert words in lines[0]
+
+
+# ----------------------------------------------------------------------------- prior syntax
+def test_every_prior_table_takes_prior(tmp_path):
+    """``[priors.GROUP]`` takes ``prior = ...`` as ``[model.parameters]`` does (a family with
+    its keys, or text), is written that way, and reads back equal."""
+    import tomllib
+
+    from symplid.model.priors import HalfNormal, Laplace, Normal
+    from symplid.workflow.settings import dump_settings, load_settings, settings_from_dict
+
+    table = {"prior": "half-normal", "scale": 0.5}
+    s = settings_from_dict({
+        "priors": {"variances": table, "coefficients": {"prior": "laplace(0, 2)"}},
+        "model": {"potential": "k*q1^2", "parameters": {"k": table}}})
+    assert s.priors.variances == HalfNormal(0.5) and s.priors.coefficients == Laplace(0.0, 2.0)
+    assert s.model.parameters[0].prior == HalfNormal(0.5)
+    written = tomllib.loads(dump_settings(s, tmp_path / "s.toml").read_text())
+    assert written["priors"]["variances"] == {"prior": "half-normal", "scale": 0.5}
+    assert not any("family" in group for group in written["priors"].values()
+                   if isinstance(group, dict))
+    assert load_settings(tmp_path / "s.toml") == s
+    assert merge_overrides(s, {"priors.initial_state.prior": "normal(0, 3)"}
+                           ).priors.initial_state == Normal(0.0, 3.0)
+
+
+def test_the_old_family_key_is_read_with_one_deprecation_line(tmp_path):
+    from symplid.model.priors import HalfNormal, Normal
+    from symplid.workflow.commandline import _merged_file
+    from symplid.workflow.settings import settings_from_dict
+    from symplid.workflow.validate import SettingsError
+
+    with pytest.warns(FutureWarning, match=r"priors\.variances\.family is deprecated; use "
+                                           r"priors\.variances\.prior"):
+        s = settings_from_dict({"priors": {"variances": {"family": "half-normal",
+                                                         "scale": 0.5}}})
+    assert s.priors.variances == HalfNormal(0.5)
+    with pytest.warns(FutureWarning, match=r"model\.parameters\.k\.family is deprecated"):
+        s = settings_from_dict({"model": {"potential": "k*q1^2", "parameters": {
+            "k": {"family": "normal", "loc": 1.0, "scale": 2.0}}}})
+    assert s.model.parameters[0].prior == Normal(1.0, 2.0)
+    with pytest.warns(FutureWarning, match=r"priors\.coefficients\.family is deprecated"):
+        s = merge_overrides(Settings(), {"priors.coefficients.family": "normal"})
+    assert s.priors.coefficients == Normal(0.0, 1.0)
+    config = tmp_path / "old.toml"
+    config.write_text('[priors.variances]\nfamily = "half-normal"\nscale = 0.25\n')
+    with pytest.warns(FutureWarning, match="family is deprecated"):
+        assert _merged_file(Settings(), config).priors.variances == HalfNormal(0.25)
+    with pytest.raises(SettingsError, match="same setting; give only priors.variances.prior"):
+        settings_from_dict({"priors": {"variances": {"family": "normal", "prior": "normal"}}})

@@ -98,7 +98,8 @@ def with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
     except (KeyError, ValueError):  # an unknown family: the validator says so, with a suggestion
         return data
     prior = _coefficient_prior(family)
-    return {**data, "priors": {**priors, "coefficients": prior.to_dict()}}
+    table = {("prior" if k == "family" else k): v for k, v in prior.to_dict().items()}
+    return {**data, "priors": {**priors, "coefficients": table}}
 
 
 
