@@ -307,5 +307,5 @@ def test_the_old_family_key_is_read_with_one_deprecation_line(tmp_path):
     config.write_text('[priors.variances]\nfamily = "half-normal"\nscale = 0.25\n')
     with pytest.warns(FutureWarning, match="family is deprecated"):
         assert _merged_file(Settings(), config).priors.variances == HalfNormal(0.25)
-    with pytest.raises(SettingsError, match="same setting; give only priors.variances.prior"):
+    with pytest.raises(SettingsError, match=r"same setting; give only priors\.variances\.prior"):
         settings_from_dict({"priors": {"variances": {"family": "normal", "prior": "normal"}}})
