@@ -309,3 +309,58 @@ def test_the_old_family_key_is_read_with_one_deprecation_line(tmp_path):
         assert _merged_file(Settings(), config).priors.variances == HalfNormal(0.25)
     with pytest.raises(SettingsError, match=r"same setting; give only priors\.variances\.prior"):
         settings_from_dict({"priors": {"variances": {"family": "normal", "prior": "normal"}}})
+
+
+# ----------------------------------------------------------------------------- the report
+def test_model_description_says_what_was_written():
+    from symplid.workflow.model_builder import model_description
+    from symplid.workflow.settings import settings_from_dict
+
+    def described(model):
+        return model_description(settings_from_dict({"model": model,
+                                                     "sampler": {"method": "nuts"}}).model)
+
+    k = {"k": {"prior": "half-normal", "scale": 2.0}}
+    assert described({"potential": "k*(1 - cos(q1))", "parameters": k}) == \
+        "U(q) = k*(1 - cos(q1)) (parameters: k)"
+    assert described({"hamiltonian": NONSEPARABLE, "parameters": {
+        "a": {"prior": "normal", "loc": 0.0, "scale": 1.0}}}) == \
+        f"H(q, p) = {NONSEPARABLE} (parameters: a)"
+    assert described({"potential": "k*(1 - cos(q1))", "kinetic": "k*sqrt(1 + p1^2)",
+                      "parameters": k}).endswith(", T(p) = k*sqrt(1 + p1^2) (parameters: k)")
+    assert described({"order": 4}) == "polynomial U(q) of order 4"
+    assert described({"order": 2, "damping": True}) == "polynomial U(q) of order 2, damped"
+    assert "polynomial" not in described({"potential": "mlp"})
+    huge = " + ".join(f"{i}*k*q1^{i}" for i in range(1, 500))
+    text = described({"potential": huge, "parameters": k})
+    assert len(text) < 300 and "characters)" in text
+
+
+@pytest.mark.slow
+def test_report_and_summary_describe_a_user_model_as_written(tmp_path):
+    """A fit of a user's pendulum with the defaults (a learned initial state, data from
+    t = 0): the report's header, summary.txt and the potential figure's title give the
+    expression and its parameter, not a polynomial order."""
+    from click.testing import CliRunner
+
+    from symplid.cli import main
+
+    t = np.arange(0.0, 12.0)
+    data = write_csv(tmp_path / "h.csv", t, harmonic(t))
+    config = tmp_path / "m.toml"
+    config.write_text('[model]\npotential = "k*(1 - cos(q1))"\n[model.parameters]\n'
+                      'k = { prior = "half-normal", scale = 2 }\n'
+                      '[initial_state]\nmode = "learned"\n', encoding="utf-8")
+    out = tmp_path / "run"
+    result = CliRunner().invoke(main, [
+        "fit", str(data), "--config", str(config), "--out", str(out), "--iterations", "400",
+        "--burn-in", "200", "--chains", "2", "--no-progress", "--set", "map.sensitivity=false",
+        "--set", "sampler.chunk_size=100"], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    written = "U(q) = k*(1 - cos(q1)) (parameters: k)"
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert "polynomial" not in report and "order 3" not in report
+    assert written in report.splitlines()[2]  # the header
+    assert f"![Potential U(q): {written}]" in report
+    summary = (out / "summary.txt").read_text(encoding="utf-8")
+    assert summary.splitlines()[0].split(None, 1) == ["model", written]
