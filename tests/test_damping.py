@@ -279,7 +279,7 @@ def test_damping_needs_a_separable_h_and_a_scheme():
 
     with pytest.raises(ValueError, match="needs a separable H"):
         symplid.HamiltonianModel(PolynomialHamiltonian(1, 2), integrator="rk4", damping=True)
-    for name in ("tao", "implicit-midpoint"):
+    for name in ("tao", "implicit-midpoint", "gauss4"):
         with pytest.raises(ValueError, match=f"'{name}' cannot be damped"):
             symplid.HamiltonianModel(symplid.Polynomial(1, 2), integrator=name, damping=True)
     obs = simulate("damped-pendulum", times=np.arange(0.5, 10.0, 0.5))
