@@ -364,3 +364,23 @@ def test_report_and_summary_describe_a_user_model_as_written(tmp_path):
     assert f"![Potential U(q): {written}]" in report
     summary = (out / "summary.txt").read_text(encoding="utf-8")
     assert summary.splitlines()[0].split(None, 1) == ["model", written]
+
+
+def test_a_run_written_with_family_keys_reads_without_a_warning(tmp_path):
+    """A run folder's own settings.toml from before: the library wrote it, so no
+    deprecation line when report or predict read it."""
+    import warnings
+
+    from symplid.model.priors import HalfNormal
+    from symplid.workflow.results import RunFolder
+    from symplid.workflow.settings import dump_settings
+
+    run = tmp_path / "run"
+    run.mkdir()
+    path = dump_settings(Settings(), run / "settings.toml")
+    path.write_text(path.read_text().replace('prior = "', 'family = "'))
+    assert 'family = "half-normal"' in path.read_text()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        settings = RunFolder(run, "r").read_settings()
+    assert settings.priors.variances == HalfNormal(1.0)
