@@ -132,12 +132,11 @@ from typing import Any
 import tomli_w
 
 from symplid.io.files import write_text
-from symplid.model.priors import PRIOR_FAMILIES, Prior, as_prior
+from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.workflow.model_builder import family_prior, model_family, with_family_prior
+from symplid.workflow.prior_tables import build_prior, upgrade_prior_keys, upgrade_prior_overrides
 from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
 from symplid.workflow.settings_schema import (
-    PRIOR_DEFAULTS,
-    PRIOR_SPECS,
     PRIOR_SYNONYMS,
     RENAMED,
     InitialStateSettings,
@@ -150,7 +149,7 @@ from symplid.workflow.settings_schema import (
     Settings,
 )
 from symplid.workflow.user_parameters import parameters_from_table, with_model_paths
-from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
+from symplid.workflow.validate import SettingsError, check_value, suggest
 
 __all__ = [
     "MAX_SUBSTEPS_PER_GAP",
@@ -229,25 +228,6 @@ def _suggest(key: str, section_keys: list[str]) -> str:
     return close or f" (valid keys here: {', '.join(section_keys)})"
 
 
-def upgrade_prior_keys(data: dict[str, Any], source: str) -> dict[str, Any]:
-    """``data`` whose ``[priors.GROUP]`` tables name their family by ``prior``, the key of
-    every prior table (as in ``[model.parameters]``): the old key ``family`` is read with a
-    FutureWarning; both at once are refused."""
-    priors = data.get("priors")
-    if not isinstance(priors, Mapping):
-        return data
-    fixed = dict(priors)
-    for group, table in priors.items():
-        if isinstance(table, Mapping) and "family" in table:
-            key = f"priors.{group}"
-            if "prior" in table:  # refused before any warning: one line
-                raise SettingsError(source, f"{key}.family", f"and {key}.prior are the same "
-                                    f"setting; give only {key}.prior")
-            _warn_renamed(f"{key}.family", f"{key}.prior", source)
-            fixed[group] = {("prior" if k == "family" else k): v for k, v in table.items()}
-    return {**data, "priors": fixed}
-
-
 def _upgrade(data: dict[str, Any], source: str) -> dict[str, Any]:
     """Rename the keys of :data:`RENAMED` in nested ``data``, each with a FutureWarning, and
     the old ``family`` key of a prior table (:func:`upgrade_prior_keys`)."""
@@ -323,57 +303,11 @@ def _convert(value: Any, tp: Any, f: dataclasses.Field, key: str, source: str) -
         if not isinstance(value, Mapping):
             raise SettingsError(source, key, f"must be a table ([{key}]), got {value!r}")
         if tp is Prior:
-            return _build_prior(value, key + ".", source)
+            return build_prior(value, key + ".", source)
         return _build(tp, value, key + ".", source)
     if key == "model.parameters":
         return parameters_from_table(value, key, source)
     return check_value(value, tp, f.metadata["spec"], key, source)
-
-
-def _build_prior(data: Mapping[str, Any], prefix: str, source: str) -> Prior:
-    """A prior group: ``prior``, a family of :data:`PRIOR_FAMILIES` with the parameters its
-    class takes as keys, or text such as ``"normal(0, 2)"`` alone."""
-    raw = data.get("prior", "normal")
-    if isinstance(raw, str) and "(" in raw:
-        others = [k for k in data if k != "prior"]
-        if others:
-            raise SettingsError(source, f"{prefix}prior", f"gives its parameters in {raw!r}; "
-                                f"drop {', '.join(others)}")
-        try:
-            return as_prior(raw, "prior")
-        except ValueError as err:
-            raise SettingsError(source, f"{prefix}prior", str(err)) from None
-    family_spec = Spec(str, "normal", choices=PRIOR_FAMILIES)
-    family = check_value(raw, str, family_spec, f"{prefix}prior", source)
-    cls = PRIOR_FAMILIES[family]
-    used = [f.name for f in dataclasses.fields(cls)]
-    synonyms = PRIOR_SYNONYMS.get(family, {})
-    kwargs: dict[str, float] = {}
-    for key, value in data.items():
-        if key == "prior":
-            continue
-        name = synonyms.get(key, key)
-        if name not in used:
-            raise SettingsError(
-                source,
-                f"{prefix}{key}",
-                f"is not used by the {family!r} prior (it takes: {', '.join(used)})",
-            )
-        spec = PRIOR_SPECS.get(name, Spec(float))
-        kwargs[name] = check_value(value, float, spec, f"{prefix}{key}", source)
-    for name in used:
-        if name not in kwargs and name in PRIOR_DEFAULTS:
-            kwargs[name] = PRIOR_DEFAULTS[name]
-    if family == "uniform" and not kwargs["low"] < kwargs["high"]:
-        raise SettingsError(
-            source,
-            f"{prefix}low",
-            f"({kwargs['low']:g}) must be less than {prefix}high ({kwargs['high']:g})",
-        )
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError) as err:
-        raise SettingsError(source, f"{prefix}prior", f"{family!r}: {err}") from None
 
 
 def _check_cross(s: Settings, source: str) -> None:
@@ -500,12 +434,7 @@ def merge_overrides(
                 raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
             _warn_renamed(old, new, source)
             overrides[new] = overrides.pop(old)
-    for key in [k for k in overrides if k.startswith("priors.") and k.endswith(".family")]:
-        new = key[: -len("family")] + "prior"
-        if new in overrides:  # refused before any warning: one line
-            raise SettingsError(source, key, f"and {new} are the same setting; give only {new}")
-        _warn_renamed(key, new, source)
-        overrides[new] = overrides.pop(key)
+    overrides = upgrade_prior_overrides(overrides, source)
     if "seed" in overrides:
         for section in _SEEDED_SECTIONS:
             overrides.setdefault(f"{section}.seed", overrides["seed"])
