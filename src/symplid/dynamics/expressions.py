@@ -25,11 +25,13 @@ from typing import Any
 
 __all__ = [
     "CONSTANTS",
+    "COORDINATE",
     "FUNCTIONS",
     "MAX_EXPRESSION_SIZE",
     "QUOTE_LIMIT",
     "Expression",
     "UserModelError",
+    "first_line",
     "parse_expression",
     "quoted",
 ]
@@ -49,7 +51,8 @@ MAX_EXPRESSION_SIZE = 1000
 #: The most characters of an expression an error message quotes.
 QUOTE_LIMIT = 200
 
-_COORDINATE = re.compile(r"^([qp])([1-9][0-9]*)$")
+#: A coordinate's name: ``q1``.., ``p1``.. (group 1 the letter, group 2 the index).
+COORDINATE = re.compile(r"^([qp])([1-9][0-9]*)$")
 _OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")", ","}
 #: Characters that look like an ASCII operator, and what to type instead (NFKC folds the
 #: others that look like ASCII, such as fullwidth letters and digits).
@@ -122,7 +125,7 @@ def _check_tokens(text: str, names: Sequence[str], key: str,
                         tokenize.DEDENT):
             continue
         if tok.type == tokenize.NAME:
-            if not (tok.string in allowed or _COORDINATE.match(tok.string)):
+            if not (tok.string in allowed or COORDINATE.match(tok.string)):
                 declared = ", ".join(names) or "none"
                 raise UserModelError(
                     f"{key}: unknown symbol {tok.string!r} in {quoted(text)}: not a coordinate "
@@ -157,7 +160,7 @@ def _sympy_parse(text: str, names: Sequence[str], evaluate: bool = True) -> Any:
                       evaluate=evaluate)
 
 
-def _first_line(err: BaseException, limit: int = 120) -> str:
+def first_line(err: BaseException, limit: int = 120) -> str:
     """``Type: message`` of an exception, its first line, at most ``limit`` characters."""
     lines = str(err).strip().splitlines()
     text = lines[0] if lines else ""
@@ -225,7 +228,7 @@ def parse_expression(text: str, names: Sequence[str], key: str = "model.potentia
         expr = _sympy_parse(text, names)
     except Exception as err:  # SymPy raises many kinds for malformed text
         raise UserModelError(f"{key}: cannot read the expression {quoted(text)} "
-                             f"({_first_line(err)})") from None
+                             f"({first_line(err)})") from None
     if not isinstance(expr, sympy.Expr):
         raise UserModelError(f"{key}: {quoted(text)} is not a scalar expression")
     if _not_finite_or_real(expr):
@@ -238,6 +241,6 @@ def parse_expression(text: str, names: Sequence[str], key: str = "model.potentia
     elif unused:
         raise UserModelError(f"{key}: the declared parameter(s) {', '.join(unused)} do not "
                              f"appear in {quoted(text)}; remove them from [model.parameters]")
-    q = tuple(sorted(int(n[1:]) for n in used if n.startswith("q") and _COORDINATE.match(n)))
-    p = tuple(sorted(int(n[1:]) for n in used if n.startswith("p") and _COORDINATE.match(n)))
+    q = tuple(sorted(int(n[1:]) for n in used if n.startswith("q") and COORDINATE.match(n)))
+    p = tuple(sorted(int(n[1:]) for n in used if n.startswith("p") and COORDINATE.match(n)))
     return Expression(expr, q, p, tuple(names))

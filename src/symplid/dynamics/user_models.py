@@ -46,14 +46,14 @@ import jax
 import jax.numpy as jnp
 
 from symplid.dynamics.expressions import (
-    _COORDINATE,
     CONSTANTS,
+    COORDINATE,
     FUNCTIONS,
     MAX_EXPRESSION_SIZE,
     QUOTE_LIMIT,
     Expression,
     UserModelError,
-    _first_line,
+    first_line,
     parse_expression,
     quoted,
 )
@@ -104,7 +104,7 @@ def is_user_model(text: Any) -> bool:
         return False
     text = text.strip()
     return (text.startswith("file:") or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", text)
-            or bool(_COORDINATE.match(text)))
+            or bool(COORDINATE.match(text)))
 
 
 def _to_jax(symbols: Sequence[Any], expr: Any) -> Callable:
@@ -117,7 +117,7 @@ def _to_jax(symbols: Sequence[Any], expr: Any) -> Callable:
         return sympy.lambdify(list(symbols), expr, modules="jax", cse=True)
     except Exception as err:  # a construct SymPy cannot print for JAX
         raise UserModelError(f"cannot turn {quoted(str(expr))} into a JAX function "
-                             f"({_first_line(err)})") from None
+                             f"({first_line(err)})") from None
 
 
 def _lambdified(expr: Any, dim: int, names: Sequence[str], of: str) -> Callable:
@@ -141,7 +141,7 @@ def _split(expr: Any) -> tuple[Any, Any] | None:
 
     u, t = sympy.Integer(0), sympy.Integer(0)
     for term in sympy.Add.make_args(sympy.expand(expr)):
-        kinds = {s.name[0] for s in term.free_symbols if _COORDINATE.match(s.name)}
+        kinds = {s.name[0] for s in term.free_symbols if COORDINATE.match(s.name)}
         if kinds == {"q", "p"}:
             return None
         if kinds == {"p"}:
