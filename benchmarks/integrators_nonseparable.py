@@ -1,13 +1,14 @@
 """Per-step cost of the non-separable propagators against leapfrog, on one core.
 
-Tao's explicit methods (``tao``, ``tao4``) and the Newton-solved implicit midpoint rule
-(``implicit-midpoint``) accept any H(q, p); leapfrog needs H = ½pᵀM⁻¹p + U(q). This script
+Tao's explicit methods (``tao``, ``tao4``), the Newton-solved implicit midpoint rule
+(``implicit-midpoint``) and the two-stage Gauss–Legendre method (``gauss4``) accept any
+H(q, p); leapfrog needs H = ½pᵀM⁻¹p + U(q). This script
 times one step of each, in the shape the likelihood uses them (the 2n+1 = 9 sigma points of a
 2-degree-of-freedom system pushed through together, coordinates first), on
 
 * **Hénon–Heiles** (separable, the paper's cubic U): leapfrog on its potential; the others on
   the same system written as a whole H (``SeparableHamiltonian``);
-* **the double pendulum** (non-separable, ``DoublePendulum``): the three non-separable
+* **the double pendulum** (non-separable, ``DoublePendulum``): the four non-separable
   methods and RK4 (leapfrog cannot run it).
 
 Each timing is the minimum over ``--repeats`` runs of a jitted loop of ``--steps`` steps,
@@ -45,7 +46,7 @@ from symplid.dynamics.hamiltonians import SeparableHamiltonian  # noqa: E402
 from symplid.dynamics.integrators import get_integrator, make_dynamics  # noqa: E402
 from symplid.dynamics.trajectory import propagate  # noqa: E402
 
-METHODS = ("leapfrog", "tao", "tao4", "implicit-midpoint", "rk4")
+METHODS = ("leapfrog", "tao", "tao4", "implicit-midpoint", "gauss4", "rk4")
 
 
 def step_seconds(ham: Any, params: Any, name: str, steps: int, repeats: int) -> float:

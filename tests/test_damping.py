@@ -279,7 +279,7 @@ def test_damping_needs_a_separable_h_and_a_scheme():
 
     with pytest.raises(ValueError, match="needs a separable H"):
         symplid.HamiltonianModel(PolynomialHamiltonian(1, 2), integrator="rk4", damping=True)
-    for name in ("tao", "implicit-midpoint"):
+    for name in ("tao", "implicit-midpoint", "gauss4"):
         with pytest.raises(ValueError, match=f"'{name}' cannot be damped"):
             symplid.HamiltonianModel(symplid.Polynomial(1, 2), integrator=name, damping=True)
     obs = simulate("damped-pendulum", times=np.arange(0.5, 10.0, 0.5))
@@ -291,7 +291,7 @@ def test_damping_needs_a_separable_h_and_a_scheme():
 
 def test_settings_key_and_prior_of_damping():
     s = settings_from_dict(
-        {"model": {"damping": True}, "priors": {"damping": {"family": "half-normal", "scale": 0.3}}}
+        {"model": {"damping": True}, "priors": {"damping": {"prior": "half-normal", "scale": 0.3}}}
     )
     assert s.model.damping is True and s.priors.damping == symplid.HalfNormal(0.3)
     assert settings_from_dict(settings_to_dict(s)) == s

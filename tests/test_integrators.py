@@ -71,6 +71,7 @@ def test_registry_declares_orders_and_symplecticity():
         "tao": (2, True),
         "tao4": (4, True),
         "implicit-midpoint": (2, True),
+        "gauss4": (4, True),
     }
     assert {n: (i.order, i.symplectic) for n, i in INTEGRATORS.items()} == expected
     assert get_integrator("rk2") is INTEGRATORS["rk2-midpoint"]

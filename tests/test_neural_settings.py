@@ -62,7 +62,7 @@ def test_weight_prior_is_the_family_default_unless_given():
     assert Settings().priors.coefficients == Laplace(0.0, 10.0)  # the paper's, unchanged
     given = settings_from_dict({
         "model": {"potential": "mlp"}, "sampler": {"method": "nuts"},
-        "priors": {"coefficients": {"family": "normal", "scale": 0.3}},
+        "priors": {"coefficients": {"prior": "normal", "scale": 0.3}},
     })
     assert given.priors.coefficients == Normal(0.0, 0.3)
     # switching the family on the command line switches an untouched default prior ...

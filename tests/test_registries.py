@@ -147,7 +147,7 @@ def test_toys_registered_here_drive_a_fit_from_the_command_line(toys, tmp_path):
     result = cli(
         "fit", data, "--out", out, "--order", "2", "--x0", "1,0", "--dt", "0.1",
         "--integrator", "toy-symplectic-euler", "--method", "toy-imh",
-        "--set", "priors.coefficients.family=toy-cauchy",
+        "--set", "priors.coefficients.prior=toy-cauchy",
         "--set", "priors.coefficients.scale=2",
         "--iterations", "600", "--burn-in", "100", "--chains", "2", "--no-progress",
     )

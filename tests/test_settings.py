@@ -135,9 +135,9 @@ def _custom() -> Settings:
             "model": {"order": 4, "integrator": "rk2-heun", "dt": 0.1, "mass": [1, 2.5]},
             "initial_state": {"mode": "learned", "x0": [0.2, -0.25, 0.3, -0.25], "t0": -1},
             "priors": {
-                "coefficients": {"family": "normal", "loc": 0.5, "scale": 3.0},
-                "variances": {"family": "uniform", "low": 0.0, "high": 0.5},
-                "initial_state": {"family": "laplace", "scale": 0.3},
+                "coefficients": {"prior": "normal", "loc": 0.5, "scale": 3.0},
+                "variances": {"prior": "uniform", "low": 0.0, "high": 0.5},
+                "initial_state": {"prior": "laplace", "scale": 0.3},
             },
             "sampler": {"method": "nuts", "num_iterations": 3000, "burn_in": 1000, "thin": 7},
             "prediction": {"dt": 1e-3, "t_end": 50, "num_paths": 0},
@@ -169,10 +169,10 @@ def test_dump_writes_every_key(tmp_path):
         for section in ("model", "initial_state", "map", "sampler", "prediction", "plots")
         for f in dataclasses.fields(getattr(Settings(), section))
     }
-    expected |= {"seed", "priors.coefficients.family", "priors.coefficients.loc"}
-    expected |= {"priors.coefficients.scale", "priors.variances.family", "priors.variances.scale"}
-    expected |= {"priors.initial_state.family", "priors.initial_state.loc"}
-    expected |= {"priors.initial_state.scale", "priors.damping.family", "priors.damping.scale"}
+    expected |= {"seed", "priors.coefficients.prior", "priors.coefficients.loc"}
+    expected |= {"priors.coefficients.scale", "priors.variances.prior", "priors.variances.scale"}
+    expected |= {"priors.initial_state.prior", "priors.initial_state.loc"}
+    expected |= {"priors.initial_state.scale", "priors.damping.prior", "priors.damping.scale"}
     expected |= {"priors.process_var"}
     assert keys(written) == expected
     assert written["sampler"]["num_iterations"] == 200_000
@@ -183,7 +183,7 @@ def test_custom_values_survive(tmp_path):
     assert s.model.mass == (1.0, 2.5) and s.initial_state.x0 == (0.2, -0.25, 0.3, -0.25)
     assert s.priors.variances == Uniform(0.0, 0.5)
     assert settings_to_dict(s)["priors"]["variances"] == {
-        "family": "uniform",
+        "prior": "uniform",
         "low": 0.0,
         "high": 0.5,
     }
@@ -245,12 +245,12 @@ BAD_VALUES = [
     ("[initial_state]\nx0 = [1, 2, 3]\n", "initial_state.x0", "full state"),
     ("[initial_state]\np0_var = -1e-16\n", "initial_state.p0_var", "≥ 0"),
     ("[priors.coefficients]\nscale = -10\n", "priors.coefficients.scale", "must be > 0"),
-    ("[priors.variances]\nfamily = 'half-normal'\nscale = 0\n", "priors.variances.scale", "> 0"),
-    ("[priors.variances]\nfamily = 'normal'\n", "priors.variances.family", "positive support"),
-    ("[priors.coefficients]\nfamily = 'cauchy'\n", "priors.coefficients.family", "one of"),
-    ("[priors.coefficients]\nfamily='laplace'\nhigh = 1\n", "priors.coefficients.high", "not used"),
-    ("[priors.variances]\nfamily='uniform'\nlow=2\nhigh=1\n", "priors.variances.low", "less than"),
-    ("[priors.initial_state]\nfamily='half-normal'\n", "priors.initial_state.family", "any real"),
+    ("[priors.variances]\nprior = 'half-normal'\nscale = 0\n", "priors.variances.scale", "> 0"),
+    ("[priors.variances]\nprior = 'normal'\n", "priors.variances.prior", "positive support"),
+    ("[priors.coefficients]\nprior = 'cauchy'\n", "priors.coefficients.prior", "one of"),
+    ("[priors.coefficients]\nprior='laplace'\nhigh = 1\n", "priors.coefficients.high", "not used"),
+    ("[priors.variances]\nprior='uniform'\nlow=2\nhigh=1\n", "priors.variances.low", "less than"),
+    ("[priors.initial_state]\nprior='half-normal'\n", "priors.initial_state.prior", "any real"),
     (
         "[sampler]\nnum_iterations = 1000\n",
         "sampler.num_iterations",
@@ -307,10 +307,10 @@ def test_merge_overrides_skips_none_and_reseeds():
 
 
 def test_merge_overrides_prior_family_change():
-    s = merge_overrides(Settings(), {"priors.coefficients.family": "normal"})
+    s = merge_overrides(Settings(), {"priors.coefficients.prior": "normal"})
     assert s.priors.coefficients == Normal(0.0, 1.0)
     s = merge_overrides(
-        Settings(), {"priors.variances.family": "uniform", "priors.variances.high": 2.0}
+        Settings(), {"priors.variances.prior": "uniform", "priors.variances.high": 2.0}
     )
     assert s.priors.variances == Uniform(0.0, 2.0)
 
@@ -378,7 +378,7 @@ def test_resolve_fills_observation_from_columns(full_data, q_data):
         ({"model": {"observation": "full"}}, "model.observation", "only positions"),
         ({"initial_state": {"x0": []}}, "initial_state.x0", "mode is 'known'"),
         ({"initial_state": {"x0": [1.0, 2.0]}}, "initial_state.x0", "4-dimensional"),
-        ({"initial_state": {"x0": [0, 0, 0, 0], "t0": 1.0}}, "initial_state.t0", "before"),
+        ({"initial_state": {"x0": [0, 0, 0, 0], "t0": 1.5}}, "initial_state.t0", "before"),
         ({"model": {"mass": [1.0]}}, "model.mass", "expected 2"),
     ],
 )
@@ -425,8 +425,8 @@ def test_written_settings_use_the_new_key(tmp_path):
         ({"prediction": {"integrator": "magic"}}, "prediction.integrator", symplid.INTEGRATORS),
         ({"sampler": {"method": "gibbs"}}, "sampler.method", symplid.samplers.SAMPLERS),
         (
-            {"priors": {"coefficients": {"family": "cauchy"}}},
-            "priors.coefficients.family",
+            {"priors": {"coefficients": {"prior": "cauchy"}}},
+            "priors.coefficients.prior",
             symplid.model.priors.PRIOR_FAMILIES,
         ),
     ],
@@ -451,7 +451,7 @@ def test_a_registered_prior_family_is_a_setting():
 
     PRIOR_FAMILIES.register("wide-normal", Wide)
     try:
-        s = settings_from_dict({"priors": {"coefficients": {"family": "wide_normal", "scale": 3}}})
+        s = settings_from_dict({"priors": {"coefficients": {"prior": "wide_normal", "scale": 3}}})
         assert s.priors.coefficients == Wide(0.0, 3.0)
         assert settings_from_dict(settings_to_dict(s)) == s
         assert s.priors.prior_spec(False).coefficients == Wide(0.0, 3.0)

@@ -40,7 +40,9 @@ def _allowed(spec: Any) -> str:
         from symplid.model.priors import PRIOR_FAMILIES
 
         names = ", ".join(f'``"{n}"``' for n in PRIOR_FAMILIES.names())
-        return f"a table ``{{ family = ..., <its parameters> }}``; family: {names}"
+        return (f"a table ``{{ prior = ..., <its parameters> }}`` (or "
+                f"``prior = \"normal(0, 1)\"``; the old key ``family`` is deprecated); "
+                f"prior: {names}")
     names = spec.names()
     if names:
         parts.append(", ".join(f'``"{n}"``' for n in names))

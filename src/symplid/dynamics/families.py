@@ -34,7 +34,12 @@ from typing import Any
 
 from symplid.dynamics.hamiltonians import DoublePendulum, PolynomialHamiltonian
 from symplid.dynamics.potentials import Polynomial
-from symplid.dynamics.user_models import QUADRATIC, build_user_model, is_user_model
+from symplid.dynamics.user_models import (
+    MAX_EXPRESSION_SIZE,
+    QUADRATIC,
+    build_user_model,
+    is_user_model,
+)
 from symplid.registry import Registry
 
 __all__ = [
@@ -64,6 +69,9 @@ class FamilyOptions:
         The names of a user model's own parameters, in order.
     kinetic
         The T(p) of a user's potential: ``"quadratic"`` (½pᵀM⁻¹p) or an expression.
+    max_expression_size
+        The most tokens a user's expression may have
+        (:data:`~symplid.dynamics.user_models.MAX_EXPRESSION_SIZE`).
     """
 
     order: int = 3
@@ -73,6 +81,7 @@ class FamilyOptions:
     network_seed: int = 0
     parameters: tuple[str, ...] = ()
     kinetic: str = QUADRATIC
+    max_expression_size: int = MAX_EXPRESSION_SIZE
 
 
 BuildFn = Callable[[int, FamilyOptions], Any]
@@ -191,7 +200,8 @@ def user_family(text: str, kind: str) -> Family:
     ``options.parameters``, ``options.kinetic`` its T(p)."""
 
     def build(dim: int, options: FamilyOptions) -> Any:
-        return build_user_model(text, kind, dim, list(options.parameters), options.kinetic)
+        return build_user_model(text, kind, dim, list(options.parameters), options.kinetic,
+                                options.max_expression_size)
 
     return Family("user", build, f"the user's {kind} {text}")
 

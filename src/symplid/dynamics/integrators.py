@@ -15,9 +15,9 @@ data, each with its order and whether it is symplectic:
 A non-separable H(q, p; θ) (:mod:`symplid.dynamics.hamiltonians`) arrives as
 :class:`GeneralDynamics` (∂H/∂q and ∂H/∂p of the whole state). The Runge–Kutta methods accept it
 (the natural non-structure-preserving baseline); the leapfrog compositions need the split of
-eq. (4) and refuse it with a clear error; Tao's extended-phase-space methods and the implicit
-midpoint rule (:mod:`symplid.dynamics.nonseparable`, ``"tao"``, ``"tao4"``,
-``"implicit-midpoint"``) are the structure-preserving choices for it.
+eq. (4) and refuse it with a clear error; Tao's extended-phase-space methods and the
+Gauss–Legendre methods (:mod:`symplid.dynamics.nonseparable`, ``"tao"``, ``"tao4"``,
+``"implicit-midpoint"``, ``"gauss4"``) are the structure-preserving choices for it.
 
 To add an integrator, register it in :data:`INTEGRATORS` (``INTEGRATORS.register(name,
 Integrator(...))``), from this module or any other: settings, the command line and sweeps
@@ -29,7 +29,11 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from symplid.dynamics.nonseparable import implicit_midpoint_integrator, tao_integrator
+from symplid.dynamics.nonseparable import (
+    gauss_legendre_integrator,
+    implicit_midpoint_integrator,
+    tao_integrator,
+)
 from symplid.dynamics.onestep import (
     Dynamics,
     ForceStepFn,
@@ -195,8 +199,8 @@ INTEGRATORS: Registry[Integrator] = Registry("integrator")
 """Every one-step method by name; ``INTEGRATORS.register(name, Integrator(...))`` adds one.
 
 The built-in methods are registered just below, all of them: the separable ones of this
-module, then Tao's methods and the implicit midpoint rule of
-:mod:`symplid.dynamics.nonseparable`."""
+module, then Tao's methods, the implicit midpoint rule and the two-stage Gauss–Legendre method
+of :mod:`symplid.dynamics.nonseparable`."""
 
 INTEGRATORS.register(
     "leapfrog",
@@ -254,6 +258,7 @@ INTEGRATORS.register(
 INTEGRATORS.register(
     "implicit-midpoint", implicit_midpoint_integrator(), aliases=("midpoint-implicit",)
 )
+INTEGRATORS.register("gauss4", gauss_legendre_integrator(), aliases=("gauss-legendre4",))
 
 
 def separable_only_error(method: str) -> ValueError:

@@ -7,8 +7,20 @@ Two forms name a model (``model.potential`` / ``model.hamiltonian`` in the run s
   - gamma*p1"``. ``^`` is a power. The text is checked token by token first (names must be
   coordinates, declared parameters or the functions of :data:`FUNCTIONS`; no attributes,
   subscripts, strings or keywords), then read by SymPy's parser with a dictionary that holds
-  only those names, and compiled to ``jax.numpy`` by ``sympy.lambdify``: nothing of the text
-  is ever run as Python. Gradients and Hessians are JAX's.
+  only those names, and compiled to ``jax.numpy`` by ``sympy.lambdify`` after SymPy's common
+  subexpression elimination (``cse=True``: each repeated subexpression is evaluated once, and
+  traced and compiled once): nothing of the text is ever run as Python. Gradients and
+  Hessians are JAX's.
+
+  What is refused, in one line that quotes at most :data:`QUOTE_LIMIT` characters of the
+  text: a character that only looks like an ASCII one (a Unicode minus ``−``, a fullwidth
+  ``ｋ``, ``×``: Python would fold some of them into another name), a division by zero or a
+  value that is undefined or not real wherever the coordinates are (``1/(q1 - q1)``,
+  ``log(0)``, ``sqrt(-1)``), and an expression of more than ``max_size`` tokens
+  (:data:`MAX_EXPRESSION_SIZE`, the setting ``model.max_expression_size``): the compile time
+  of the likelihood grows faster than the size of the expression (on a loaded machine, 20 s
+  for a polynomial of 30 monomials, 67 s for 60; 100 monomials took 8 minutes before common
+  subexpressions were eliminated).
 * a **Python file**, ``"file:model.py:U"``: ``U(q, params)`` (a potential) or
   ``H(q, p, params)`` (a Hamiltonian) written with ``jax.numpy``, where ``q`` and ``p`` have
   shape ``(d,)`` and ``params`` maps each declared parameter name to its value.
@@ -23,10 +35,8 @@ for a potential in the same two forms (``"quadratic"``: ½pᵀM⁻¹p).
 from __future__ import annotations
 
 import importlib.util
-import io
 import re
 import sys
-import tokenize
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +45,18 @@ from typing import Any, ClassVar
 import jax
 import jax.numpy as jnp
 
+from symplid.dynamics.expressions import (
+    CONSTANTS,
+    COORDINATE,
+    FUNCTIONS,
+    MAX_EXPRESSION_SIZE,
+    QUOTE_LIMIT,
+    Expression,
+    UserModelError,
+    first_line,
+    parse_expression,
+    quoted,
+)
 from symplid.dynamics.hamiltonians import FunctionHamiltonian
 from symplid.dynamics.potentials import FunctionPotential
 from symplid.dynamics.separable import SeparablePotential
@@ -44,7 +66,9 @@ Array = jax.Array
 __all__ = [
     "CONSTANTS",
     "FUNCTIONS",
+    "MAX_EXPRESSION_SIZE",
     "QUADRATIC",
+    "QUOTE_LIMIT",
     "UserHamiltonian",
     "UserModelError",
     "UserPotential",
@@ -52,27 +76,11 @@ __all__ = [
     "is_user_model",
     "load_function",
     "parse_expression",
+    "quoted",
 ]
 
 #: The kinetic energy ½pᵀM⁻¹p (``model.kinetic``'s default).
 QUADRATIC = "quadratic"
-
-#: Functions an expression may call (SymPy's name on the right).
-FUNCTIONS = {
-    "exp": "exp", "log": "log", "sqrt": "sqrt", "sin": "sin", "cos": "cos", "tan": "tan",
-    "sinh": "sinh", "cosh": "cosh", "tanh": "tanh", "asin": "asin", "acos": "acos",
-    "atan": "atan", "abs": "Abs", "atan2": "atan2",
-}
-#: Constants an expression may name.
-CONSTANTS = ("pi",)
-
-_COORDINATE = re.compile(r"^([qp])([1-9][0-9]*)$")
-_OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")", ","}
-
-
-class UserModelError(ValueError):
-    """A user model that cannot be used: one line saying what is wrong and where."""
-
 
 @dataclass(frozen=True)
 class UserPotential(FunctionPotential):
@@ -96,90 +104,20 @@ def is_user_model(text: Any) -> bool:
         return False
     text = text.strip()
     return (text.startswith("file:") or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", text)
-            or bool(_COORDINATE.match(text)))
+            or bool(COORDINATE.match(text)))
 
 
-@dataclass(frozen=True)
-class Expression:
-    """A parsed expression: the SymPy object and what it uses."""
-
-    expr: Any
-    positions: tuple[int, ...]  # 1-based indices of the q's used
-    momenta: tuple[int, ...]
-    parameters: tuple[str, ...]
-
-
-def _check_tokens(text: str, names: Sequence[str], key: str) -> None:
-    """Refuse anything but numbers, the allowed operators and the allowed names."""
-    allowed = set(names) | set(FUNCTIONS) | set(CONSTANTS)
-    try:
-        tokens = list(tokenize.generate_tokens(io.StringIO(text).readline))
-    except (tokenize.TokenError, IndentationError, SyntaxError) as err:
-        raise UserModelError(f"{key}: cannot read the expression {text!r} ({err})") from None
-    previous = None
-    for tok in tokens:
-        if tok.type in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER, tokenize.INDENT,
-                        tokenize.DEDENT):
-            continue
-        if tok.type == tokenize.NAME:
-            if not (tok.string in allowed or _COORDINATE.match(tok.string)):
-                declared = ", ".join(names) or "none"
-                raise UserModelError(
-                    f"{key}: unknown symbol {tok.string!r} in {text!r}: not a coordinate "
-                    f"(q1.., p1..), a function ({', '.join(FUNCTIONS)}) or a parameter "
-                    f"declared in [model.parameters] (declared: {declared})")
-        elif tok.type == tokenize.OP and tok.string in _OPERATORS:
-            if tok.string == "(" and previous is not None and previous.type == tokenize.NAME \
-                    and previous.string not in FUNCTIONS:
-                raise UserModelError(f"{key}: {previous.string!r} is not a function "
-                                     f"({', '.join(FUNCTIONS)}) in {text!r}")
-        elif tok.type != tokenize.NUMBER or tok.string[-1] in "jJ":
-            raise UserModelError(f"{key}: {tok.string!r} is not allowed in an expression "
-                                 f"({text!r}); use numbers, + - * / ^ ( ) and names")
-        previous = tok
-
-
-def parse_expression(text: str, names: Sequence[str], key: str = "model.potential",
-                     require_all: bool = True) -> Expression:
-    """Read ``text`` safely into a SymPy expression (module docstring).
-
-    ``require_all``: every name of ``names`` must appear (else only those that do are kept).
-
-    Raises
-    ------
-    UserModelError
-        For an unknown symbol, a forbidden token, a declared parameter it does not use, or
-        text that is not an expression.
-    """
+def _to_jax(symbols: Sequence[Any], expr: Any) -> Callable:
+    """``expr`` as a ``jax.numpy`` function of ``symbols`` by ``sympy.lambdify``, after SymPy's
+    common subexpression elimination (``cse=True``: the generated code assigns each repeated
+    subexpression once and reuses it, so JAX traces, differentiates and compiles it once)."""
     import sympy
-    from sympy.parsing.sympy_parser import convert_xor, parse_expr, standard_transformations
 
-    _check_tokens(text, names, key)
-    coords = set(re.findall(r"\b[qp][1-9][0-9]*\b", text))
-    local = {n: sympy.Symbol(n, real=True) for n in [*names, *coords]}
-    glob: dict[str, Any] = {"__builtins__": {}, "Integer": sympy.Integer,
-                            "Float": sympy.Float, "Rational": sympy.Rational,
-                            "Symbol": sympy.Symbol, "pi": sympy.pi}
-    glob |= {name: getattr(sympy, fn) for name, fn in FUNCTIONS.items()}
     try:
-        expr = parse_expr(text, local_dict=local, global_dict=glob,
-                          transformations=(*standard_transformations, convert_xor),
-                          evaluate=True)
-    except Exception as err:  # SymPy raises many kinds for malformed text
-        raise UserModelError(f"{key}: cannot read the expression {text!r} "
-                             f"({type(err).__name__}: {err})") from None
-    if not isinstance(expr, sympy.Expr):
-        raise UserModelError(f"{key}: {text!r} is not a scalar expression")
-    used = {s.name for s in expr.free_symbols}
-    unused = [n for n in names if n not in used]
-    if not require_all:
-        names = [n for n in names if n in used]
-    elif unused:
-        raise UserModelError(f"{key}: the declared parameter(s) {', '.join(unused)} do not "
-                             f"appear in {text!r}; remove them from [model.parameters]")
-    q = tuple(sorted(int(n[1:]) for n in used if n.startswith("q") and _COORDINATE.match(n)))
-    p = tuple(sorted(int(n[1:]) for n in used if n.startswith("p") and _COORDINATE.match(n)))
-    return Expression(expr, q, p, tuple(names))
+        return sympy.lambdify(list(symbols), expr, modules="jax", cse=True)
+    except Exception as err:  # a construct SymPy cannot print for JAX
+        raise UserModelError(f"cannot turn {quoted(str(expr))} into a JAX function "
+                             f"({first_line(err)})") from None
 
 
 def _lambdified(expr: Any, dim: int, names: Sequence[str], of: str) -> Callable:
@@ -188,7 +126,7 @@ def _lambdified(expr: Any, dim: int, names: Sequence[str], of: str) -> Callable:
 
     xs = [sympy.Symbol(f"{of}{i + 1}", real=True) for i in range(dim)]
     ps = [sympy.Symbol(n, real=True) for n in names]
-    raw = sympy.lambdify([*xs, *ps], expr, modules="jax")
+    raw = _to_jax([*xs, *ps], expr)
 
     def fn(x: Array, params: Array) -> Array:
         value = raw(*(x[i] for i in range(dim)), *(params[j] for j in range(len(names))))
@@ -203,7 +141,7 @@ def _split(expr: Any) -> tuple[Any, Any] | None:
 
     u, t = sympy.Integer(0), sympy.Integer(0)
     for term in sympy.Add.make_args(sympy.expand(expr)):
-        kinds = {s.name[0] for s in term.free_symbols if _COORDINATE.match(s.name)}
+        kinds = {s.name[0] for s in term.free_symbols if COORDINATE.match(s.name)}
         if kinds == {"q", "p"}:
             return None
         if kinds == {"p"}:
@@ -221,10 +159,10 @@ def _check_dim(parsed: Expression, dim: int, key: str) -> None:
 
 
 def _expression_model(text: str, kind: str, dim: int, names: tuple[str, ...],
-                      kinetic: str) -> Any:
+                      kinetic: str, max_size: int) -> Any:
     key = f"model.{kind}"
     separate_t = kind == "potential" and kinetic != QUADRATIC
-    parsed = parse_expression(text, names, key, require_all=not separate_t)
+    parsed = parse_expression(text, names, key, require_all=not separate_t, max_size=max_size)
     _check_dim(parsed, dim, key)
     if kind == "potential":
         if parsed.momenta:
@@ -233,7 +171,7 @@ def _expression_model(text: str, kind: str, dim: int, names: tuple[str, ...],
         u = _lambdified(parsed.expr, dim, names, "q")
         if kinetic == QUADRATIC:
             return UserPotential(u, dim, len(names), names)
-        t = kinetic_function(kinetic, dim, names, parsed.parameters)
+        t = kinetic_function(kinetic, dim, names, parsed.parameters, max_size)
         return SeparablePotential(u, t, dim, len(names), names)
     parts = _split(parsed.expr)
     if parts is not None:
@@ -248,7 +186,7 @@ def _nonseparable(expr: Any, dim: int, names: tuple[str, ...]) -> UserHamiltonia
     qs = [sympy.Symbol(f"q{i + 1}", real=True) for i in range(dim)]
     ps = [sympy.Symbol(f"p{i + 1}", real=True) for i in range(dim)]
     cs = [sympy.Symbol(n, real=True) for n in names]
-    raw = sympy.lambdify([*qs, *ps, *cs], expr, modules="jax")
+    raw = _to_jax([*qs, *ps, *cs], expr)
 
     def h(q: Array, p: Array, params: Array) -> Array:
         value = raw(*(q[i] for i in range(dim)), *(p[i] for i in range(dim)),
@@ -259,15 +197,17 @@ def _nonseparable(expr: Any, dim: int, names: tuple[str, ...]) -> UserHamiltonia
 
 
 def kinetic_function(text: str, dim: int, names: tuple[str, ...],
-                     used_by_u: Sequence[str] | None = None) -> Callable:
+                     used_by_u: Sequence[str] | None = None,
+                     max_size: int = MAX_EXPRESSION_SIZE) -> Callable:
     """T(p, params) of ``model.kinetic``: an expression in p1..pd, or ``file:PATH:NAME``.
 
     ``used_by_u``: the parameters the potential's expression uses; every declared parameter
-    must appear in U or in T.
+    must appear in U or in T. ``max_size``: the most tokens of the expression.
     """
     if text.startswith("file:"):
         return _checked_file_function(text, "kinetic", dim, names)
-    parsed = parse_expression(text, names, "model.kinetic", require_all=False)
+    parsed = parse_expression(text, names, "model.kinetic", require_all=False,
+                              max_size=max_size)
     unused = [n for n in names if n not in parsed.parameters and n not in (used_by_u or ())]
     if used_by_u is not None and unused:
         raise UserModelError(f"model.potential: the declared parameter(s) {', '.join(unused)} "
@@ -343,7 +283,7 @@ def _checked_file_function(spec: str, kind: str, dim: int, names: tuple[str, ...
 
 
 def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
-                     kinetic: str = QUADRATIC) -> Any:
+                     kinetic: str = QUADRATIC, max_size: int = MAX_EXPRESSION_SIZE) -> Any:
     """The potential or Hamiltonian of a user model (module docstring).
 
     Parameters
@@ -358,6 +298,8 @@ def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
         The declared parameters, in θ's order.
     kinetic
         T(p) for a potential: ``"quadratic"`` (½pᵀM⁻¹p), an expression or ``file:PATH:NAME``.
+    max_size
+        The most tokens an expression may have (:data:`MAX_EXPRESSION_SIZE`).
 
     Returns
     -------
@@ -368,10 +310,11 @@ def build_user_model(text: str, kind: str, dim: int, names: Sequence[str],
     if kind not in ("potential", "hamiltonian"):
         raise ValueError(f"kind must be 'potential' or 'hamiltonian', got {kind!r}")
     if not text.startswith("file:"):
-        return _expression_model(text, kind, dim, names, kinetic)
+        return _expression_model(text, kind, dim, names, kinetic, max_size)
     fn = _checked_file_function(text, kind, dim, names)
     if kind == "hamiltonian":
         return UserHamiltonian(fn, dim, len(names), names)
     if kinetic == QUADRATIC:
         return UserPotential(fn, dim, len(names), names)
-    return SeparablePotential(fn, kinetic_function(kinetic, dim, names), dim, len(names), names)
+    t = kinetic_function(kinetic, dim, names, max_size=max_size)
+    return SeparablePotential(fn, t, dim, len(names), names)

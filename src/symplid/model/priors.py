@@ -370,10 +370,13 @@ def _family_key(name: str) -> str:
 
 
 def prior_from_dict(spec: Mapping[str, Any]) -> Prior:
-    """A prior from ``{"family": "laplace", "loc": 0, "scale": 10}`` (as written by ``to_dict``).
+    """A prior from ``{"family": "laplace", "loc": 0, "scale": 10}`` (as written by ``to_dict``;
+    ``"prior"`` in place of ``"family"``, as in a settings file's tables, is read the same).
 
     Missing parameters take the family's defaults; a key the family does not use is an error.
     """
+    if isinstance(spec, Mapping) and "prior" in spec and "family" not in spec:
+        spec = {("family" if k == "prior" else k): v for k, v in spec.items()}  # a settings table
     if not isinstance(spec, Mapping) or "family" not in spec:
         raise ValueError(f"a prior must be a table with a 'family' key, got {spec!r}")
     family = _family_key(spec["family"])

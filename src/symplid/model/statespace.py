@@ -81,8 +81,8 @@ class HamiltonianModel(ModelFields):
     integrator
         Name from :data:`~symplid.dynamics.integrators.INTEGRATORS` (``"leapfrog"``,
         ``"rk2-midpoint"``, ``"rk2-heun"``, ``"rk4"``, ``"euler"``, ``"yoshida4"``; for a
-        non-separable H ``"tao"``, ``"tao4"``, ``"implicit-midpoint"`` or a Runge–Kutta
-        method) or an ``Integrator``.
+        non-separable H ``"tao"``, ``"tao4"``, ``"implicit-midpoint"``, ``"gauss4"`` or a
+        Runge–Kutta method) or an ``Integrator``.
     dt
         Largest learning step; each gap is split into ⌈gap/dt⌉ equal substeps.
     observation

@@ -533,7 +533,11 @@ def _merged_file(base: Any, config: Path) -> Any:
     """``base`` with the keys of the settings file ``config`` replaced (the others kept)."""
     import tomllib
 
-    from symplid.workflow.settings import settings_from_dict, settings_to_dict
+    from symplid.workflow.settings import (
+        settings_from_dict,
+        settings_to_dict,
+        upgrade_prior_keys,
+    )
 
     try:
         given = tomllib.loads(Path(config).read_text(encoding="utf-8"))
@@ -548,6 +552,7 @@ def _merged_file(base: Any, config: Path) -> Any:
                 into[key] = value
         return into
 
+    given = upgrade_prior_keys(given, str(config))  # written with ``prior`` like the base
     return settings_from_dict(merge(settings_to_dict(base), given), source=str(config))
 
 

@@ -39,7 +39,7 @@ from symplid.stopping import check as check_stop
 from symplid.workflow.auto import auto_notes
 from symplid.workflow.building import build_model, build_posterior
 from symplid.workflow.interrupts import deferred_interrupts
-from symplid.workflow.model_builder import model_family
+from symplid.workflow.model_builder import model_description, model_family
 from symplid.workflow.results import RunFolder
 from symplid.workflow.scaling import scaling_for
 from symplid.workflow.sensitivity import sensitivity_checks
@@ -417,7 +417,8 @@ def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = No
         interrupted = bool(idata.attrs.get("interrupted", False)) if idata is not None else False
         table = diagnostics_summary(idata, show=False, warn=warn and not interrupted,
                                     columns="convergence")  # only R-hat and ESS are read
-        summary = fit_summary(outcome.posterior, outcome.map_result, idata, table)
+        summary = {"model": model_description(settings.model),  # as written: first
+                   **fit_summary(outcome.posterior, outcome.map_result, idata, table)}
         summary["timings"] = outcome.timings
         if outcome.learning_step is not None:
             summary["learning_step"] = outcome.learning_step

@@ -39,6 +39,7 @@ __all__ = [
     "family_options",
     "family_prior",
     "follow_model",
+    "model_description",
     "model_family",
     "with_family_prior",
 ]
@@ -54,6 +55,7 @@ def family_options(model: ModelSettings) -> FamilyOptions:
         network_seed=model.network_seed,
         parameters=tuple(p.name for p in model.parameters),
         kinetic=model.kinetic,
+        max_expression_size=model.max_expression_size,
     )
 
 
@@ -61,6 +63,38 @@ def model_family(model: ModelSettings) -> Family:
     """The family that ``model.hamiltonian`` / ``model.potential`` name
     (:func:`~symplid.dynamics.families.family_of`)."""
     return family_of(model.hamiltonian, model.potential)
+
+
+def _shortened(text: str, limit: int) -> str:
+    text = " ".join(text.split())
+    if len(text) <= limit:
+        return text
+    return f"{text[: (2 * limit) // 3]} … {text[-(limit // 3):]} ({len(text):,} characters)"
+
+
+def model_description(model: ModelSettings, limit: int = 200) -> str:
+    """The model of these settings in words, as the user wrote it: a user's expression (at
+    most ``limit`` characters of it) or file with its declared parameters, else the family
+    (``"polynomial U(q) of order 3"``), and ``", damped"`` for a damped model."""
+    family = model_family(model)
+    damped = ", damped" if model.damping else ""
+    if family.name == "user":
+        whole = is_user_model(model.hamiltonian)
+        kind, text = ("H(q, p)", model.hamiltonian) if whole else ("U(q)", model.potential)
+        out = (f"{kind} from {text.strip()}" if text.strip().startswith("file:")
+               else f"{kind} = {_shortened(text, limit)}")
+        if not whole and model.kinetic != QUADRATIC:
+            out += f", T(p) = {_shortened(model.kinetic, limit)}"
+        names = ", ".join(p.name for p in model.parameters) or "none"
+        return f"{out} (parameters: {names}){damped}"
+    if family.name == "polynomial":
+        return f"polynomial U(q) of order {model.order}{damped}"
+    if family.name == "polynomial-qp":
+        return f"polynomial H(q, p) of order {model.order}"
+    if family.neural:
+        return (f"{family.name} network, {model.width} units × {model.depth} hidden layers "
+                f"({model.activation}){damped}")
+    return f"{family.name}: {family.description}{damped}"
 
 
 def build_model_family(dim: int, model: ModelSettings) -> Any:
@@ -97,7 +131,8 @@ def with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
     except (KeyError, ValueError):  # an unknown family: the validator says so, with a suggestion
         return data
     prior = _coefficient_prior(family)
-    return {**data, "priors": {**priors, "coefficients": prior.to_dict()}}
+    table = {("prior" if k == "family" else k): v for k, v in prior.to_dict().items()}
+    return {**data, "priors": {**priors, "coefficients": table}}
 
 
 

@@ -56,6 +56,7 @@ import contextlib
 import datetime as _dt
 import os
 import shutil
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -475,7 +476,11 @@ class RunFolder:
         return read_with(path, reader, self.remedy)
 
     def read_settings(self) -> Settings:
-        return self._read(self.SETTINGS, load_settings)
+        """The run's settings. A run written before the prior tables took ``prior`` reads its
+        ``family`` keys without a deprecation line: the file is the run's, not the user's."""
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", r".*\.family is deprecated", FutureWarning)
+            return self._read(self.SETTINGS, load_settings)
 
     def read_data(self) -> Observations | list[Observations]:
         """The run's data: one :class:`Observations`, or a list for several trajectories."""

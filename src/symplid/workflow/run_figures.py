@@ -20,6 +20,7 @@ from symplid.inference.predict import posterior_predictive, predict_trajectory
 from symplid.io import as_list, observation_layout
 from symplid.plotting import PotentialSlice, plot_pair, plot_potential, plot_predictive, plot_traces
 from symplid.plotting.diagnostics import truncation_note
+from symplid.workflow.model_builder import model_description, model_family
 
 __all__ = ["ReportFigure", "report_figures", "trajectory_paths", "truth_values"]
 
@@ -164,5 +165,9 @@ def report_figures(settings: Any, data: Any, model: Any, posterior: Any, draws: 
     flat = draws.reshape(-1, draws.shape[-1])
     potential = potential_figure(settings, data, model, flat, theta_map)
     if potential is not None:
-        figures.append(ReportFigure("Potential U(q)", "potential", potential))
+        user = model_family(settings.model).name == "user"
+        potential.suptitle(model_description(settings.model, limit=90), fontsize=9)
+        figures.append(ReportFigure("Potential U(q)" + (f": {model_description(settings.model)}"
+                                                          if user else ""),
+                                    "potential", potential))
     return figures + fit_figures(settings, data, model, posterior, theta_map, flat)

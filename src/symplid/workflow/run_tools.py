@@ -18,6 +18,7 @@ from symplid.io.files import write_with
 from symplid.plotting import plot_predictive
 from symplid.plotting.style import DPI
 from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.model_builder import model_description
 from symplid.workflow.results import RunFolder, format_summary
 from symplid.workflow.run_figures import ReportFigure, report_figures, trajectory_paths
 from symplid.workflow.sensitivity import sensitivity_checks, sensitivity_lines
@@ -213,7 +214,7 @@ def _report_header(run: str | Path, settings, obs) -> list[str]:
     return [
         f"# Run {Path(run).name}",
         "",
-        f"{many}{data}; polynomial order {m.order}, {m.integrator} at dt = {m.dt:g}; "
+        f"{many}{data}; {model_description(m)}, {m.integrator} at dt = {m.dt:g}; "
         f"{settings.sampler.method.upper()}, {settings.sampler.num_chains} chains × "
         f"{settings.sampler.num_iterations:,} iterations ({settings.sampler.burn_in:,} burn-in).",
         "",

@@ -7,7 +7,9 @@ standard deviations (the Laplace sds of its MAP):
 * **step size**: the MAP refitted at dt/2 (``model.dt`` halved, everything else equal). The
   integrator's error is O(dt^p); a coefficient that moves by more than :data:`THRESHOLD_SD`
   posterior sds when dt is halved is biased by the learning step: the warning says to use a
-  smaller dt or a higher-order integrator (``yoshida4``).
+  smaller dt or a higher-order symplectic integrator that the model accepts
+  (:func:`step_advice`: ``yoshida4`` for a separable H, ``tao4`` for a non-separable one,
+  none when the fit's integrator is already of the highest order).
 * **process noise**: the MAP of the same settings with the other likelihood: without process
   noise (``model.process_noise_per = "none"``, :mod:`symplid.model.deterministic`) for a fit
   with, with process noise once per gap for a fit without; the shift of each coefficient and
@@ -36,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from symplid.dynamics.integrators import INTEGRATORS, get_integrator
+from symplid.dynamics.nonseparable import TaoIntegrator
 from symplid.inference.map import find_map, without_process_var
 from symplid.io import as_list
 from symplid.workflow.building import build_model, build_posterior
@@ -50,6 +54,7 @@ __all__ = [
     "sensitivity_checks",
     "sensitivity_lines",
     "sensitivity_summary",
+    "step_advice",
     "step_size_check",
 ]
 
@@ -124,7 +129,29 @@ def step_size_check(settings: Any, obs: Any, posterior: Any, map_result: Any) ->
     _refit_found(half_map)
     shifts = _shifts(list(posterior.param_names), list(posterior.param_groups), map_result,
                      half_map, list(half_post.param_names))
-    return {"dt": m.dt, "dt_refit": m.dt / 2, "shifts": shifts, "flagged": _check(shifts)}
+    return {"dt": m.dt, "dt_refit": m.dt / 2, "shifts": shifts, "flagged": _check(shifts),
+            "advice": step_advice(settings, obs)}
+
+
+def step_advice(settings: Any, obs: Any) -> str:
+    """What to do about a learning step that biases the fit: ``"use a smaller dt or NAME"``,
+    NAME the first registered symplectic integrator of a higher order than the fit's that a
+    model of these settings accepts (the model is built with it to find out), or ``"use a
+    smaller dt"`` when there is none."""
+    m = settings.model
+    order = get_integrator(m.integrator).order
+    for name, entry in INTEGRATORS.items():
+        if not entry.symplectic or entry.order <= order:
+            continue
+        binding = m.binding if isinstance(entry, TaoIntegrator) else 0.0
+        other = dataclasses.replace(settings, model=dataclasses.replace(
+            m, integrator=name, binding=binding))
+        try:
+            build_model(other, obs)
+        except ValueError:  # the model refuses this integrator
+            continue
+        return f"use a smaller dt or {name}"
+    return "use a smaller dt"
 
 
 def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
@@ -222,7 +249,7 @@ def sensitivity_lines(checks: dict) -> list[str]:
     if step.get("flagged"):
         lines += [f"**Warning**: the learning step biases these parameters: "
                   f"{', '.join(step['flagged'])} (they move by more than {limit:g} posterior "
-                  f"sds when dt is halved); use a smaller dt or yoshida4.", ""]
+                  f"sds when dt is halved); {_advice(step)}.", ""]
     name = "without" if noise.get("refit", "none") == "none" else "with"
     if noise.get("flagged"):
         lines += [f"**Note**: these parameters depend on the process noise: "
@@ -262,13 +289,18 @@ def sensitivity_summary(checks: dict) -> list[str]:
     lines = [f"sensitivity (MAP refits): {'; '.join(parts)}"]
     if step.get("flagged"):
         lines.append(f"warning: the learning step biases {', '.join(step['flagged'])} (more "
-                     f"than {limit:g} posterior sds when dt is halved); use a smaller dt or "
-                     "yoshida4")
+                     f"than {limit:g} posterior sds when dt is halved); {_advice(step)}")
     if noise.get("flagged"):
         lines.append(f"note: {', '.join(noise['flagged'])} move by more than {limit:g} "
                      f"posterior sds {name} process noise; the evidences say which model the "
                      "data prefer (symplid compare --process-noise)")
     return lines
+
+
+def _advice(step: dict) -> str:
+    """The step-size check's advice (a run folder written before it had one: a smaller dt,
+    the one advice every model accepts)."""
+    return str(step.get("advice", "use a smaller dt"))
 
 
 def _largest(check: dict) -> str:

@@ -48,17 +48,17 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     [priors]
     process_var = "variances"     # Σ's prior: the variances' ("log-uniform": scaled to the data)
     [priors.coefficients]         # one prior per group of θ; left out: the model family's
-    family = "laplace"            #   default (polynomial: this one; mlp: normal(0, 1))
+    prior = "laplace"             #   default (polynomial: this one; mlp: normal(0, 1))
     loc = 0.0
     scale = 10.0
     [priors.variances]
-    family = "half-normal"
+    prior = "half-normal"
     scale = 1.0
     [priors.damping]              # γ of a damped model (bounded below by 0)
-    family = "half-normal"
+    prior = "half-normal"
     scale = 1.0
     [priors.initial_state]        # used when initial_state.mode = "learned"
-    family = "normal"
+    prior = "normal"
     loc = 0.0                     # an offset from the centre (x0, or the first observation)
     scale = 1.0
 
@@ -95,8 +95,12 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
     max_trace_params = 16         # parameters in the trace plot
     truth = ""                    # the system that made the data, if known (e.g. "henon-heiles")
 
-Prior families are those of :data:`symplid.model.priors.PRIOR_FAMILIES` and their keys are
-the fields of the family's class: ``laplace`` and ``normal`` (``loc``, ``scale``),
+Every prior table names its family by ``prior``, as ``[model.parameters]`` does (the old key
+``family`` of a ``[priors.GROUP]`` table, or of ``--set priors.GROUP.family=...``, is read with a
+FutureWarning; files are written with ``prior``); ``prior = "normal(0, 2)"`` gives the family
+and its parameters at once. Prior families are those of
+:data:`symplid.model.priors.PRIOR_FAMILIES` and their keys are the fields of the family's
+class: ``laplace`` and ``normal`` (``loc``, ``scale``),
 ``half-normal`` (``scale``), ``uniform`` (``low``, ``high``), ``log-normal`` (``mu``, ``sigma``
 of log x; ``loc`` and ``scale`` are read as synonyms). A key that a family does not use is an
 error, so that what is written is what is used. Each group's value in :class:`PriorSettings` is
@@ -131,10 +135,9 @@ import tomli_w
 from symplid.io.files import write_text
 from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.workflow.model_builder import family_prior, model_family, with_family_prior
+from symplid.workflow.prior_tables import build_prior, upgrade_prior_keys, upgrade_prior_overrides
 from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
 from symplid.workflow.settings_schema import (
-    PRIOR_DEFAULTS,
-    PRIOR_SPECS,
     PRIOR_SYNONYMS,
     RENAMED,
     InitialStateSettings,
@@ -147,7 +150,7 @@ from symplid.workflow.settings_schema import (
     Settings,
 )
 from symplid.workflow.user_parameters import parameters_from_table, with_model_paths
-from symplid.workflow.validate import SettingsError, Spec, check_value, suggest
+from symplid.workflow.validate import SettingsError, check_value, suggest
 
 __all__ = [
     "MAX_SUBSTEPS_PER_GAP",
@@ -167,6 +170,7 @@ __all__ = [
     "resolve_for_data",
     "settings_from_dict",
     "settings_to_dict",
+    "upgrade_prior_keys",
 ]
 
 
@@ -180,8 +184,8 @@ def settings_to_dict(settings: Settings) -> dict[str, Any]:
 
 
 def _to_dict(obj: Any) -> dict[str, Any]:
-    if isinstance(obj, Prior):
-        return obj.to_dict()
+    if isinstance(obj, Prior):  # the family under ``prior``, as in every prior table
+        return {("prior" if k == "family" else k): v for k, v in obj.to_dict().items()}
     out: dict[str, Any] = {}
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
@@ -226,7 +230,9 @@ def _suggest(key: str, section_keys: list[str]) -> str:
 
 
 def _upgrade(data: dict[str, Any], source: str) -> dict[str, Any]:
-    """Rename the keys of :data:`RENAMED` in nested ``data``, each with a FutureWarning."""
+    """Rename the keys of :data:`RENAMED` in nested ``data``, each with a FutureWarning, and
+    the old ``family`` key of a prior table (:func:`upgrade_prior_keys`)."""
+    data = upgrade_prior_keys(data, source)
     for old, new in RENAMED.items():
         section, old_key = old.split(".")
         table = data.get(section)
@@ -298,46 +304,11 @@ def _convert(value: Any, tp: Any, f: dataclasses.Field, key: str, source: str) -
         if not isinstance(value, Mapping):
             raise SettingsError(source, key, f"must be a table ([{key}]), got {value!r}")
         if tp is Prior:
-            return _build_prior(value, key + ".", source)
+            return build_prior(value, key + ".", source)
         return _build(tp, value, key + ".", source)
     if key == "model.parameters":
         return parameters_from_table(value, key, source)
     return check_value(value, tp, f.metadata["spec"], key, source)
-
-
-def _build_prior(data: Mapping[str, Any], prefix: str, source: str) -> Prior:
-    """A prior group: a family of :data:`PRIOR_FAMILIES` and the parameters its class takes."""
-    family_spec = Spec(str, "normal", choices=PRIOR_FAMILIES)
-    family = check_value(data.get("family", "normal"), str, family_spec, f"{prefix}family", source)
-    cls = PRIOR_FAMILIES[family]
-    used = [f.name for f in dataclasses.fields(cls)]
-    synonyms = PRIOR_SYNONYMS.get(family, {})
-    kwargs: dict[str, float] = {}
-    for key, value in data.items():
-        if key == "family":
-            continue
-        name = synonyms.get(key, key)
-        if name not in used:
-            raise SettingsError(
-                source,
-                f"{prefix}{key}",
-                f"is not used by the {family!r} prior (it takes: {', '.join(used)})",
-            )
-        spec = PRIOR_SPECS.get(name, Spec(float))
-        kwargs[name] = check_value(value, float, spec, f"{prefix}{key}", source)
-    for name in used:
-        if name not in kwargs and name in PRIOR_DEFAULTS:
-            kwargs[name] = PRIOR_DEFAULTS[name]
-    if family == "uniform" and not kwargs["low"] < kwargs["high"]:
-        raise SettingsError(
-            source,
-            f"{prefix}low",
-            f"({kwargs['low']:g}) must be less than {prefix}high ({kwargs['high']:g})",
-        )
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError) as err:
-        raise SettingsError(source, f"{prefix}family", f"{family!r}: {err}") from None
 
 
 def _check_cross(s: Settings, source: str) -> None:
@@ -366,14 +337,14 @@ def _check_cross(s: Settings, source: str) -> None:
     if low < 0 or high <= 0:
         raise SettingsError(
             source,
-            "priors.variances.family",
+            "priors.variances.prior",
             f"must have positive support (half-normal, log-normal, or uniform with low ≥ 0), "
             f"got {variances.family!r}",
         )
     if s.priors.initial_state.support != (-math.inf, math.inf):
         raise SettingsError(
             source,
-            "priors.initial_state.family",
+            "priors.initial_state.prior",
             f"must allow any real value (normal or laplace), got {s.priors.initial_state.family!r}",
         )
     if s.initial_state.x0 and len(s.initial_state.x0) % 2:
@@ -464,6 +435,7 @@ def merge_overrides(
                 raise SettingsError(source, old, f"and {new} are the same setting; give only {new}")
             _warn_renamed(old, new, source)
             overrides[new] = overrides.pop(old)
+    overrides = upgrade_prior_overrides(overrides, source)
     if "seed" in overrides:
         for section in _SEEDED_SECTIONS:
             overrides.setdefault(f"{section}.seed", overrides["seed"])
@@ -485,11 +457,11 @@ def merge_overrides(
                 table[part] = list(value) if isinstance(value, tuple) else value
             else:
                 table = table[part]
-        if len(parts) == 3 and parts[0] == "priors" and parts[2] == "family":
+        if len(parts) == 3 and parts[0] == "priors" and parts[2] == "prior":
             # a new family: drop the old family's parameters so defaults apply
             group = data["priors"][parts[1]]
             for k in list(group):
-                if k != "family" and f"priors.{parts[1]}.{k}" not in overrides:
+                if k != "prior" and f"priors.{parts[1]}.{k}" not in overrides:
                     del group[k]
     return settings_from_dict(data, source=source)
 

@@ -50,7 +50,8 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
     ``model.standardise = "auto"`` becomes ``"on"`` or ``"off"``
     (:func:`symplid.workflow.scaling.resolve_standardise`). Checks that the observation kind
     matches the columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is
-    before the first observation (or is ``"first"``), that the data have two times or more and no
+    before the first observation (or is ``"first"``; a ``t0`` equal to every trajectory's first
+    observation time becomes ``"first"``), that the data have two times or more and no
     column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
     integrator steps. Warns (one line) when θ has more entries than there are data values,
     and when a learned initial state whose prior is centred on the first observation sits
@@ -90,6 +91,7 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
     settings = follow_model(settings, d)
     model = settings.model
     check_model_family(settings, d, source)
+    settings = _at_first_when_equal(settings, trajectories)
     for k, one in enumerate(trajectories):
         _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")
     _warn_few_values(trajectories, settings, source)
@@ -104,6 +106,20 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         standardise=standardise,
     )
     return dataclasses.replace(settings, model=resolved)
+
+
+def _at_first_when_equal(settings: Settings, trajectories: list[Any]) -> Settings:
+    """``initial_state.t0 = "first"`` when the numeric t0 is every trajectory's first
+    observation time: a state at the time of the first datum is the state the first update
+    conditions (the default t0 = 0 with data that start at t = 0)."""
+    init = settings.initial_state
+    if init.at_first_observation:
+        return settings
+    firsts = {float(np.asarray(one.times, dtype=float)[0]) for one in trajectories
+              if np.asarray(one.times).size}
+    if firsts != {float(init.t0)}:
+        return settings
+    return dataclasses.replace(settings, initial_state=dataclasses.replace(init, t0="first"))
 
 
 def _check_data(obs: Any, settings: Settings, source: str) -> None:

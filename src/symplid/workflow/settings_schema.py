@@ -17,7 +17,7 @@ from symplid.dynamics.families import (
 )
 from symplid.dynamics.integrators import INTEGRATORS
 from symplid.dynamics.neural import ACTIVATIONS
-from symplid.dynamics.user_models import QUADRATIC, is_user_model
+from symplid.dynamics.user_models import MAX_EXPRESSION_SIZE, QUADRATIC, is_user_model
 from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
@@ -90,6 +90,13 @@ class ModelSettings:
         doc=(
             "A user model's parameters, one table each: ``NAME = { prior = ..., scale = ..., "
             "lower = ..., upper = ..., initial = ... }``."
+        ),
+    )
+    max_expression_size: int = setting(
+        MAX_EXPRESSION_SIZE, minimum=1,
+        doc=(
+            "The most tokens (numbers, names, operators) a user's expression may have: the "
+            "compile time of its likelihood grows faster than its size."
         ),
     )
     order: int = setting(
@@ -197,7 +204,8 @@ class InitialStateSettings:
     )
     t0: float | str = setting(
         0.0, words=("first",),
-        doc="Time of the initial state; ``\"first\"``: at the first observation.",
+        doc=("Time of the initial state; ``\"first\"``: at the first observation (as is a "
+             "t0 equal to the first observation time)."),
     )
 
     @property

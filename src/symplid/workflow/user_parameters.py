@@ -23,6 +23,8 @@ from __future__ import annotations
 import keyword
 import math
 import re
+import unicodedata
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,6 +75,10 @@ def _number(value: Any, key: str, source: str) -> float:
 
 
 def _one(name: str, table: Any, key: str, source: str) -> UserParameter:
+    folded = unicodedata.normalize("NFKC", name)
+    if folded != name:
+        raise SettingsError(source, key, f"is not a usable parameter name: it is read as "
+                            f"{folded!r} (a character that looks like another); type {folded!r}")
     if (not name.isidentifier() or keyword.iskeyword(name) or _COORDINATE.match(name)
             or name in FUNCTIONS or name in CONSTANTS or name.startswith("_")):
         raise SettingsError(source, key, "is not a usable parameter name (a letter, then letters,"
@@ -80,6 +86,10 @@ def _one(name: str, table: Any, key: str, source: str) -> UserParameter:
     if not isinstance(table, Mapping):
         raise SettingsError(source, key, f"must be a table such as {{ prior = \"normal\", "
                             f"loc = 0, scale = 1 }}, got {table!r}")
+    if "family" in table and "prior" not in table:  # the old key of the [priors.*] tables
+        warnings.warn(f"{source}: {key}.family is deprecated; use {key}.prior", FutureWarning,
+                      stacklevel=4)
+        table = {("prior" if k == "family" else k): v for k, v in table.items()}
     if "prior" not in table:
         raise SettingsError(source, key, "has no prior: give one, e.g. { prior = \"normal\", "
                             "loc = 0, scale = 1 } (families: laplace, normal, half-normal, "
