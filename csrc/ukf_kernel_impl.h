@@ -322,7 +322,8 @@ struct RkTableau {
 // that it reads (a vector of lanes each, Block::tc), kTabled whether a kick scaled by κ is the
 // same program with every value scaled by −κ (linear in them: a polynomial), and
 // add<INIT>(x, coef, acc): acc (+)= ∂U/∂q(x) with value t = coef(t) (INIT: acc's values are
-// read, as a kick's momentum; only for kTabled forces). PolynomialForce is the fixed basis's
+// read, as a kick's momentum; only for kTabled forces), kScalarLane whether one θ's lone last
+// sigma point is advanced as a scalar (fast_advance). PolynomialForce is the fixed basis's
 // Horner program; a user's U(q; θ) supplies its own (the generated units of user_kernel.py).
 template <int D_, int ORDER>
 struct PolynomialForce {
@@ -330,6 +331,7 @@ struct PolynomialForce {
   static constexpr int D = D_;
   static constexpr int kTerms = Basis::kTable.start[D];
   static constexpr bool kTabled = true;
+  static constexpr bool kScalarLane = true;
   template <bool INIT, class T, class Coef>
   SYMPLID_INLINE static void add(const T (&x)[D], const Coef& coef, T (&acc)[D]) {
     Basis::template horner_add<INIT>(x, coef, acc);
@@ -613,7 +615,11 @@ void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G
   if (steps <= 0) return;
   constexpr int kPoints = 4 * Force::D + 1, kRest = kPoints % kWidth;
   if (G == 1) {
-    advance_layout<Force, MASS, Method, kPoints / kWidth + (kRest > 1), kRest == 1>(
+    // A lone lane goes in a scalar block where the force's scalar form is cheap (a
+    // polynomial); a force that calls functions of the C library (a user's) takes it in one
+    // more vector block instead, whose vector functions are faster than the scalar ones.
+    constexpr bool kLone = kRest == 1 && Force::kScalarLane;
+    advance_layout<Force, MASS, Method, kPoints / kWidth + (kRest > 0 && !kLone), kLone>(
         s, q, p, tc, C, dt, steps);
   } else {
     advance_layout<Force, MASS, Method, kPoints, false>(s, q, p, tc, C, dt, steps);

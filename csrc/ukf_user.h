@@ -6,6 +6,7 @@
 //     static constexpr int D;            // coordinates
 //     static constexpr int kTerms;       // θ's parameters, read as coef(t)
 //     static constexpr bool kTabled = false;
+//     static constexpr bool kScalarLane = false;  // one θ's last sigma point in a vector
 //     template <bool INIT, class T, class Coef>   // acc = ∂U/∂q(x) (INIT false only)
 //     static void add(const T (&x)[D], const Coef& coef, T (&acc)[D]);
 //     template <class T, class Coef>              // the adjoint's kick, for a vector v:

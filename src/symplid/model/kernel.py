@@ -144,8 +144,10 @@ def _warn_fallback() -> None:
 def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = None) -> str | None:
     """Why the compiled kernel cannot evaluate this model (None when it can).
 
-    The kernel covers a :class:`~symplid.dynamics.potentials.Polynomial` potential, the registry's
-    integrators, a linear observation operator and float64 on the CPU. It does not say
+    The kernel covers a :class:`~symplid.dynamics.potentials.Polynomial` potential (and, with
+    ``SYMPLID_USER_KERNEL=1``, a user's expression for U, through its compiled unit:
+    :mod:`symplid.model.user_kernel`), the registry's integrators, a linear observation
+    operator and float64 on the CPU. It does not say
     whether the extension is loaded: see :func:`available`.
     """
     if getattr(model, "process_noise_per", "gap") == "none":

@@ -179,6 +179,7 @@ def force_code(expr: Any, dim: int, names: Sequence[str]) -> ForceCode:
   static constexpr int D = {dim};
   static constexpr int kTerms = {len(cs)};
   static constexpr bool kTabled = false;
+  static constexpr bool kScalarLane = false;
 
   // acc = dU/dq(x)
   template <bool INIT, class T, class Coef>

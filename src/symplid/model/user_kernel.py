@@ -8,9 +8,10 @@ own filter, propagators and adjoint (``csrc/ukf_user.h``) into a shared library,
 as a pair of XLA FFI targets. The filter is the built-in kernel's; only the force is the
 user's.
 
-* **Compiler**: ``SYMPLID_CXX`` names it; else the C++ compiler Python was built with (the one
-  ``pip install`` compiled the package with), else ``c++``. Where none is found, or the
-  compilation fails, the JAX tier runs the model and one note per process says why.
+* **Compiler**: ``SYMPLID_CXX`` names it; else the one ``pip install`` compiled the package
+  with (``$CXX``, else the C++ compiler Python was built with), else ``c++``. Where none is
+  found, or the compilation fails, the JAX tier runs the model and one note per process says
+  why.
 * **Cache**: ``SYMPLID_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/symplid/kernels`` (by default
   ``~/.cache/symplid/kernels``), one ``.so`` per key: a hash of the canonical expression,
   the parameters' order, d, the instruction set, the compiler and its flags, the package's
@@ -81,6 +82,7 @@ class _Units:
     targets is per process, so this one is too)."""
 
     loaded: ClassVar[dict[str, UserUnit]] = {}
+    by_key: ClassVar[dict[str, UserUnit]] = {}
     failed: ClassVar[dict[str, str]] = {}
     noted: ClassVar[set[str]] = set()
 
@@ -90,8 +92,9 @@ def compiler() -> str | None:
     setting = os.environ.get("SYMPLID_CXX", "").strip()
     if setting:
         return shutil.which(shlex.split(setting)[0])
-    python_cxx = (sysconfig.get_config_var("CXX") or "").strip()
-    for candidate in ([shlex.split(python_cxx)[0]] if python_cxx else []) + ["c++", "g++"]:
+    # as setuptools picks the package's compiler: $CXX, else the one Python was built with
+    named = [os.environ.get("CXX", "").strip(), (sysconfig.get_config_var("CXX") or "").strip()]
+    for candidate in [shlex.split(n)[0] for n in named if n] + ["c++", "g++"]:
         found = shutil.which(candidate)
         if found:
             return found
@@ -225,9 +228,13 @@ def _build(code: ForceCode, isa: str) -> Path | str:
 
 
 def _load(path: Path, isa: str) -> UserUnit:
+    """The unit at ``path``, its FFI targets registered (once per process and key: XLA
+    refuses a second handler under a registered name)."""
     import jax
 
     key = path.stem
+    if key in _Units.by_key:
+        return _Units.by_key[key]
     handle = ctypes.CDLL(str(path))
     value_target, gradient_target = f"symplid_{key}", f"symplid_{key}_grad"
     jax.ffi.register_ffi_target(
@@ -235,7 +242,8 @@ def _load(path: Path, isa: str) -> UserUnit:
     jax.ffi.register_ffi_target(
         gradient_target, jax.ffi.pycapsule(handle.SymplidUkfLogLikelihoodGradient),
         platform="cpu")
-    return UserUnit(key, path, value_target, gradient_target, isa)
+    _Units.by_key[key] = unit = UserUnit(key, path, value_target, gradient_target, isa)
+    return unit
 
 
 def _expression(potential: Any) -> Any:
