@@ -62,11 +62,27 @@ def canonical_text(expr: Any, dim: int, names: Sequence[str]) -> str:
     return f"d={dim};params={','.join(names)};U={sympy.srepr(canonical(expr))}"
 
 
-class _Printer:
-    """C++ for SymPy expressions over named variables of the lane type T."""
+def _balanced(parts: list[str], op: str) -> str:
+    """``parts`` joined by ``op`` as a balanced tree: the compiler may not reassociate
+    floating-point sums and products, so the dependent chain is what is written."""
+    if len(parts) == 1:
+        return parts[0]
+    half = len(parts) // 2
+    return f"({_balanced(parts[:half], op)} {op} {_balanced(parts[half:], op)})"
 
-    def __init__(self, names: dict[Any, str]) -> None:
+
+class _Printer:
+    """C++ for SymPy expressions over named variables of the lane type T. Sums and products
+    are balanced trees; in a product the factors that depend on θ alone come first (the
+    compiler hoists them out of the substep loop), and a denominator is one reciprocal,
+    computed beside the numerator rather than after it."""
+
+    def __init__(self, names: dict[Any, str], static: set[Any]) -> None:
         self.names = names
+        self.static = static  # symbols whose values do not change along a gap (θ)
+
+    def _is_static(self, e: Any) -> bool:
+        return e.is_number or e.free_symbols <= self.static
 
     def __call__(self, e: Any) -> str:
         import sympy
@@ -79,7 +95,7 @@ class _Printer:
                 raise UnsupportedExpression(f"a complex constant {e}")
             return repr(float(value.real))
         if isinstance(e, sympy.Add):
-            return "(" + " + ".join(self(a) for a in e.args) + ")"
+            return _balanced([self(a) for a in e.args], "+")
         if isinstance(e, sympy.Mul):
             return self._mul(e)
         if isinstance(e, sympy.Pow):
@@ -94,16 +110,18 @@ class _Printer:
     def _mul(self, e: Any) -> str:
         import sympy
 
-        top, bottom = [], []
+        static, dynamic, bottom = [], [], []
         for a in e.args:
             if isinstance(a, sympy.Pow) and a.exp.is_number and a.exp.is_negative:
-                bottom.append(self._pow(a.base, -a.exp))
+                (static if self._is_static(a) else bottom).append(
+                    self(a) if self._is_static(a) else self._pow(a.base, -a.exp))
             else:
-                top.append(self(a))
-        text = " * ".join(top) if top else "1.0"
+                (static if self._is_static(a) else dynamic).append(self(a))
         if bottom:
-            text = f"{text} / ({' * '.join(bottom)})"
-        return f"({text})"
+            dynamic.append(f"(1.0 / {_balanced(bottom, '*')})")
+        parts = ([_balanced(static, "*")] if static else []) + (
+            [_balanced(dynamic, "*")] if dynamic else [])
+        return _balanced(parts, "*") if parts else "1.0"
 
     def _pow(self, base: Any, exp: Any) -> str:
         import sympy
@@ -126,17 +144,20 @@ class _Printer:
         return f"um::exp({self(exp)} * um::log({b}))"
 
 
-def _block(outputs: Sequence[Any], targets: Sequence[str], names: dict[Any, str]) -> str:
+def _block(outputs: Sequence[Any], targets: Sequence[str], names: dict[Any, str],
+           params: Sequence[Any]) -> str:
     """C++ statements assigning ``outputs`` to ``targets``, common subexpressions once."""
     import sympy
 
     replacements, reduced = sympy.cse(list(outputs), symbols=sympy.numbered_symbols("_cse"))
     names = dict(names)
-    printer = _Printer(names)
+    printer = _Printer(names, set(params))
     lines = []
     for k, (sym, value) in enumerate(replacements):
         text = printer(value)
         names[sym] = f"t{k}"
+        if printer._is_static(value):
+            printer.static.add(sym)
         lines.append(f"    const T t{k} = T{{}} + {text};")
     lines += [f"    {target} = T{{}} + {printer(value)};"
               for target, value in zip(targets, reduced, strict=True)]
@@ -169,11 +190,11 @@ def force_code(expr: Any, dim: int, names: Sequence[str]) -> ForceCode:
           for c in cs]
     base = {q: f"x[{i}]" for i, q in enumerate(qs)} | {c: f"c{t}" for t, c in enumerate(cs)}
     params = "\n".join(f"    const auto c{t} = coef({t});" for t in range(len(cs)))
-    add_body = _block(force, [f"acc[{i}]" for i in range(dim)], base)
+    add_body = _block(force, [f"acc[{i}]" for i in range(dim)], base, cs)
     adjoint_body = _block(
         [*hv, *pv],
         [f"hv[{i}]" for i in range(dim)] + [f"pv[{t}]" for t in range(len(cs))],
-        base | {v: f"v[{i}]" for i, v in enumerate(vs)},
+        base | {v: f"v[{i}]" for i, v in enumerate(vs)}, cs,
     )
     source = f"""struct Force {{
   static constexpr int D = {dim};
