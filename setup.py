@@ -16,6 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
+from setuptools.command.build_py import build_py
 
 SOURCES = [  # the slowest to compile first (setuptools sorts them by name; the build does not)
     "csrc/ukf_kernel_avx512.cc",
@@ -27,6 +28,9 @@ SOURCES = [  # the slowest to compile first (setuptools sorts them by name; the 
 ]
 HEADERS = ["csrc/ukf_kernel.h", "csrc/ukf_kernel_impl.h", "csrc/ukf_adjoint.h",
            "csrc/ukf_basis.h"]
+# Installed as package data (symplid/csrc) beside the built-in kernel's sources: a user
+# model's unit is compiled from them on first use (symplid/model/user_kernel.py).
+USER_SOURCES = ["csrc/ukf_adjoint_update.h", "csrc/ukf_user.h", "csrc/ukf_user_math.h"]
 
 
 def _ffi_include_dir() -> str | None:
@@ -79,6 +83,19 @@ class ParallelBuildExt(build_ext):
             del compiler.compile  # back to the class's method
 
 
+class BuildPyWithSources(build_py):
+    """``build_py`` that also copies the kernel's C++ sources into the package
+    (``symplid/csrc``), from which user models' units are compiled at run time."""
+
+    def run(self) -> None:
+        super().run()
+        target = os.path.join(self.build_lib, "symplid", "csrc")
+        self.mkpath(target)
+        for source in SOURCES + HEADERS + USER_SOURCES:
+            if not source.endswith(("_avx512.cc", "_avx2.cc", "_baseline.cc", "_fast.cc")):
+                self.copy_file(source, target)
+
+
 def _extensions() -> list[Extension]:
     if os.environ.get("SYMPLID_BUILD_KERNEL", "1").strip().lower() in ("0", "no", "false"):
         print("symplid: SYMPLID_BUILD_KERNEL=0, the compiled kernel is skipped")
@@ -109,4 +126,5 @@ def _extensions() -> list[Extension]:
     ]
 
 
-setup(ext_modules=_extensions(), cmdclass={"build_ext": ParallelBuildExt})
+setup(ext_modules=_extensions(),
+      cmdclass={"build_ext": ParallelBuildExt, "build_py": BuildPyWithSources})

@@ -63,6 +63,17 @@ int monomial(ForceProgram& f, std::vector<std::vector<int>>& exps, std::vector<i
 
 void build_program(const Settings& s, ForceProgram& f) {
   f = ForceProgram{};
+#ifdef SYMPLID_USER_FORCE
+  // A user's unit: term t is θ's parameter t (its adjoint accumulates in tacc, as a
+  // coefficient's; the force and its derivatives are the unit's, Propagation's kicks).
+  for (int m = 0; m < s.ncoef; ++m) {
+    f.term_j.push_back(0);
+    f.term_m.push_back(m);
+    f.term_mult.push_back(1.0);
+    f.term_mono.push_back(-1);
+  }
+  return;
+#endif
   std::vector<std::vector<int>> exps;
   const int d = s.d;
   for (int j = 0; j < d; ++j) {
@@ -188,6 +199,49 @@ class Propagation {
     }
   }
 
+#ifdef SYMPLID_USER_FORCE
+  // The kicks with a user's force (its unit's policy), eight lanes at a time: p −= κ ∇U(q);
+  // reverse: q̄ −= κ ∇²U(q) p̄ and, per parameter t, tacc_t += κ p̄ · ∂∇U/∂θ_t.
+  using Force = SYMPLID_USER_FORCE;
+  static_assert(kPad == 8, "a lane block is one Vec");
+  static void load(const double* x, Vec& v) { __builtin_memcpy(&v, x, sizeof(Vec)); }
+  static void store(double* x, const Vec& v) { __builtin_memcpy(x, &v, sizeof(Vec)); }
+
+  void kick_forward(const double* q, double* p, double kappa) {
+    const int NP = z_.NP;
+    const double* tc = tc_;
+    for (int k = 0; k < NP; k += kPad) {
+      Vec x[Force::D], f[Force::D], pk;
+      for (int i = 0; i < Force::D; ++i) load(q + i * NP + k, x[i]);
+      Force::template add<false>(x, [tc](int t) { return Vec{} + tc[t]; }, f);
+      for (int i = 0; i < Force::D; ++i) {
+        load(p + i * NP + k, pk);
+        store(p + i * NP + k, pk - kappa * f[i]);
+      }
+    }
+  }
+
+  void kick_reverse(const double* q, double kappa, double* qb, const double* pb, double* tacc) {
+    const int NP = z_.NP;
+    const double* tc = tc_;
+    for (int k = 0; k < NP; k += kPad) {
+      Vec x[Force::D], v[Force::D], hv[Force::D], pg[Force::kTerms > 0 ? Force::kTerms : 1], a;
+      for (int i = 0; i < Force::D; ++i) {
+        load(q + i * NP + k, x[i]);
+        load(pb + i * NP + k, v[i]);
+      }
+      Force::adjoint(x, [tc](int t) { return Vec{} + tc[t]; }, v, hv, pg);
+      for (int i = 0; i < Force::D; ++i) {
+        load(qb + i * NP + k, a);
+        store(qb + i * NP + k, a - kappa * hv[i]);
+      }
+      for (int t = 0; t < Force::kTerms; ++t) {
+        load(tacc + t * NP + k, a);
+        store(tacc + t * NP + k, a + kappa * pg[t]);
+      }
+    }
+  }
+#else
   void kick_forward(const double* q, double* p, double kappa) {
     const int NP = z_.NP;
     monomials(q);
@@ -229,6 +283,7 @@ class Propagation {
       }
     }
   }
+#endif
 
   const Settings& s_;
   const Dims& z_;
@@ -259,7 +314,11 @@ void prepare_program(const Settings& s, AdjointWorkspace& work) {
     work.program_dim = s.d;
   }
   // (the fast path also depends on the mass matrix and the propagator: chosen every call)
+#ifdef SYMPLID_USER_FORCE
+  work.fast = FastPropagation{};  // a user's force: Propagation's kicks
+#else
   work.fast = select_fast_propagation(s);
+#endif
 }
 
 // Substeps per gap and each gap's place on the tape.
@@ -474,14 +533,32 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member& memb
 
 }  // namespace
 
+namespace {
+// Whether the state size NN is compiled: all of them, or in a user's unit its force's only.
+template <int NN>
+constexpr bool compiles_state() {
+#ifdef SYMPLID_USER_FORCE
+  return NN == 2 * SYMPLID_USER_FORCE::D;
+#else
+  return true;
+#endif
+}
+}  // namespace
+
 void adjoint_gradient(const Settings& s, const TrajectoryData& data, const Member& member,
                       double* grad, AdjointWorkspace& work) {
-  if (s.n == 4 && s.dy == 4) return run_sized<4, 4>(s, data, member, grad, work);
-  if (s.n == 4 && s.dy == 2) return run_sized<4, 2>(s, data, member, grad, work);
-  if (s.n == 2 && s.dy == 2) return run_sized<2, 2>(s, data, member, grad, work);
-  if (s.n == 2 && s.dy == 1) return run_sized<2, 1>(s, data, member, grad, work);
-  if (s.n == 6 && s.dy == 6) return run_sized<6, 6>(s, data, member, grad, work);
-  if (s.n == 6 && s.dy == 3) return run_sized<6, 3>(s, data, member, grad, work);
+  if constexpr (compiles_state<4>()) {
+    if (s.n == 4 && s.dy == 4) return run_sized<4, 4>(s, data, member, grad, work);
+    if (s.n == 4 && s.dy == 2) return run_sized<4, 2>(s, data, member, grad, work);
+  }
+  if constexpr (compiles_state<2>()) {
+    if (s.n == 2 && s.dy == 2) return run_sized<2, 2>(s, data, member, grad, work);
+    if (s.n == 2 && s.dy == 1) return run_sized<2, 1>(s, data, member, grad, work);
+  }
+  if constexpr (compiles_state<6>()) {
+    if (s.n == 6 && s.dy == 6) return run_sized<6, 6>(s, data, member, grad, work);
+    if (s.n == 6 && s.dy == 3) return run_sized<6, 3>(s, data, member, grad, work);
+  }
   run_sized<0, 0>(s, data, member, grad, work);
 }
 

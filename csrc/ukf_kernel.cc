@@ -59,6 +59,9 @@ Isa isa() {
 }
 
 EvaluateFn kernel() {
+#ifdef SYMPLID_USER_FORCE
+  return SYMPLID_ISA_NS::evaluate;  // a user's unit: compiled for one instruction set
+#endif
 #ifdef SYMPLID_X86
   if (isa() == Isa::kAvx512) return avx512::evaluate;
   if (isa() == Isa::kAvx2) return avx2::evaluate;
@@ -67,6 +70,9 @@ EvaluateFn kernel() {
 }
 
 const char* kernel_isa() {
+#ifdef SYMPLID_USER_ISA
+  return SYMPLID_USER_ISA;
+#endif
   switch (isa()) {
     case Isa::kAvx512:
       return "avx512";
@@ -165,6 +171,8 @@ ffi::Error read_settings(Settings& s, int64_t dim, int64_t order, ffi::Span<cons
 }
 
 // Compiles the basis into the force's term program (Settings::term_*), in basis order.
+// A user's unit (SYMPLID_USER_FORCE): term t is θ's parameter t, the force's own program
+// reads them (no factors).
 void build_terms(Settings& s, Workspace& w) {
   const int d = s.d, width = s.order + 1;
   w.term_start.assign(1, 0);
@@ -172,6 +180,16 @@ void build_terms(Settings& s, Workspace& w) {
   w.term_mult.clear();
   w.factor_start.assign(1, 0);
   w.factor_rows.clear();
+#ifdef SYMPLID_USER_FORCE
+  for (int m = 0; m < s.ncoef; ++m) {
+    w.term_coef_index.push_back(m);
+    w.term_mult.push_back(1.0);
+    w.factor_start.push_back(0);
+  }
+  w.term_start.push_back(s.ncoef);
+  for (int j = 1; j < d; ++j) w.term_start.push_back(s.ncoef);
+  (void)width;
+#else
   for (int j = 0; j < d; ++j) {
     for (int m = 0; m < s.ncoef; ++m) {
       const int64_t* e = s.exponents + m * d;
@@ -186,6 +204,7 @@ void build_terms(Settings& s, Workspace& w) {
     }
     w.term_start.push_back(static_cast<int>(w.term_coef_index.size()));
   }
+#endif
   s.num_terms = static_cast<int>(w.term_coef_index.size());
   s.term_start = w.term_start.data();
   s.term_coef_index = w.term_coef_index.data();

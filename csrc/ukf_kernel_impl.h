@@ -45,6 +45,10 @@ using GradientFn = void (*)(const Vec*, Vec*, const Vec*);
 // The compile-time force for C vectors per coordinate, or nullptr (then the generic one).
 template <int C>
 GradientFn fixed_gradient(const Settings& s) {
+#ifdef SYMPLID_USER_FORCE
+  (void)s;  // a user's unit: its force only (Propagator::gradient)
+  return nullptr;
+#endif
 #define SYMPLID_TRY_BASIS(D, ORDER) \
   if (FixedBasis<D, ORDER>::matches(s)) return &FixedBasis<D, ORDER>::template gradient<C>;
   if (s.d == 1 && (C == 1 || C == 5)) {
@@ -133,6 +137,9 @@ class Propagator {
   // repeated multiplication, then per component j the terms (c_m e_mj) Π_i x_i^(e_mi − δ_ij),
   // read from the term program (Settings::term_*), summed in basis order.
   void gradient(const Vec* __restrict__ x, Vec* __restrict__ out) {
+#ifdef SYMPLID_USER_FORCE
+    return user_gradient(x, out);
+#endif
     if (fixed_gradient_ != nullptr) return fixed_gradient_(x, out, term_coef);
     const int C = chunks_.count();
     const int d = s_.d;
@@ -170,6 +177,22 @@ class Propagator {
       }
     }
   }
+
+#ifdef SYMPLID_USER_FORCE
+  // ∂U/∂q of a user's U(q; θ) (its unit's force policy), one vector of lanes at a time;
+  // term_coef holds θ's parameters per lane.
+  void user_gradient(const Vec* __restrict__ x, Vec* __restrict__ out) const {
+    using Force = SYMPLID_USER_FORCE;
+    const int C = chunks_.count();
+    const Vec* tc = term_coef;
+    for (int c = 0; c < C; ++c) {
+      Vec xs[Force::D], f[Force::D];
+      for (int i = 0; i < Force::D; ++i) xs[i] = x[i * C + c];
+      Force::template add<false>(xs, [tc](int t) { return tc[t]; }, f);
+      for (int i = 0; i < Force::D; ++i) out[i * C + c] = f[i];
+    }
+  }
+#endif
 
   // M⁻¹ v for the momenta v; v itself when M is the identity.
   const Vec* velocity(const Vec* __restrict__ v, Vec* __restrict__ buffer) {
@@ -295,12 +318,33 @@ struct RkTableau {
   }
 };
 
-// A block of lanes (T = Vec for eight lanes, double for one) for a fixed basis of degree ORDER
-// in D coordinates; MASS says whether the velocity is M⁻¹p (else p).
-template <int D, int ORDER, bool MASS, class T>
-struct Block {
-  using Basis = FixedBasis<D, ORDER>;
+// The force of the fast propagation as a policy: D coordinates, kTerms per-lane values of θ
+// that it reads (a vector of lanes each, Block::tc), kTabled whether a kick scaled by κ is the
+// same program with every value scaled by −κ (linear in them: a polynomial), and
+// add<INIT>(x, coef, acc): acc (+)= ∂U/∂q(x) with value t = coef(t) (INIT: acc's values are
+// read, as a kick's momentum; only for kTabled forces), kScalarLane whether one θ's lone last
+// sigma point is advanced as a scalar (fast_advance). PolynomialForce is the fixed basis's
+// Horner program; a user's U(q; θ) supplies its own (the generated units of user_kernel.py).
+template <int D_, int ORDER>
+struct PolynomialForce {
+  using Basis = FixedBasis<D_, ORDER>;
+  static constexpr int D = D_;
   static constexpr int kTerms = Basis::kTable.start[D];
+  static constexpr bool kTabled = true;
+  static constexpr bool kScalarLane = true;
+  template <bool INIT, class T, class Coef>
+  SYMPLID_INLINE static void add(const T (&x)[D], const Coef& coef, T (&acc)[D]) {
+    Basis::template horner_add<INIT>(x, coef, acc);
+  }
+};
+
+// A block of lanes (T = Vec for eight lanes, double for one) for a force policy (above) in
+// D coordinates; MASS says whether the velocity is M⁻¹p (else p).
+template <class Force, bool MASS, class T>
+struct Block {
+  static constexpr int D = Force::D;
+  static constexpr int kTerms = Force::kTerms;
+  static constexpr bool kTabled = Force::kTabled;
 
   T q[D], p[D];
   const Vec* tc = nullptr;  // c_m e_mj per term (a vector of lanes each)
@@ -315,16 +359,16 @@ struct Block {
     }
   }
 
-  // ∂U/∂q at x into out, as Basis's Horner program.
+  // ∂U/∂q at x into out, as the force's program.
   SYMPLID_INLINE void force_at(const T (&x)[D], T (&out)[D]) const {
-    Basis::template horner_add<false>(
+    Force::template add<false>(
         x, [this](int t) __attribute__((always_inline)) { return coef(tc, t); }, out);
   }
 
   // A kick p ← p − k ∂U/∂q(q) given the table of −k c_m e_mj: the momentum enters the
   // Horner program as its initial value, so the kick adds no step to the dependent chain.
   SYMPLID_INLINE void kick_scaled(const Vec* table) {
-    Basis::template horner_add<true>(
+    Force::template add<true>(
         q, [this, table](int t) __attribute__((always_inline)) { return coef(table, t); }, p);
   }
 
@@ -457,9 +501,10 @@ struct CompositionMethod {
   SYMPLID_INLINE static void run(const Settings& s, double dt, int steps, const Vec* tc,
                                  Blocks&... blocks) {
     if (steps <= 0) return;
-    constexpr int kTerms = std::max({Blocks::kTerms...});
+    constexpr int kTerms = std::max({1, Blocks::kTerms...});
+    constexpr bool kTabledForce = (Blocks::kTabled && ...);
     const int m = s.ncomp, last = m - 1;
-    const bool tabled = m <= kMaxTables;
+    const bool tabled = kTabledForce && m <= kMaxTables;
     Vec table[kMaxTables][kTerms];
     for (int w = 0; tabled && w < m; ++w) {
       const double kick = 0.5 * (s.comp_w[w] + s.comp_w[w < last ? w + 1 : 0]) * dt;
@@ -472,7 +517,7 @@ struct CompositionMethod {
         (blocks.drift(h, s.inv_mass), ...);
         const bool end = k + 1 == steps && w == last;
         if (tabled && !end) {
-          (blocks.kick_scaled(table[w]), ...);
+          if constexpr (kTabledForce) (blocks.kick_scaled(table[w]), ...);
         } else {
           const double next = end ? 0.0 : s.comp_w[w < last ? w + 1 : 0] * dt;
           (blocks.kick(0.5 * h + 0.5 * next), ...);
@@ -504,11 +549,11 @@ using FastAdvanceFn = void (*)(const Settings&, Vec*, Vec*, const Vec*, int, int
 // per row, and after them a lone scalar lane or not. Three (or two) vectors at a time hide the
 // latency of one step's chain; the leftovers go in a pair or alone, with the lone lane beside
 // them.
-template <int D, int ORDER, bool MASS, class Method, int FULL, bool LONE>
+template <class Force, bool MASS, class Method, int FULL, bool LONE>
 SYMPLID_INLINE void advance_layout(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C,
                                    double dt, int steps) {
-  using V = Block<D, ORDER, MASS, Vec>;
-  using S = Block<D, ORDER, MASS, double>;
+  using V = Block<Force, MASS, Vec>;
+  using S = Block<Force, MASS, double>;
   constexpr int kGroup = Method::kMaxBlocks >= 3 ? 3 : 2;
   // triples while three are left; pairs while more than two are left
   constexpr int kGroups = kGroup == 3 ? FULL / 3 : (FULL > 2 ? (FULL - 1) / 2 : 0);
@@ -564,27 +609,31 @@ SYMPLID_INLINE void advance_layout(const Settings& s, Vec* q, Vec* p, const Vec*
 // them, a last partly used vector counting as whole (its padding lanes hold finite copies of
 // the centre point) unless it has a single lane, which then goes in a scalar block; with a
 // group, one vector per sigma point. So only the block layouts that occur are compiled.
-template <int D, int ORDER, bool MASS, class Method>
+template <class Force, bool MASS, class Method>
 void fast_advance(const Settings& s, Vec* q, Vec* p, const Vec* tc, int C, int G, double dt,
                   int steps) {
   if (steps <= 0) return;
-  constexpr int kPoints = 4 * D + 1, kRest = kPoints % kWidth;
+  constexpr int kPoints = 4 * Force::D + 1, kRest = kPoints % kWidth;
   if (G == 1) {
-    advance_layout<D, ORDER, MASS, Method, kPoints / kWidth + (kRest > 1), kRest == 1>(
+    // A lone lane goes in a scalar block where the force's scalar form is cheap (a
+    // polynomial); a force that calls functions of the C library (a user's) takes it in one
+    // more vector block instead, whose vector functions are faster than the scalar ones.
+    constexpr bool kLone = kRest == 1 && Force::kScalarLane;
+    advance_layout<Force, MASS, Method, kPoints / kWidth + (kRest > 0 && !kLone), kLone>(
         s, q, p, tc, C, dt, steps);
   } else {
-    advance_layout<D, ORDER, MASS, Method, kPoints, false>(s, q, p, tc, C, dt, steps);
+    advance_layout<Force, MASS, Method, kPoints, false>(s, q, p, tc, C, dt, steps);
   }
 }
 
 // fast_advance for a fixed basis, by propagator: a composition of leapfrog steps, or an
 // explicit Runge–Kutta method of two or four stages (the library's rk2-midpoint, rk2-heun and
 // rk4); else nullptr: Propagator::advance.
-template <int D, int ORDER>
+template <class Force>
 FastAdvanceFn fast_advance_for(const Settings& s) {
-  if (s.composition) return &fast_advance<D, ORDER, false, CompositionMethod>;
-  if (s.stages == 2) return &fast_advance<D, ORDER, false, RungeKuttaMethod<2>>;
-  if (s.stages == 4) return &fast_advance<D, ORDER, false, RungeKuttaMethod<4>>;
+  if (s.composition) return &fast_advance<Force, false, CompositionMethod>;
+  if (s.stages == 2) return &fast_advance<Force, false, RungeKuttaMethod<2>>;
+  if (s.stages == 4) return &fast_advance<Force, false, RungeKuttaMethod<4>>;
   return nullptr;
 }
 
@@ -603,15 +652,19 @@ template <bool MANY = kManyRegisters>
 FastAdvanceFn select_fast_advance(const Settings& s) {
   if constexpr (MANY) {
     if (s.has_mass || s.npts != 4 * s.d + 1) return nullptr;
+#ifdef SYMPLID_USER_FORCE
+    if (s.d == SYMPLID_USER_FORCE::D) return fast_advance_for<SYMPLID_USER_FORCE>(s);
+#else
 #define SYMPLID_TRY_FAST(D, ORDER) \
-  if (FixedBasis<D, ORDER>::matches(s)) return fast_advance_for<D, ORDER>(s);
+  if (FixedBasis<D, ORDER>::matches(s)) return fast_advance_for<PolynomialForce<D, ORDER>>(s);
     SYMPLID_TRY_FAST(1, 2) SYMPLID_TRY_FAST(1, 3) SYMPLID_TRY_FAST(1, 4) SYMPLID_TRY_FAST(1, 5)
     SYMPLID_TRY_FAST(2, 2) SYMPLID_TRY_FAST(2, 3) SYMPLID_TRY_FAST(2, 4) SYMPLID_TRY_FAST(2, 5)
     SYMPLID_TRY_FAST(3, 2) SYMPLID_TRY_FAST(3, 3)
 #undef SYMPLID_TRY_FAST
     if (s.composition && FixedBasis<3, 4>::matches(s)) {
-      return &fast_advance<3, 4, false, CompositionMethod>;
+      return &fast_advance<PolynomialForce<3, 4>, false, CompositionMethod>;
     }
+#endif
   }
   (void)s;
   return nullptr;
@@ -1222,18 +1275,40 @@ void run_sized(const Settings& s, const TrajectoryData& data, const Member* memb
 
 // Entry point for this instruction set: compile-time chunk counts and sizes where common
 // (one θ: npts lanes in 1 or 2 vectors; a group: one vector per sigma point).
+// (A user's unit compiles the sizes of its force's dimension only.)
+constexpr bool compiles_dim(int d) {
+#ifdef SYMPLID_USER_FORCE
+  return d == SYMPLID_USER_FORCE::D;
+#else
+  (void)d;
+  return true;
+#endif
+}
+
 void evaluate(const Settings& s, const TrajectoryData& data, const Member* members, int G,
               Workspace& work) {
   const int chunks = (G * s.npts + kWidth - 1) / kWidth;
   if (G == 1) {
-    if (s.d == 1) return run_sized<FixedChunks<1>, double, 2>(s, data, members, G, {}, work);
-    if (s.d == 2) return run_sized<FixedChunks<2>, double, 4>(s, data, members, G, {}, work);
-    if (s.d == 3) return run_sized<FixedChunks<2>, double, 6>(s, data, members, G, {}, work);
+    if constexpr (compiles_dim(1)) {
+      if (s.d == 1) return run_sized<FixedChunks<1>, double, 2>(s, data, members, G, {}, work);
+    }
+    if constexpr (compiles_dim(2)) {
+      if (s.d == 2) return run_sized<FixedChunks<2>, double, 4>(s, data, members, G, {}, work);
+    }
+    if constexpr (compiles_dim(3)) {
+      if (s.d == 3) return run_sized<FixedChunks<2>, double, 6>(s, data, members, G, {}, work);
+    }
     return run_group<RuntimeChunks, double, 0, 0>(s, data, members, G, RuntimeChunks{chunks}, work);
   }
-  if (s.d == 1) return run_sized<FixedChunks<5>, Vec, 2>(s, data, members, G, {}, work);
-  if (s.d == 2) return run_sized<FixedChunks<9>, Vec, 4>(s, data, members, G, {}, work);
-  if (s.d == 3) return run_sized<FixedChunks<13>, Vec, 6>(s, data, members, G, {}, work);
+  if constexpr (compiles_dim(1)) {
+    if (s.d == 1) return run_sized<FixedChunks<5>, Vec, 2>(s, data, members, G, {}, work);
+  }
+  if constexpr (compiles_dim(2)) {
+    if (s.d == 2) return run_sized<FixedChunks<9>, Vec, 4>(s, data, members, G, {}, work);
+  }
+  if constexpr (compiles_dim(3)) {
+    if (s.d == 3) return run_sized<FixedChunks<13>, Vec, 6>(s, data, members, G, {}, work);
+  }
   return run_group<RuntimeChunks, Vec, 0, 0>(s, data, members, G, RuntimeChunks{chunks}, work);
 }
 

@@ -38,7 +38,7 @@ import importlib.util
 import re
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -87,6 +87,9 @@ class UserPotential(FunctionPotential):
     """A user's U(q; θ): its parameters form θ's ``parameters`` group (declared priors)."""
 
     parameter_group: ClassVar[str] = "parameters"
+    #: The SymPy expression of U for an expression model (None for a Python function): the
+    #: compiled user kernel generates its force from it (symplid.model.user_kernel).
+    expression: Any = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,7 +173,7 @@ def _expression_model(text: str, kind: str, dim: int, names: tuple[str, ...],
                                  f"the whole H as model.hamiltonian")
         u = _lambdified(parsed.expr, dim, names, "q")
         if kinetic == QUADRATIC:
-            return UserPotential(u, dim, len(names), names)
+            return UserPotential(u, dim, len(names), names, expression=parsed.expr)
         t = kinetic_function(kinetic, dim, names, parsed.parameters, max_size)
         return SeparablePotential(u, t, dim, len(names), names)
     parts = _split(parsed.expr)

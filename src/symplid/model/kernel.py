@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import ctypes
 import importlib.util
+import os
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -43,8 +44,10 @@ from jax.custom_derivatives import SymbolicZero
 
 from symplid.dynamics.potentials import Polynomial, inverse_mass
 from symplid.dynamics.schemes import Composition
+from symplid.dynamics.user_models import UserPotential
 from symplid.filters import unscented_weights
 from symplid.filters.backends import LikelihoodBackend
+from symplid.model import user_kernel
 from symplid.model.likelihood import (
     JAX_BACKEND,
     GapInputs,
@@ -142,15 +145,17 @@ def _warn_fallback() -> None:
 def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = None) -> str | None:
     """Why the compiled kernel cannot evaluate this model (None when it can).
 
-    The kernel covers a :class:`~symplid.dynamics.potentials.Polynomial` potential, the registry's
-    integrators, a linear observation operator and float64 on the CPU. It does not say
+    The kernel covers a :class:`~symplid.dynamics.potentials.Polynomial` potential (and, with
+    ``SYMPLID_USER_KERNEL=1``, a user's expression for U, through its compiled unit:
+    :mod:`symplid.model.user_kernel`), the registry's integrators, a linear observation
+    operator and float64 on the CPU. It does not say
     whether the extension is loaded: see :func:`available`.
     """
     if getattr(model, "process_noise_per", "gap") == "none":
         return "no process noise: the deterministic-trajectory likelihood needs no filter"
     if getattr(model, "damping", False):
         return "the model is damped (γ); the kernel propagates undamped dynamics only"
-    if not isinstance(model.hamiltonian, Polynomial):
+    if not isinstance(model.hamiltonian, Polynomial) and not _user_expression(model):
         return f"the potential is a {type(model.hamiltonian).__name__}, not a Polynomial"
     if model.integrator.scheme is None:
         return (f"the integrator {model.integrator.name!r} is a step function without a "
@@ -169,13 +174,35 @@ def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = N
     return None
 
 
+def _user_expression(model: StateSpaceModel) -> bool:
+    """Whether the model's U is a user's expression that the compiled user tier may take
+    (:mod:`symplid.model.user_kernel`; ``SYMPLID_USER_KERNEL=1`` switches that tier on)."""
+    return (
+        os.environ.get("SYMPLID_USER_KERNEL", "0").strip().lower() in ("1", "on", "yes", "true")
+        and isinstance(model.hamiltonian, UserPotential)
+        and model.hamiltonian.expression is not None
+    )
+
+
+def _user_unit(model: StateSpaceModel) -> user_kernel.UserUnit | str | None:
+    """The compiled unit of a user expression's model (or why there is none); None for a
+    model of the built-in kernel."""
+    if not isinstance(model.hamiltonian, UserPotential):
+        return None
+    return user_kernel.find_unit(model.hamiltonian, instruction_set())
+
+
 def describe(model: StateSpaceModel, prepared: PreparedData | None = None) -> dict[str, Any]:
     """Which likelihood tier a run uses and why, for the run's recorded settings."""
     reason = unsupported_reason(model, prepared)
     if reason is None and not available():
         reason = f"the compiled kernel is unavailable ({_Library.error})"
+    unit = _user_unit(model) if reason is None else None
+    if isinstance(unit, str):
+        reason = unit
     if reason is None:
-        return {"likelihood_backend": "compiled", "instruction_set": instruction_set()}
+        tier = {"likelihood_backend": "compiled", "instruction_set": instruction_set()}
+        return tier | ({"user_unit": unit.key} if unit is not None else {})
     return {"likelihood_backend": "jax", "reason": reason}
 
 
@@ -183,6 +210,10 @@ def _attributes(model: StateSpaceModel, prepared: PreparedData) -> dict[str, Any
     """The model's static settings as FFI attributes (numbers and 1-D arrays)."""
     potential = model.hamiltonian
     d = potential.dim
+    if isinstance(potential, Polynomial):
+        order, exponents = potential.order, np.asarray(potential.exponents, dtype=np.int64)
+    else:  # a user unit: its force reads θ's parameters itself (one zero row per parameter)
+        order, exponents = 1, np.zeros((potential.num_params, d), dtype=np.int64)
     scheme = model.integrator.scheme
     weights = unscented_weights(model.state_dim, model.alpha, model.beta, model.kappa)
     inv_mass = inverse_mass(model.mass, d)
@@ -195,8 +226,8 @@ def _attributes(model: StateSpaceModel, prepared: PreparedData) -> dict[str, Any
         rk_a, rk_b = np.asarray(scheme.a, float).ravel(), np.asarray(scheme.b, float)
     return {
         "dim": np.int64(d),
-        "order": np.int64(potential.order),
-        "exponents": np.asarray(potential.exponents, dtype=np.int64).ravel(),
+        "order": np.int64(order),
+        "exponents": exponents.ravel(),
         "composition": np.int64(composition),
         "comp_weights": comp_weights,
         "rk_a": rk_a,
@@ -269,6 +300,16 @@ def _reference_jvp(reference, derivative, primals, tangents):
     return jax.jvp(ref, [primals[i] for i in live], [tangents[i] for i in live])
 
 
+def _targets(model: StateSpaceModel) -> tuple[str, str]:
+    """The FFI targets of the value and the gradient: the built-in kernel's, or the model's
+    user unit's."""
+    unit = _user_unit(model)
+    if isinstance(unit, str):
+        raise ValueError(f"the compiled kernel does not apply: {unit}")
+    return (TARGET_NAME, GRADIENT_TARGET_NAME) if unit is None else (
+        unit.value_target, unit.gradient_target)
+
+
 def _build_value_and_gradient(model: StateSpaceModel, attrs: dict[str, Any], reference):
     """``(θ, x0, P0, step_size, num_steps, ys, masks) -> (log L, ∂ log L/∂θ)`` by the compiled
     gradient, differentiable once more through the JAX reference (Hessian-vector products
@@ -277,7 +318,7 @@ def _build_value_and_gradient(model: StateSpaceModel, attrs: dict[str, Any], ref
     if _gradient_unsupported_reason(model) is not None:
         return None
     call = jax.ffi.ffi_call(
-        GRADIENT_TARGET_NAME,
+        _targets(model)[1],
         (
             jax.ShapeDtypeStruct((), jnp.float64),
             jax.ShapeDtypeStruct((_kernel_num_params(model),), jnp.float64),
@@ -307,7 +348,7 @@ def _build_kernel(model: StateSpaceModel, prepared: PreparedData) -> KernelFn:
     θ alone is the compiled gradient's, and along anything else the JAX reference's."""
     attrs = _attributes(model, prepared)
     call = jax.ffi.ffi_call(
-        TARGET_NAME, jax.ShapeDtypeStruct((), jnp.float64), vmap_method="expand_dims"
+        _targets(model)[0], jax.ShapeDtypeStruct((), jnp.float64), vmap_method="expand_dims"
     )
     reference = build_filter(model, prepared.max_steps, prepared.uniform_steps)
     layout = _kernel_theta(model)
@@ -359,7 +400,8 @@ def _supports(model: StateSpaceModel, prepared: PreparedData | None) -> str | No
     if reason is None and not available():
         _warn_fallback()
         reason = f"the compiled kernel is unavailable ({_Library.error})"
-    return reason
+    unit = _user_unit(model) if reason is None else None
+    return unit if isinstance(unit, str) else reason
 
 
 def log_likelihood(
