@@ -15,9 +15,9 @@ user's.
 * **Cache**: ``SYMPLID_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/symplid/kernels`` (by default
   ``~/.cache/symplid/kernels``), one ``.so`` per key: a hash of the canonical expression,
   the parameters' order, d, the generated code, the instruction set, the compiler and its
-  flags, the package's version and the kernel's sources. The library is written under a temporary name and
-  renamed into place (atomic), under a lock file, so that two processes that need the same
-  unit at once compile it once and never load half a file.
+  flags, the package's version and the kernel's sources. The library is written under a
+  temporary name and renamed into place (atomic), under a lock file, so that two processes
+  that need the same unit at once compile it once and never load half a file.
 * **Instruction set**: the built-in kernel's (:func:`symplid.model.kernel.instruction_set`;
   ``SYMPLID_KERNEL_ISA`` narrows it), one unit per instruction set.
 """
