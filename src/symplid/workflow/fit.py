@@ -39,10 +39,11 @@ from symplid.workflow.auto import auto_notes
 from symplid.workflow.building import build_model, build_posterior
 from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.model_builder import model_family
+from symplid.workflow.plan import ModelPlan
 from symplid.workflow.results import RunFolder
 from symplid.workflow.scaling import scaling_for
 from symplid.workflow.sensitivity import sensitivity_checks
-from symplid.workflow.settings import Settings, resolve_for_data
+from symplid.workflow.settings import Settings
 from symplid.workflow.settings_schema import map_start
 
 __all__ = [
@@ -76,6 +77,9 @@ class FitOutcome:
     diagnostics: dict[str, Any] | None = None
     """The MAP-level sensitivity checks (:func:`~symplid.workflow.sensitivity.sensitivity_checks`;
     None with ``map.sensitivity = false``), as saved in ``diagnostics.json``."""
+    plan: ModelPlan | None = None
+    """The run's model, built once (:class:`~symplid.workflow.plan.ModelPlan`): what the
+    report and the held-out scores after the fit build on (None: a resumed run)."""
 
 
 @dataclass(frozen=True)
@@ -228,12 +232,13 @@ def fit(
     can use them meanwhile.
     """
 
-    given, settings = settings, resolve_for_data(settings, obs, source)
+    plan = ModelPlan.from_settings(settings, obs, source)  # the run's one model
+    given, settings = settings, plan.settings
     for note in auto_notes(given, settings, obs) if status is not None else ():
         status(note)
     folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
     try:
-        return _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+        return _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
                     status, on_sampled)
     except BaseException as err:
         if folder is not None and not folder.is_complete and not _marked(folder):
@@ -251,9 +256,9 @@ def _marked(folder: RunFolder) -> bool:
     return reason.startswith((RunFolder.INTERRUPTED, "failed"))
 
 
-def _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
          status, on_sampled=None) -> FitOutcome:
-    timings: dict[str, float] = {}
+    settings, timings = plan.settings, {}
     if folder is not None:
         folder.write_settings(settings)
         folder.write_data(obs)
@@ -266,7 +271,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     scaling = scaling_for(settings, obs)
     fit_settings = settings if scaling is None else scaling.settings(settings)
     fit_obs = obs if scaling is None else scaling.observations(obs)
-    model = build_model(fit_settings, fit_obs)
+    model = plan.model(fit_settings, fit_obs)
     posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior)
     check_stop()  # a safe point between the phases (symplid.stopping)
@@ -277,7 +282,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     timings["map_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_map(map_result)
-    diagnostics = _diagnostics(settings, obs, posterior, map_result, folder, timings, status)
+    diagnostics = _diagnostics(plan, obs, posterior, map_result, folder, timings, status)
     start, handing_over = time.perf_counter(), [0.0]  # the caller's time is not the sampler's
     try:
         idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
@@ -292,11 +297,11 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     timings["sampler_s"] = time.perf_counter() - start - handing_over[0]
     if scaling is not None:
         idata = scaling.inference_data(idata, groups, obs)
-        model = build_model(settings, obs)
+        model = plan.model(settings, obs)
         posterior = build_posterior(settings, obs, model)
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale,
-                         diagnostics=diagnostics)
+                         diagnostics=diagnostics, plan=plan)
     return save_run(folder, outcome, checkpoint, warn)
 
 
@@ -318,19 +323,20 @@ def _draws_hook(on_sampled, map_result, posterior, scaling, groups,
     return hand_over
 
 
-def _diagnostics(settings, obs, posterior, map_result, folder, timings,
+def _diagnostics(plan, obs, posterior, map_result, folder, timings,
                  status) -> dict[str, Any] | None:
     """The MAP-level sensitivity checks between the MAP and the sampler
     (:mod:`symplid.workflow.sensitivity`, with ``map.sensitivity``), saved as
     ``diagnostics.json``. A check that fails is recorded as not available; a stop asked for
     meanwhile ends the run here, its MAP kept (:mod:`symplid.stopping`)."""
+    settings = plan.settings
     if not settings.map.sensitivity:
         return None
     if status is not None:
         status("sensitivity checks: the MAP refitted at dt/2 and with the other process-noise "
                "model (map.sensitivity = false skips them)...")
     start = time.perf_counter()
-    checks = sensitivity_checks(settings, obs, posterior, map_result)
+    checks = sensitivity_checks(settings, obs, posterior, map_result, plan=plan)
     timings["diagnostics_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_json(RunFolder.DIAGNOSTICS, checks)
