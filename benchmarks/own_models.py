@@ -20,7 +20,8 @@ the phases that compile; they are not added to them. The machine may be shared: 
 average is printed, compare the trees' ratios, not the seconds.
 
 Run: ``python benchmarks/own_models.py [--baseline OLD/src] [--systems pendulum kepler]
-[--iterations N --burn-in M]`` (the examples' own budgets without ``--iterations``).
+[--iterations N --burn-in M] [--states cold "new data"]`` (the examples' own budgets without
+``--iterations``).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ ROOT = HERE.parent
 SRC = ROOT / "src"
 EXAMPLES = ROOT / "examples" / "user_models"
 SYSTEMS = ("kepler", "lotka-volterra", "pendulum", "elastic-pendulum")
+STATES = ("cold", "warm", "new data")
 CONFIGS = {"kepler": "kepler.toml", "lotka-volterra": "lotka_volterra.toml",
            "pendulum": "pendulum.toml"}
 
@@ -170,6 +172,8 @@ def main() -> None:
     parser.add_argument("--systems", nargs="+", choices=SYSTEMS, default=list(SYSTEMS))
     parser.add_argument("--iterations", type=int, help="iterations per chain (with --burn-in)")
     parser.add_argument("--burn-in", type=int)
+    parser.add_argument("--states", nargs="+", choices=STATES, default=list(STATES),
+                        help="which runs (a cold run always comes first when asked)")
     args = parser.parse_args()
     extra = [] if args.iterations is None else ["--iterations", str(args.iterations)]
     extra += [] if args.burn_in is None else ["--burn-in", str(args.burn_in)]
@@ -185,7 +189,7 @@ def main() -> None:
             data, config = prepare(system, folder)
             other, _ = prepare(system, folder, seed=1)
             caches = {name: folder / f"cache-{i}" for i, name in enumerate(trees)}
-            for cache_state in ("cold", "warm", "new data"):
+            for cache_state in (x for x in STATES if x in args.states):
                 for name, src in trees.items():
                     out = folder / f"run-{system}-{name}-{cache_state}".replace(" ", "")
                     given = other if cache_state == "new data" else data
