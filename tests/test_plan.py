@@ -18,7 +18,13 @@ from symplid.dynamics import user_models
 from symplid.model.data import Observations
 from symplid.workflow.building import build_model
 from symplid.workflow.plan import ModelPlan
-from symplid.workflow.settings import merge_overrides, resolve_for_data, settings_from_dict
+from symplid.workflow.settings import (
+    dump_settings,
+    load_settings,
+    merge_overrides,
+    resolve_for_data,
+    settings_from_dict,
+)
 from symplid.workflow.validate import SettingsError
 
 PENDULUM = {
@@ -50,7 +56,7 @@ def parses(monkeypatch) -> list[str]:
     return seen
 
 
-def test_a_run_parses_its_expression_once(parses):
+def test_a_run_parses_its_expression_once(parses, tmp_path):
     obs = _pendulum()
     plan = ModelPlan.from_settings(settings_from_dict(PENDULUM), obs)
     assert parses == ["k*(1 - cos(q1))"]
@@ -61,6 +67,9 @@ def test_a_run_parses_its_expression_once(parses):
     assert parses == ["k*(1 - cos(q1))"]  # the refits' models ask the plan
     assert all(m.hamiltonian is plan.family for m in models)
     assert models[1].dt == s.model.dt / 2 and models[2].deterministic
+    # the report and the held-out scores read the settings back from the run folder
+    reread = load_settings(dump_settings(s, tmp_path / "settings.toml"))
+    assert plan.model(reread, obs).hamiltonian is plan.family
     other = merge_overrides(s, {"model.potential": "k*(1 - cos(q1)) + 0*q1"})
     assert plan.family_for(other) is not plan.family  # another expression: built anew
     assert len(parses) == 2
