@@ -70,11 +70,18 @@ def test_kepler_orbit_recovers_gm_with_an_interval(workdir):
 
 
 @pytest.mark.slow
-def test_lotka_volterra_in_log_coordinates(workdir):
+def test_lotka_volterra_in_log_coordinates(workdir, monkeypatch):
+    from symplid.dynamics import user_models
+
+    parsed, parse = [], user_models.parse_expression
+    monkeypatch.setattr(user_models, "parse_expression",
+                        lambda text, *a, **k: parsed.append(text) or parse(text, *a, **k))
     out = workdir / "lv_run"
     result = run("fit", workdir / "lv.csv", "--config", workdir / "lotka_volterra.toml",
                  "--out", out, "--holdout", "0.2", *SMALL)
     assert result.exit_code == 0, result.output
+    # one parse for the whole run: checks, MAP, both sensitivity refits, report, held-out scores
+    assert len(parsed) == 1, parsed
     settings = (out / "settings.toml").read_text()
     assert 'integrator = "leapfrog"' in settings  # separable: explicit leapfrog on T(p) + U(q)
     truth = {"alpha": 1.1, "beta": 0.4, "gamma": 0.4, "delta": 0.1}

@@ -310,11 +310,11 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
     if outcome.interrupted:
         raise Interrupted
     if report:
-        click.echo(report_after_fit(out))
+        click.echo(report_after_fit(out, outcome.plan))
     if heldout is not None:
         from symplid.workflow.forecasting import score_holdout
 
-        h = score_holdout(out, heldout)
+        h = score_holdout(out, heldout, outcome.plan)
         click.echo(
             f"{out}: held out {h['num_times']} times from t = {h['t_start']:g}: RMSE "
             f"{h['rmse']:.4g}, 95 % band coverage {h['coverage_95']:.0%}, log predictive "

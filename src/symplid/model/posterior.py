@@ -79,6 +79,7 @@ from symplid.model.initial_state import (
     state_names,
 )
 from symplid.model.layout import Block, ParameterLayout
+from symplid.model.located_priors import LocatedPriors, located_log_prior
 from symplid.model.params import ParameterSpace
 from symplid.model.prior_spec import PriorSpec
 from symplid.model.priors import Prior
@@ -185,8 +186,14 @@ class Posterior:
         self._reference = jnp.asarray(self.space.interior_point())
         # The observations enter the compiled programs as arguments (``self.data``), not as
         # constants: the same model structure then compiles to the same program for any data
-        # set of the same shape, which JAX's persistent compilation cache can serve.
-        self.data: tuple[tuple[Array, ...], ...] = tuple(t.leaves for t in self._trajectories)
+        # set of the same shape, which JAX's persistent compilation cache can serve. So do
+        # the numbers the data place a learned initial state's prior by (and the interior
+        # point that depends on them), after the trajectories: ``data[K]``.
+        self._located = LocatedPriors.of(self.space.priors, self._initial_state_entries())
+        self.data: tuple[Any, ...] = tuple(t.leaves for t in self._trajectories)
+        if self._located is not None:
+            self.data += ((jnp.asarray(self._located.loc), jnp.asarray(self._located.scale),
+                           self._reference),)
         self._groups = self._group_trajectories()
 
     def with_model(self, model: Any) -> Posterior:
@@ -227,6 +234,8 @@ class Posterior:
             arrays = tuple(jnp.asarray(v) for v in leaves if _is_array_leaf(v))
             static = tuple((i, v) for i, v in enumerate(leaves) if not _is_array_leaf(v))
             key = (treedef, static, tuple((a.shape, a.dtype) for a in arrays), first is None)
+            if first is not None:  # y_1 too is an argument, not a constant (after the rest)
+                arrays += (jnp.asarray(first.y, dtype=float),)
             self._static.append((key, len(leaves)))
             self._trajectories.append(
                 _Trajectory(arrays, first, None if x0s is None else x0s[k], self.P0[k])
@@ -254,6 +263,15 @@ class Posterior:
             for i, p in enumerate(comp):
                 priors.append(self.prior.overrides.get(f"x0[{k}].{self.state_names[i]}") or p)
         return priors
+
+    def _initial_state_entries(self) -> list[int]:
+        """The entries of θ whose prior the data place (a learned initial state's, unless a
+        per-name override gives it)."""
+        if not self.learn_initial_state:
+            return []
+        names = self.space.names
+        return [i for i in range(self.num_model_params, len(names))
+                if names[i] not in self.prior.overrides]
 
     def _group_trajectories(self) -> list[tuple[list[int], Any, int]]:
         """Trajectories with identical shapes are stacked and vmapped through one filter."""
@@ -358,6 +376,7 @@ class Posterior:
         prepared = jax.tree_util.tree_unflatten(treedef, leaves)
         extra = jnp.zeros(())
         if first is not None:
+            first = first._replace(y=arrays[-1])
             x0, P0, extra = first_observation_update(self.model, model_theta, first, x0, P0)
         return self.model.log_likelihood(model_theta, prepared, x0, P0) + extra
 
@@ -393,10 +412,25 @@ class Posterior:
     def _in_bounds(self, theta: Array) -> Array:
         return self.space.in_bounds(theta)
 
-    def _log_prior(self, theta: Array) -> Array:
+    def _log_prior(self, theta: Array, data: Any = None) -> Array:
         theta = jnp.asarray(theta, dtype=float)
         self._check_theta(theta)
-        return self.space.log_prior(theta)
+        if self._located is None:
+            return self.space.log_prior(theta)
+        loc, scale, _ = self._placed(data)
+        lp = located_log_prior(self._located, theta, loc, scale)
+        lp = jnp.where(self.space.in_bounds(theta), lp, -jnp.inf)
+        return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
+
+    def _placed(self, data: Any) -> tuple[Array, Array, Array]:
+        """(locations, scales, interior point) of the priors the data place: from ``data``
+        (arguments of a compiled program), else this posterior's own."""
+        if data is not None and self._located is not None:
+            return data[self.num_trajectories]
+        located = self._located
+        if located is None:
+            return jnp.zeros(0), jnp.ones(0), self._reference
+        return jnp.asarray(located.loc), jnp.asarray(located.scale), self._reference
 
     def _log_density(self, theta: Array, data: Any = None) -> Array:
         theta = jnp.asarray(theta, dtype=float)
@@ -404,8 +438,8 @@ class Posterior:
         inside = self._in_bounds(theta)
         # Outside the bounds the likelihood is evaluated at a fixed interior point instead, so
         # that nothing there (an overflow, a failed factorisation) can leak NaN into a gradient.
-        safe = jnp.where(inside, theta, self._reference)
-        total = self._log_prior(safe) + self._log_likelihood(safe, data)
+        safe = jnp.where(inside, theta, self._placed(data)[2])
+        total = self._log_prior(safe, data) + self._log_likelihood(safe, data)
         total = jnp.where(inside, total, -jnp.inf)
         return jnp.where(jnp.isnan(total), -jnp.inf, total)
 

@@ -31,12 +31,16 @@ from symplid.model.likelihood import JAX_BACKEND, PreparedData
 __all__ = ["compiled", "structure_key"]
 
 #: The fields that are not part of a program's structure: the Hamiltonian owns the programs
-#: (it is the cache itself), and the ``backend`` setting only chooses among them.
-_NOT_STRUCTURE = ("hamiltonian", "backend")
+#: (it is the cache itself), the ``backend`` setting only chooses among them, and the learning
+#: step ``dt`` reaches a program only through the prepared data (each gap's substep size and
+#: count are arguments; the most substeps in a gap, which fixes the loop, is in the key) and
+#: through Tao's ω, which the integrator carries: a model refitted at another dt with as many
+#: substeps per gap at most runs the same program.
+_NOT_STRUCTURE = ("hamiltonian", "backend", "dt")
 
 
 def structure_key(model: ModelLike) -> tuple[Hashable, ...]:
-    """The model's normal fields, but its Hamiltonian and backend setting, as a hashable key.
+    """The model's normal fields, but its Hamiltonian, backend setting and dt, as a hashable key.
 
     Arrays (mass, observation matrix) enter by shape and value, an observation function by
     identity, Tao's integrator by its method and binding constant ω (it is rebuilt for each

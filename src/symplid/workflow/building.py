@@ -9,6 +9,7 @@ that ``[model]`` describes, :func:`build_posterior` adds the priors and the init
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -19,15 +20,18 @@ from symplid.model.statespace import HamiltonianModel
 from symplid.model.variance_prior import process_variance_prior
 from symplid.workflow.auto import resolve_noise
 from symplid.workflow.model_builder import build_model_family
-from symplid.workflow.settings import Settings
-from symplid.workflow.settings_schema import prior_spec
+from symplid.workflow.settings_schema import Settings, prior_spec
 
 __all__ = ["build_model", "build_posterior"]
 
 
-def build_model(settings: Settings, obs: Observations | list[Observations]) -> HamiltonianModel:
+def build_model(settings: Settings, obs: Observations | list[Observations],
+                family: Any = None) -> HamiltonianModel:
     """The state-space model of eq. (7) that ``settings.model`` describes, for these data
-    (one trajectory, or a list of them observed the same way)."""
+    (one trajectory, or a list of them observed the same way).
+
+    ``family``: its U or H when already built (a run builds it once:
+    :class:`~symplid.workflow.plan.ModelPlan`), else built here."""
 
     m = settings.model
     if m.dt == "auto":
@@ -37,7 +41,7 @@ def build_model(settings: Settings, obs: Observations | list[Observations]) -> H
     layout = observation_layout(as_list(obs)[0])
     observation = layout.kind if m.observation == "auto" else m.observation
     return HamiltonianModel(
-        build_model_family(layout.dim, m),
+        build_model_family(layout.dim, m) if family is None else family,
         integrator=m.integrator,
         binding=m.binding or None,
         dt=m.dt,

@@ -475,13 +475,14 @@ def _diagnostics_lines(out: Path, outcome: Any) -> list[str]:
         return [f"{out}: the sensitivity checks cannot be shown ({type(err).__name__}: {err})"]
 
 
-def report_after_fit(out: Path) -> str:
+def report_after_fit(out: Path, plan: Any = None) -> str:
     """``symplid report`` at the end of a fit; the fit is finished whatever happens here, so
-    a failure is one warning line rather than an error."""
+    a failure is one warning line rather than an error. ``plan``: the fit's
+    :class:`~symplid.workflow.plan.ModelPlan` (``FitOutcome.plan``), reused by the report."""
     from symplid.workflow.run_tools import report_run
 
     try:
-        return report_run(out)
+        return report_run(out, plan)
     except Exception as err:
         return (f"{out}: the run is finished, but writing its report failed "
                 f"({type(err).__name__}: {err}); try 'symplid report {out}'")

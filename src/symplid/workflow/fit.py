@@ -40,10 +40,11 @@ from symplid.workflow.auto import auto_notes
 from symplid.workflow.building import build_model, build_posterior
 from symplid.workflow.interrupts import deferred_interrupts
 from symplid.workflow.model_builder import model_description, model_family
+from symplid.workflow.plan import ModelPlan
 from symplid.workflow.results import RunFolder
 from symplid.workflow.scaling import scaling_for
 from symplid.workflow.sensitivity import sensitivity_checks
-from symplid.workflow.settings import Settings, resolve_for_data
+from symplid.workflow.settings import Settings
 from symplid.workflow.settings_schema import map_start
 from symplid.workflow.step_size import StepChoice, choose_step, step_check, step_line
 
@@ -82,6 +83,9 @@ class FitOutcome:
     learning_step: dict[str, Any] | None = None
     """How ``model.dt = "auto"`` chose the step (:func:`~symplid.workflow.step_size.choose_step`;
     None for a given dt)."""
+    plan: ModelPlan | None = None
+    """The run's model, built once (:class:`~symplid.workflow.plan.ModelPlan`): what the
+    report and the held-out scores after the fit build on (None: a resumed run)."""
 
 
 @dataclass(frozen=True)
@@ -252,12 +256,13 @@ def fit(
     can use them meanwhile.
     """
 
-    given, settings = settings, resolve_for_data(settings, obs, source)
+    plan = ModelPlan.from_settings(settings, obs, source)  # the run's one model
+    given, settings = settings, plan.settings
     for note in auto_notes(given, settings, obs) if status is not None else ():
         status(note)
     folder = RunFolder(out, "w", overwrite=overwrite) if out is not None else None
     try:
-        return _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+        return _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
                     status, on_sampled)
     except BaseException as err:
         if folder is not None and not folder.is_complete and not _marked(folder):
@@ -275,14 +280,14 @@ def _marked(folder: RunFolder) -> bool:
     return reason.startswith((RunFolder.INTERRUPTED, "failed"))
 
 
-def _fit(obs, settings, folder, progress, progress_label, progress_position, warn,
+def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
          status, on_sampled=None) -> FitOutcome:
-    timings: dict[str, float] = {}
+    settings, timings = plan.settings, {}
     if folder is not None:
         folder.write_settings(settings)
         folder.write_data(obs)
     check_stop()  # a safe point: nothing compiled yet
-    step = _learning_step(settings, obs, folder, timings, status)
+    step = _learning_step(settings, obs, folder, timings, status, plan)
     settings = settings if step is None else step.settings
     if status is not None and step is None:
         status(f"MAP search from {settings.map.num_starts} starts (the first fit compiles the "
@@ -292,7 +297,7 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     scaling = scaling_for(settings, obs)
     fit_settings = settings if scaling is None else scaling.settings(settings)
     fit_obs = obs if scaling is None else scaling.observations(obs)
-    model = build_model(fit_settings, fit_obs)
+    model = plan.model(fit_settings, fit_obs)
     posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior, _warm_start(step, scaling, posterior))
     check_stop()  # a safe point between the phases (symplid.stopping)
@@ -303,8 +308,8 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     timings["map_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_map(map_result)
-    diagnostics = _diagnostics(settings, obs, posterior, map_result, folder, timings, status,
-                               step)
+    diagnostics = _diagnostics(plan, settings, obs, posterior, map_result, folder, timings,
+                               status, step)
     start, handing_over = time.perf_counter(), [0.0]  # the caller's time is not the sampler's
     try:
         idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
@@ -319,11 +324,11 @@ def _fit(obs, settings, folder, progress, progress_label, progress_position, war
     timings["sampler_s"] = time.perf_counter() - start - handing_over[0]
     if scaling is not None:
         idata = scaling.inference_data(idata, groups, obs)
-        model = build_model(settings, obs)
+        model = plan.model(settings, obs)
         posterior = build_posterior(settings, obs, model)
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale,
-                         diagnostics=diagnostics,
+                         diagnostics=diagnostics, plan=plan,
                          learning_step=None if step is None else step.record)
     return save_run(folder, outcome, checkpoint, warn)
 
@@ -346,13 +351,13 @@ def _draws_hook(on_sampled, map_result, posterior, scaling, groups,
     return hand_over
 
 
-def _learning_step(settings, obs, folder, timings, status) -> StepChoice | None:
+def _learning_step(settings, obs, folder, timings, status, plan) -> StepChoice | None:
     """``model.dt = "auto"``: the step chosen from the data (:mod:`symplid.workflow.step_size`),
     the run folder's settings rewritten with it; None for a given dt."""
     if settings.model.dt != "auto":
         return None
     start = time.perf_counter()
-    step = choose_step(settings, obs, search=find_map_for, status=status)
+    step = choose_step(settings, obs, search=find_map_for, status=status, plan=plan)
     timings["learning_step_s"] = time.perf_counter() - start
     if folder is not None:
         folder.write_settings(step.settings)
@@ -371,7 +376,7 @@ def _warm_start(step: StepChoice | None, scaling, posterior) -> np.ndarray | Non
     return scaling.reparameterisation(posterior.param_groups).to_unconstrained(step.theta)
 
 
-def _diagnostics(settings, obs, posterior, map_result, folder, timings,
+def _diagnostics(plan, settings, obs, posterior, map_result, folder, timings,
                  status, step: StepChoice | None = None) -> dict[str, Any] | None:
     """The MAP-level sensitivity checks between the MAP and the sampler
     (:mod:`symplid.workflow.sensitivity`, with ``map.sensitivity``), saved as
@@ -385,7 +390,7 @@ def _diagnostics(settings, obs, posterior, map_result, folder, timings,
         status("sensitivity checks: the MAP refitted at dt/2 and with the other process-noise "
                "model (map.sensitivity = false skips them)...")
     start = time.perf_counter()
-    checks = sensitivity_checks(settings, obs, posterior, map_result,
+    checks = sensitivity_checks(settings, obs, posterior, map_result, plan=plan,
                                 step_size=None if step is None else step_check(step.record))
     timings["diagnostics_s"] = time.perf_counter() - start
     if folder is not None:

@@ -49,14 +49,14 @@ class _Run:
     draws: np.ndarray
 
 
-def _open(run: str | Path) -> _Run:
+def _open(run: str | Path, plan: Any = None) -> _Run:
     folder = RunFolder(run, "r")
     settings = folder.read_settings()
     obs = folder.read_data()
     if isinstance(obs, list):
         raise DataError(f"{folder.path}: a forecast from the end of the data follows one "
                         f"trajectory; this run has {len(obs)} (predict them with --from start)")
-    model = build_model(settings, obs)
+    model = build_model(settings, obs) if plan is None else plan.model(settings, obs)
     posterior = build_posterior(settings, obs, model)
     if not folder.file(RunFolder.POSTERIOR).exists():
         raise DataError(f"{folder.path}: posterior.nc is missing; a forecast needs the draws")
@@ -159,12 +159,13 @@ def holdout_scores(fc: NoisyForecast, heldout: Observations) -> dict[str, float]
     }
 
 
-def score_holdout(run: str | Path, heldout: Observations) -> dict[str, float]:
+def score_holdout(run: str | Path, heldout: Observations, plan: Any = None) -> dict[str, float]:
     """Forecast a finished run at the held-out times; write heldout.csv, holdout.npz,
-    figures/holdout.png and ``summary.json["holdout"]``. Returns the scores."""
+    figures/holdout.png and ``summary.json["holdout"]``. Returns the scores. ``plan``: the
+    fit's :class:`~symplid.workflow.plan.ModelPlan`, whose U or H the forecast reuses."""
     from symplid.io import write_observations
 
-    r = _open(run)
+    r = _open(run, plan)
     fc = _forecast(r, np.asarray(heldout.times, dtype=float))
     scores = holdout_scores(fc, heldout)
     figure = plot_forecast(fc, r.data, r.model.state_dim, heldout=heldout,

@@ -36,6 +36,7 @@ __all__ = [
     "NONSEPARABLE_DEFAULT",
     "build_model_family",
     "check_model_family",
+    "family_key",
     "family_options",
     "family_prior",
     "follow_model",
@@ -98,8 +99,19 @@ def model_description(model: ModelSettings, limit: int = 200) -> str:
 
 
 def build_model_family(dim: int, model: ModelSettings) -> Any:
-    """The potential or Hamiltonian of ``dim`` coordinates that the model settings describe."""
+    """The potential or Hamiltonian of ``dim`` coordinates that the model settings describe.
+
+    A user's expression is parsed here: a run builds it once
+    (:class:`~symplid.workflow.plan.ModelPlan`) and asks that object afterwards."""
     return model_family(model).build(dim, family_options(model))
+
+
+def family_key(model: ModelSettings) -> tuple[Any, ...]:
+    """The model settings that :func:`build_model_family` reads: two settings with the same
+    key build the same U or H (a refit at another ``dt`` or with another process noise
+    reuses the object)."""
+    return (model_family(model).name, model.hamiltonian, model.potential,
+            *dataclasses.astuple(family_options(model)))
 
 
 def family_prior(model: ModelSettings) -> Prior:
@@ -141,17 +153,21 @@ def with_family_prior(data: dict[str, Any]) -> dict[str, Any]:
 NONSEPARABLE_DEFAULT = "tao"
 
 
-def follow_model(settings: Settings, dim: int) -> Settings:
+def follow_model(settings: Settings, dim: int, family: Any = None) -> Settings:
     """A user's non-separable H with the default leapfrog: ``model.integrator`` becomes
     :data:`NONSEPARABLE_DEFAULT` (explicit, symplectic in the extended phase space), and
-    ``prediction.integrator`` left at leapfrog follows ``model.integrator``."""
+    ``prediction.integrator`` left at leapfrog follows ``model.integrator``.
+
+    ``family``: the model's U or H already built for ``dim`` (the run's
+    :class:`~symplid.workflow.plan.ModelPlan`), else built here."""
     model = settings.model
     if model_family(model).name != "user" or not is_user_model(model.hamiltonian):
         return settings
-    try:
-        family = build_model_family(dim, model)
-    except ValueError:  # check_model_family says what is wrong
-        return settings
+    if family is None:
+        try:
+            family = build_model_family(dim, model)
+        except ValueError:  # check_model_family says what is wrong
+            return settings
     if not is_hamiltonian(family):
         return settings
     integrator = NONSEPARABLE_DEFAULT if model.integrator == "leapfrog" else model.integrator
@@ -162,13 +178,14 @@ def follow_model(settings: Settings, dim: int) -> Settings:
                                prediction=prediction)
 
 
-def check_model_family(settings: Settings, dim: int, source: str) -> int:
+def check_model_family(settings: Settings, dim: int, source: str, family: Any = None) -> int:
     """Check the model's U or H against the integrators; its number of parameters.
 
     The family of ``model.hamiltonian``/``model.potential`` is built for the data's dimension
-    ``dim``. A non-separable H needs a learning and a prediction integrator that accept it
-    (not leapfrog or Yoshida), no constant mass and no damping; ``model.binding`` is Tao's ω
-    only.
+    ``dim`` (unless ``family`` is that object already, built by the run's
+    :class:`~symplid.workflow.plan.ModelPlan`). A non-separable H needs a learning and a
+    prediction integrator that accept it (not leapfrog or Yoshida), no constant mass and no
+    damping; ``model.binding`` is Tao's ω only.
     """
     model = settings.model
     user = model_family(model).name == "user"
@@ -182,7 +199,7 @@ def check_model_family(settings: Settings, dim: int, source: str) -> int:
                             f"{model_family(model).name!r}; write model.potential or "
                             "model.hamiltonian as an expression or file:PATH:NAME")
     try:
-        family = build_model_family(dim, model)
+        family = build_model_family(dim, model) if family is None else family
     except ValueError as err:
         if user:
             raise SettingsError(source, None, str(err)) from None

@@ -31,10 +31,10 @@ __all__ = ["predict_run", "report_run", "run_diagnostics", "save_atomically"]
 MAX_PREDICTION_STEPS = 10_000_000
 
 
-def _load(folder: RunFolder):
+def _load(folder: RunFolder, plan: Any = None):
     settings = folder.read_settings()
     obs = folder.read_data()
-    model = build_model(settings, obs)
+    model = build_model(settings, obs) if plan is None else plan.model(settings, obs)
     posterior = build_posterior(settings, obs, model)
     return settings, obs, model, posterior
 
@@ -132,18 +132,20 @@ def predict_run(
     return f"{folder.file('predictions.npz')}: {what}{many} to t = {t_end:g} (dt = {dt:g})"
 
 
-def report_run(run: str | Path) -> str:
+def report_run(run: str | Path, plan: Any = None) -> str:
     """Write ``report.md``: the summary, a per-parameter R-hat/ESS table, the sensitivity
     checks of the fit (:func:`run_diagnostics`), and the figures (traces, pairs, U(q) with its
     band, the data against the fit; see :mod:`symplid.workflow.run_figures`).
 
     Everything is computed before the folder is touched; a failed or interrupted report leaves
     a finished run finished. A run whose ``posterior.nc`` is missing gets a one-line warning
-    and a report without the posterior's table and figures.
+    and a report without the posterior's table and figures. ``plan``: the fit's
+    :class:`~symplid.workflow.plan.ModelPlan` (the report right after a fit reuses its U or
+    H); None builds the model from the run's settings.
     """
 
     folder = RunFolder(run, "r")
-    settings, obs, model, posterior = _load(folder)
+    settings, obs, model, posterior = _load(folder, plan)
     summary = folder.read_summary() if folder.file("summary.json").exists() else {}
     idata = None
     if folder.file(RunFolder.POSTERIOR).exists():

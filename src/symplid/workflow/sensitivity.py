@@ -67,7 +67,8 @@ coefficients, a user model's parameters, the damping rate), not the noise varian
 
 
 def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
-              compute_hessian: bool = True, search: Any = None) -> tuple[Any, Any]:
+              compute_hessian: bool = True, search: Any = None,
+              plan: Any = None) -> tuple[Any, Any]:
     """(MAP result in the data's units, posterior) of ``settings`` on ``obs``, one start.
 
     The fit runs in standardised coordinates when ``settings`` ask for them (as a fit does,
@@ -76,6 +77,8 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
     (the step-size check needs neither: one compilation and the quadrature saved).
     ``search(settings, posterior)``, given, replaces the one start (without ``init``): the
     fit's whole search (:func:`symplid.workflow.fit.find_map_for`) in the fit's coordinates.
+    ``plan``: the fit's :class:`~symplid.workflow.plan.ModelPlan`, whose U or H the refit
+    reuses (no second parse of a user's expression); None builds it from ``settings``.
     """
     scaling = scaling_for(settings, obs)
     fit_settings = settings if scaling is None else scaling.settings(settings)
@@ -83,7 +86,9 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
     if scaling is not None:
         scaled = [scaling.observations(o) for o in as_list(obs)]
         fit_obs = scaled if isinstance(obs, list) else scaled[0]
-    posterior = build_posterior(fit_settings, fit_obs, build_model(fit_settings, fit_obs))
+    model = (build_model(fit_settings, fit_obs) if plan is None
+             else plan.model(fit_settings, fit_obs))
+    posterior = build_posterior(fit_settings, fit_obs, model)
     groups = posterior.param_groups
     start = None
     if init is not None:
@@ -118,22 +123,23 @@ def _check(shifts: dict[str, float]) -> list[str]:
     return [n for n, z in shifts.items() if not abs(z) <= THRESHOLD_SD]
 
 
-def step_size_check(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
+def step_size_check(settings: Any, obs: Any, posterior: Any, map_result: Any,
+                    plan: Any = None) -> dict:
     """The MAP refitted at dt/2 (started from the fit's): ``dt``, ``dt_refit``, ``shifts``
     (coefficient → change in the fit's posterior sds) and ``flagged`` (above
     :data:`THRESHOLD_SD`). Arguments as :func:`sensitivity_checks`."""
     m = settings.model
     half = dataclasses.replace(settings, model=dataclasses.replace(m, dt=m.dt / 2))
     half_map, half_post = refit_map(half, obs, np.asarray(map_result.theta),
-                                    compute_hessian=False)
+                                    compute_hessian=False, plan=plan)
     _refit_found(half_map)
     shifts = _shifts(list(posterior.param_names), list(posterior.param_groups), map_result,
                      half_map, list(half_post.param_names))
     return {"dt": m.dt, "dt_refit": m.dt / 2, "shifts": shifts, "flagged": _check(shifts),
-            "advice": step_advice(settings, obs)}
+            "advice": step_advice(settings, obs, plan)}
 
 
-def step_advice(settings: Any, obs: Any) -> str:
+def step_advice(settings: Any, obs: Any, plan: Any = None) -> str:
     """What to do about a learning step that biases the fit: ``"use a smaller dt or NAME"``,
     NAME the first registered symplectic integrator of a higher order than the fit's that a
     model of these settings accepts (the model is built with it to find out), or ``"use a
@@ -147,14 +153,15 @@ def step_advice(settings: Any, obs: Any) -> str:
         other = dataclasses.replace(settings, model=dataclasses.replace(
             m, integrator=name, binding=binding))
         try:
-            build_model(other, obs)
+            build_model(other, obs) if plan is None else plan.model(other, obs)
         except ValueError:  # the model refuses this integrator
             continue
         return f"use a smaller dt or {name}"
     return "use a smaller dt"
 
 
-def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any) -> dict:
+def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any,
+                        plan: Any = None) -> dict:
     """The MAP with the other likelihood (without process noise for a fit with, with for a
     fit without): ``fitted``, ``refit`` (the ``model.process_noise_per`` of each), ``shifts``,
     ``flagged`` and the ``log_evidence`` of both. Arguments as :func:`sensitivity_checks`."""
@@ -167,7 +174,7 @@ def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any
     # without Σ: start from the fit's MAP less its process variance (the homotopy); with Σ:
     # the default start (a large process variance)
     init = None if deterministic else without_process_var(groups, map_result.theta)
-    alt_map, alt_post = refit_map(alt_settings, obs, init)
+    alt_map, alt_post = refit_map(alt_settings, obs, init, plan=plan)
     _refit_found(alt_map)
     shifts = _shifts(list(posterior.param_names), groups, map_result, alt_map,
                      list(alt_post.param_names))
@@ -193,18 +200,18 @@ def _unavailable(settings: Any, map_result: Any) -> str:
     return ""
 
 
-def _safely(check: Any, *args: Any) -> dict:
+def _safely(check: Any, *args: Any, **kwargs: Any) -> dict:
     """``check(*args)``, or ``{"not_available": reason}`` when it raises (an error, not a
     stop: :class:`~symplid.stopping.StopRequested` is a ``KeyboardInterrupt`` and passes)."""
     try:
-        return check(*args)
+        return check(*args, **kwargs)
     except Exception as err:  # a diagnostic never fails the fit it checks
         text = re.sub(r"\s*\([^()]{60,}\)", "", str(err))  # not a whole θ's list of values
         return {"not_available": f"{type(err).__name__}: {text}"}
 
 
 def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any,
-                       step_size: dict | None = None) -> dict:
+                       step_size: dict | None = None, plan: Any = None) -> dict:
     """The step-size and process-noise checks of a fit (module docstring).
 
     Parameters
@@ -219,6 +226,9 @@ def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any,
         The step-size check made already (``dt``, ``dt_refit``, ``shifts``: the last halving
         of ``model.dt = "auto"``, :func:`symplid.workflow.step_size.step_check`): used
         instead of a refit at dt/2.
+    plan
+        The fit's :class:`~symplid.workflow.plan.ModelPlan`: the refits reuse its U or H
+        (None: each refit builds its own).
 
     Returns
     -------
@@ -232,11 +242,12 @@ def sensitivity_checks(settings: Any, obs: Any, posterior: Any, map_result: Any,
     why = _unavailable(settings, map_result)
     args = (settings, obs, posterior, map_result)
     step = ({**step_size, "flagged": _check(step_size["shifts"])} if step_size is not None
-            else {"not_available": why} if why else _safely(step_size_check, *args))
+            else {"not_available": why} if why
+            else _safely(step_size_check, *args, plan=plan))
     return {"threshold_sd": THRESHOLD_SD,
             "step_size": step,
             "process_noise": ({"not_available": why} if why
-                              else _safely(process_noise_check, *args)),
+                              else _safely(process_noise_check, *args, plan=plan)),
             "seconds": time.perf_counter() - start}
 
 

@@ -135,8 +135,9 @@ import tomli_w
 from symplid.io.files import write_text
 from symplid.model.priors import PRIOR_FAMILIES, Prior
 from symplid.workflow.model_builder import family_prior, model_family, with_family_prior
+from symplid.workflow.plan import resolve_for_data
 from symplid.workflow.prior_tables import build_prior, upgrade_prior_keys, upgrade_prior_overrides
-from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP, resolve_for_data
+from symplid.workflow.settings_data import MAX_SUBSTEPS_PER_GAP
 from symplid.workflow.settings_schema import (
     PRIOR_SYNONYMS,
     RENAMED,

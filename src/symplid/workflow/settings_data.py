@@ -1,8 +1,9 @@
 """Settings against a data set: what the data decide (the observation kind) and what they must
 offer the model (two times, no empty column, gaps the integrator can cross).
 
-:func:`resolve_for_data` is what every fit runs before it builds a model; it is re-exported by
-:mod:`symplid.workflow.settings`.
+The checks of :func:`symplid.workflow.plan.resolve_for_data` (what every fit runs before it
+builds a model; re-exported by :mod:`symplid.workflow.settings`): :func:`check_layout` before
+the model's U or H is built, :func:`check_data` with it.
 """
 
 from __future__ import annotations
@@ -18,18 +19,13 @@ from symplid.io import observation_layout
 from symplid.model.data import DataError
 from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.auto import resolve_noise
-from symplid.workflow.model_builder import (
-    build_model_family,
-    check_model_family,
-    follow_model,
-    model_family,
-)
+from symplid.workflow.model_builder import model_family
 from symplid.workflow.scaling import resolve_standardise
 from symplid.workflow.settings_schema import Settings
 from symplid.workflow.validate import SettingsError
 
-__all__ = ["MAX_DATA_MAGNITUDE", "MAX_SUBSTEPS_PER_GAP", "available_memory", "resolve_for_data",
-           "run_memory"]
+__all__ = ["MAX_DATA_MAGNITUDE", "MAX_SUBSTEPS_PER_GAP", "available_memory", "check_data",
+           "check_layout", "run_memory"]
 
 #: The most integrator steps one gap between observations may take (⌈gap/dt⌉, eq. 14). The
 #: filter unrolls every gap into the same number of steps, so one huge gap (a time of 1e9 in a
@@ -41,24 +37,10 @@ MAX_SUBSTEPS_PER_GAP = 1_000_000
 MAX_DATA_MAGNITUDE = 1e100
 
 
-def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> Settings:
-    """Check the settings against a data set and fill what the data decide.
-
-    ``model.observation = "auto"`` becomes ``"full"`` or ``"positions"`` from the data's columns
-    (see :func:`symplid.io.observation_kind`), ``model.noise = "auto"`` becomes ``"per-kind"``
-    or ``"isotropic"`` (:func:`symplid.workflow.auto.resolve_noise`) and
-    ``model.standardise = "auto"`` becomes ``"on"`` or ``"off"``
-    (:func:`symplid.workflow.scaling.resolve_standardise`). Checks that the observation kind
-    matches the columns, that a known initial state has ``x0`` with 2d numbers, that ``t0`` is
-    before the first observation (or is ``"first"``; a ``t0`` equal to every trajectory's first
-    observation time becomes ``"first"``), that the data have two times or more and no
-    column without values, and that no gap needs more than :data:`MAX_SUBSTEPS_PER_GAP`
-    integrator steps. Warns (one line) when θ has more entries than there are data values,
-    and when a learned initial state whose prior is centred on the first observation sits
-    more than one data gap before it (``t0 = "first"`` puts it there). The result is what a
-    run folder records.
-    """
-    trajectories = list(obs) if isinstance(obs, list | tuple) else [obs]
+def check_layout(settings: Settings, trajectories: list[Any], source: str) -> str:
+    """The settings' observation kind and initial state against the data's columns; returns
+    the observation kind (``model.observation = "auto"`` resolved). The first checks of
+    :func:`~symplid.workflow.plan.resolve_for_data`."""
     layout = observation_layout(trajectories[0])
     d, K = layout.dim, len(trajectories)
     model = settings.model
@@ -88,13 +70,19 @@ def resolve_for_data(settings: Settings, obs: Any, source: str = "settings") -> 
         )
     if model.mass and len(model.mass) != d:
         raise SettingsError(source, "model.mass", f"has {len(model.mass)} numbers, expected {d}")
-    settings = follow_model(settings, d)
-    model = settings.model
-    check_model_family(settings, d, source)
+    return observation
+
+
+def check_data(settings: Settings, trajectories: list[Any], source: str, family: Any,
+               observation: str) -> Settings:
+    """The data against the model of ``settings`` (its U or H ``family``, built once), and
+    the settings the data decide; the last checks of
+    :func:`~symplid.workflow.plan.resolve_for_data` (see there)."""
     settings = _at_first_when_equal(settings, trajectories)
+    K, model = len(trajectories), settings.model
     for k, one in enumerate(trajectories):
         _check_data(one, settings, source if K == 1 else f"{source} (trajectory {k})")
-    _warn_few_values(trajectories, settings, source)
+    _warn_few_values(trajectories, settings, source, family)
     try:
         standardise = resolve_standardise(model, trajectories)
     except ValueError as err:
@@ -186,7 +174,8 @@ def _check_magnitude(obs: Any, times: np.ndarray, names: tuple[str, ...]) -> Non
             "(check the file, or change the units)")
 
 
-def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -> None:
+def _warn_few_values(trajectories: list[Any], settings: Settings, source: str,
+                     family: Any) -> None:
     """One line when θ has more entries than the data have values (all trajectories); a
     model the integrator cannot take (a non-separable H with leapfrog) is refused here."""
     model, init = settings.model, settings.initial_state
@@ -194,7 +183,7 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -
     layout = observation_layout(trajectories[0])
     d = layout.dim
     try:  # the model itself: its size, and whether the integrator can take its H
-        built = HamiltonianModel(build_model_family(d, model), model.integrator,
+        built = HamiltonianModel(family, model.integrator,
                                  observation=layout.kind,
                                  noise=resolve_noise(model.noise, layout.kind),
                                  observation_noise=model.observation_noise,

@@ -98,17 +98,19 @@ def smallest_gap(obs: Any, t0: float | str = "first") -> float:
 
 
 def map_at_step(settings: Any, obs: Any, dt: float, init: np.ndarray | None = None,
-                hessian: bool = False, search: Callable | None = None) -> tuple[Any, Any]:
+                hessian: bool = False, search: Callable | None = None,
+                plan: Any = None) -> tuple[Any, Any]:
     """(MAP in the data's units, posterior) of ``settings`` at learning step ``dt``: from
     ``init`` (θ in the data's units, one start: a warm start from the MAP at another step),
     or, without ``init``, by ``search(settings, posterior)`` (the fit's whole search). The
     Laplace covariance only with ``hessian`` (or from ``search``); a warm start's evidence is
-    Laplace's (the search reads the sds only: no quadrature)."""
+    Laplace's (the search reads the sds only: no quadrature). ``plan``: the fit's
+    :class:`~symplid.workflow.plan.ModelPlan`, whose U or H every refit reuses."""
     at = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=float(dt)))
     if init is not None:
         at = dataclasses.replace(at, map=dataclasses.replace(at.map, evidence="laplace"))
     return refit_map(at, obs, init, compute_hessian=hessian,
-                     search=search if init is None else None)
+                     search=search if init is None else None, plan=plan)
 
 
 def _sds(result: Any) -> np.ndarray:
@@ -152,12 +154,14 @@ class _Search:
     maps: dict[float, np.ndarray]
     candidates: list[tuple[float, float, bool]] = field(default_factory=list)
     refits: int = 0
+    plan: Any = None
 
     def theta_at(self, dt: float) -> np.ndarray:
         """The MAP at ``dt``, refitted from the MAP found at the nearest step if not known."""
         if dt not in self.maps:
             nearest = min(self.maps, key=lambda s: abs(math.log(s / dt)))
-            result, _ = map_at_step(self.settings, self.obs, dt, self.maps[nearest])
+            result, _ = map_at_step(self.settings, self.obs, dt, self.maps[nearest],
+                                    plan=self.plan)
             _found(result, dt)
             self.refits += 1
             self.maps[dt] = np.asarray(result.theta, dtype=float)
@@ -165,7 +169,8 @@ class _Search:
 
     def laplace_at(self, dt: float) -> None:
         """The Laplace sds at ``dt`` (one refit from its MAP, with the Hessian)."""
-        result, _ = map_at_step(self.settings, self.obs, dt, self.theta_at(dt), hessian=True)
+        result, _ = map_at_step(self.settings, self.obs, dt, self.theta_at(dt), hessian=True,
+                                plan=self.plan)
         _found(result, dt)
         self.refits += 1
         self.maps[dt] = np.asarray(result.theta, dtype=float)
@@ -189,7 +194,8 @@ def _found(result: Any, dt: float) -> None:
 
 
 def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
-                  status: Callable[[str], None] | None) -> tuple[float, Any, Any, int]:
+                  status: Callable[[str], None] | None,
+                  plan: Any = None) -> tuple[float, Any, Any, int]:
     """The fit's whole MAP search at the smallest gap, at half of it if it fails, ...: (dt,
     MAP in the data's units, posterior, tries). Raises the last failure's MapFailedError."""
     from symplid.inference.map import MapFailedError, failure_message
@@ -198,7 +204,7 @@ def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
     for tries in range(1, MAX_FIRST_TRIES + 1):
         if status is not None:
             status(f'model.dt = "auto": the MAP at dt = {dt:g} (the first candidate step)...')
-        result, posterior = map_at_step(settings, obs, dt, search=search)
+        result, posterior = map_at_step(settings, obs, dt, search=search, plan=plan)
         if not getattr(result, "failure", "") and result.covariance is not None:
             return dt, result, posterior, tries
         dt /= 2
@@ -206,7 +212,7 @@ def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
 
 
 def choose_step(settings: Any, obs: Any, search: Callable | None = None,
-                status: Callable[[str], None] | None = None) -> StepChoice:
+                status: Callable[[str], None] | None = None, plan: Any = None) -> StepChoice:
     """The learning step of ``model.dt = "auto"`` (module docstring) for resolved
     ``settings`` on ``obs`` (one :class:`~symplid.model.data.Observations` or a list).
 
@@ -221,6 +227,9 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
         (:func:`~symplid.workflow.fit.find_map_for`); None: one start at the default.
     status
         Receives one line before each phase.
+    plan
+        The fit's :class:`~symplid.workflow.plan.ModelPlan`: every refit reuses its U or H
+        (no second parse of a user's expression); None: each builds its own.
 
     Returns
     -------
@@ -239,9 +248,10 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     if model_family(settings.model).neural:
         return _unsearched(settings, gap, base, "a neural family's MAP is its whole Adam + "
                            "L-BFGS fit: the step is the data's smallest gap, unchecked")
-    dt, first, posterior, tries = _first_search(settings, obs, gap, search, status)
+    dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
-                    order, _sds(first), dt, {dt: np.asarray(first.theta, dtype=float)})
+                    order, _sds(first), dt, {dt: np.asarray(first.theta, dtype=float)},
+                    plan=plan)
     if status is not None:
         status(f'model.dt = "auto": halving the step until no parameter moves by more than '
                f"{THRESHOLD_SD:g} posterior sds...")
