@@ -119,6 +119,8 @@ def test_advice_speaks_the_interface_it_is_read_in():
     assert "[model.parameters] GM = {..., initial = ...}" in line
     assert "map.num_starts" in line and "find_map(" not in line and "init=" not in line
     assert "find_map(init=...)" in map_checks.failure_message("did not converge: x")
+    family = map_checks.failure_message("did not converge: x", "settings")  # no declared names
+    assert "model.dt" in family and "[model.parameters]" not in family
 
 
 def test_a_coefficient_on_its_zero_floor_is_a_failure():

@@ -135,9 +135,10 @@ def find_map_for(settings: Settings, posterior) -> Any:
 
 
 def _dynamic_names(posterior: Any) -> tuple[str, ...]:
-    """The names of the dynamic parameters (those a MAP start is declared for)."""
+    """The names of a user model's declared parameters (``[model.parameters]``: those a MAP
+    start can be declared for; a built-in family has none)."""
     return tuple(str(n) for n, g in zip(posterior.param_names, posterior.param_groups,
-                                        strict=True) if g in ("coefficients", "parameters"))
+                                        strict=True) if g == "parameters")
 
 
 def sample_for(

@@ -201,13 +201,15 @@ def failure_message(failure: str, advice: str = "python",
                     names: tuple[str, ...] = ()) -> str:
     """The one line a failed MAP is reported with, saying what to try: in the words of the
     Python call (``advice="python"``) or of the settings file and command line
-    (``advice="settings"``, where ``names`` are the dynamic parameters a start can be
-    declared for)."""
+    (``advice="settings"``, where ``names`` are a user model's declared parameters, which
+    a start can be declared for)."""
     if advice == "settings":
-        name = names[0] if names else "NAME"
-        what = ("more starts (map.num_starts), priors on the parameters' own scale, a smaller "
-                f"model.dt, or a start near the answer ([model.parameters] {name} = "
-                "{..., initial = ...})")
+        tries = ["more starts (map.num_starts)", "priors on the parameters' own scale",
+                 "a smaller model.dt"]
+        if names:
+            tries.append(f"a start near the answer ([model.parameters] {names[0]} = "
+                         "{..., initial = ...})")
+        what = ", ".join(tries[:-1]) + ", or " + tries[-1]
     else:
         what = ("more starts (num_starts=...), priors on the parameters' own scale, a smaller "
                 "dt, or a start near the answer (find_map(init=...))")
