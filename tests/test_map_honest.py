@@ -179,3 +179,45 @@ def test_data_start_of_the_clumped_orbit_reads_gm():
     found = data_start(post, default_start(post))
     assert found is not None
     assert found.theta[0] == pytest.approx(GM, rel=0.1)
+
+
+# ----------------------------------------------------------------------------- declared starts
+class _Started(Exception):
+    """Raised by a spy in place of a MAP search: what it was started from is all we need."""
+
+
+def test_a_declared_start_reaches_the_filter_map_without_process_noise(monkeypatch):
+    """model.process_noise_per = "none": the filter's MAP (whose end starts the deterministic
+    search) starts at the declared GM, and so would the deterministic search itself."""
+    from symplid.inference.map import _homotopy
+    from symplid.workflow import fit as fit_module
+    from symplid.workflow.settings import settings_from_dict
+
+    seen = []
+
+    def spy(posterior, **kwargs):
+        seen.append(kwargs.get("init"))
+        raise _Started
+
+    monkeypatch.setattr(_homotopy, "find_map", spy)
+    settings = settings_from_dict({"model": {
+        "potential": "-GM/sqrt(q1^2 + q2^2 + q3^2)", "process_noise_per": "none", "dt": 2.0,
+        "parameters": {"GM": {"prior": "half-normal", "scale": 1e-3, "initial": 6.7e-4}}},
+        "initial_state": {"mode": "learned"}})
+    with pytest.raises(_Started):
+        fit_module.find_map_for(settings, orbit_posterior(deterministic=True))
+    assert seen == [{"GM": 6.7e-4}]
+
+
+@pytest.mark.slow
+def test_a_partial_declared_start_takes_the_rest_from_the_data():
+    """init={"GM": ...}: the learned x0 of the first start is the data start's (on the
+    smoothed path), not the prior's centre."""
+    post = orbit_posterior()
+    found = data_start(post, default_start(post))
+    result = symplid.find_map(post, num_starts=1, init={"GM": 2.9e-4}, maxiter=2,
+                              compute_hessian=False, warn=False)
+    first = result.starts[0].start
+    assert first[0] == 2.9e-4
+    x0 = post.initial_state_slice(0)
+    np.testing.assert_allclose(first[x0], found.theta[x0])
