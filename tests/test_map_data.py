@@ -242,5 +242,6 @@ def test_fit_stops_before_sampling_when_the_map_fails(tmp_path: Path, monkeypatc
     assert err.count("\n") == 0, err
     assert err.startswith("symplid: error: the MAP search failed")
     assert "Try more starts" in err
+    assert "map.num_starts" in err and "find_map(" not in err  # settings terms, no Python
     assert not (out / "posterior.nc").exists() and not (out / "summary.json").exists()
     assert "failed" in (out / ".incomplete").read_text()

@@ -319,7 +319,8 @@ def _start_without_noise(posterior: Any, fitted: np.ndarray | None, s: Settings)
         return None
     if fitted is not None and np.all(np.isfinite(fitted)):
         return fitted
-    return filter_start(posterior, seed=s.map.seed, num_starts=s.map.num_starts)
+    return filter_start(posterior, seed=s.map.seed, num_starts=s.map.num_starts,
+                        init=map_start(s))
 
 
 def _dampings(values: Sequence[bool]) -> list[bool]:

@@ -121,10 +121,12 @@ def find_map_for(settings: Settings, posterior, start: np.ndarray | None = None)
     if not model_family(settings.model).neural:
         # without process noise: start from the filter's MAP (symplid.inference.map._homotopy);
         # otherwise from a user model's declared starts, if any
-        init = None if start is not None else filter_start(posterior, seed=m.seed,
-                                                            num_starts=m.num_starts)
+        declared = map_start(settings)  # every likelihood's search starts from it
+        init = None if start is not None else filter_start(
+            posterior, seed=m.seed, num_starts=m.num_starts, init=declared)
         if init is None and start is None:  # a log-uniform Σ: from the half-normal MAP
-            init = half_normal_start(posterior, seed=m.seed, num_starts=m.num_starts)
+            init = half_normal_start(posterior, seed=m.seed, num_starts=m.num_starts,
+                                     init=declared)
         num_starts = m.num_starts if start is None else 1
         # a failed search is raised by the caller in one line: its warnings would only repeat
         with warnings.catch_warnings(record=True) as caught:
@@ -132,7 +134,7 @@ def find_map_for(settings: Settings, posterior, start: np.ndarray | None = None)
             result = find_map(posterior, seed=m.seed, num_starts=num_starts,
                               evidence=m.evidence,
                               init=start if start is not None else
-                              map_start(settings) if init is None else init)
+                              declared if init is None else init)
         for w in caught if not result.failure else ():
             if not issubclass(w.category, MapConvergenceWarning):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -147,6 +149,13 @@ def find_map_for(settings: Settings, posterior, start: np.ndarray | None = None)
         lbfgs_steps=m.lbfgs_steps, polish="scipy", laplace="ggn" if ggn else "hessian",
     )
     return result.to_map_result(time.perf_counter() - start, m.seed)
+
+
+def _dynamic_names(posterior: Any) -> tuple[str, ...]:
+    """The names of a user model's declared parameters (``[model.parameters]``: those a MAP
+    start can be declared for; a built-in family has none)."""
+    return tuple(str(n) for n, g in zip(posterior.param_names, posterior.param_groups,
+                                        strict=True) if g == "parameters")
 
 
 def sample_for(
@@ -302,7 +311,8 @@ def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
     map_fit = find_map_for(settings, posterior, _warm_start(step, scaling, posterior))
     check_stop()  # a safe point between the phases (symplid.stopping)
     if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map._checks)
-        raise MapFailedError(failure_message(map_fit.failure))
+        raise MapFailedError(failure_message(map_fit.failure, "settings",
+                                             _dynamic_names(posterior)))
     groups = posterior.param_groups
     map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
     timings["map_s"] = time.perf_counter() - start

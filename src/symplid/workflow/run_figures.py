@@ -103,8 +103,9 @@ def trajectory_paths(settings: Any, model: Any, posterior: Any, theta_map: np.nd
                      num_paths: int) -> tuple[np.ndarray, np.ndarray, Any]:
     """Trajectory k's MAP path and, with draws, its posterior band from ``t0`` to ``t_end``.
 
-    The paths start from the known initial state or, when it was learned, from the MAP's
-    (MAP path) and the posterior mean's (band)."""
+    The paths start from the known initial state or, when it was learned, the MAP path from
+    the MAP's and each path of the band from its own draw's: the band carries the posterior
+    of x0 with that of the dynamics (and is not pinched to a point at t0)."""
     p = settings.prediction
     nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
     every = max(1, round((t_end - t0) / dt / 2000))
@@ -113,7 +114,7 @@ def trajectory_paths(settings: Any, model: Any, posterior: Any, theta_map: np.nd
                                      integrator=p.integrator, t0=t0, every=every)
     band = None
     if flat is not None and num_paths > 0:
-        x0 = (np.asarray(posterior.initial_state(flat.mean(axis=0), k))
+        x0 = (np.asarray(posterior.initial_state(flat, k))
               if posterior.learn_initial_state else x0_map)
         band = posterior_predictive(model, flat[:, :nc], x0, t_end, dt=dt,
                                     integrator=p.integrator, num_paths=num_paths,

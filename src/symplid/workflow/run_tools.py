@@ -91,13 +91,13 @@ def predict_run(
 ) -> str:
     """MAP path and posterior predictive band to ``t_end``; writes predictions.npz and a figure.
 
-    The paths start from the known initial state or, when it was learned, from the MAP's
-    (MAP path) and the posterior mean's (band). ``t_end``, ``dt`` and ``num_paths`` default to
-    the run's ``[prediction]`` settings. Several trajectories are predicted each from its own
-    initial state: the arrays of trajectory k carry the suffix ``_k`` and its figure is
-    ``predictive_k``. Every argument is checked and every path computed before the folder is
-    touched, and the files are replaced atomically: a failed or interrupted prediction leaves
-    a finished run finished. Returns a one-line description.
+    The paths start from the known initial state or, when it was learned, the MAP path from
+    the MAP's and each path of the band from its own draw's. ``t_end``, ``dt`` and
+    ``num_paths`` default to the run's ``[prediction]`` settings. Several trajectories are
+    predicted each from its own initial state: the arrays of trajectory k carry the suffix
+    ``_k`` and its figure is ``predictive_k``. Every argument is checked and every path
+    computed before the folder is touched, and the files are replaced atomically: a failed
+    or interrupted prediction leaves a finished run finished. Returns a one-line description.
     """
 
     folder = RunFolder(run, "r")

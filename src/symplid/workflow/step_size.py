@@ -190,7 +190,7 @@ def _found(result: Any, dt: float) -> None:
         from symplid.inference.map import MapFailedError, failure_message
 
         raise MapFailedError(f'model.dt = "auto": at dt = {dt:g}, '
-                             f"{failure_message(result.failure)}")
+                             f"{failure_message(result.failure, 'settings')}")
 
 
 def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
@@ -208,7 +208,8 @@ def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
         if not getattr(result, "failure", "") and result.covariance is not None:
             return dt, result, posterior, tries
         dt /= 2
-    raise MapFailedError(failure_message(result.failure or "has no Laplace covariance"))
+    raise MapFailedError(failure_message(result.failure or "has no Laplace covariance",
+                                         "settings"))
 
 
 def choose_step(settings: Any, obs: Any, search: Callable | None = None,

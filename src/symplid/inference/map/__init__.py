@@ -15,6 +15,7 @@ module             job
 ``_search``        one L-BFGS-B run and its convergence test
 ``_starts``        starting points and distinct optima
 ``_data_start``    the data start: dynamics and momenta from the data
+``_noise``         the observation noise the data show without a model
 ``_checks``        is the point found a MAP worth reporting (:class:`MapFailedError`)
 ``_result``        :class:`MapResult`, :class:`StartResult` and the MAP's warnings
 ``_homotopy``      MAP starts through the process noise's prior and likelihood

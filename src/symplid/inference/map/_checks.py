@@ -15,10 +15,20 @@ when any of these holds at the best start's end point:
    positive definite (a saddle, a flat direction, non-finite entries).
 4. **Residuals contradict the noise**: the MAP's observation-noise variance is more than
    :data:`NOISE_RATIO_LIMIT` times the variance that the data show without any model
-   (:func:`~symplid.inference.map._data_start.difference_variance`: differences of the
-   measured series remove any smooth signal and keep the noise). A MAP that calls the
-   motion itself noise (an orbit fitted as "no force, noise of the orbit's size") has
-   explained nothing, whatever its log posterior.
+   (:func:`~symplid.inference.map._noise.noise_variance`: differences of the measured
+   series, or a smoothing spline's errors in predicting each point from the others, remove
+   a smooth signal and keep the noise, the spline also on a few points of a curved path).
+   A MAP that calls the motion itself noise (an orbit fitted as "no force, noise of the
+   orbit's size") has explained nothing, whatever its log posterior.
+
+5. **Dynamics removed**: a dynamic coefficient sits on a bound at zero (a positive
+   parameter such as GM on its floor, 1e-14): the force it scales is switched off, and
+   whatever the fit explains it explains by noise (an orbit followed by process noise alone,
+   or fitted as a straight line through it). Never a MAP worth sampling from.
+
+The reason given is never empty: L-BFGS-B's stop message is put in words
+(:func:`stop_meaning`), and where the optimiser stopped by its own test but the Newton
+decrement says the point is no maximum, the reason says both in one sentence.
 
 In cases 1–3 the point is not an optimum and no evidence is computed there: the log evidence
 (Laplace or quadrature) is NaN, never a number that looks meaningful. In case 4 the point is
@@ -32,7 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from symplid.inference.map._data_start import difference_variance
+from symplid.inference.map._data_start import COEFFICIENT_GROUPS
+from symplid.inference.map._noise import noise_variance
 from symplid.inference.map._result import StartResult
 from symplid.inference.map._space import SearchSpace
 from symplid.inference.map._starts import OPTIMUM_LOG_POSTERIOR_TOL
@@ -42,16 +53,20 @@ NOISE_RATIO_LIMIT = 25.0
 standard deviation five times larger)."""
 NOT_AN_OPTIMUM = ("did not converge", "did not move", "is not a maximum")
 """Failure reasons (their opening words) of a point where no evidence is computed."""
+DYNAMICS_REMOVED = "puts the dynamic parameter"
+"""Opening words of case 5's reason."""
 
 
 def model_free_noise(posterior: Any) -> np.ndarray | None:
-    """Each observed component's noise variance by difference estimators, averaged over
-    the trajectories (None when there are no data or none can be estimated)."""
+    """Each observed component's noise variance without a model
+    (:func:`~symplid.inference.map._noise.noise_variance`), averaged over the trajectories
+    (None when there are no data or none can be estimated)."""
     datasets = getattr(posterior, "datasets", None)
     if not datasets:
         return None
     with np.errstate(all="ignore"):
-        rows = [[difference_variance(np.where(o.mask[:, j], o.values[:, j], np.nan))
+        rows = [[noise_variance(np.asarray(o.times, dtype=float),
+                                np.where(o.mask[:, j], o.values[:, j], np.nan))
                  for j in range(o.dim)] for o in datasets]
         noise = np.nanmean(np.asarray(rows, dtype=float), axis=0)
     return noise if np.any(np.isfinite(noise) & (noise > 0)) else None
@@ -96,18 +111,80 @@ def noise_contradiction(groups: tuple[str, ...], theta: np.ndarray,
 
 def judge(best: StartResult, results: tuple[StartResult, ...], hessian: np.ndarray | None,
           space: SearchSpace, groups: tuple[str, ...], noise: np.ndarray | None,
-          given_start: bool = False) -> str:
+          given_start: bool = False, names: tuple[str, ...] = ()) -> str:
     """Why the best point is not a MAP to report ("" when it is); module docstring."""
     if not best.success and not any(
             r.success and best.log_posterior - r.log_posterior <= OPTIMUM_LOG_POSTERIOR_TOL
             for r in results):
-        return f"did not converge (best start: {best.message})"
+        return f"did not converge: {not_converged_reason(best)}"
     if not moved(best, space) and not (given_start and best is results[0]):
         return "did not move from its start"
     free = np.flatnonzero(~space.at_bounds(space.to_u(best.theta)))
     if not positive_definite(hessian, free):
         return "is not a maximum: the Hessian there is not positive definite"
-    return noise_contradiction(groups, best.theta, noise)
+    return (noise_contradiction(groups, best.theta, noise)
+            or dynamics_removed(best.theta, space, groups, names))
+
+
+def dynamics_removed(theta: np.ndarray, space: SearchSpace, groups: tuple[str, ...],
+                     names: tuple[str, ...] = ()) -> str:
+    """Case 5 of the module docstring: a dynamic coefficient held on a bound at zero (its
+    term, and with it the force it scales, switched off); "" when none is."""
+    u = space.to_u(np.asarray(theta, dtype=float))
+    hits = space.at_bounds(u)
+    for i, group in enumerate(groups):
+        if group not in COEFFICIENT_GROUPS or not hits[i] or not space.on_lower_side(u, i):
+            continue
+        if space.lower[i] != 0.0:
+            continue
+        name = names[i] if i < len(names) else f"parameter {i}"
+        return (f"{DYNAMICS_REMOVED} {name} on its bound ({theta[i]:.3g}): the term "
+                "it scales is switched off and the motion is left to the noise")
+    return ""
+
+
+# L-BFGS-B's stop messages (SciPy's wording varies between versions, and its "ABNORMAL"
+# stop may come with no text at all): what each means, by the words it opens with.
+STOP_MEANINGS = (
+    ("CONVERGENCE: NORM", "the optimiser stopped because its projected gradient was below gtol"),
+    ("CONVERGENCE: REL", "the optimiser stopped because −log π no longer decreased by more "
+     "than its relative tolerance"),
+    ("ABNORMAL", "the optimiser's line search could not lower −log π along its direction "
+     "(a rough, flat or non-finite log posterior there)"),
+    ("STOP: TOTAL NO. OF ITERATIONS", "the optimiser reached its iteration limit"),
+    ("STOP: TOTAL NO. OF F", "the optimiser reached its limit of evaluations"),
+    ("STOP", "the optimiser was stopped by one of its limits"),
+)
+
+
+def stop_meaning(message: str) -> str:
+    """What an L-BFGS-B stop message means, in words (never empty)."""
+    text = " ".join(str(message).upper().replace("_", " ").split())
+    for opening, meaning in STOP_MEANINGS:
+        if text.startswith(opening.replace("_", " ")):
+            return meaning
+    words = str(message).strip()
+    return f"the optimiser stopped ({words})" if words else "the optimiser stopped without a reason"
+
+
+def not_converged_reason(best: StartResult) -> str:
+    """One reason for a start that did not pass the convergence test: how the optimiser
+    stopped and, when that was by its own test, why symplid's test still says no."""
+    meaning = stop_meaning(best.message)
+    if not math.isfinite(best.log_posterior):
+        return f"{meaning}, at a point where the log posterior is not finite"
+    decrement = best.newton_decrement
+    if math.isfinite(decrement):
+        return (f"{meaning}, but a Newton step from there would still raise log π by "
+                f"{decrement:.3g} (a maximum needs < 0.001)")
+    if math.isnan(decrement) and math.isfinite(best.projected_gradient):
+        return f"{meaning}, with a gradient of {best.projected_gradient:.3g} left there"
+    return f"{meaning}, where the Hessian is not finite"
+
+
+def removes_dynamics(failure: str) -> bool:
+    """Whether a failure reason is case 5 (:func:`dynamics_removed`)."""
+    return failure.startswith(DYNAMICS_REMOVED)
 
 
 def is_optimum(failure: str) -> bool:
@@ -120,21 +197,37 @@ class MapFailedError(ValueError):
     ``ValueError``, so that the command line reports it in one line with exit code 2."""
 
 
-def failure_message(failure: str) -> str:
-    """The one line a failed MAP is reported with, saying what to try."""
-    return (f"the MAP search failed: the best point {failure}. Try more starts "
-            "(map.num_starts), priors on the parameters' own scale, a smaller dt, or a "
-            "start near the answer (find_map(init=...))")
+def failure_message(failure: str, advice: str = "python",
+                    names: tuple[str, ...] = ()) -> str:
+    """The one line a failed MAP is reported with, saying what to try: in the words of the
+    Python call (``advice="python"``) or of the settings file and command line
+    (``advice="settings"``, where ``names`` are a user model's declared parameters, which
+    a start can be declared for)."""
+    if advice == "settings":
+        tries = ["more starts (map.num_starts)", "priors on the parameters' own scale",
+                 "a smaller model.dt"]
+        if names:
+            tries.append(f"a start near the answer ([model.parameters] {names[0]} = "
+                         "{..., initial = ...})")
+        what = ", ".join(tries[:-1]) + ", or " + tries[-1]
+    else:
+        what = ("more starts (num_starts=...), priors on the parameters' own scale, a smaller "
+                "dt, or a start near the answer (find_map(init=...))")
+    return f"the MAP search failed: the best point {failure}. Try {what}"
 
 
 __all__ = [
     "NOISE_RATIO_LIMIT",
     "MapFailedError",
+    "dynamics_removed",
     "failure_message",
     "is_optimum",
     "judge",
     "model_free_noise",
     "moved",
     "noise_contradiction",
+    "not_converged_reason",
     "positive_definite",
+    "removes_dynamics",
+    "stop_meaning",
 ]

@@ -5,9 +5,10 @@ can come from the prior alone: a default prior such as Laplace(0, 10) knows noth
 units, and a gravitational parameter is 3e-4 in AU³/day² but 39.5 in AU³/yr². This module
 reads both from the data, in three cheap steps that use no filter:
 
-1. **Smoothed path.** Each measured component's noise variance is estimated without a model,
-   by difference estimators (:func:`difference_variance`: mean((Δᵏy)²)/C(2k, k), the
-   smallest over k = 2, 3, 4). Each measured position component of each trajectory is then
+1. **Smoothed path.** Each measured component's noise variance is estimated without a model
+   (:func:`~symplid.inference.map._noise.noise_variance`: the smaller of difference estimators
+   and a cross-validated smoothing spline, which also follows a few clumped points along a
+   curved path). Each measured position component of each trajectory is then
    fitted by a cubic smoothing spline (:func:`scipy.interpolate.make_smoothing_spline`) whose
    roughness penalty is set so that its mean squared residual equals that variance (the
    discrepancy principle; cross-validation interpolates a coarsely sampled orbit). The
@@ -57,12 +58,16 @@ import numpy as np
 import scipy.optimize
 from scipy.interpolate import make_smoothing_spline
 
+from symplid.inference.map._noise import difference_variance, noise_variance
+
 Array = jax.Array
 MIN_POINTS = 5
 """Fewest observations of a trajectory the smoothing spline is fitted to."""
 MAX_NODES = 300
 """Most collocation nodes over all trajectories (a longer record is thinned evenly)."""
-DYNAMIC_GROUPS = ("coefficients", "damping")
+COEFFICIENT_GROUPS = ("coefficients", "parameters")
+"""Groups of the dynamics' coefficients: a built-in family's, a user model's declared ones."""
+DYNAMIC_GROUPS = (*COEFFICIENT_GROUPS, "damping")
 
 
 @dataclass(frozen=True)
@@ -78,7 +83,7 @@ class DataStart:
         which are perturbed by a factor).
     noise_var
         Model-free observation-noise variance per observed component (mean over the
-        trajectories), by :func:`difference_variance`.
+        trajectories), by :func:`~symplid.inference.map._noise.noise_variance`.
     data_var
         Variance of the data over time, averaged over the components.
     """
@@ -114,16 +119,6 @@ def position_rows(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
     return (rows, factors) if np.all(rows[: n // 2] >= 0) else None
 
 
-def difference_variance(y: np.ndarray) -> float:
-    """A model-free noise variance of a sampled smooth signal: the smallest of the
-    difference estimators mean((Δᵏy)²) / C(2k, k), k = 2, 3, 4 (each is unbiased for white
-    noise and biased upward by the signal, so the smallest is the least contaminated)."""
-    y = y[np.isfinite(y)]
-    values = [float(np.mean(np.diff(y, k) ** 2)) / math.comb(2 * k, k)
-              for k in (2, 3, 4) if y.size > k + 1]
-    return min(values) if values else math.nan
-
-
 def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     """A smoothing spline of y(t) over the finite values whose mean squared residual matches
     the difference estimate of the noise (the discrepancy principle), and that variance."""
@@ -131,7 +126,7 @@ def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     if ok.sum() < MIN_POINTS:
         return None
     t, y = t[ok], y[ok]
-    target = difference_variance(y)
+    target = noise_variance(t, y)
     if not (math.isfinite(target) and target > 0):
         return None
     span = float(t[-1] - t[0])
@@ -175,7 +170,7 @@ def _smooth(posterior: Any, rows: np.ndarray, factors: np.ndarray):
         for i in range(d):
             if rows[d + i] >= 0:
                 p_obs[:, i] = values[:, rows[d + i]] / factors[d + i]
-                var[rows[d + i]] = difference_variance(p_obs[:, i]) * factors[d + i] ** 2
+                var[rows[d + i]] = noise_variance(t, p_obs[:, i]) * factors[d + i] ** 2
         t0 = getattr(posterior, "t0", [None] * len(posterior.datasets))[k]
         keep = _nodes(t.size, max(MIN_POINTS, MAX_NODES // len(posterior.datasets)))
         paths.append(_Smoothed(t[keep], q[keep], qdot[keep], p_obs[keep],
@@ -350,4 +345,5 @@ def _set_initial_states(posterior: Any, theta: np.ndarray, scale: np.ndarray,
         scale[sl] = np.concatenate([np.full(q0.size, sd_q), np.full(p0.size, sd_p)])
 
 
-__all__ = ["MIN_POINTS", "DataStart", "data_start", "difference_variance", "position_rows"]
+__all__ = ["COEFFICIENT_GROUPS", "DYNAMIC_GROUPS", "MIN_POINTS", "DataStart", "data_start",
+           "difference_variance", "position_rows"]

@@ -64,7 +64,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import jax
@@ -167,8 +167,8 @@ def find_map(
         Number of L-BFGS-B runs; the first starts at ``init``, else at the data start (else
         the default start); see "Starting points" in the module docstring.
     init
-        First start: an array, a ``{name: value}`` mapping (the others at the default start)
-        or a previous :class:`MapResult`. The further starts perturb it.
+        First start: an array, a ``{name: value}`` mapping (the others at the data start, else
+        the default start) or a previous :class:`MapResult`. The further starts perturb it.
     start_spread
         Perturbation of the further starts, as a fraction of each prior's standard
         deviation, where no data start sets each parameter's own scale.
@@ -221,7 +221,7 @@ def find_map(
         hessians[k_best] = np.asarray(fns["hessian"](jnp.asarray(best.theta)), dtype=float)
     failure = judge(best, tuple(results), hessians[k_best], space,
                     tuple(parameter_space.groups), model_free_noise(posterior),
-                    given_start=init is not None)
+                    given_start=init is not None, names=names)
     laplace: tuple[Any, Any, bool, float] = (None, None, False, math.nan)
     if compute_hessian:
         bound_idx = [names.index(n) for n in at_bounds]
@@ -293,11 +293,12 @@ def _starts(
     """Start 0 (``init``, the data start or the default start), then ``num_starts − 1`` more
     ("Starting points" in the module docstring)."""
     default = default_start(posterior)
-    found = data_start(posterior, default) if init is None else None
+    partial = isinstance(init, Mapping)  # declared starts of some parameters: the rest read
+    found = data_start(posterior, default) if init is None or partial else None
     if found is not None and not objective.is_finite(found.theta):
         found = None
     if init is not None:
-        first = as_theta(init, posterior, default)
+        first = as_theta(init, posterior, default if found is None else found.theta)
     else:
         first = default if found is None else found.theta
     if not objective.is_finite(first):

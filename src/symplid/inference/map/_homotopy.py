@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from symplid.inference.map._checks import removes_dynamics
 from symplid.inference.map._find import find_map
 from symplid.model.priors import HalfNormal, LogUniform
 
@@ -41,12 +42,15 @@ def without_process_var(groups: Any, theta: Any) -> np.ndarray:
     return np.asarray(theta, dtype=float)[keep]
 
 
-def filter_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.ndarray | None:
+def filter_start(posterior: Any, seed: int = 0, num_starts: int = 4,
+                 init: Any = None) -> np.ndarray | None:
     """The first MAP start of a posterior without process noise: the MAP of the same
     posterior with process noise, its process variance(s) left out (module docstring).
 
-    Returns None when the posterior's model has process noise (nothing to do) or when the
-    filter's MAP is not finite.
+    Returns None when the posterior's model has process noise (nothing to do), when the
+    filter's MAP is not finite, or when it switched the dynamics off (a coefficient on its
+    zero bound, :func:`~symplid.inference.map._checks.dynamics_removed`: a start that
+    would only lead the deterministic search astray).
 
     Parameters
     ----------
@@ -55,16 +59,22 @@ def filter_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.ndarr
         :class:`~symplid.model.statespace.HamiltonianModel`).
     seed, num_starts
         The filter's MAP search (:func:`~symplid.inference.map.find_map`).
+    init
+        Its first start (a declared ``{name: value}`` start is the same for both posteriors).
     """
     if not getattr(posterior.model, "deterministic", False):
         return None
     twin = with_process_noise(posterior)
-    result = find_map(twin, seed=seed, num_starts=num_starts, compute_hessian=False, warn=False)
+    result = find_map(twin, seed=seed, num_starts=num_starts, init=init, compute_hessian=False,
+                      warn=False)
+    if removes_dynamics(result.failure):
+        return None
     start = without_process_var(twin.param_groups, result.theta)
     return start if np.all(np.isfinite(start)) else None
 
 
-def half_normal_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.ndarray | None:
+def half_normal_start(posterior: Any, seed: int = 0, num_starts: int = 4,
+                      init: Any = None) -> np.ndarray | None:
     """The first MAP start of a posterior whose process variance has a log-uniform prior:
     the MAP under the paper's HalfNormal(1) on Σ, Σ moved into the log-uniform's support.
 
@@ -77,7 +87,7 @@ def half_normal_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.
     the right basin (the same homotopy as :func:`filter_start`).
 
     Returns None when no process variance has a log-uniform prior, or when that MAP is not
-    finite.
+    finite. ``init``: its first start, as in :func:`filter_start`.
     """
     groups = list(getattr(posterior, "param_groups", ()))
     index = [i for i, g in enumerate(groups) if g == "process_var"]
@@ -87,7 +97,8 @@ def half_normal_start(posterior: Any, seed: int = 0, num_starts: int = 4) -> np.
     overrides = {k: v for k, v in posterior.prior.overrides.items() if k not in names}
     prior = dataclasses.replace(posterior.prior, process_var=HalfNormal(1.0), overrides=overrides)
     twin = posterior.with_prior(prior)
-    result = find_map(twin, seed=seed, num_starts=num_starts, compute_hessian=False, warn=False)
+    result = find_map(twin, seed=seed, num_starts=num_starts, init=init, compute_hessian=False,
+                      warn=False)
     start = np.asarray(result.theta, dtype=float).copy()
     for i in index:
         low, high = posterior.priors[i].support
