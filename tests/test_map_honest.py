@@ -224,7 +224,7 @@ def test_a_partial_declared_start_takes_the_rest_from_the_data():
 
 
 # ----------------------------------------------------------------------------- from defaults
-@pytest.mark.slow
+@pytest.mark.long
 def test_clumped_orbit_map_converges_from_defaults():
     """The command line's path (settings → model → MAP) on the clumped, long-gapped orbit,
     positions only, x0 learned, dt 2 days: converged, GM within 3 Laplace sds of the truth
