@@ -37,6 +37,8 @@ import numpy as np
 from jax import lax
 
 from symplid.compiled import cached_or_built
+from symplid.inference.samplers.budget import BudgetMonitor
+from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.restart import (
     BurnInMonitor,
     restart_threshold,
@@ -112,6 +114,9 @@ class ChainRun(NamedTuple):
     restarted_chains
         The chains restarted at the end of the burn-in
         (:meth:`~.restart.BurnInMonitor.records`); empty when none were.
+    budget
+        For a run with targets (``until``), what ended it and the statistics reached
+        (:meth:`~.budget.BudgetMonitor.record`); None for a fixed budget.
     """
 
     draws: dict[str, np.ndarray]
@@ -121,6 +126,7 @@ class ChainRun(NamedTuple):
     elapsed: float
     monitor: dict[str, np.ndarray] | None = None
     restarted_chains: tuple[dict[str, Any], ...] = ()
+    budget: dict[str, Any] | None = None
 
 
 class DataStep:
@@ -229,17 +235,11 @@ def run_chains(
     record: RecordFn,
     burn_in: int = 0,
     thin: int = 1,
-    chunk_size: int = 5000,
-    chain_method: str = "vectorized",
-    progress: bool = True,
-    desc: str = "sampling",
-    position: int | None = None,
-    callback: Callable[[ChunkReport], None] | None = None,
-    num_samples: int | None = None,
+    options: RunOptions | None = None,
+    until: Targets | None = None,
     start: int = 0,
-    sink: ChunkSink | None = None,
-    restart_stuck_chains: bool = False,
     monitor: dict[str, np.ndarray] | None = None,
+    earlier: np.ndarray | None = None,
 ) -> ChainRun:
     """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
 
@@ -252,73 +252,70 @@ def run_chains(
     rng_key
         Root key; split once into one key per chain.
     num_draws
-        Draws to keep per chain after burn-in and thinning (``num_samples``: its deprecated
-        old name).
+        Draws to keep per chain after burn-in and thinning (with ``until``: at most).
     record
         ``record(state, info) -> dict`` of arrays kept at each kept iteration.
     burn_in
-        Iterations run first and discarded.
+        Iterations run first and discarded (with ``until``: the first burn-in).
     thin
         Keep one iteration in ``thin`` after burn-in; ``num_draws·thin`` iterations run.
-    chunk_size
-        Iterations per compiled chunk (the progress bar moves once per chunk).
-    chain_method
-        ``"vectorized"`` (``vmap``: all chains in lockstep; data-dependent branches such as
-        DRAM's second stage run for every chain whenever one needs them) or
-        ``"sequential"`` (the compiled one-chain chunk called for each chain in turn;
-        branches really skipped, one compilation for all chains). Irrelevant for one chain,
-        which always runs unbatched.
-    progress, desc, position
-        Show a tqdm progress bar; its label and line.
-    callback
-        Called with a :class:`ChunkReport` after each chunk; it may raise
-        ``KeyboardInterrupt`` to stop the run (used in tests to simulate Ctrl-C).
-    start
+    options
+        The runner's :class:`~.options.RunOptions`: ``chunk_size`` (iterations per compiled
+        chunk), ``chain_method`` (``"vectorized"``: ``vmap``, all chains in lockstep;
+        ``"sequential"``: the compiled one-chain chunk called for each chain in turn, branches
+        really skipped; None: vectorized), ``progress``/``progress_label``/
+        ``progress_position`` (a tqdm bar), ``sink`` (:data:`ChunkSink`, called after each
+        chunk before ``callback``), ``callback`` (a :class:`ChunkReport` after each chunk;
+        it may raise ``KeyboardInterrupt`` to stop the run) and ``restart_stuck_chains``
+        (at the end of the burn-in, restart every chain whose log density, ``record``'s
+        ``"lp"``, stays far below the best chain's: :mod:`~.restart`). None: the defaults
+        without the restart.
+    until
+        Stop as soon as the draws meet these targets (:mod:`~.budget`), checked between
+        chunks; ``burn_in + num_draws·thin`` is then the cap on the iterations.
+    start, monitor
         Iterations already done: ``states`` are the chains after them (the ``states`` of an
-        interrupted :class:`ChainRun`), and the run continues with iteration ``start + 1``.
-        Keys, burn-in, thinning and chunks follow the whole run's grid, so an interrupted run
-        continued this way gives the draws of the uninterrupted run (those after ``start``).
-    sink
-        Called after each chunk with its draws and the states (:data:`ChunkSink`), before
-        ``callback``; e.g. to write them to disk as the run goes.
-    restart_stuck_chains, monitor
-        At the end of the burn-in, restart every chain whose log density (``record``'s
-        ``"lp"``) stays far below the best chain's from a good chain's state
-        (:mod:`~symplid.inference.samplers.restart`; the chunk in which the burn-in ends runs
-        as two calls around the decision, one chunk from outside). ``monitor``: the
-        interrupted run's, continued.
+        interrupted :class:`ChainRun`), and the run continues with iteration ``start + 1``;
+        ``monitor`` is the interrupted run's :attr:`ChainRun.monitor`. Keys, burn-in,
+        thinning, chunks and the budget's checks follow the whole run's grid, so an
+        interrupted run continued this way gives the draws of the uninterrupted run.
+    earlier
+        With ``until``, in a continued run: the draws of θ ``(chain, draw, param)`` it kept
+        before ``start`` (since the first burn-in), which the budget's checks read too.
 
     Returns
     -------
     ChainRun
         Draws ``(num_chains, kept, ...)``, final states and run information. An interrupted
-        run returns the draws of the chunks that finished and warns.
+        run returns the draws of the chunks that finished and warns. With ``until`` the
+        draws are all those kept since the first burn-in (:attr:`ChainRun.budget` says how
+        many the extended burn-in dropped: :meth:`~.budget.BudgetMonitor.trim`).
     """
-    if num_samples is not None:
-        if num_draws is not None:
-            raise TypeError("pass num_draws only (num_samples is its deprecated old name)")
-        warnings.warn("run_chains(num_samples=...) is deprecated: use num_draws=...",
-                      FutureWarning, stacklevel=2)
-        num_draws = num_samples
-    num_chains = _check_run(num_draws, burn_in, thin, chunk_size, chain_method, states)
+    options = RunOptions(restart_stuck_chains=False) if options is None else options
+    chain_method = options.chain_method or "vectorized"
+    num_chains = _check_run(num_draws, burn_in, thin, chain_method, states)
     total = int(burn_in) + int(num_draws) * int(thin)
     if int(start) != start or not 0 <= start < total:
         raise ValueError(f"start must be an integer in [0, {total}), got {start!r}")
     # Equal chunks of at most `chunk_size` iterations; the last one runs fewer than
     # `chunk_len` iterations only when `total` does not divide evenly (then by < num_chunks).
-    num_chunks = -(-total // int(chunk_size))
+    num_chunks = -(-total // int(options.chunk_size))
     chunk_len = -(-total // num_chunks)
     chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
     chain_keys = jax.random.split(rng_key, num_chains)
     restarts = (BurnInMonitor(num_chains, int(burn_in), rng_key, monitor)
-                if restart_stuck_chains else None)
+                if options.restart_stuck_chains else None)
     if restarts is not None:
         restarts.resumed_from(int(start))
-    bar = _progress_bar(total, desc, progress, position, int(start))
+    budget = (None if until is None else
+              BudgetMonitor(until, int(burn_in), int(thin), num_chains, monitor))
+    desc = options.progress_label or "sampling"
+    bar = _progress_bar(total, desc, options.progress, options.progress_position, int(start))
     started = time.perf_counter()
     try:
-        loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), callback,
-                     int(start), sink, restarts)
+        loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), options,
+                     int(start), restarts, budget)
+        loop.earlier = earlier
         states = loop.run(states, bar, started)
     finally:
         if bar is not None:
@@ -334,19 +331,22 @@ def run_chains(
     draws = {
         name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1) for name, parts in loop.kept.items()
     }
-    if restarts is None:
-        return ChainRun(draws, states, loop.done, loop.interrupted, elapsed)
-    return ChainRun(draws, states, loop.done, loop.interrupted, elapsed, restarts.arrays(),
-                    tuple(restarts.records()))
+    if budget is not None and not budget.stopped_by:
+        budget.stopped_by = "interrupted" if loop.interrupted else (
+            "wall time" if loop.out_of_time else "iterations")
+    return ChainRun(draws, states, loop.done, loop.interrupted, elapsed,
+                    loop.monitor_arrays(elapsed),
+                    () if restarts is None else tuple(restarts.records()),
+                    None if budget is None else budget.record())
 
 
-def _check_run(num_draws: Any, burn_in: Any, thin: Any, chunk_size: Any, chain_method: str,
+def _check_run(num_draws: Any, burn_in: Any, thin: Any, chain_method: str,
                states: Any) -> int:
     """Validate :func:`run_chains`' arguments; returns the number of chains."""
     if num_draws is None:
         raise TypeError("run_chains() needs num_draws, the draws to keep per chain")
     for name, value, low in (("num_draws", num_draws, 1), ("burn_in", burn_in, 0),
-                             ("thin", thin, 1), ("chunk_size", chunk_size, 1)):
+                             ("thin", thin, 1)):
         if int(value) != value or value < low:
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     if chain_method not in CHAIN_METHODS:
@@ -359,24 +359,36 @@ def _check_run(num_draws: Any, burn_in: Any, thin: Any, chunk_size: Any, chain_m
 
 class _Loop:
     """The chunk loop of :func:`run_chains`: runs chunks, keeps the draws past burn-in on the
-    thin grid, hands each chunk to the sink and the callback, and stops cleanly before a chunk
-    when a stop was requested (:mod:`symplid.stopping`) or on ``KeyboardInterrupt``."""
+    thin grid, hands each chunk to the sink and the callback, checks the budget
+    (:mod:`~.budget`) when one is set, and stops cleanly before a chunk when a stop was
+    requested (:mod:`symplid.stopping`) or on ``KeyboardInterrupt``."""
 
     def __init__(self, chunk_fn: Callable, chain_keys: jax.Array, total: int, chunk_len: int,
-                 burn_in: int, thin: int, callback: Callable[[ChunkReport], None] | None,
-                 start: int = 0, sink: ChunkSink | None = None,
-                 restarts: BurnInMonitor | None = None):
+                 burn_in: int, thin: int, options: RunOptions, start: int = 0,
+                 restarts: BurnInMonitor | None = None, budget: BudgetMonitor | None = None):
         self.chunk_fn, self.chain_keys = chunk_fn, chain_keys
         self.total, self.chunk_len, self.burn_in, self.thin = total, chunk_len, burn_in, thin
-        self.callback, self.sink, self.restarts = callback, sink, restarts
-        self.sink_takes_monitor = restarts is not None and _takes_monitor(sink)
+        self.callback, self.sink, self.restarts = options.callback, options.sink, restarts
+        self.budget, self.out_of_time = budget, False
+        self.earlier: np.ndarray | None = None  # a continued run's draws of θ before start
+        self.sink_takes_monitor = ((restarts is not None or budget is not None)
+                                   and _takes_monitor(self.sink))
         self.kept: dict[str, list[np.ndarray]] = {}
         self.done = start
         self.draws_kept = max(0, start - burn_in) // thin
         self.interrupted = False
 
+    def monitor_arrays(self, elapsed: float = 0.0) -> dict[str, np.ndarray] | None:
+        """What a checkpoint keeps of the restart rule and the budget (None: neither)."""
+        if self.restarts is None and self.budget is None:
+            return None
+        arrays = {} if self.restarts is None else self.restarts.arrays()
+        return arrays if self.budget is None else {**arrays, **self.budget.arrays(elapsed)}
+
     def run(self, states: Any, bar: Any, started: float) -> Any:
         chunk_index = 0
+        if self._enough(started):  # a resumed run whose last check had not been made
+            return states
         while self.done < self.total:
             if stop_requested() is not None:  # a signal asked to stop: a safe point
                 self.interrupted = True
@@ -393,7 +405,8 @@ class _Loop:
                 bar.update(num_active)
             try:
                 if self.sink is not None:
-                    extra = {"monitor": self.restarts.arrays()} if self.sink_takes_monitor else {}
+                    extra = ({"monitor": self.monitor_arrays(time.perf_counter() - started)}
+                             if self.sink_takes_monitor else {})
                     self.sink(chunk, states, self.done - num_active, self.done,
                               time.perf_counter() - started, **extra)
                 if self.callback is not None:
@@ -403,7 +416,25 @@ class _Loop:
                 self.interrupted = self.done < self.total
                 break
             chunk_index += 1
+            if self._enough(started):
+                break
         return states
+
+    def _enough(self, started: float) -> bool:
+        """With a budget: whether its targets are met or its wall-time cap is reached
+        (:mod:`~.budget`), checking the draws when a check is due."""
+        if self.budget is None:
+            return False
+        self.out_of_time = (self.budget.out_of_time(time.perf_counter() - started)
+                            and self.budget.has_draws(self.done))
+        final = self.out_of_time or self.done >= self.total
+        if self.budget.due(self.done, final):
+            parts = [np.swapaxes(p, 0, 1) for p in self.kept.get("theta", [])]
+            before = [] if self.earlier is None else [np.asarray(self.earlier)]
+            theta = np.concatenate(before + parts, axis=1)
+            if self.budget.check(theta, self.done, final):
+                return True
+        return self.out_of_time
 
     def _advance(self, states: Any, num_active: int) -> tuple[Any, dict[str, np.ndarray]]:
         """One chunk of the grid: the states after it and its kept draws. When the burn-in
