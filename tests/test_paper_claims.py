@@ -402,7 +402,8 @@ def test_dram_chunk_takes_the_data_as_an_argument():
     import jax.numpy as jnp
 
     from symplid.inference.samplers import RunOptions, dram
-    from symplid.inference.samplers.run import DataStep, _compile_chunk, run_chains
+    from symplid.inference.samplers.chunk import DataStep, _compile_chunk
+    from symplid.inference.samplers.run import run_chains
 
     settings = dram.DRAMSettings()
 

@@ -211,7 +211,7 @@ def run_memory(settings: Settings, num_params: int, num_times: int, state_dim: i
     (9)–(13): per time, the 2n + 1 sigma points and n × n covariances, kept for a gradient).
     """
     s = settings.sampler
-    draws = 3 * s.num_draws * (num_params + _STATS_PER_DRAW)
+    draws = 3 * s.max_draws * (num_params + _STATS_PER_DRAW)
     sampler = 4 * num_params**2
     n = state_dim
     filter_ = 4 * num_times * n * (3 * n + 1)
@@ -244,6 +244,6 @@ def _check_memory(settings: Settings, num_params: int, num_times: int, state_dim
     s = settings.sampler
     raise SettingsError(
         source, "sampler.num_chains",
-        f"({s.num_chains:,}) × {s.num_draws:,} draws kept per chain × {num_params} parameters "
+        f"({s.num_chains:,}) × {s.max_draws:,} draws kept per chain × {num_params} parameters "
         f"need about {need / 2**30:,.1f} GiB of memory, more than the {have / 2**30:,.1f} GiB "
         "available; use fewer chains or iterations, or thin (sampler.thin)")

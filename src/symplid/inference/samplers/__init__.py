@@ -18,7 +18,6 @@ from symplid.inference.samplers.api import (
     InterruptedInBurnIn,
     SamplerCheckpoint,
     draws_array,
-    overdispersed_starts,
     sample,
 )
 from symplid.inference.samplers.budget import STOPPED_BY
@@ -27,6 +26,7 @@ from symplid.inference.samplers.nuts import NUTSSettings, NUTSState
 from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
 from symplid.inference.samplers.run import ChainRun, ChunkReport, SamplingInterrupted, run_chains
+from symplid.inference.samplers.starts import overdispersed_starts
 
 __all__ = [
     "SAMPLERS",

@@ -49,12 +49,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import cached_or_built
@@ -64,7 +62,7 @@ from symplid.inference.samplers.budget import kept_after_burn_in
 from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
 from symplid.inference.samplers.run import ChainRun, run_chains
-from symplid.model.params import pushforward_covariance
+from symplid.inference.samplers.starts import chain_starts
 
 __all__ = [
     "InterruptedInBurnIn",
@@ -73,7 +71,6 @@ __all__ = [
     "draws_array",
     "finished_draws",
     "make_settings",
-    "overdispersed_starts",
     "sample",
     "to_inference_data",
 ]
@@ -123,50 +120,43 @@ def sample(
     Parameters
     ----------
     posterior
-        Any object with ``num_params``, ``param_names`` and ``log_density(theta)``
-        (jit/vmap-able, −∞ outside the support); samplers in the unconstrained space (NUTS)
-        also need ``to_unconstrained``, ``from_unconstrained`` and
-        ``log_density_unconstrained`` (Jacobian included).
+        Any object with ``num_params``, ``param_names`` and ``log_density(theta)`` (−∞
+        outside the support); NUTS also needs ``to_unconstrained``, ``from_unconstrained``
+        and ``log_density_unconstrained`` (Jacobian included).
     method
         A name of :data:`~symplid.inference.samplers.SAMPLERS`: ``"dram"`` (the paper's, in
         θ) or ``"nuts"`` (BlackJAX, in the unconstrained space, draws mapped back).
     num_draws
-        Draws kept per chain, after burn-in and thinning: a fixed budget. ``None`` (default):
-        the budget is set by the answer: the chains run until every parameter's bulk and
-        tail ESS and R-hat meet ``options.targets``, or up to its cap
-        (:mod:`~symplid.inference.samplers.budget`); ``attrs["stopped_by"]`` says which.
+        Draws kept per chain after burn-in and thinning: a fixed budget. ``None`` (default):
+        until every parameter's bulk and tail ESS and R-hat meet ``options.targets``, or a
+        cap (:mod:`~.budget`); ``attrs["stopped_by"]`` says which.
     num_chains, seed
-        Number of chains; integer seed (the whole run is a deterministic function of it).
+        Number of chains; integer seed (the run is a deterministic function of it).
     init
         The MAP result (``.theta``, ``.covariance``; ``.hessian`` and ``.log_posterior`` are
         recorded when present). ``None`` runs ``symplid.find_map(posterior, seed=seed)``.
     burn_in
-        Iterations discarded first; default from the sampler (a fixed budget: DRAM
-        ``num_draws·thin``, half the run, as the paper's 100,000 of 200,000; NUTS 1000
-        window-adaptation steps; without one: the sampler's first burn-in, which the budget
-        extends while the chains disagree).
+        Iterations discarded first; by default, with a fixed budget DRAM ``num_draws·thin``
+        (the paper's ratio), NUTS 1000 warm-up steps; else the sampler's first burn-in
+        (:attr:`~.registry.SamplerSpec.first_burn_in`), extended while the chains disagree.
     thin
         Keep every ``thin``-th iteration after burn-in.
     settings
-        Sampler settings: an instance of the sampler's settings class
-        (:class:`~.dram.DRAMSettings`, :class:`~.nuts.NUTSSettings`) or a dict of its fields.
+        The sampler's settings (:class:`~.dram.DRAMSettings`, :class:`~.nuts.NUTSSettings`)
+        or a dict of their fields.
     options
-        How the chains are run (:class:`~.options.RunOptions`): starting points, chunks,
-        progress bars, the sink and callback of every chunk, the restart of stuck chains,
-        the targets of a budget set by the answer, and ``return_state`` (also return the
-        chains' final states, :class:`SamplerCheckpoint`, from which
-        :func:`~.resume.resume_sampling` continues an interrupted run).
+        How the chains run (:class:`~.options.RunOptions`): starting points, chunks, progress,
+        sink and callback, restarts, targets, ``return_state`` (also return the chains'
+        :class:`SamplerCheckpoint`, which :func:`~.resume.resume_sampling` continues).
 
     Returns
     -------
     arviz.InferenceData
-        See the module docstring for the layout. A run stopped by ``KeyboardInterrupt``
-        returns the draws made so far with ``attrs["interrupted"] = 1`` and a
-        :class:`~symplid.inference.samplers.run.SamplingInterrupted` warning.
+        Laid out as the module docstring says; a run stopped by ``KeyboardInterrupt``: the
+        draws so far, ``attrs["interrupted"] = 1`` and a :class:`~.run.SamplingInterrupted`.
     """
     options = RunOptions() if options is None else options
-    method = SAMPLERS.canonical(method)
-    spec = SAMPLERS[method]
+    method, spec = SAMPLERS.canonical(method), SAMPLERS[method]
     num_params, names = check_posterior(posterior, spec)
     plan = _plan(spec, num_draws, num_params, num_chains, thin, burn_in, seed, options.targets)
     kernel_settings, chain_method = _run_settings(spec, method, settings, options.chain_method,
@@ -174,26 +164,21 @@ def sample(
     batch_logdensity, kernel = _built_kernel(posterior, spec, method, kernel_settings,
                                              plan.burn_in)
     init = find_map(posterior, seed=seed) if init is None else init
-    theta_map, cov_map, starts, states, extra_attrs, run_key = _chain_starts(
+    theta_map, cov_map, starts, states, extra_attrs, run_key = chain_starts(
         posterior, spec, kernel, batch_logdensity, init, num_params, int(seed),
         int(num_chains), float(options.init_spread), options.initial_positions)
-    record_settings = _recorded_settings(
-        method=method, num_draws=plan.num_draws, num_chains=int(num_chains), seed=int(seed),
-        burn_in=plan.burn_in, thin=int(thin), init_spread=float(options.init_spread),
-        chunk_size=int(options.chunk_size), chain_method=chain_method,
-        explicit_initial_positions=options.initial_positions is not None,
-        restart_stuck_chains=bool(options.restart_stuck_chains), kernel=kernel_settings,
-        **({} if plan.until is None else {"targets": plan.until.as_dict()}))
+    record_settings = _recorded_settings(method, plan, int(num_chains), int(seed), int(thin),
+                                         options, chain_method, kernel_settings)
     make_attrs = functools.partial(_attrs, method, seed, record_settings, names, theta_map,
                                    cov_map, starts)
     if hasattr(options.sink, "begin"):  # the attributes of the run before its first iteration
         options.sink.begin(make_attrs(ChainRun({}, states, 0, True, 0.0),
                                       {**extra_attrs, **kernel.final_attrs(states)}, init))
-    run_options = dataclasses.replace(options, chain_method=chain_method,
-                                      progress_label=options.progress_label or method.upper())
     run = run_chains(kernel.step, states, run_key, plan.num_draws, record=kernel.record,
-                     burn_in=plan.burn_in, thin=int(thin), options=run_options,
-                     until=plan.until)
+                     burn_in=plan.burn_in, thin=int(thin), until=plan.until,
+                     options=dataclasses.replace(options, chain_method=chain_method,
+                                                 progress_label=options.progress_label
+                                                 or method.upper()))
     extra_attrs.update(kernel.final_attrs(run.states))
     return _finished(run, names, make_attrs(run, extra_attrs, init), options.return_state,
                      options.on_draws)
@@ -233,9 +218,21 @@ def _plan(spec: SamplerSpec, num_draws: int | None, num_params: int, num_chains:
     return _Plan(int(burn_in), cap, targets)
 
 
-def _recorded_settings(**values: Any) -> dict[str, Any]:
-    """The run's settings as its attributes record them (the kernel's as a dict)."""
-    return {**values, "kernel": dataclasses.asdict(values["kernel"])}
+def _recorded_settings(method: str, plan: _Plan, num_chains: int, seed: int, thin: int,
+                       options: RunOptions, chain_method: str,
+                       kernel_settings: Any) -> dict[str, Any]:
+    """The run's settings as its attributes record them (all a continuation needs)."""
+    record = {
+        "method": method, "num_draws": plan.num_draws, "num_chains": num_chains, "seed": seed,
+        "burn_in": plan.burn_in, "thin": thin, "init_spread": float(options.init_spread),
+        "chunk_size": int(options.chunk_size), "chain_method": chain_method,
+        "explicit_initial_positions": options.initial_positions is not None,
+        "restart_stuck_chains": bool(options.restart_stuck_chains),
+        "kernel": dataclasses.asdict(kernel_settings),
+    }
+    if plan.until is not None:
+        record["targets"] = plan.until.as_dict()
+    return record
 
 
 def _finished(run: ChainRun, names: tuple[str, ...], attrs: dict[str, Any],
@@ -276,22 +273,6 @@ def _built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
         lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
     )
     return batch_logdensity, kernel
-
-
-def _chain_starts(posterior: Any, spec: Any, kernel: SamplerKernel, batch_logdensity: Any,
-                  init: Any, num_params: int, seed: int, num_chains: int,
-                  init_spread: float, initial_positions: Any) -> tuple[Any, ...]:
-    """The MAP (θ, covariance) the chains start around, their starting points and states,
-    the kernel's initial attributes, and the key the run then draws from."""
-    theta_map, cov_map = _check_map(init, num_params, batch_logdensity, num_chains)
-    init_key, run_key = jax.random.split(jax.random.key(seed), 2)
-    if initial_positions is None:
-        starts = overdispersed_starts(init_key, batch_logdensity, theta_map, cov_map,
-                                      num_chains, init_spread)
-    else:
-        starts = _explicit_starts(initial_positions, num_chains, num_params)
-    states, extra_attrs = _initial_states(posterior, spec, kernel, starts, theta_map, cov_map)
-    return theta_map, cov_map, starts, states, extra_attrs, run_key
 
 
 # ----------------------------------------------------------------------------- checks
@@ -355,122 +336,6 @@ def _batch_log_density(posterior: Any) -> Callable[[jax.Array], jax.Array]:
         return jax.jit(jax.vmap(posterior.log_density))
     batched = jax.jit(jax.vmap(with_data, in_axes=(None, 0)))
     return lambda thetas: batched(data, thetas)
-
-
-def _check_map(init: Any, num_params: int, batch_logdensity: Callable,
-               num_chains: int) -> tuple[np.ndarray, np.ndarray]:
-    for name in ("theta", "covariance"):
-        if not hasattr(init, name):
-            raise TypeError(
-                f"init lacks .{name}: pass the result of symplid.find_map (an object with "
-                ".theta and .covariance)"
-            )
-    theta = np.asarray(init.theta, dtype=np.float64)
-    cov = np.asarray(init.covariance, dtype=np.float64)
-    if theta.shape != (num_params,):
-        raise ValueError(f"init.theta must have shape ({num_params},), got {theta.shape}")
-    if cov.shape != (num_params, num_params):
-        raise ValueError(
-            f"init.covariance must have shape ({num_params}, {num_params}), got {cov.shape}"
-        )
-    if not np.all(np.isfinite(cov)):
-        raise ValueError("init.covariance contains non-finite entries")
-    try:
-        np.linalg.cholesky(0.5 * (cov + cov.T))
-    except np.linalg.LinAlgError:
-        raise ValueError("init.covariance is not positive definite") from None
-    # Same batch shape as the starting points: one compilation serves both.
-    value = float(batch_logdensity(jnp.tile(jnp.asarray(theta), (num_chains, 1)))[0])
-    if not np.isfinite(value):
-        raise ValueError(f"the log density at init.theta is not finite ({value})")
-    return theta, 0.5 * (cov + cov.T)
-
-
-def overdispersed_starts(
-    rng_key: jax.Array,
-    batch_logdensity: Callable[[jax.Array], jax.Array],
-    center: np.ndarray,
-    cov: np.ndarray,
-    num_chains: int,
-    spread: float = 2.0,
-    max_tries: int = 100,
-) -> np.ndarray:
-    """Starting points ``center + spread·L z`` with a finite log density, one per chain.
-
-    Parameters
-    ----------
-    rng_key
-        Key for the draws (round ``r`` uses ``fold_in(rng_key, r)``).
-    batch_logdensity
-        Log density over the parameters, vectorised over a leading axis
-        (e.g. ``jax.jit(jax.vmap(posterior.log_density))``).
-    center, cov
-        The MAP and its covariance (``L`` is the Cholesky factor of ``cov``).
-    num_chains
-        Number of starting points.
-    spread
-        Multiplier of ``L z``; 0 puts every chain at ``center``.
-    max_tries
-        Rounds of redrawing before a chain falls back to ``center`` (with a warning).
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape ``(num_chains, d)``.
-    """
-    center = np.asarray(center, dtype=np.float64)
-    starts = np.tile(center, (num_chains, 1))
-    if spread == 0:
-        return starts
-    chol = np.linalg.cholesky(cov)
-    pending = np.ones(num_chains, dtype=bool)
-    for attempt in range(max_tries):
-        z = np.asarray(jax.random.normal(jax.random.fold_in(rng_key, attempt),
-                                         (num_chains, center.size)))
-        candidates = center + spread * z @ chol.T
-        finite = np.isfinite(np.asarray(batch_logdensity(jnp.asarray(candidates))))
-        take = pending & finite
-        starts[take] = candidates[take]
-        pending &= ~take
-        if not pending.any():
-            return starts
-    warnings.warn(
-        f"{int(pending.sum())} chain(s) found no start with a finite log density within "
-        f"{max_tries} draws at init_spread={spread}; they start at the MAP",
-        UserWarning,
-        stacklevel=3,
-    )
-    return starts
-
-
-def _explicit_starts(initial_positions: Any, num_chains: int, num_params: int) -> np.ndarray:
-    starts = np.asarray(initial_positions, dtype=np.float64)
-    if starts.shape != (num_chains, num_params):
-        raise ValueError(
-            f"initial_positions must have shape ({num_chains}, {num_params}), "
-            f"got {starts.shape}"
-        )
-    return starts
-
-
-def _initial_states(posterior: Any, spec: SamplerSpec, kernel: SamplerKernel,
-                    starts: np.ndarray, theta_map: np.ndarray,
-                    cov_map: np.ndarray) -> tuple[Any, dict[str, Any]]:
-    """The chains' first states, from θ and the MAP covariance (pushed to z when the sampler
-    moves in the unconstrained space), and the attributes that records."""
-    if not spec.unconstrained:
-        if kernel.covariance_at is not None:  # e.g. DRAM with the variances on a log scale
-            cov_map = kernel.covariance_at(theta_map, cov_map)
-        return kernel.init_states(jnp.asarray(starts), jnp.asarray(cov_map)), {}
-    cov_z = pushforward_covariance(posterior.to_unconstrained, theta_map, cov_map)
-    z_starts = np.asarray(jax.vmap(posterior.to_unconstrained)(jnp.asarray(starts)))
-    if not np.all(np.isfinite(z_starts)):
-        raise ValueError(
-            "a starting point lies on a bound of the parameters (its unconstrained "
-            "value is infinite); use init_spread > 0 or move initial_positions inside"
-        )
-    states = kernel.init_states(jnp.asarray(starts), jnp.asarray(cov_z))
-    return states, {"unconstrained_map_covariance": cov_z.tolist()}
 
 
 def _attrs(method: str, seed: int, record_settings: dict, names: tuple[str, ...],

@@ -33,9 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.inference.samplers import dram, nuts
+from symplid.inference.samplers.chunk import DataStep
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
-from symplid.inference.samplers.run import DataStep
 from symplid.model.backends import LIKELIHOOD_BACKENDS
 from symplid.model.params import LOG_SCALE_GROUPS, ParameterSpace, pushforward_covariance
 from symplid.registry import Registry

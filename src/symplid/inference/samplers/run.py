@@ -1,15 +1,13 @@
 """Chunked, multi-chain driver for any ``step(rng_key, state) -> (state, info)`` kernel.
 
 A run of ``burn_in + num_draws·thin`` iterations is cut into chunks of ``chunk_size``
-iterations. Each chunk is **one** compiled ``lax.scan`` over iterations whose body advances
-all chains at once (``vmap``), or, for ``chain_method="sequential"``, one chain (the same
-compiled one-chain chunk is then called for each chain in turn, which compiles faster than
-a batched kernel and lets data-dependent branches skip work). Between
-chunks control returns to Python: the progress bar moves, the chunk's draws and the chains'
-states go to the ``sink`` (a run folder streams them to disk), a callback runs, and a stop
-requested by a signal (:mod:`symplid.stopping`: checked before every chunk) or a
-``KeyboardInterrupt`` ends the run while keeping every draw already made. A chunk is the unit
-of both: a stop is obeyed within one chunk's time, and a crash loses at most one chunk.
+iterations. Each chunk is **one** compiled ``lax.scan`` over iterations (:mod:`~.chunk`).
+Between chunks control returns to Python: the progress bar moves, the chunk's draws and the
+chains' states go to the ``sink`` (a run folder streams them to disk), a callback runs, a
+budget set by the answer checks its targets (:mod:`~.budget`), and a stop requested by a
+signal (:mod:`symplid.stopping`: checked before every chunk) or a ``KeyboardInterrupt`` ends
+the run while keeping every draw already made. A chunk is the unit of all of them: a stop is
+obeyed within one chunk's time, and a crash loses at most one chunk.
 
 Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c], t)`` with
 ``chain_key = split(rng_key, num_chains)``. The draws therefore depend only on the key and
@@ -24,7 +22,6 @@ A single chain runs unbatched.
 
 from __future__ import annotations
 
-import functools
 import inspect
 import time
 import warnings
@@ -34,10 +31,9 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
-from symplid.compiled import cached_or_built
 from symplid.inference.samplers.budget import BudgetMonitor
+from symplid.inference.samplers.chunk import DataStep, RecordFn, StepFn, chunk_runner
 from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.restart import (
     BurnInMonitor,
@@ -49,8 +45,6 @@ from symplid.stopping import requested as stop_requested
 __all__ = ["ChainRun", "ChunkReport", "ChunkSink", "DataStep", "SamplingInterrupted",
            "StuckChainsRestarted", "run_chains"]
 
-StepFn = Callable[[jax.Array, Any], tuple[Any, Any]]
-RecordFn = Callable[[Any, Any], dict[str, jax.Array]]
 ChunkSink = Callable[[dict[str, np.ndarray], Any, int, int, float], None]
 """``sink(draws, states, start, done, elapsed)``, called after every chunk: the draws the chunk
 kept (``name -> (num_chains, kept, ...)``, possibly none kept), the chains' states after it,
@@ -129,103 +123,6 @@ class ChainRun(NamedTuple):
     budget: dict[str, Any] | None = None
 
 
-class DataStep:
-    """A step that reads data: ``fn(data, rng_key, state) -> (state, info)``, called as
-    ``step(rng_key, state)``.
-
-    :func:`run_chains` passes ``data`` to the compiled chunk as an argument, so that the
-    chunk's program does not hold the data as constants: the same kernel on another data set
-    of the same shape (another seed of a sweep) is then the same program, which JAX's
-    persistent compilation cache serves instead of compiling again.
-    """
-
-    def __init__(self, fn: Callable[[Any, jax.Array, Any], tuple[Any, Any]], data: Any):
-        self.fn, self.data = fn, data
-
-    def __call__(self, rng_key: jax.Array, state: Any) -> tuple[Any, Any]:
-        return self.fn(self.data, rng_key, state)
-
-
-def _over_chains(fn: Callable, batched: bool) -> Callable:
-    """Apply a one-chain function to chains stacked on a leading axis.
-
-    Unbatched (one chain, leading axis of length 1), a ``lax.cond`` in the kernel really
-    skips work; under ``vmap`` it becomes a ``select`` that evaluates both branches.
-    """
-    if batched:
-        return jax.vmap(fn)
-
-    def single(*args):
-        out = fn(*jax.tree.map(lambda leaf: leaf[0], args))
-        return jax.tree.map(lambda leaf: leaf[None], out)
-
-    return single
-
-
-def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
-    """One compiled chunk (:func:`_compile_chunk`), kept on ``step`` so that running the
-    same kernel again (another seed, more draws) reuses it."""
-    return cached_or_built(step, ("chunk", record, chunk_len, batched),
-                           lambda: _compile_chunk(step, record, chunk_len, batched))
-
-
-def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
-    """Compile one chunk: ``chunk_len`` iterations, of which the first ``num_active`` count.
-
-    ``batched`` vmaps over the chains; otherwise the chunk advances one chain (leading axis
-    of length 1).
-    """
-
-    reads = isinstance(step, DataStep)
-    data = step.data if reads else None
-
-    def chunk(states, chain_keys, start, num_active, data):
-        def one_chain(key, state, t):
-            key = jax.random.fold_in(key, t)
-            new_state, info = step.fn(data, key, state) if reads else step(key, state)
-            return new_state, record(new_state, info)
-
-        advance = _over_chains(one_chain, batched)
-
-        def body(carry, i):
-            t = jnp.broadcast_to(start + i, chain_keys.shape[:1])
-            new, records = advance(chain_keys, carry, t)
-            # Iterations past `num_active` (a few, at the end of the last chunk) are computed
-            # and thrown away: a select, which unlike a cond around the whole step does not
-            # slow the loop down.
-            active = i < num_active
-            new = jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry)
-            return new, records
-
-        return lax.scan(body, states, jnp.arange(chunk_len))
-
-    return functools.partial(jax.jit(chunk), data=data)
-
-
-def _chunk_runner(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,
-                  num_chains: int) -> Callable:
-    """``run(states, chain_keys, start, num_active) -> (states, records)`` for all chains."""
-    if chain_method == "vectorized" and num_chains > 1:
-        return _build_chunk(step, record, chunk_len, True)
-    single = _build_chunk(step, record, chunk_len, False)
-    if num_chains == 1:
-        return single
-
-    def one_after_another(states, chain_keys, start, num_active):
-        outputs = [
-            single(jax.tree.map(lambda leaf, c=c: leaf[c:c + 1], states),
-                   chain_keys[c:c + 1], start, num_active)
-            for c in range(num_chains)
-        ]
-        states = jax.tree.map(lambda *parts: jnp.concatenate(parts), *[o[0] for o in outputs])
-        # Records are (iteration, chain, ...): the chains go along axis 1.
-        records = jax.tree.map(lambda *parts: jnp.concatenate(parts, axis=1),
-                               *[o[1] for o in outputs])
-        return states, records
-
-    return one_after_another
-
-
 def run_chains(
     step: StepFn,
     states: Any,
@@ -260,36 +157,25 @@ def run_chains(
     thin
         Keep one iteration in ``thin`` after burn-in; ``num_draws·thin`` iterations run.
     options
-        The runner's :class:`~.options.RunOptions`: ``chunk_size`` (iterations per compiled
-        chunk), ``chain_method`` (``"vectorized"``: ``vmap``, all chains in lockstep;
-        ``"sequential"``: the compiled one-chain chunk called for each chain in turn, branches
-        really skipped; None: vectorized), ``progress``/``progress_label``/
-        ``progress_position`` (a tqdm bar), ``sink`` (:data:`ChunkSink`, called after each
-        chunk before ``callback``), ``callback`` (a :class:`ChunkReport` after each chunk;
-        it may raise ``KeyboardInterrupt`` to stop the run) and ``restart_stuck_chains``
-        (at the end of the burn-in, restart every chain whose log density, ``record``'s
-        ``"lp"``, stays far below the best chain's: :mod:`~.restart`). None: the defaults
-        without the restart.
+        The runner's :class:`~.options.RunOptions` (chunks, chain layout, progress bar,
+        ``sink`` and ``callback`` of every chunk, the restart of stuck chains from
+        ``record``'s ``"lp"``: :mod:`~.restart`); ``None``: the defaults without the restart.
     until
         Stop as soon as the draws meet these targets (:mod:`~.budget`), checked between
         chunks; ``burn_in + num_draws·thin`` is then the cap on the iterations.
-    start, monitor
-        Iterations already done: ``states`` are the chains after them (the ``states`` of an
-        interrupted :class:`ChainRun`), and the run continues with iteration ``start + 1``;
-        ``monitor`` is the interrupted run's :attr:`ChainRun.monitor`. Keys, burn-in,
-        thinning, chunks and the budget's checks follow the whole run's grid, so an
-        interrupted run continued this way gives the draws of the uninterrupted run.
-    earlier
-        With ``until``, in a continued run: the draws of θ ``(chain, draw, param)`` it kept
-        before ``start`` (since the first burn-in), which the budget's checks read too.
+    start, monitor, earlier
+        Iterations already done: ``states`` are the chains after them, the run continues
+        with iteration ``start + 1``; ``monitor`` is the interrupted run's
+        :attr:`ChainRun.monitor` and ``earlier`` (with ``until``) its draws of θ since the
+        first burn-in. Keys, burn-in, thinning, chunks and checks follow the whole run's
+        grid: continued this way, an interrupted run gives the uninterrupted run's draws.
 
     Returns
     -------
     ChainRun
-        Draws ``(num_chains, kept, ...)``, final states and run information. An interrupted
-        run returns the draws of the chunks that finished and warns. With ``until`` the
-        draws are all those kept since the first burn-in (:attr:`ChainRun.budget` says how
-        many the extended burn-in dropped: :meth:`~.budget.BudgetMonitor.trim`).
+        Draws ``(num_chains, kept, ...)``, final states and run information (an interrupted
+        run: the chunks that finished, and a warning). With ``until``: every draw since the
+        first burn-in (:attr:`ChainRun.budget` says where the extended burn-in ends).
     """
     options = RunOptions(restart_stuck_chains=False) if options is None else options
     chain_method = options.chain_method or "vectorized"
@@ -299,45 +185,33 @@ def run_chains(
         raise ValueError(f"start must be an integer in [0, {total}), got {start!r}")
     # Equal chunks of at most `chunk_size` iterations; the last one runs fewer than
     # `chunk_len` iterations only when `total` does not divide evenly (then by < num_chunks).
-    num_chunks = -(-total // int(options.chunk_size))
-    chunk_len = -(-total // num_chunks)
-    chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
-    chain_keys = jax.random.split(rng_key, num_chains)
-    restarts = (BurnInMonitor(num_chains, int(burn_in), rng_key, monitor)
-                if options.restart_stuck_chains else None)
-    if restarts is not None:
-        restarts.resumed_from(int(start))
-    budget = (None if until is None else
-              BudgetMonitor(until, int(burn_in), int(thin), num_chains, monitor))
+    chunk_len = -(-total // -(-total // int(options.chunk_size)))
+    chunk_fn = chunk_runner(step, record, chunk_len, chain_method, num_chains)
+    loop = _Loop(chunk_fn, jax.random.split(rng_key, num_chains), total, chunk_len,
+                 int(burn_in), int(thin), options, int(start),
+                 _restarts(options, num_chains, int(burn_in), rng_key, monitor, int(start)),
+                 None if until is None else BudgetMonitor(until, int(burn_in), int(thin),
+                                                          num_chains, monitor))
+    loop.earlier = earlier
     desc = options.progress_label or "sampling"
-    bar = _progress_bar(total, desc, options.progress, options.progress_position, int(start))
-    started = time.perf_counter()
-    try:
-        loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), options,
-                     int(start), restarts, budget)
-        loop.earlier = earlier
-        states = loop.run(states, bar, started)
-    finally:
-        if bar is not None:
-            bar.close()
-    elapsed = time.perf_counter() - started
+    states, elapsed = loop.run(states, _progress_bar(total, desc, options.progress,
+                                                     options.progress_position, int(start)))
     if loop.interrupted:
-        warnings.warn(
-            f"{desc} interrupted after {loop.done} of {total} iterations; keeping the "
-            f"{loop.draws_kept} draws per chain made so far",
-            SamplingInterrupted,
-            stacklevel=2,
-        )
-    draws = {
-        name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1) for name, parts in loop.kept.items()
-    }
-    if budget is not None and not budget.stopped_by:
-        budget.stopped_by = "interrupted" if loop.interrupted else (
-            "wall time" if loop.out_of_time else "iterations")
-    return ChainRun(draws, states, loop.done, loop.interrupted, elapsed,
-                    loop.monitor_arrays(elapsed),
-                    () if restarts is None else tuple(restarts.records()),
-                    None if budget is None else budget.record())
+        warnings.warn(f"{desc} interrupted after {loop.done} of {total} iterations; keeping "
+                      f"the {loop.draws_kept} draws per chain made so far",
+                      SamplingInterrupted, stacklevel=2)
+    return loop.result(states, elapsed)
+
+
+def _restarts(options: RunOptions, num_chains: int, burn_in: int, rng_key: jax.Array,
+              monitor: dict[str, np.ndarray] | None, start: int) -> BurnInMonitor | None:
+    """The restart rule of stuck chains (:mod:`~.restart`), continued from ``monitor``; None
+    when the run does not restart them."""
+    if not options.restart_stuck_chains:
+        return None
+    restarts = BurnInMonitor(num_chains, burn_in, rng_key, monitor)
+    restarts.resumed_from(start)
+    return restarts
 
 
 def _check_run(num_draws: Any, burn_in: Any, thin: Any, chain_method: str,
@@ -378,6 +252,19 @@ class _Loop:
         self.draws_kept = max(0, start - burn_in) // thin
         self.interrupted = False
 
+    def result(self, states: Any, elapsed: float) -> ChainRun:
+        """The run's :class:`ChainRun`: the draws kept, and what ended a budget's run."""
+        draws = {name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1)
+                 for name, parts in self.kept.items()}
+        budget = self.budget
+        if budget is not None and not budget.stopped_by:
+            budget.stopped_by = "interrupted" if self.interrupted else (
+                "wall time" if self.out_of_time else "iterations")
+        return ChainRun(draws, states, self.done, self.interrupted, elapsed,
+                        self.monitor_arrays(elapsed),
+                        () if self.restarts is None else tuple(self.restarts.records()),
+                        None if budget is None else budget.record())
+
     def monitor_arrays(self, elapsed: float = 0.0) -> dict[str, np.ndarray] | None:
         """What a checkpoint keeps of the restart rule and the budget (None: neither)."""
         if self.restarts is None and self.budget is None:
@@ -385,7 +272,17 @@ class _Loop:
         arrays = {} if self.restarts is None else self.restarts.arrays()
         return arrays if self.budget is None else {**arrays, **self.budget.arrays(elapsed)}
 
-    def run(self, states: Any, bar: Any, started: float) -> Any:
+    def run(self, states: Any, bar: Any) -> tuple[Any, float]:
+        """The chains' states at the end, and the seconds it took; the bar closed."""
+        started = time.perf_counter()
+        try:
+            states = self._chunks(states, bar, started)
+        finally:
+            if bar is not None:
+                bar.close()
+        return states, time.perf_counter() - started
+
+    def _chunks(self, states: Any, bar: Any, started: float) -> Any:
         chunk_index = 0
         if self._enough(started):  # a resumed run whose last check had not been made
             return states
@@ -477,7 +374,7 @@ class _Loop:
         if self.restarts.records():
             warnings.warn(restarted_message(self.restarts.records(),
                                             restart_threshold(num_params)),
-                          StuckChainsRestarted, stacklevel=4)
+                          StuckChainsRestarted, stacklevel=5)
         return states
 
     def _keep(self, records: dict[str, Any], num_active: int,
