@@ -182,3 +182,11 @@ def test_fit_resume_of_a_run_without_a_budget(data_csv, tmp_path, monkeypatch):
     mine, reference = (RunFolder(p, "r").read_posterior() for p in (out, whole))
     assert mine.attrs["iterations"] == reference.attrs["iterations"]
     np.testing.assert_array_equal(draws_array(mine), draws_array(reference))
+
+
+def test_a_cap_below_the_first_burn_in_is_refused_in_one_line(data_csv, tmp_path):
+    result = run("fit", data_csv, "--out", tmp_path / "run", *FIT,
+                 "--set", "sampler.max_iterations=1000")
+    assert result.exit_code == 2
+    (line,) = result.output.strip().splitlines()
+    assert "sampler.max_iterations (1,000) must be greater than the first burn-in" in line

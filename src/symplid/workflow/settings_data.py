@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from symplid.inference.samplers import SAMPLERS
 from symplid.io import observation_layout
 from symplid.model.data import DataError
 from symplid.model.statespace import HamiltonianModel
@@ -185,6 +186,7 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str) -
     num_params = built.num_params + (2 * d * len(trajectories) if init.mode == "learned" else 0)
     num_times = sum(int(np.asarray(obs.times).size) for obs in trajectories)
     _check_memory(settings, num_params, num_times, built.state_dim, source)
+    _check_cap(settings, num_params, source)
     if num_params > values:
         name = model_family(model).name
         what = f"order {model.order}" if name == "polynomial" else f"{name!r}"
@@ -232,6 +234,20 @@ def available_memory() -> int | None:
         return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError, AttributeError):
         return None
+
+
+def _check_cap(settings: Settings, num_params: int, source: str) -> None:
+    """Refuse (one line) a cap on the iterations of ``num_iterations = "auto"`` that leaves no
+    draw after the sampler's first burn-in for this many parameters."""
+    s = settings.sampler
+    if s.fixed or s.resolved_burn_in is not None:
+        return  # a fixed budget, or a burn-in given: checked by the settings alone
+    first = SAMPLERS[s.method].first_burn_in(num_params)
+    if first >= s.max_iterations:
+        raise SettingsError(
+            source, "sampler.max_iterations",
+            f"({s.max_iterations:,}) must be greater than the first burn-in of {s.method} for "
+            f"{num_params} parameters ({first:,} iterations); raise it or set sampler.burn_in")
 
 
 def _check_memory(settings: Settings, num_params: int, num_times: int, state_dim: int,
