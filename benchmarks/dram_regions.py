@@ -58,14 +58,14 @@ def per_iteration(log_density, theta, cov, linalg: str, chains: int, iterations:
     import jax
     import jax.numpy as jnp
 
-    from symplid.inference.samplers import dram, run_chains
+    from symplid.inference.samplers import RunOptions, dram, run_chains
 
     settings = dram.DRAMSettings(linalg=linalg, paired_stages=chains > 1)
     step = dram.build_kernel(log_density, settings)
     states = jax.jit(jax.vmap(lambda p: dram.init(p, log_density, cov)))(
         jnp.tile(theta, (chains, 1)))
-    common = dict(record=lambda s, i: {"stage2": i.stage2_attempted}, chunk_size=1000,
-                  chain_method="vectorized", progress=False)
+    common = dict(record=lambda s, i: {"stage2": i.stage2_attempted},
+                  options=RunOptions(chunk_size=1000, chain_method="vectorized", progress=False))
     warm = run_chains(step, states, jax.random.key(0), 1000, **common)
     best = float("inf")
     for _ in range(repeats):

@@ -43,7 +43,7 @@ runtime.limit_threads()
 
 from symplid.dynamics.systems import get_system  # noqa: E402
 from symplid.inference.map import find_map  # noqa: E402
-from symplid.inference.samplers import draws_array, sample  # noqa: E402
+from symplid.inference.samplers import RunOptions, draws_array, sample  # noqa: E402
 from symplid.model.priors import LogUniform  # noqa: E402
 from symplid.model.simulate import simulate  # noqa: E402
 from symplid.model.variance_prior import data_variance_scale  # noqa: E402
@@ -115,7 +115,8 @@ def fit_seed(seed: int, settings: Settings, iterations: int) -> list[dict]:
             result = find_map(posterior, seed=0, num_starts=2, evidence="laplace", warn=False,
                               init=init)
             idata = sample(posterior, "dram", num_draws=iterations // 2, num_chains=2,
-                           burn_in=iterations // 2, init=result, seed=seed, progress=False)
+                           burn_in=iterations // 2, init=result, seed=seed,
+                           options=RunOptions(progress=False))
         init = np.array(result.theta, dtype=float)
         draws = draws_array(idata)
         rhat = split_rhat(draws)

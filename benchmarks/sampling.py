@@ -45,7 +45,7 @@ import numpy as np  # noqa: E402
 
 import symplid  # noqa: E402
 from symplid.inference.diagnostics import import_arviz  # noqa: E402
-from symplid.inference.samplers import dram, run_chains, sample  # noqa: E402
+from symplid.inference.samplers import RunOptions, dram, run_chains, sample  # noqa: E402
 
 TARGET_ITERATIONS_PER_SECOND = 50_000  # issue #10
 
@@ -165,7 +165,8 @@ def dram_throughput(posterior, map_result, num_chains: int, chain_method: str,
     def record(state, info):
         return {"stage2": info.stage2_attempted}
 
-    common = dict(record=record, chunk_size=chunk, chain_method=chain_method, progress=False)
+    common = dict(record=record, options=RunOptions(chunk_size=chunk, chain_method=chain_method,
+                                                    progress=False))
     warm = run_chains(step, states, jax.random.key(0), chunk, **common)  # compiles
     cpu = time.process_time()
     run = run_chains(step, warm.states, jax.random.key(1), iterations, **common)
@@ -181,8 +182,8 @@ def ess_rate(posterior, map_result, method: str, num_samples: int, burn_in: int,
     az = import_arviz()
     started, cpu = time.perf_counter(), time.process_time()
     idata = sample(posterior, method, num_samples=num_samples, num_chains=4, seed=0,
-                   init=map_result, burn_in=burn_in, chunk_size=chunk,
-                   chain_method=chain_method, progress=False)
+                   init=map_result, burn_in=burn_in,
+                   options=RunOptions(chunk_size=chunk, chain_method=chain_method, progress=False))
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
     table = az.summary(idata, kind="diagnostics", round_to="none")
     stats = idata.sample_stats

@@ -54,7 +54,7 @@ import arviz as az  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from symplid.inference.samplers import draws_array, sample  # noqa: E402
+from symplid.inference.samplers import RunOptions, draws_array, sample  # noqa: E402
 from symplid.model.params import ParameterSpace  # noqa: E402
 from symplid.studies.paper import EXPERIMENT, cell_data, cell_data_noise  # noqa: E402
 from symplid.studies.paper_calibration import true_values  # noqa: E402
@@ -93,8 +93,8 @@ def fit_seed(cell: dict, args: argparse.Namespace):
     if args.is_only:
         return posterior, map_result, None, *_truth(system, model, cell), (t_map, 0.0)
     idata = sample(posterior, method="nuts", num_draws=args.draws, num_chains=args.chains,
-                   seed=args.nuts_seed, init=map_result, burn_in=args.warmup, progress=False,
-                   init_spread=args.init_spread)
+                   seed=args.nuts_seed, init=map_result, burn_in=args.warmup,
+                   options=RunOptions(progress=False, init_spread=args.init_spread))
     t_nuts = time.perf_counter() - t0
     return posterior, map_result, idata, *_truth(system, model, cell), (t_map, t_nuts)
 

@@ -101,7 +101,7 @@ def measure(repeats: int, dram_iterations: int) -> dict[str, float]:
     import jax
     import jax.numpy as jnp
 
-    from symplid.inference.samplers import dram, run_chains
+    from symplid.inference.samplers import RunOptions, dram, run_chains
 
     backend = os.environ.get("SYMPLID_BENCH_BACKEND", "jax")
     theta, loglik, log_density = paper_target(backend)
@@ -137,9 +137,10 @@ def measure(repeats: int, dram_iterations: int) -> dict[str, float]:
                                  (4, "vectorized", staged), (4, "paired", paired)):
         states = jax.jit(jax.vmap(lambda p: dram.init(p, log_density, cov)))(
             jnp.tile(theta, (chains, 1)))
-        common = dict(record=lambda s, i: {"stage2": i.stage2_attempted}, chunk_size=1000,
-                      chain_method="vectorized" if layout == "paired" else layout,
-                      progress=False)
+        common = dict(record=lambda s, i: {"stage2": i.stage2_attempted},
+                      options=RunOptions(chunk_size=1000, progress=False,
+                                         chain_method="vectorized" if layout == "paired"
+                                         else layout))
         warm = run_chains(step, states, jax.random.key(0), 1000, **common)
         best = 0.0
         for _ in range(max(1, repeats // 3)):

@@ -12,7 +12,14 @@ from scipy import stats
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, MapResult, moment_z_scores
-from symplid.inference.samplers import dram, dram_stages, draws_array, run_chains, sample
+from symplid.inference.samplers import (
+    RunOptions,
+    dram,
+    dram_stages,
+    draws_array,
+    run_chains,
+    sample,
+)
 
 # ----------------------------------------------------------------------------------------
 # Independent NumPy versions of the target and of the delayed-rejection formula
@@ -124,7 +131,7 @@ def test_recursive_moments_and_adaptation_start():
                 "count": state.count, "chol": state.chol}
 
     run = run_chains(dram.build_kernel(target.log_density, settings), state,
-                     jax.random.key(3), 600, record=record, progress=False)
+                     jax.random.key(3), 600, record=record, options=RunOptions(progress=False))
     draws = {name: value[0] for name, value in run.draws.items()}
     chain = np.vstack([start, draws["position"]])
     s_d = 2.4**2 / 2
@@ -153,7 +160,7 @@ def test_far_start_reaches_the_mode():
         return {"position": state.position, "lp": state.logdensity}
 
     run = run_chains(dram.build_kernel(target.log_density), state, jax.random.key(11), 10_000,
-                     record=record, burn_in=0, progress=False)
+                     record=record, burn_in=0, options=RunOptions(progress=False))
     lp = run.draws["lp"][0]
     assert lp[0] < -400
     # −2·lp is χ²(2) at equilibrium: its mean over the second half is about 2.
@@ -167,7 +174,7 @@ def test_far_start_reaches_the_mode():
 def dram_run(request):
     target = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}[request.param]()
     idata = sample(target, "dram", num_draws=8000, num_chains=4, seed=5,
-                   init=target.map_result(), burn_in=2000, progress=False)
+                   init=target.map_result(), burn_in=2000, options=RunOptions(progress=False))
     return target, idata
 
 
@@ -213,7 +220,7 @@ def test_nan_log_density_is_a_rejection():
                 "y1": info.proposal1, "mean": state.mean, "cov": state.cov}
 
     run = run_chains(dram.build_kernel(target.log_density, settings), state,
-                     jax.random.key(0), 2000, record=record, progress=False)
+                     jax.random.key(0), 2000, record=record, options=RunOptions(progress=False))
     assert np.any(run.draws["y1"][..., 1] < 0)  # proposals did leave the support
     for name in ("position", "lp", "mean", "cov"):
         assert np.all(np.isfinite(run.draws[name])), name
@@ -223,8 +230,8 @@ def test_nan_log_density_is_a_rejection():
 def test_without_delayed_rejection_stage2_never_runs():
     target = Gaussian2D()
     idata = sample(target, "dram", num_draws=500, num_chains=2, seed=0,
-                   init=target.map_result(), progress=False,
-                   settings={"delayed_rejection": False})
+                   init=target.map_result(), settings={"delayed_rejection": False},
+                   options=RunOptions(progress=False))
     assert not idata.sample_stats["stage2_attempted"].any()
     np.testing.assert_array_equal(idata.sample_stats["accepted"],
                                   idata.sample_stats["stage1_accepted"])
@@ -261,8 +268,8 @@ def test_short_dram_run_on_the_papers_posterior(hh, hh_model, hh_data, hh_theta)
     scales = np.r_[np.full(9, 0.02), 4e-6, 4e-4]
     rough = MapResult(np.asarray(hh_theta), np.diag(scales**2), np.diag(scales**-2), 0.0)
     idata = sample(posterior, "dram", num_draws=1000, num_chains=2, seed=0, init=rough,
-                   burn_in=500, init_spread=0.5, progress=False,
-                   settings=dram.DRAMSettings(variance_scale="natural"))  # the paper's, in θ
+                   burn_in=500, settings=dram.DRAMSettings(variance_scale="natural"),
+                   options=RunOptions(init_spread=0.5, progress=False))  # the paper's, in θ
     adapted = np.asarray(idata.attrs["dram_adapted_covariance"])
     assert np.all(np.isfinite(adapted))
     assert np.all(np.linalg.eigvalsh(adapted) > 0)

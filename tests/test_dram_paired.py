@@ -16,7 +16,7 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana
-from symplid.inference.samplers import draws_array, sample
+from symplid.inference.samplers import RunOptions, draws_array, sample
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.registry import resolve_dram
 from symplid.model import kernel as compiled_kernel
@@ -27,7 +27,7 @@ STATS = ("stage1_accepted", "stage2_attempted", "stage2_accepted", "accepted")
 def _run(target, settings, *, num_chains=4, num_draws=1500, init=None):
     return sample(target, "dram", num_draws=num_draws, burn_in=500, num_chains=num_chains,
                   seed=3, init=init if init is not None else target.map_result(),
-                  settings=settings, progress=False)
+                  settings=settings, options=RunOptions(progress=False))
 
 
 def _assert_same_chain(a, b, rtol):

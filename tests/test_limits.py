@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from sampler_targets import Gaussian2D
 from symplid.cli import main
-from symplid.inference.samplers import sample
+from symplid.inference.samplers import RunOptions, sample
 from symplid.workflow import settings_data
 from symplid.workflow.settings import Settings, SettingsError, merge_overrides
 
@@ -65,7 +65,7 @@ def test_the_estimate_bounds_what_the_samplers_record(method):
     target = Gaussian2D()
     chains, draws, burn_in = 3, 60, 20
     idata = sample(target, method, init=target.map_result(), num_draws=draws,
-                   num_chains=chains, burn_in=burn_in, progress=False)
+                   num_chains=chains, burn_in=burn_in, options=RunOptions(progress=False))
     recorded = sum(v.values.nbytes for v in idata.posterior.data_vars.values())
     recorded += sum(np.asarray(v.values, dtype=np.float64).nbytes
                     for v in idata.sample_stats.data_vars.values())

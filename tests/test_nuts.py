@@ -11,7 +11,7 @@ from blackjax.adaptation.base import get_filter_adapt_info_fn
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, moment_z_scores
-from symplid.inference.samplers import draws_array, nuts, sample
+from symplid.inference.samplers import RunOptions, draws_array, nuts, sample
 
 TARGETS = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}
 
@@ -20,7 +20,7 @@ TARGETS = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}
 def nuts_run(request):
     target = TARGETS[request.param]()
     idata = sample(target, "nuts", num_draws=1500, num_chains=4, seed=2,
-                   init=target.map_result(), burn_in=400, progress=False)
+                   init=target.map_result(), burn_in=400, options=RunOptions(progress=False))
     return target, idata
 
 

@@ -401,8 +401,9 @@ def test_dram_chunk_takes_the_data_as_an_argument():
     import jax
     import jax.numpy as jnp
 
-    from symplid.inference.samplers import dram
-    from symplid.inference.samplers.run import DataStep, _compile_chunk, run_chains
+    from symplid.inference.samplers import RunOptions, dram
+    from symplid.inference.samplers.chunk import DataStep, _compile_chunk
+    from symplid.inference.samplers.run import run_chains
 
     settings = dram.DRAMSettings()
 
@@ -420,8 +421,9 @@ def test_dram_chunk_takes_the_data_as_an_argument():
     states = init(jnp.array([[0.0, 0.0], [1.0, 1.0]]))
     key = jax.random.key(4)
     closure = dram.build_kernel(lambda t: log_density(a, t), settings)
-    run_a = run_chains(DataStep(step_fn, a), states, key, 60, record=record, progress=False)
-    run_c = run_chains(closure, states, key, 60, record=record, progress=False)
+    quiet = RunOptions(progress=False)
+    run_a = run_chains(DataStep(step_fn, a), states, key, 60, record=record, options=quiet)
+    run_c = run_chains(closure, states, key, 60, record=record, options=quiet)
     np.testing.assert_array_equal(run_a.draws["theta"], run_c.draws["theta"])
 
     def program(data):

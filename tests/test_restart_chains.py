@@ -15,7 +15,12 @@ import numpy as np
 import pytest
 
 from sampler_targets import Gaussian2D, TwoModes, moment_z_scores
-from symplid.inference.samplers import InterruptedInBurnIn, draws_array, sample
+from symplid.inference.samplers import (
+    InterruptedInBurnIn,
+    RunOptions,
+    draws_array,
+    sample,
+)
 from symplid.inference.samplers.restart import burn_in_window, restart_threshold
 from symplid.inference.samplers.resume import (
     checkpoint_arrays,
@@ -26,8 +31,8 @@ from symplid.inference.samplers.run import SamplingInterrupted, StuckChainsResta
 from symplid.io.chunks import ChunkWriter, read_chunks
 
 # burn_in 90 is not on the chunk grid of 40: the chunk that crosses it is cut there.
-SMALL = {"num_draws": 150, "num_chains": 4, "seed": 3, "burn_in": 90, "chunk_size": 40,
-         "progress": False}
+SMALL = {"num_draws": 150, "num_chains": 4, "seed": 3, "burn_in": 90}
+RUNNER = {"chunk_size": 40, "progress": False}
 
 
 def _starts(far_chains: tuple[int, ...]) -> np.ndarray:
@@ -68,8 +73,9 @@ def test_the_threshold_and_the_window():
 @pytest.mark.parametrize("method", ["dram", "nuts"])
 def test_no_stuck_chain_gives_the_draws_of_a_run_without_the_rule(method, recwarn):
     target = Gaussian2D()
-    on = sample(target, method, init=target.map_result(), **SMALL)
-    off = sample(target, method, init=target.map_result(), restart_stuck_chains=False, **SMALL)
+    on = sample(target, method, init=target.map_result(), **SMALL, options=RunOptions(**RUNNER))
+    off = sample(target, method, init=target.map_result(), **SMALL,
+                 options=RunOptions(**RUNNER, restart_stuck_chains=False))
     _same_run(on, off)
     assert on.attrs["restarted_chains"] == [] and off.attrs["restarted_chains"] == []
     assert not [w for w in recwarn if issubclass(w.category, StuckChainsRestarted)]
@@ -79,10 +85,11 @@ def test_no_stuck_chain_gives_the_draws_of_a_run_without_the_rule(method, recwar
 @pytest.mark.parametrize("method", ["dram", "nuts"])
 def test_a_chain_in_a_mode_60_nats_down_is_restarted_and_the_draws_are_the_main_mode(method):
     target = TwoModes(gap=60.0)
-    budget = {**SMALL, "num_draws": 2000, "burn_in": 600, "chunk_size": 500}
+    budget = {**SMALL, "num_draws": 2000, "burn_in": 600}
     with pytest.warns(StuckChainsRestarted, match="chain 3"):
         idata = sample(target, method, init=target.map_result(),
-                       initial_positions=_starts((3,)), **budget)
+                       **budget, options=RunOptions(chunk_size=500, progress=False,
+                                                    initial_positions=_starts((3,))))
     (restart,) = idata.attrs["restarted_chains"]
     assert restart["chain"] == 3 and restart["from_chain"] in (0, 1, 2)
     assert restart["best_lp_median"] - restart["lp_median"] == pytest.approx(60.0, abs=5.0)
@@ -91,18 +98,21 @@ def test_a_chain_in_a_mode_60_nats_down_is_restarted_and_the_draws_are_the_main_
     for name, z in moment_z_scores(draws, target.mean, target.cov).items():
         assert abs(z) < 4.5, (name, z)
     # Without the rule the chain stays there: the pooled mean is a quarter of the way out.
-    kept = sample(target, method, init=target.map_result(), initial_positions=_starts((3,)),
-                  restart_stuck_chains=False, **budget)
+    kept = sample(target, method, init=target.map_result(), **budget,
+                  options=RunOptions(chunk_size=500, progress=False,
+                                     initial_positions=_starts((3,)),
+                                     restart_stuck_chains=False))
     assert kept.attrs["restarted_chains"] == []
     assert draws_array(kept)[3].mean(axis=0) == pytest.approx(TwoModes.far, abs=0.5)
 
 
 def test_chains_split_between_two_equal_modes_are_left_alone(recwarn):
     target = TwoModes(gap=0.0)
-    on = sample(target, "dram", init=target.map_result(), initial_positions=_starts((2, 3)),
-                **SMALL)
-    off = sample(target, "dram", init=target.map_result(), initial_positions=_starts((2, 3)),
-                 restart_stuck_chains=False, **SMALL)
+    on = sample(target, "dram", init=target.map_result(), **SMALL,
+                options=RunOptions(**RUNNER, initial_positions=_starts((2, 3))))
+    off = sample(target, "dram", init=target.map_result(), **SMALL,
+                 options=RunOptions(**RUNNER, initial_positions=_starts((2, 3)),
+                                    restart_stuck_chains=False))
     assert on.attrs["restarted_chains"] == []
     assert not [w for w in recwarn if issubclass(w.category, StuckChainsRestarted)]
     _same_run(on, off)
@@ -116,17 +126,20 @@ def test_a_run_with_a_restart_resumes_to_the_uninterrupted_run(stop, tmp_path):
     target = TwoModes(gap=60.0)
     init, starts = target.map_result(), _starts((1,))
     with pytest.warns(StuckChainsRestarted):
-        full = sample(target, "dram", init=init, initial_positions=starts, **SMALL)
+        full = sample(target, "dram", init=init, **SMALL,
+                      options=RunOptions(**RUNNER, initial_positions=starts))
     assert [r["chain"] for r in full.attrs["restarted_chains"]] == [1]
     with pytest.warns(SamplingInterrupted):
         try:
-            part, checkpoint = sample(target, "dram", init=init, initial_positions=starts,
-                                      callback=_stop_at(stop), return_state=True, **SMALL)
+            part, checkpoint = sample(target, "dram", init=init, **SMALL,
+                                      options=RunOptions(**RUNNER, initial_positions=starts,
+                                                         callback=_stop_at(stop),
+                                                         return_state=True))
         except InterruptedInBurnIn as burn_in:
             part, checkpoint = burn_in.attrs, burn_in.checkpoint
     np.savez(tmp_path / "state.npz", **checkpoint_arrays(checkpoint))
     with np.load(tmp_path / "state.npz") as stored:
-        resumed = resume_sampling(target, part, dict(stored), progress=False)
+        resumed = resume_sampling(target, part, dict(stored), options=RunOptions(**RUNNER))
     _same_run(full, resumed)
     assert resumed.attrs["restarted_chains"] == full.attrs["restarted_chains"]
 
@@ -137,21 +150,23 @@ def test_a_restart_survives_the_chunk_files(tmp_path):
     target = TwoModes(gap=60.0)
     init, starts = target.map_result(), _starts((0,))
     with pytest.warns(StuckChainsRestarted):
-        full = sample(target, "dram", init=init, initial_positions=starts, **SMALL)
+        full = sample(target, "dram", init=init, **SMALL,
+                      options=RunOptions(**RUNNER, initial_positions=starts))
     for stop in (80, 160):
         folder = tmp_path / str(stop)
         saved = {}
         sink = ChunkWriter(folder, begin=saved.update)
         with pytest.warns(SamplingInterrupted), pytest.raises((InterruptedInBurnIn,)) \
                 if stop < SMALL["burn_in"] else _nothing():
-            sample(target, "dram", init=init, initial_positions=starts,
-                   callback=_stop_at(stop), sink=sink, **SMALL)
+            sample(target, "dram", init=init, **SMALL,
+                   options=RunOptions(**RUNNER, initial_positions=starts, callback=_stop_at(stop),
+                                      sink=sink))
         chunks = read_chunks(folder)
         assert chunks.iterations_done == stop
         attrs = {**saved, "iterations": stop, "interrupted": 1}
         kept = chunks.draws["theta"].shape[1] if chunks.draws else 0
         so_far = inference_data(chunks.draws, attrs) if kept else attrs
-        resumed = resume_sampling(target, so_far, chunks.state, progress=False)
+        resumed = resume_sampling(target, so_far, chunks.state, options=RunOptions(**RUNNER))
         _same_run(full, resumed)
         assert resumed.attrs["restarted_chains"] == full.attrs["restarted_chains"]
 
@@ -164,7 +179,8 @@ def test_a_stop_inside_the_cut_chunk_takes_the_decision_again(monkeypatch):
     target = TwoModes(gap=60.0)
     init, starts = target.map_result(), _starts((3,))
     with pytest.warns(StuckChainsRestarted):
-        full = sample(target, "dram", init=init, initial_positions=starts, **SMALL)
+        full = sample(target, "dram", init=init, **SMALL,
+                      options=RunOptions(**RUNNER, initial_positions=starts))
     compute = run_module._Loop._compute
 
     def interrupted_after_the_decision(self, states, start, num_active):
@@ -174,13 +190,14 @@ def test_a_stop_inside_the_cut_chunk_takes_the_decision_again(monkeypatch):
 
     monkeypatch.setattr(run_module._Loop, "_compute", interrupted_after_the_decision)
     with pytest.warns(SamplingInterrupted), pytest.raises(InterruptedInBurnIn) as info:
-        sample(target, "dram", init=init, initial_positions=starts, **SMALL)
+        sample(target, "dram", init=init, **SMALL,
+               options=RunOptions(**RUNNER, initial_positions=starts))
     monkeypatch.setattr(run_module._Loop, "_compute", compute)
     stop = info.value
     assert stop.checkpoint.iterations_done == 80 and "window" in stop.checkpoint.monitor
     with pytest.warns(StuckChainsRestarted):
         resumed = resume_sampling(target, stop.attrs, checkpoint_arrays(stop.checkpoint),
-                                  progress=False)
+                                  options=RunOptions(**RUNNER))
     _same_run(full, resumed)
 
 
@@ -189,8 +206,9 @@ def test_the_chunks_seen_from_outside_do_not_change():
     target = TwoModes(gap=60.0)
     seen = []
     with pytest.warns(StuckChainsRestarted):
-        sample(target, "dram", init=target.map_result(), initial_positions=_starts((0,)),
-               callback=lambda report: seen.append(report.iterations_done), **SMALL)
+        sample(target, "dram", init=target.map_result(), **SMALL,
+               options=RunOptions(**RUNNER, initial_positions=_starts((0,)),
+                                  callback=lambda report: seen.append(report.iterations_done)))
     assert seen == [40, 80, 120, 160, 200, 240]
 
 
@@ -213,7 +231,7 @@ def test_a_fit_reports_its_restarted_chains():
     target = TwoModes(gap=60.0)
     with pytest.warns(StuckChainsRestarted):
         idata = sample(target, "dram", init=target.map_result(),
-                       initial_positions=_starts((2,)), **SMALL)
+                       **SMALL, options=RunOptions(**RUNNER, initial_positions=_starts((2,))))
     map_result = SimpleNamespace(theta=np.zeros(2), log_posterior=0.0, log_evidence=0.0)
     summary = fit_summary(target, map_result, idata)
     assert summary["restarted_chains"] == 1
@@ -223,6 +241,7 @@ def test_a_fit_reports_its_restarted_chains():
                               settings=SimpleNamespace(sampler=SimpleNamespace(num_chains=4)))
     assert "1 chain(s) stuck far below the others restarted" in fit_result_line(
         "runs/x", outcome, 1.0)
-    quiet = sample(Gaussian2D(), "dram", init=Gaussian2D().map_result(), **SMALL)
+    quiet = sample(Gaussian2D(), "dram", init=Gaussian2D().map_result(), **SMALL,
+                   options=RunOptions(**RUNNER))
     assert fit_summary(target, map_result, quiet)["restarted_chains"] == 0
     assert _restart_lines(quiet) == []

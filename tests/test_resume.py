@@ -5,7 +5,7 @@ the uninterrupted run with the same seed, bit for bit (sampler level and ``sympl
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 import json
 from pathlib import Path
 
@@ -15,13 +15,18 @@ from click.testing import CliRunner
 
 from sampler_targets import Gaussian2D
 from symplid.cli import main
-from symplid.inference.samplers import InterruptedInBurnIn, draws_array, sample
+from symplid.inference.samplers import (
+    InterruptedInBurnIn,
+    RunOptions,
+    draws_array,
+    sample,
+)
 from symplid.inference.samplers.resume import checkpoint_arrays, resume_sampling
 from symplid.inference.samplers.run import SamplingInterrupted
 from symplid.workflow.results import RunFolder
 
-BUDGET = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 90, "chunk_size": 40,
-          "progress": False}
+BUDGET = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 90}
+RUNNER = {"chunk_size": 40, "progress": False}
 
 
 def _stop_at(iterations: int):
@@ -40,16 +45,17 @@ def _stats(idata) -> dict[str, np.ndarray]:
 def test_a_resumed_run_equals_the_uninterrupted_run(method, stop, tmp_path):
     target = Gaussian2D()
     init = target.map_result()
-    full = sample(target, method, init=init, **BUDGET)
+    full = sample(target, method, init=init, **BUDGET, options=RunOptions(**RUNNER))
     with pytest.warns(SamplingInterrupted):
-        part, checkpoint = sample(target, method, init=init, callback=_stop_at(stop),
-                                  return_state=True, **BUDGET)
+        part, checkpoint = sample(target, method, init=init, **BUDGET,
+                                  options=RunOptions(**RUNNER, callback=_stop_at(stop),
+                                                     return_state=True))
     assert part.attrs["interrupted"] == 1 and checkpoint.iterations_done == stop
     assert part.posterior.sizes["draw"] == stop - BUDGET["burn_in"]
     # Through a file, as a run folder stores it (the draws' file: the CLI test below).
     np.savez(tmp_path / "state.npz", **checkpoint_arrays(checkpoint))
     with np.load(tmp_path / "state.npz") as stored:
-        resumed = resume_sampling(target, part, dict(stored), progress=False)
+        resumed = resume_sampling(target, part, dict(stored), options=RunOptions(**RUNNER))
     assert resumed.attrs["interrupted"] == 0
     assert resumed.attrs["iterations"] == BUDGET["burn_in"] + BUDGET["num_draws"]
     np.testing.assert_array_equal(draws_array(resumed), draws_array(full))
@@ -60,27 +66,28 @@ def test_a_resumed_run_equals_the_uninterrupted_run(method, stop, tmp_path):
 def test_a_run_stopped_in_its_burn_in_resumes_from_its_state_and_attributes():
     target = Gaussian2D()
     init = target.map_result()
-    full = sample(target, "dram", init=init, **BUDGET)
+    full = sample(target, "dram", init=init, **BUDGET, options=RunOptions(**RUNNER))
     with pytest.warns(SamplingInterrupted), pytest.raises(InterruptedInBurnIn) as info:
-        sample(target, "dram", init=init, callback=_stop_at(80), return_state=True, **BUDGET)
+        sample(target, "dram", init=init, **BUDGET,
+               options=RunOptions(**RUNNER, callback=_stop_at(80), return_state=True))
     stop = info.value
     assert isinstance(stop, KeyboardInterrupt) and stop.checkpoint.iterations_done == 80
     assert stop.attrs["iterations"] == 80
     resumed = resume_sampling(target, stop.attrs, checkpoint_arrays(stop.checkpoint),
-                              progress=False)
+                              options=RunOptions(**RUNNER))
     np.testing.assert_array_equal(draws_array(resumed), draws_array(full))
 
 
 def test_resuming_a_finished_run_or_a_foreign_state_is_refused():
     target = Gaussian2D()
-    full, checkpoint = sample(target, "dram", init=target.map_result(), return_state=True,
-                              **BUDGET)
+    full, checkpoint = sample(target, "dram", init=target.map_result(), **BUDGET,
+                              options=RunOptions(**RUNNER, return_state=True))
     with pytest.raises(ValueError, match="the run is finished"):
-        resume_sampling(target, full, checkpoint, progress=False)
+        resume_sampling(target, full, checkpoint, options=RunOptions(**RUNNER))
     stored = checkpoint_arrays(checkpoint)
     stored["treedef"] = np.asarray("PyTreeDef(None)")
     with pytest.raises(ValueError, match="does not fit this sampler"):
-        resume_sampling(target, full, stored, progress=False)
+        resume_sampling(target, full, stored, options=RunOptions(**RUNNER))
 
 
 # ----------------------------------------------------------------------------- symplid fit
@@ -102,7 +109,11 @@ def _chunks_of_100(monkeypatch, stop_at: int | None = None):
     extra = {}
     if stop_at is not None:
         extra["callback"] = _stop_at(stop_at)
-    monkeypatch.setattr(fit_module, "sample", functools.partial(sample, **extra))
+
+    def stopped(*args, options, **kwargs):
+        return sample(*args, options=dataclasses.replace(options, **extra), **kwargs)
+
+    monkeypatch.setattr(fit_module, "sample", stopped)
 
 
 

@@ -8,7 +8,7 @@ one row, an empty column) and usage mistakes are one line with exit code 2.
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 import json
 import os
 import shutil
@@ -147,8 +147,12 @@ def _interrupt_sampler(monkeypatch, action):
         if report.iterations_done == 300:
             action()
 
-    monkeypatch.setattr(fit_module, "sample",  # chunks of 100: TINY's sampler.chunk_size
-                        functools.partial(fit_module.sample, callback=callback))
+    sample = fit_module.sample
+
+    def interrupted(*args, options, **kwargs):  # chunks of 100: TINY's sampler.chunk_size
+        return sample(*args, options=dataclasses.replace(options, callback=callback), **kwargs)
+
+    monkeypatch.setattr(fit_module, "sample", interrupted)
 
 
 def _raise():

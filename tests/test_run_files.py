@@ -9,7 +9,7 @@ summary.json), read back with h5netcdf and json directly rather than through sym
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 import json
 import os
 import shutil
@@ -50,8 +50,12 @@ def _fit(data_csv: Path, out: Path, stop_at: int | None = None):
             raise KeyboardInterrupt
 
     extra = {"callback": stop} if stop_at else {}
+
+    def stopped(*args, options, **kwargs):
+        return sample(*args, options=dataclasses.replace(options, **extra), **kwargs)
+
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(fit_module, "sample", functools.partial(sample, **extra))
+        mp.setattr(fit_module, "sample", stopped)
         return run("fit", data_csv, "--out", out, *TINY)
 
 

@@ -15,6 +15,7 @@ import symplid  # noqa: F401  (float64)
 from sampler_targets import GammaVariance, Gaussian2D, MapResult
 from symplid.inference.diagnostics import ConvergenceWarning, import_arviz, summary
 from symplid.inference.samplers import (
+    RunOptions,
     SamplingInterrupted,
     dram,
     draws_array,
@@ -25,7 +26,8 @@ from symplid.inference.samplers import (
 
 az = import_arviz()
 
-RUN = dict(num_draws=600, num_chains=3, seed=7, burn_in=300, progress=False)
+RUN = dict(num_draws=600, num_chains=3, seed=7, burn_in=300)
+QUIET = RunOptions(progress=False)
 CHUNK = 300  # one chunk length for every chunked run below, so they share one compilation
 
 
@@ -37,25 +39,27 @@ def gaussian():
 @pytest.fixture(scope="module")
 def reference_run(gaussian):
     """A DRAM run that the other runs are compared with (default chunking)."""
-    return sample(gaussian, "dram", init=gaussian.map_result(), **RUN)
+    return sample(gaussian, "dram", init=gaussian.map_result(), **RUN, options=QUIET)
 
 
 def test_same_seed_same_draws_other_seed_other_draws(gaussian, reference_run):
-    again = sample(gaussian, "dram", init=gaussian.map_result(), **RUN)
+    again = sample(gaussian, "dram", init=gaussian.map_result(), **RUN, options=QUIET)
     np.testing.assert_array_equal(draws_array(again), draws_array(reference_run))
     np.testing.assert_array_equal(again.sample_stats["lp"], reference_run.sample_stats["lp"])
-    other = sample(gaussian, "dram", init=gaussian.map_result(), **{**RUN, "seed": 8})
+    other = sample(gaussian, "dram", init=gaussian.map_result(), **{**RUN, "seed": 8},
+                   options=QUIET)
     assert not np.array_equal(draws_array(other), draws_array(reference_run))
 
 
 def test_draws_do_not_depend_on_the_chunk_size(gaussian, reference_run):
-    chunked = sample(gaussian, "dram", init=gaussian.map_result(), chunk_size=CHUNK, **RUN)
+    chunked = sample(gaussian, "dram", init=gaussian.map_result(), **RUN,
+                     options=RunOptions(progress=False, chunk_size=CHUNK))
     np.testing.assert_array_equal(draws_array(chunked), draws_array(reference_run))
 
 
 def test_sequential_chains_give_the_same_draws(gaussian, reference_run):
     sequential = sample(gaussian, "dram", init=gaussian.map_result(),
-                        chain_method="sequential", **RUN)
+                        **RUN, options=RunOptions(progress=False, chain_method="sequential"))
     np.testing.assert_allclose(draws_array(sequential), draws_array(reference_run),
                                rtol=1e-12, atol=1e-12)
 
@@ -70,8 +74,9 @@ def test_interrupted_run_keeps_its_draws(gaussian, reference_run):
             raise KeyboardInterrupt
 
     with pytest.warns(SamplingInterrupted, match="interrupted after 600 of 900 iterations"):
-        partial = sample(gaussian, "dram", init=gaussian.map_result(), chunk_size=CHUNK,
-                         callback=stop_after_two_chunks, **RUN)
+        partial = sample(gaussian, "dram", init=gaussian.map_result(), **RUN,
+                         options=RunOptions(progress=False, chunk_size=CHUNK,
+                                            callback=stop_after_two_chunks))
     assert [r.iterations_done for r in reports] == [300, 600]
     assert partial.attrs["interrupted"] == 1 and partial.attrs["iterations"] == 600
     # 600 iterations minus 300 of burn-in: the first 300 draws of the full run, exactly.
@@ -86,13 +91,14 @@ def test_interrupt_during_burn_in_raises(gaussian):
         raise KeyboardInterrupt
 
     with pytest.warns(SamplingInterrupted), pytest.raises(KeyboardInterrupt, match="before"):
-        sample(gaussian, "dram", init=gaussian.map_result(), chunk_size=CHUNK, callback=stop,
-               **RUN)
+        sample(gaussian, "dram", init=gaussian.map_result(), **RUN,
+               options=RunOptions(progress=False, chunk_size=CHUNK, callback=stop))
 
 
 def test_thinning_keeps_every_kth_iteration(gaussian, reference_run):
-    thinned = sample(gaussian, "dram", init=gaussian.map_result(), chunk_size=CHUNK,
-                     **{**RUN, "num_draws": 200, "thin": 3})
+    thinned = sample(gaussian, "dram", init=gaussian.map_result(),
+                     **{**RUN, "num_draws": 200, "thin": 3},
+                     options=RunOptions(progress=False, chunk_size=CHUNK))
     np.testing.assert_array_equal(draws_array(thinned), draws_array(reference_run)[:, 2::3])
     assert thinned.attrs["iterations"] == 300 + 600
 
@@ -143,8 +149,8 @@ def test_chunks_compile_once(gaussian):
     state = jax.vmap(lambda p: dram.init(p, gaussian.log_density, jnp.eye(2)))(
         jnp.zeros((2, 2)))
     run = run_chains(dram.build_kernel(logdensity), state, jax.random.key(0), 1050,
-                     record=lambda s, i: {"x": s.position}, chunk_size=100, progress=False,
-                     callback=callback)
+                     record=lambda s, i: {"x": s.position},
+                     options=RunOptions(chunk_size=100, progress=False, callback=callback))
     # 11 chunks of 96 iterations, the last with 90 of them kept.
     assert run.draws["x"].shape == (2, 1050, 2)
     assert after_first_chunk[0] > 0
@@ -182,8 +188,8 @@ def test_start_falls_back_to_the_map_with_a_warning():
 
 def test_explicit_initial_positions(gaussian):
     starts = np.array([[5.0, 5.0], [-5.0, 0.0], [0.0, -9.0]])
-    idata = sample(gaussian, "dram", init=gaussian.map_result(), chunk_size=CHUNK,
-                   initial_positions=starts, **{**RUN, "burn_in": 0})
+    idata = sample(gaussian, "dram", init=gaussian.map_result(), **{**RUN, "burn_in": 0},
+                   options=RunOptions(progress=False, chunk_size=CHUNK, initial_positions=starts))
     # The first draw is one DRAM step from its start: a few proposal scales at most.
     first = draws_array(idata)[:, 0]
     assert np.all(np.linalg.norm(first - starts, axis=1) < 8.0)
@@ -203,7 +209,7 @@ class _NoDensity:
         ({"num_draws": 0}, ValueError, "num_draws"),
         ({"num_chains": 1.5}, ValueError, "num_chains"),
         ({"burn_in": -1}, ValueError, "burn_in"),
-        ({"init_spread": -1.0}, ValueError, "init_spread"),
+        ({"options": dict(init_spread=-1.0)}, ValueError, "init_spread"),
         ({"settings": {"gama": 0.02}}, ValueError, r"unknown dram setting\(s\) \['gama'\]"),
         ({"settings": 3}, TypeError, "settings must be"),
         ({"init": object()}, TypeError, "init lacks .theta"),
@@ -211,15 +217,18 @@ class _NoDensity:
          r"init.theta must have shape \(2,\)"),
         ({"init": MapResult(np.zeros(2), np.array([[1.0, 2.0], [2.0, 1.0]]), np.eye(2), 0.0)},
          ValueError, "not positive definite"),
-        ({"initial_positions": np.zeros((3, 2))}, ValueError, "initial_positions"),
-        ({"chain_method": "parallel"}, ValueError, "chain_method"),
+        ({"options": dict(initial_positions=np.zeros((3, 2)))}, ValueError,
+         "initial_positions"),
+        ({"options": dict(chain_method="parallel")}, ValueError, "chain_method"),
     ],
 )
 def test_bad_arguments_are_named(gaussian, kwargs, error, message):
     arguments = dict(method="dram", num_draws=10, num_chains=2, seed=0,
-                     init=gaussian.map_result(), progress=False)
-    arguments.update(kwargs)
+                     init=gaussian.map_result(), options=RunOptions(progress=False))
     with pytest.raises(error, match=message):
+        if "options" in kwargs:  # RunOptions checks its own values
+            kwargs = {"options": RunOptions(progress=False, **kwargs["options"])}
+        arguments.update(kwargs)
         sample(gaussian, **arguments)
 
 
@@ -238,7 +247,7 @@ def test_init_outside_support_is_refused():
     target = GammaVariance()
     bad = MapResult(np.array([0.0, -1.0]), np.eye(2), np.eye(2), 0.0)
     with pytest.raises(ValueError, match=r"log density at init\.theta is not finite"):
-        sample(target, "dram", num_draws=10, init=bad, progress=False)
+        sample(target, "dram", num_draws=10, init=bad, options=RunOptions(progress=False))
 
 
 # ---------------------------------------------------------------------------- summary

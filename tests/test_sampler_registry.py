@@ -13,7 +13,14 @@ import pytest
 import symplid  # noqa: F401  (float64)
 from sampler_targets import MapResult
 from symplid.inference.diagnostics import import_arviz
-from symplid.inference.samplers import SAMPLERS, SamplerKernel, SamplerSpec, draws_array, sample
+from symplid.inference.samplers import (
+    SAMPLERS,
+    RunOptions,
+    SamplerKernel,
+    SamplerSpec,
+    draws_array,
+    sample,
+)
 
 az = import_arviz()
 
@@ -92,7 +99,7 @@ def test_a_registered_sampler_runs_through_sample(independent):
     init = MapResult(np.array([target.mean]), np.array([[target.sd**2]]),
                      np.array([[target.sd**-2]]), 0.0)
     idata = sample(target, "imh", num_draws=4000, num_chains=4, seed=3, init=init,
-                   settings={"scale": 1.2}, progress=False)
+                   settings={"scale": 1.2}, options=RunOptions(progress=False))
     assert idata.attrs["method"] == "independent-mh"
     assert idata.attrs["independent_proposal"] == [1.0, 1.2]
     assert idata.posterior["x"].shape == (4, 4000)
@@ -101,7 +108,8 @@ def test_a_registered_sampler_runs_through_sample(independent):
     assert abs(float(x.mean()) - target.mean) < 4 * mcse
     assert 0.2 < float(idata.sample_stats["accepted"].mean()) < 1.0
     with pytest.raises(ValueError, match=r"unknown independent-mh setting\(s\) \['scal'\]"):
-        sample(target, "imh", num_draws=10, init=init, settings={"scal": 1.0}, progress=False)
+        sample(target, "imh", num_draws=10, init=init, settings={"scal": 1.0},
+               options=RunOptions(progress=False))
 
 
 def test_unknown_sampler_lists_the_registered_ones(independent):
@@ -109,15 +117,13 @@ def test_unknown_sampler_lists_the_registered_ones(independent):
         sample(Gaussian1D(), "independent-m", init=None)
 
 
-def test_num_samples_still_works_with_a_future_warning():
+def test_the_runner_keywords_live_in_the_options_object():
+    """``sample`` takes the sampler's arguments and one RunOptions (no more than ten)."""
+    import inspect
+
+    assert len(inspect.signature(sample).parameters) <= 10
     target = Gaussian1D()
     init = MapResult(np.array([target.mean]), np.array([[target.sd**2]]),
                      np.array([[target.sd**-2]]), 0.0)
-    run = dict(num_chains=2, seed=0, init=init, burn_in=20, progress=False)
-    with pytest.warns(FutureWarning, match="num_draws"):
-        old = sample(target, "dram", num_samples=50, **run)
-    new = sample(target, "dram", num_draws=50, **run)
-    np.testing.assert_array_equal(draws_array(old), draws_array(new))
-    assert '"num_draws": 50' in new.attrs["settings"]
-    with pytest.raises(TypeError, match="num_draws only"):
-        sample(target, "dram", num_draws=50, num_samples=50, **run)
+    with pytest.raises(TypeError, match="progress"):
+        sample(target, "dram", num_draws=50, init=init, progress=False)

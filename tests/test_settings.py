@@ -57,12 +57,15 @@ def test_defaults_are_the_papers_numbers():
     assert s.priors.coefficients == Laplace(0.0, 10.0)
     assert s.priors.variances == HalfNormal(1.0)
     assert s.priors.initial_state.family == "normal"
-    # DRAM: 200,000 iterations, the first 100,000 discarded, γ = 0.01, adaptation after 200.
+    # DRAM until ESS ≥ 400 and R-hat ≤ 1.01, at most the paper's 200,000 iterations; γ =
+    # 0.01, adaptation after 200. A fixed budget's burn-in is half of it (the paper's).
     assert (s.sampler.method, s.sampler.num_iterations, s.sampler.burn_in) == (
-        "dram",
-        200_000,
-        100_000,
-    )
+        "dram", "auto", "auto")
+    assert (s.sampler.target_ess, s.sampler.target_rhat, s.sampler.max_iterations) == (
+        400.0, 1.01, 200_000)
+    assert s.sampler.num_draws is None and s.sampler.resolved_burn_in is None
+    fixed = merge_overrides(s, {"sampler.num_iterations": 200_000})
+    assert (fixed.sampler.resolved_burn_in, fixed.sampler.num_draws) == (100_000, 100_000)
     assert (s.sampler.gamma, s.sampler.adapt_start, s.sampler.num_chains) == (0.01, 200, 4)
     assert (s.sampler.thin, s.sampler.seed, s.seed) == (1, 0, 0)
     # Predictions with leapfrog at dt = 0.01 over 200 s, 100 posterior paths.
@@ -175,7 +178,8 @@ def test_dump_writes_every_key(tmp_path):
     expected |= {"priors.initial_state.scale", "priors.damping.prior", "priors.damping.scale"}
     expected |= {"priors.process_var"}
     assert keys(written) == expected
-    assert written["sampler"]["num_iterations"] == 200_000
+    assert written["sampler"]["num_iterations"] == "auto"
+    assert load_settings(path) == Settings()  # "auto" is read back as written
 
 
 def test_custom_values_survive(tmp_path):
@@ -252,8 +256,14 @@ BAD_VALUES = [
     ("[priors.variances]\nprior='uniform'\nlow=2\nhigh=1\n", "priors.variances.low", "less than"),
     ("[priors.initial_state]\nprior='half-normal'\n", "priors.initial_state.prior", "any real"),
     (
-        "[sampler]\nnum_iterations = 1000\n",
+        "[sampler]\nnum_iterations = 1000\nburn_in = 1000\n",
         "sampler.num_iterations",
+        "greater than sampler.burn_in",
+    ),
+    ("[sampler]\nnum_iterations = 'many'\n", "sampler.num_iterations", "number or 'auto'"),
+    (
+        "[sampler]\nburn_in = 300000\n",
+        "sampler.max_iterations",
         "greater than sampler.burn_in",
     ),
     ("[sampler]\nnum_iterations = 10\nburn_in = 10\n", "sampler.num_iterations", "greater than"),
@@ -323,7 +333,7 @@ def test_merge_overrides_prior_family_change():
         ({"model": 1}, "is a section"),
         ({"model.dt": -1.0}, "model.dt must be > 0"),
         ({"model.integrator": "rk3"}, "not a known integrator"),
-        ({"sampler.num_iterations": 50}, "greater than sampler.burn_in"),
+        ({"sampler.num_iterations": 50, "sampler.burn_in": 60}, "greater than sampler.burn_in"),
     ],
 )
 def test_merge_overrides_errors_name_the_command_line(overrides, words):
@@ -413,7 +423,8 @@ def test_old_num_samples_key_is_read_with_a_future_warning(tmp_path):
 
 
 def test_written_settings_use_the_new_key(tmp_path):
-    text = dump_settings(Settings(), tmp_path / "s.toml").read_text()
+    fixed = merge_overrides(Settings(), {"sampler.num_iterations": 200_000})
+    text = dump_settings(fixed, tmp_path / "s.toml").read_text()
     assert "num_iterations = 200000" in text and "num_samples" not in text
 
 

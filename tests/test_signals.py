@@ -179,12 +179,11 @@ def test_the_third_signal_of_a_kind_ends_the_process_at_once_in_one_line():
 def test_the_sampler_stops_before_the_next_chunk_with_the_draws_of_the_whole_run():
     from sampler_targets import Gaussian2D
     from symplid import stopping
-    from symplid.inference.samplers import sample
+    from symplid.inference.samplers import RunOptions, sample
 
     target = Gaussian2D()
-    budget = {"num_draws": 200, "num_chains": 2, "burn_in": 40, "chunk_size": 30,
-              "progress": False, "init": target.map_result()}
-    full = sample(target, "dram", **budget)
+    budget = {"num_draws": 200, "num_chains": 2, "burn_in": 40, "init": target.map_result()}
+    full = sample(target, "dram", **budget, options=RunOptions(chunk_size=30, progress=False))
 
     def ask_to_stop(report):  # as a signal's handler would, after the third chunk
         if report.chunk == 2:
@@ -192,7 +191,9 @@ def test_the_sampler_stops_before_the_next_chunk_with_the_draws_of_the_whole_run
 
     try:
         with pytest.warns(UserWarning, match="interrupted after 90 of 240"):
-            part = sample(target, "dram", callback=ask_to_stop, **budget)
+            part = sample(target, "dram", **budget,
+                          options=RunOptions(chunk_size=30, progress=False,
+                                                                     callback=ask_to_stop))
     finally:
         stopping.clear()
     assert part.attrs["interrupted"] == 1 and part.attrs["iterations"] == 90

@@ -17,7 +17,7 @@ import pytest
 from scipy.special import digamma
 
 from symplid.inference.diagnostics import import_arviz
-from symplid.inference.samplers import sample
+from symplid.inference.samplers import RunOptions, sample
 from symplid.inference.samplers.api import draws_array
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.workflow.settings import Settings, merge_overrides
@@ -56,7 +56,7 @@ def runs():
     out = {}
     for scale in ("log", "natural"):
         out[scale] = sample(target, "dram", num_draws=4000, num_chains=4, seed=3, init=init,
-                            settings={"variance_scale": scale}, progress=False)
+                            settings={"variance_scale": scale}, options=RunOptions(progress=False))
     return target, out
 
 

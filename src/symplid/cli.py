@@ -237,10 +237,14 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
 @click.option("--method", cls=RegistryOption, registry=sampler_registry, default=None,
               help="Sampler: {choices}.")
 @click.option("--iterations", type=click.IntRange(min=1), default=None,
-              help="Iterations per chain, burn-in included (draws kept: iterations − burn-in).")
+              help="A fixed budget: iterations per chain, burn-in included (draws kept: "
+              "iterations − burn-in) [default: until every parameter's ESS ≥ 400 and R-hat ≤ "
+              "1.01, at most 200000; sampler.target_ess, target_rhat, max_iterations, "
+              "max_seconds].")
 @click.option("--samples", type=click.IntRange(min=1), default=None, hidden=True)
 @click.option("--burn-in", type=click.IntRange(min=0), default=None,
-              help="Iterations discarded per chain.")
+              help="Iterations discarded per chain [default: half of --iterations; without "
+              "it the sampler's own, extended while the chains disagree].")
 @click.option("--chains", type=click.IntRange(min=1), default=None, help="Independent chains.")
 @click.option("--seed", type=click.IntRange(min=0), default=None,
               help="Seed of the MAP starts and of the sampler [default: 0].")
@@ -272,10 +276,12 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
         report, no_progress) -> None:
     """Fit a Hamiltonian to DATA (CSV or NPZ) and write a run folder.
 
-    Several DATA files, or a `trajectory` column in one, are several trajectories of the same
-    system: they share θ, each has its own initial state. Ctrl-C (or SIGTERM, SIGHUP) during
-    sampling keeps the draws made so far, marks the run "interrupted" and exits with code 130
-    (143, 129); the draws also go to RUN/draws/ chunk by chunk, so a killed run keeps them too.
+    Without --iterations the sampler runs until every parameter's bulk and tail ESS reach
+    400 and its R-hat is at most 1.01 (or a cap), and says which ended it. Several DATA files,
+    or a `trajectory` column in one, are several trajectories of the same system: they share
+    θ, each has its own initial state. Ctrl-C (or SIGTERM, SIGHUP) during sampling keeps the
+    draws made so far, marks the run "interrupted" and exits with code 130 (143, 129); the
+    draws also go to RUN/draws/ chunk by chunk, so a killed run keeps them too.
     `symplid fit --resume --out RUN` continues either.
     """
     if samples is not None:

@@ -4,7 +4,9 @@
 ArviZ ``InferenceData``; :func:`draws_array` gives its draws as one array. Each sampler is a
 pair of pure functions in the BlackJAX style (``init`` and a ``step``); a new one is one
 registration of a :class:`SamplerSpec` whose ``build`` returns a :class:`SamplerKernel`, and
-:func:`run_chains` drives it in compiled chunks over several chains.
+:func:`run_chains` drives it in compiled chunks over several chains. How the chains run is one
+:class:`RunOptions`; without a fixed number of draws they run until the draws meet its
+:class:`Targets` (bulk and tail ESS, R-hat) or a cap.
 """
 
 from symplid.inference.samplers import (
@@ -17,10 +19,12 @@ from symplid.inference.samplers import (
     InterruptedInBurnIn,
     NUTSSettings,
     NUTSState,
+    RunOptions,
     SamplerCheckpoint,
     SamplerKernel,
     SamplerSpec,
     SamplingInterrupted,
+    Targets,
     draws_array,
     overdispersed_starts,
     run_chains,
@@ -39,10 +43,12 @@ __all__ = [
     "InterruptedInBurnIn",
     "NUTSSettings",
     "NUTSState",
+    "RunOptions",
     "SamplerCheckpoint",
     "SamplerKernel",
     "SamplerSpec",
     "SamplingInterrupted",
+    "Targets",
     "draws_array",
     "overdispersed_starts",
     "run_chains",

@@ -41,7 +41,7 @@ import numpy as np
 
 from symplid.dynamics.potentials import Polynomial
 from symplid.inference.diagnostics import summary as diagnostics_summary
-from symplid.inference.samplers import draws_array, sample
+from symplid.inference.samplers import RunOptions, draws_array, sample
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.prior_spec import PriorSpec
@@ -181,7 +181,8 @@ def fit_replication(cell: Mapping[str, Any], obs: Observations) -> tuple[Any, np
         warnings.simplefilter("ignore")  # a replication's warnings are its metrics
         result = find_map_for(settings, posterior)
         idata = sample(posterior, method, num_draws=kept, num_chains=budget["chains"],
-                       burn_in=burn_in, init=result, seed=int(cell["seed"]), progress=False)
+                       burn_in=burn_in, init=result, seed=int(cell["seed"]),
+                       options=RunOptions(progress=False))
         table = diagnostics_summary(idata, show=False, warn=False)
     return posterior, draws_array(idata), table
 

@@ -427,14 +427,15 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
     if "rhat_max" in s:
         extra = "; " + _convergence_words(s["rhat_max"], s["ess_min"],
                                           outcome.settings.sampler.num_chains)
-        if not outcome.interrupted and not converged(s):
+        extra += _stopped_words(s)
+        if not outcome.interrupted and not converged(s) and s.get("stopped_by") != "target":
             extra += " (not converged: see the warnings; run longer)"
     if s.get("restarted_chains"):
         extra += (f"; {s['restarted_chains']} chain(s) stuck far below the others restarted at "
                   "the end of the burn-in (see the warning)")
     head = f"{out}: "
     if outcome.interrupted:
-        total = outcome.settings.sampler.num_iterations
+        total = outcome.settings.sampler.iterations_cap
         head += (f"interrupted after {s['iterations_done']:,} of {total:,} iterations, draws "
                  "kept (continue with --resume); ")
     if s.get("map_optima", 1) > 1:
@@ -486,6 +487,20 @@ def report_after_fit(out: Path, plan: Any = None) -> str:
     except Exception as err:
         return (f"{out}: the run is finished, but writing its report failed "
                 f"({type(err).__name__}: {err}); try 'symplid report {out}'")
+
+
+def _stopped_words(summary: dict[str, Any]) -> str:
+    """What ended the sampling, in words (nothing for a fixed budget or an interruption)."""
+    stopped, iterations = summary.get("stopped_by"), summary.get("iterations", 0)
+    if stopped == "target":
+        t = summary.get("targets", {})
+        return (f"; target reached after {iterations:,} iterations per chain (ESS ≥ "
+                f"{t.get('ess_bulk', 0):g}, R-hat ≤ {t.get('rhat', 0):g}; burn-in "
+                f"{summary.get('burn_in', 0):,})")
+    if stopped in ("iterations", "wall time"):
+        return (f"; cap reached ({stopped}) after {iterations:,} iterations per chain, before "
+                "the targets (raise sampler.max_iterations or sampler.max_seconds)")
+    return ""
 
 
 def _convergence_words(rhat: float, ess: float, chains: int) -> str:

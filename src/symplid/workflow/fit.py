@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import time
 import warnings
 from collections.abc import Callable
@@ -31,7 +32,14 @@ from symplid.inference.map import (
     find_map,
     half_normal_start,
 )
-from symplid.inference.samplers import SAMPLERS, InterruptedInBurnIn, draws_array, sample
+from symplid.inference.samplers import (
+    SAMPLERS,
+    InterruptedInBurnIn,
+    RunOptions,
+    Targets,
+    draws_array,
+    sample,
+)
 from symplid.io.chunks import ChunkWriter
 from symplid.model.data import Observations
 from symplid.model.statespace import HamiltonianModel
@@ -45,7 +53,7 @@ from symplid.workflow.results import RunFolder
 from symplid.workflow.scaling import scaling_for
 from symplid.workflow.sensitivity import sensitivity_checks
 from symplid.workflow.settings import Settings
-from symplid.workflow.settings_schema import map_start
+from symplid.workflow.settings_schema import SamplerSettings, map_start
 from symplid.workflow.step_size import StepChoice, choose_step, step_check, step_line
 
 __all__ = [
@@ -180,28 +188,24 @@ def sample_for(
     accepted = {f.name for f in dataclasses.fields(SAMPLERS[s.method].settings_class)}
     offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start),
                "variance_scale": s.variance_scale}
-    options = {key: value for key, value in offered.items() if key in accepted}
+    options_for_kernel = {key: value for key, value in offered.items() if key in accepted}
     # The settings count every iteration (burn-in included, as the paper's 200,000 with
-    # 100,000 discarded); the sampler counts the draws it keeps.
-    return sample(
-        posterior,
-        method=s.method,
-        num_draws=s.num_draws,
-        num_chains=s.num_chains,
-        seed=s.seed,
-        init=map_result,
-        burn_in=s.burn_in,
-        thin=s.thin,
-        settings=options,
-        progress=progress,
-        progress_label=progress_label,
-        progress_position=progress_position,
-        return_state=return_state,
-        chunk_size=s.chunk_size,
-        sink=sink,
-        restart_stuck_chains=s.restart_stuck_chains,
-        on_draws=on_draws,
-    )
+    # 100,000 discarded); the sampler counts the draws it keeps. "auto": no fixed number.
+    options = RunOptions(chunk_size=s.chunk_size, progress=progress,
+                         progress_label=progress_label, progress_position=progress_position,
+                         sink=sink, on_draws=on_draws, return_state=return_state,
+                         restart_stuck_chains=s.restart_stuck_chains, targets=_targets_of(s))
+    return sample(posterior, method=s.method, num_draws=s.num_draws, num_chains=s.num_chains,
+                  seed=s.seed, init=map_result, burn_in=s.resolved_burn_in, thin=s.thin,
+                  settings=options_for_kernel, options=options)
+
+
+def _targets_of(sampler: SamplerSettings) -> Targets:
+    """The targets and caps of the ``[sampler]`` section (read by ``num_iterations =
+    "auto"``)."""
+    return Targets(ess_bulk=sampler.target_ess, ess_tail=sampler.target_ess,
+                   rhat=sampler.target_rhat, max_iterations=sampler.max_iterations,
+                   max_seconds=sampler.max_seconds or None)
 
 
 def chunk_sink(folder: RunFolder, first_index: int = 0, attrs: bool = True,
@@ -419,7 +423,7 @@ def save_burn_in(folder: RunFolder, settings: Settings, stop: InterruptedInBurnI
         folder.write_json(RunFolder.SAMPLER_ATTRS, stop.attrs)
         folder.mark_interrupted(
             f"in the burn-in, after {stop.checkpoint.iterations_done:,} of "
-            f"{settings.sampler.num_iterations:,} iterations per chain (no draws kept yet)")
+            f"{settings.sampler.iterations_cap:,} iterations per chain (no draws kept yet)")
 
 
 def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = None,
@@ -453,7 +457,7 @@ def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = No
                     folder.write_npz(RunFolder.SAMPLER_STATE, **checkpoint_arrays(checkpoint))
                 folder.mark_interrupted(
                     f"after {summary['iterations_done']:,} of "
-                    f"{settings.sampler.num_iterations:,} iterations per chain (the draws "
+                    f"{settings.sampler.iterations_cap:,} iterations per chain (the draws "
                     "made so far are in posterior.nc)"
                 )
             else:
@@ -495,6 +499,24 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
             warnings.simplefilter("ignore", RuntimeWarning)
             out["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy()))
             out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
+            if "ess_tail" in table:
+                out["ess_tail_min"] = float(np.nanmin(table["ess_tail"].to_numpy()))
     # Chains restarted at the end of the burn-in (inference.samplers.restart); 0: none.
     out["restarted_chains"] = len(idata.attrs.get("restarted_chains", None) or [])
+    out.update(_budget_summary(idata))
+    return out
+
+
+def _budget_summary(idata) -> dict[str, Any]:
+    """What ended the sampling (``stopped_by``: ``"target"``, the cap ``"iterations"`` or
+    ``"wall time"``, ``"fixed budget"``, ``"interrupted"``), the iterations per chain and,
+    for a budget set by the answer, its targets and burn-in
+    (:mod:`~symplid.inference.samplers.budget`)."""
+    attrs = idata.attrs
+    out: dict[str, Any] = {"stopped_by": str(attrs.get("stopped_by", "fixed budget")),
+                           "iterations": int(attrs.get("iterations", 0))}
+    if "budget" in attrs:
+        record = json.loads(attrs["budget"])
+        out["burn_in"] = int(record["burn_in"])
+        out["targets"] = {k: record["targets"][k] for k in ("ess_bulk", "ess_tail", "rhat")}
     return out

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from symplid.inference.map import MapResult
-from symplid.inference.samplers import InterruptedInBurnIn
+from symplid.inference.samplers import InterruptedInBurnIn, RunOptions
 from symplid.inference.samplers.resume import inference_data, resume_sampling
 from symplid.io.chunks import read_chunks, remove_chunks
 from symplid.io.runfiles import flatten
@@ -104,14 +104,15 @@ def _resume(folder: RunFolder, out: str | Path, progress: bool, warn: bool,
     idata, arrays, sink = _where_sampling_stopped(folder)
     if status is not None:
         status(f"resuming {out} at iteration {int(arrays['iterations_done']):,} of "
-               f"{settings.sampler.num_iterations:,} per chain (compiling first)...")
+               f"{settings.sampler.iterations_cap:,} per chain (compiling first)...")
     model = build_model(settings, obs)
     posterior = build_posterior(settings, obs, model)
     map_result = MapResult.from_dict(folder.read_map())
     start = time.perf_counter()
     try:
-        idata, checkpoint = resume_sampling(posterior, idata, arrays, progress=progress,
-                                            return_state=True, sink=sink)
+        idata, checkpoint = resume_sampling(
+            posterior, idata, arrays,
+            options=RunOptions(progress=progress, return_state=True, sink=sink))
     except InterruptedInBurnIn as stop:
         save_burn_in(folder, settings, stop)
         raise

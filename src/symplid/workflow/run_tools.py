@@ -217,8 +217,8 @@ def _report_header(run: str | Path, settings, obs) -> list[str]:
         f"# Run {Path(run).name}",
         "",
         f"{many}{data}; {model_description(m)}, {m.integrator} at dt = {m.dt:g}; "
-        f"{settings.sampler.method.upper()}, {settings.sampler.num_chains} chains × "
-        f"{settings.sampler.num_iterations:,} iterations ({settings.sampler.burn_in:,} burn-in).",
+        f"{settings.sampler.method.upper()}, {settings.sampler.num_chains} chains, "
+        f"{settings.sampler.budget_words()}.",
         "",
     ]
 

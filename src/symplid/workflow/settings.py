@@ -73,8 +73,12 @@ used in the seed paper's Hénon–Heiles experiment (Section IV):
 
     [sampler]
     method = "dram"               # any name in symplid.inference.samplers.SAMPLERS
-    num_iterations = 200000       # iterations per chain, burn-in included
-    burn_in = 100000
+    num_iterations = "auto"       # until the targets below are met; a number: a fixed budget
+    burn_in = "auto"              # half a fixed budget; else the sampler's, extended as needed
+    target_ess = 400.0            # bulk and tail ESS of every parameter ("auto" budget)
+    target_rhat = 1.01            # R-hat of every parameter ("auto" budget)
+    max_iterations = 200000       # cap per chain, burn-in included ("auto" budget)
+    max_seconds = 0.0             # cap on the sampling's wall time, 0: none ("auto" budget)
     num_chains = 4
     gamma = 0.01                  # DRAM second-stage scale
     adapt_start = 200
@@ -357,18 +361,26 @@ def _check_cross(s: Settings, source: str) -> None:
 
 
 def _check_sampler(sampler: SamplerSettings, source: str) -> None:
-    if sampler.num_iterations <= sampler.burn_in:
+    burn_in = sampler.resolved_burn_in
+    if not sampler.fixed:
+        if burn_in is not None and burn_in >= sampler.max_iterations:
+            raise SettingsError(
+                source, "sampler.max_iterations",
+                f"({sampler.max_iterations}) must be greater than sampler.burn_in ({burn_in}); "
+                "it caps every iteration, burn-in included")
+        return
+    if sampler.num_iterations <= burn_in:
         raise SettingsError(
             source,
             "sampler.num_iterations",
             f"({sampler.num_iterations}) must be greater than sampler.burn_in "
-            f"({sampler.burn_in}); num_iterations counts every iteration, burn-in included",
+            f"({burn_in}); num_iterations counts every iteration, burn-in included",
         )
-    if sampler.thin > sampler.num_iterations - sampler.burn_in:
+    if sampler.thin > sampler.num_iterations - burn_in:
         raise SettingsError(
             source,
             "sampler.thin",
-            f"({sampler.thin}) is larger than the {sampler.num_iterations - sampler.burn_in} "
+            f"({sampler.thin}) is larger than the {sampler.num_iterations - burn_in} "
             "draws kept after burn-in",
         )
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from symplid.inference.samplers import SAMPLERS
 from symplid.io import observation_layout
 from symplid.model.data import DataError
 from symplid.model.statespace import HamiltonianModel
@@ -193,6 +194,7 @@ def _warn_few_values(trajectories: list[Any], settings: Settings, source: str,
     num_params = built.num_params + (2 * d * len(trajectories) if init.mode == "learned" else 0)
     num_times = sum(int(np.asarray(obs.times).size) for obs in trajectories)
     _check_memory(settings, num_params, num_times, built.state_dim, source)
+    _check_cap(settings, num_params, source)
     if num_params > values:
         name = model_family(model).name
         what = f"order {model.order}" if name == "polynomial" else f"{name!r}"
@@ -219,7 +221,7 @@ def run_memory(settings: Settings, num_params: int, num_times: int, state_dim: i
     (9)–(13): per time, the 2n + 1 sigma points and n × n covariances, kept for a gradient).
     """
     s = settings.sampler
-    draws = 3 * s.num_draws * (num_params + _STATS_PER_DRAW)
+    draws = 3 * s.max_draws * (num_params + _STATS_PER_DRAW)
     sampler = 4 * num_params**2
     n = state_dim
     filter_ = 4 * num_times * n * (3 * n + 1)
@@ -242,6 +244,20 @@ def available_memory() -> int | None:
         return None
 
 
+def _check_cap(settings: Settings, num_params: int, source: str) -> None:
+    """Refuse (one line) a cap on the iterations of ``num_iterations = "auto"`` that leaves no
+    draw after the sampler's first burn-in for this many parameters."""
+    s = settings.sampler
+    if s.fixed or s.resolved_burn_in is not None:
+        return  # a fixed budget, or a burn-in given: checked by the settings alone
+    first = SAMPLERS[s.method].first_burn_in(num_params)
+    if first >= s.max_iterations:
+        raise SettingsError(
+            source, "sampler.max_iterations",
+            f"({s.max_iterations:,}) must be greater than the first burn-in of {s.method} for "
+            f"{num_params} parameters ({first:,} iterations); raise it or set sampler.burn_in")
+
+
 def _check_memory(settings: Settings, num_params: int, num_times: int, state_dim: int,
                   source: str) -> None:
     """Refuse (one line) before anything is allocated a sampler whose chains × draws ×
@@ -252,6 +268,6 @@ def _check_memory(settings: Settings, num_params: int, num_times: int, state_dim
     s = settings.sampler
     raise SettingsError(
         source, "sampler.num_chains",
-        f"({s.num_chains:,}) × {s.num_draws:,} draws kept per chain × {num_params} parameters "
+        f"({s.num_chains:,}) × {s.max_draws:,} draws kept per chain × {num_params} parameters "
         f"need about {need / 2**30:,.1f} GiB of memory, more than the {have / 2**30:,.1f} GiB "
         "available; use fewer chains or iterations, or thin (sampler.thin)")

@@ -306,10 +306,16 @@ class MapSettings:
 
 @dataclass(frozen=True)
 class SamplerSettings:
-    """MCMC: DRAM with the paper's budget per chain (200,000 iterations, 100,000 burn-in).
+    """MCMC: DRAM, by default until the draws are good enough.
 
-    ``num_iterations`` counts every iteration of a chain, ``burn_in`` included; the draws kept
-    per chain are ``(num_iterations − burn_in) // thin`` (the property ``num_draws``).
+    ``num_iterations = "auto"`` (the default) samples until every parameter's bulk and tail
+    ESS reach ``target_ess`` and its R-hat is at most ``target_rhat``, checked between the
+    chunks, or up to ``max_iterations`` per chain or ``max_seconds`` of sampling, whichever
+    comes first (:mod:`symplid.inference.samplers.budget`); the burn-in starts at the
+    sampler's own first burn-in and is extended while the chains disagree. A number is a fixed
+    budget: ``num_iterations`` then counts every iteration of a chain, ``burn_in`` included
+    (``"auto"``: half of them, the paper's 100,000 of 200,000); the draws kept per chain are
+    ``(num_iterations − burn_in) // thin`` (the property ``num_draws``).
     ``variance_scale`` is DRAM's: ``"log"`` (default) moves the variances as log(v) with the
     Jacobian (no wall at their floor), ``"natural"`` as themselves (the paper's).
     """
@@ -318,14 +324,39 @@ class SamplerSettings:
         "dram", choices=SAMPLERS,
         doc="The sampler: any name in ``symplid.samplers.SAMPLERS``.",
     )
-    num_iterations: int = setting(
-        200_000, minimum=1,
+    num_iterations: int | str = setting(
+        "auto", minimum=1, words=("auto",),
         doc=(
-            "Iterations per chain, burn-in included (old name: ``num_samples``; CLI "
-            "``--iterations``)."
+            "Iterations per chain, burn-in included: a fixed budget (the paper's: 200000; "
+            "CLI ``--iterations``), or ``\"auto\"``: until the targets are met "
+            "(``target_ess``, ``target_rhat``) or a cap (``max_iterations``, ``max_seconds``)."
         ),
     )
-    burn_in: int = setting(100_000, minimum=0, doc="Iterations per chain discarded at the start.")
+    burn_in: int | str = setting(
+        "auto", minimum=0, words=("auto",),
+        doc=(
+            "Iterations per chain discarded at the start; ``\"auto\"``: half of a fixed "
+            "budget, or the sampler's first burn-in (DRAM max(2000, 500 d), NUTS 1000), "
+            "extended while the chains disagree."
+        ),
+    )
+    target_ess: float = setting(
+        400.0, minimum=0.0, strict=True,
+        doc=("``num_iterations = \"auto\"`` stops once every parameter's bulk and tail ESS "
+             "reach it."),
+    )
+    target_rhat: float = setting(
+        1.01, minimum=1.0, strict=True,
+        doc="... and every parameter's R-hat is at most this.",
+    )
+    max_iterations: int = setting(
+        200_000, minimum=1,
+        doc="Cap on the iterations per chain, burn-in included, of ``num_iterations = \"auto\"``.",
+    )
+    max_seconds: float = setting(
+        0.0, minimum=0.0,
+        doc="Cap on the sampling's wall time of ``num_iterations = \"auto\"``; 0: none.",
+    )
     num_chains: int = setting(4, minimum=1, doc="Independent chains.")
     gamma: float = setting(0.01, minimum=0.0, strict=True, doc="DRAM's second-stage scale.")
     adapt_start: int = setting(
@@ -350,15 +381,55 @@ class SamplerSettings:
         2000, minimum=1,
         doc=(
             "Iterations per compiled block of the sampler: after each, the block's draws are "
-            "saved to the run folder (``draws/``) and a stop (Ctrl-C, SIGTERM) is obeyed. "
-            "The draws do not depend on it."
+            "saved to the run folder (``draws/``), a stop (Ctrl-C, SIGTERM) is obeyed and "
+            "an ``\"auto\"`` budget may check its targets. A fixed budget's draws do not "
+            "depend on it."
         ),
     )
 
     @property
-    def num_draws(self) -> int:
-        """Draws kept per chain: the iterations after burn-in, thinned."""
-        return (self.num_iterations - self.burn_in) // self.thin
+    def fixed(self) -> bool:
+        """Whether the budget is a fixed number of iterations (not ``"auto"``)."""
+        return self.num_iterations != "auto"
+
+    @property
+    def resolved_burn_in(self) -> int | None:
+        """The burn-in: the number given, half of a fixed budget, or None (the sampler's
+        first burn-in, ``"auto"`` both)."""
+        if self.burn_in != "auto":
+            return int(self.burn_in)
+        return int(self.num_iterations) // 2 if self.fixed else None
+
+    @property
+    def num_draws(self) -> int | None:
+        """Draws kept per chain with a fixed budget: the iterations after burn-in, thinned
+        (None: ``"auto"``)."""
+        if not self.fixed:
+            return None
+        return (int(self.num_iterations) - int(self.resolved_burn_in)) // self.thin
+
+    @property
+    def iterations_cap(self) -> int:
+        """The most iterations per chain the run can take (burn-in included)."""
+        return int(self.num_iterations) if self.fixed else int(self.max_iterations)
+
+    @property
+    def max_draws(self) -> int:
+        """The most draws a chain can keep."""
+        if self.fixed:
+            return int(self.num_draws)
+        return (self.max_iterations - (self.resolved_burn_in or 0)) // self.thin
+
+    def budget_words(self) -> str:
+        """The budget in words, for reports: fixed, or the targets and caps."""
+        if self.fixed:
+            return (f"{int(self.num_iterations):,} iterations "
+                    f"({int(self.resolved_burn_in):,} burn-in)")
+        cap = f"at most {self.max_iterations:,} iterations"
+        if self.max_seconds:
+            cap += f" or {self.max_seconds:g} s"
+        return (f"until bulk and tail ESS ≥ {self.target_ess:g} and R-hat ≤ "
+                f"{self.target_rhat:g} ({cap})")
 
 
 @dataclass(frozen=True)

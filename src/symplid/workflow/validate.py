@@ -121,8 +121,8 @@ def check_value(
             allowed = " or ".join(repr(w) for w in spec.words)
             raise error(source, key, f"must be a number or {allowed}, got {value!r}")
         return word
-    if isinstance(tp, types.UnionType) and float in typing.get_args(tp):  # a number or a word
-        tp = float
+    if isinstance(tp, types.UnionType):  # a number or a word
+        tp = float if float in typing.get_args(tp) else int
     if tp is bool:
         if not isinstance(value, bool):
             raise error(source, key, f"must be true or false, got {value!r}")

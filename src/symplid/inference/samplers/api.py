@@ -49,28 +49,28 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from symplid.compiled import cached_or_built
 from symplid.inference.diagnostics import import_arviz
 from symplid.inference.map import find_map
+from symplid.inference.samplers.budget import kept_after_burn_in
+from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
-from symplid.inference.samplers.run import ChainRun, ChunkReport, ChunkSink, run_chains
-from symplid.model.params import pushforward_covariance
+from symplid.inference.samplers.run import ChainRun, run_chains
+from symplid.inference.samplers.starts import chain_starts
 
 __all__ = [
     "InterruptedInBurnIn",
     "SamplerCheckpoint",
     "check_posterior",
     "draws_array",
+    "finished_draws",
     "make_settings",
-    "overdispersed_starts",
     "sample",
     "to_inference_data",
 ]
@@ -113,120 +113,126 @@ def sample(
     burn_in: int | None = None,
     thin: int = 1,
     settings: Any = None,
-    init_spread: float = 2.0,
-    initial_positions: Any = None,
-    chunk_size: int = 5000,
-    chain_method: str | None = None,
-    progress: bool = True,
-    callback: Callable[[ChunkReport], None] | None = None,
-    progress_label: str | None = None,
-    progress_position: int | None = None,
-    num_samples: int | None = None,
-    return_state: bool = False,
-    sink: ChunkSink | None = None,
-    restart_stuck_chains: bool = True,
-    on_draws: Callable[[np.ndarray], None] | None = None,
+    options: RunOptions | None = None,
 ):
     """Draw from a posterior with a registered sampler (DRAM, NUTS, ...).
 
     Parameters
     ----------
     posterior
-        Any object with ``num_params``, ``param_names`` and ``log_density(theta)``
-        (jit/vmap-able, −∞ outside the support); samplers in the unconstrained space (NUTS)
-        also need ``to_unconstrained``, ``from_unconstrained`` and
-        ``log_density_unconstrained`` (Jacobian included).
+        Any object with ``num_params``, ``param_names`` and ``log_density(theta)`` (−∞
+        outside the support); NUTS also needs ``to_unconstrained``, ``from_unconstrained``
+        and ``log_density_unconstrained`` (Jacobian included).
     method
         A name of :data:`~symplid.inference.samplers.SAMPLERS`: ``"dram"`` (the paper's, in
         θ) or ``"nuts"`` (BlackJAX, in the unconstrained space, draws mapped back).
     num_draws
-        Draws kept per chain, after burn-in and thinning (default 10,000).
-        ``num_samples`` is its old name (deprecated: a ``FutureWarning``).
+        Draws kept per chain after burn-in and thinning: a fixed budget. ``None`` (default):
+        until every parameter's bulk and tail ESS and R-hat meet ``options.targets``, or a
+        cap (:mod:`~.budget`); ``attrs["stopped_by"]`` says which.
     num_chains, seed
-        Number of chains; integer seed (the whole run is a deterministic function of it).
+        Number of chains; integer seed (the run is a deterministic function of it).
     init
         The MAP result (``.theta``, ``.covariance``; ``.hessian`` and ``.log_posterior`` are
         recorded when present). ``None`` runs ``symplid.find_map(posterior, seed=seed)``.
     burn_in
-        Iterations discarded first; default from the sampler (DRAM: ``num_draws·thin``, half
-        the run, as the paper's 100,000 of 200,000; NUTS: 1000 window-adaptation steps).
+        Iterations discarded first; by default, with a fixed budget DRAM ``num_draws·thin``
+        (the paper's ratio), NUTS 1000 warm-up steps; else the sampler's first burn-in
+        (:attr:`~.registry.SamplerSpec.first_burn_in`), extended while the chains disagree.
     thin
         Keep every ``thin``-th iteration after burn-in.
     settings
-        Sampler settings: an instance of the sampler's settings class
-        (:class:`~.dram.DRAMSettings`, :class:`~.nuts.NUTSSettings`) or a dict of its fields.
-    init_spread, initial_positions
-        Overdispersion of the starting points (module docstring; 0 starts at the MAP), or
-        explicit starting points ``(num_chains, d)``.
-    chunk_size
-        Iterations per compiled chunk; the progress bar moves once per chunk.
-    chain_method
-        ``"vectorized"`` (``vmap``) or ``"sequential"`` (``lax.map``) over chains; ``None``
-        takes the sampler's default (NUTS: sequential, since vectorised every chain waits
-        for the deepest tree of the batch and the batched loops compile twice as long).
-    progress, progress_label, progress_position
-        Show progress bars; their text and line (one line per process sampling at once).
-    callback
-        Called after every chunk with a :class:`~.run.ChunkReport`; raising
-        ``KeyboardInterrupt`` there stops the run like Ctrl-C.
-    return_state
-        Also return the chains' final states (:class:`SamplerCheckpoint`), from which
-        :func:`~.resume.resume_sampling` continues an interrupted run.
-    sink
-        Receives every chunk's draws and the chains' states as the run goes
-        (:data:`~.run.ChunkSink`); one with a ``begin(attrs)`` method is first given the
-        draws' attributes (those of the module docstring, for a run not started yet), so that
-        a run can be rebuilt from what the sink kept.
-    restart_stuck_chains
-        Restart, at the end of the burn-in, a chain stuck far below the best one from a good
-        chain's state (:mod:`~symplid.inference.samplers.restart`; recorded in
-        ``attrs["restarted_chains"]``); without a stuck chain the draws are those of ``False``.
-    on_draws
-        Given the kept draws of θ ``(chain, draw, param)`` as soon as the chains end, before
-        they become ``InferenceData`` (which imports ArviZ); not called without draws.
+        The sampler's settings (:class:`~.dram.DRAMSettings`, :class:`~.nuts.NUTSSettings`)
+        or a dict of their fields.
+    options
+        How the chains run (:class:`~.options.RunOptions`): starting points, chunks, progress,
+        sink and callback, restarts, targets, ``return_state`` (also return the chains'
+        :class:`SamplerCheckpoint`, which :func:`~.resume.resume_sampling` continues).
 
     Returns
     -------
     arviz.InferenceData
-        See the module docstring for the layout. A run stopped by ``KeyboardInterrupt``
-        returns the draws made so far with ``attrs["interrupted"] = 1`` and a
-        :class:`~symplid.inference.samplers.run.SamplingInterrupted` warning.
+        Laid out as the module docstring says; a run stopped by ``KeyboardInterrupt``: the
+        draws so far, ``attrs["interrupted"] = 1`` and a :class:`~.run.SamplingInterrupted`.
     """
-    method = SAMPLERS.canonical(method)
-    spec = SAMPLERS[method]
+    options = RunOptions() if options is None else options
+    method, spec = SAMPLERS.canonical(method), SAMPLERS[method]
     num_params, names = check_posterior(posterior, spec)
-    num_draws = _num_draws(num_draws, num_samples)
-    burn_in = _check_budget(spec, num_draws, num_chains, thin, burn_in, seed, init_spread)
-    kernel_settings, chain_method = _run_settings(spec, method, settings, chain_method,
+    plan = _plan(spec, num_draws, num_params, num_chains, thin, burn_in, seed, options.targets)
+    kernel_settings, chain_method = _run_settings(spec, method, settings, options.chain_method,
                                                   posterior, int(num_chains))
-    batch_logdensity, kernel = _built_kernel(posterior, spec, method, kernel_settings, burn_in)
+    batch_logdensity, kernel = _built_kernel(posterior, spec, method, kernel_settings,
+                                             plan.burn_in)
     init = find_map(posterior, seed=seed) if init is None else init
-    theta_map, cov_map, starts, states, extra_attrs, run_key = _chain_starts(
+    theta_map, cov_map, starts, states, extra_attrs, run_key = chain_starts(
         posterior, spec, kernel, batch_logdensity, init, num_params, int(seed),
-        int(num_chains), float(init_spread), initial_positions)
-    record_settings = _recorded_settings(
-        method=method, num_draws=num_draws, num_chains=int(num_chains), seed=int(seed),
-        burn_in=burn_in, thin=int(thin), init_spread=float(init_spread),
-        chunk_size=int(chunk_size), chain_method=chain_method,
-        explicit_initial_positions=initial_positions is not None,
-        restart_stuck_chains=bool(restart_stuck_chains), kernel=kernel_settings)
+        int(num_chains), float(options.init_spread), options.initial_positions)
+    record_settings = _recorded_settings(method, plan, int(num_chains), int(seed), int(thin),
+                                         options, chain_method, kernel_settings)
     make_attrs = functools.partial(_attrs, method, seed, record_settings, names, theta_map,
                                    cov_map, starts)
-    if hasattr(sink, "begin"):  # the attributes of the run stopped before its first iteration
-        sink.begin(make_attrs(ChainRun({}, states, 0, True, 0.0),
-                              {**extra_attrs, **kernel.final_attrs(states)}, init))
-    run = run_chains(kernel.step, states, run_key, num_draws, record=kernel.record,
-                     burn_in=burn_in, thin=int(thin), chunk_size=int(chunk_size),
-                     chain_method=chain_method, progress=progress, callback=callback,
-                     desc=progress_label or method.upper(), position=progress_position,
-                     sink=sink, restart_stuck_chains=bool(restart_stuck_chains))
+    if hasattr(options.sink, "begin"):  # the attributes of the run before its first iteration
+        options.sink.begin(make_attrs(ChainRun({}, states, 0, True, 0.0),
+                                      {**extra_attrs, **kernel.final_attrs(states)}, init))
+    run = run_chains(kernel.step, states, run_key, plan.num_draws, record=kernel.record,
+                     burn_in=plan.burn_in, thin=int(thin), until=plan.until,
+                     options=dataclasses.replace(options, chain_method=chain_method,
+                                                 progress_label=options.progress_label
+                                                 or method.upper()))
     extra_attrs.update(kernel.final_attrs(run.states))
-    return _finished(run, names, make_attrs(run, extra_attrs, init), return_state, on_draws)
+    return _finished(run, names, make_attrs(run, extra_attrs, init), options.return_state,
+                     options.on_draws)
 
 
-def _recorded_settings(**values: Any) -> dict[str, Any]:
-    """The run's settings as its attributes record them (the kernel's as a dict)."""
-    return {**values, "kernel": dataclasses.asdict(values["kernel"])}
+class _Plan(NamedTuple):
+    """The run's sizes: the (first) burn-in, the draws to keep (at most, with targets) and
+    the targets of a budget set by the answer (None: a fixed budget)."""
+
+    burn_in: int
+    num_draws: int
+    until: Targets | None
+
+
+def _plan(spec: SamplerSpec, num_draws: int | None, num_params: int, num_chains: int,
+          thin: int, burn_in: int | None, seed: int, targets: Targets) -> _Plan:
+    """Validate the run's sizes and settle its budget: fixed (``num_draws``) or set by the
+    answer (``targets``, capped at ``targets.max_iterations``)."""
+    for name, value in (("num_chains", num_chains), ("thin", thin)):
+        if int(value) != value or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    if int(seed) != seed:
+        raise ValueError(f"seed must be an integer, got {seed!r}")
+    if num_draws is not None and (int(num_draws) != num_draws or num_draws < 1):
+        raise ValueError(f"num_draws must be an integer >= 1 or None, got {num_draws!r}")
+    if burn_in is None:
+        burn_in = (spec.default_burn_in(int(num_draws), int(thin)) if num_draws is not None
+                   else spec.first_burn_in(num_params))
+    if int(burn_in) != burn_in or burn_in < 0:
+        raise ValueError(f"burn_in must be an integer >= 0, got {burn_in!r}")
+    if num_draws is not None:
+        return _Plan(int(burn_in), int(num_draws), None)
+    cap = (int(targets.max_iterations) - int(burn_in)) // int(thin)
+    if cap < 1:
+        raise ValueError(f"the cap of {targets.max_iterations:,} iterations per chain leaves "
+                         f"no draw after the burn-in of {int(burn_in):,}")
+    return _Plan(int(burn_in), cap, targets)
+
+
+def _recorded_settings(method: str, plan: _Plan, num_chains: int, seed: int, thin: int,
+                       options: RunOptions, chain_method: str,
+                       kernel_settings: Any) -> dict[str, Any]:
+    """The run's settings as its attributes record them (all a continuation needs)."""
+    record = {
+        "method": method, "num_draws": plan.num_draws, "num_chains": num_chains, "seed": seed,
+        "burn_in": plan.burn_in, "thin": thin, "init_spread": float(options.init_spread),
+        "chunk_size": int(options.chunk_size), "chain_method": chain_method,
+        "explicit_initial_positions": options.initial_positions is not None,
+        "restart_stuck_chains": bool(options.restart_stuck_chains),
+        "kernel": dataclasses.asdict(kernel_settings),
+    }
+    if plan.until is not None:
+        record["targets"] = plan.until.as_dict()
+    return record
 
 
 def _finished(run: ChainRun, names: tuple[str, ...], attrs: dict[str, Any],
@@ -236,10 +242,22 @@ def _finished(run: ChainRun, names: tuple[str, ...], attrs: dict[str, Any],
     checkpoint = SamplerCheckpoint(run.states, int(run.iterations_done), run.monitor)
     if not run.draws:
         raise InterruptedInBurnIn(checkpoint, attrs)
+    run = finished_draws(run, json.loads(attrs["settings"]))
     if on_draws is not None:
         on_draws(np.asarray(run.draws["theta"]))
     idata = to_inference_data(run, names, attrs)
     return (idata, checkpoint) if return_state else idata
+
+
+def finished_draws(run: ChainRun, record: dict[str, Any]) -> ChainRun:
+    """A run with a budget set by the answer, finished: its draws after the extended burn-in
+    (:mod:`~.budget`). An interrupted run keeps every draw since the first burn-in, which its
+    continuation needs; a fixed budget's draws are the run's."""
+    if run.budget is None or run.interrupted:
+        return run
+    draws = kept_after_burn_in(run.draws, run.monitor, int(record["burn_in"]),
+                               int(record["thin"]))
+    return run._replace(draws=draws)
 
 
 def _built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
@@ -257,40 +275,7 @@ def _built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
     return batch_logdensity, kernel
 
 
-def _chain_starts(posterior: Any, spec: Any, kernel: SamplerKernel, batch_logdensity: Any,
-                  init: Any, num_params: int, seed: int, num_chains: int,
-                  init_spread: float, initial_positions: Any) -> tuple[Any, ...]:
-    """The MAP (θ, covariance) the chains start around, their starting points and states,
-    the kernel's initial attributes, and the key the run then draws from."""
-    theta_map, cov_map = _check_map(init, num_params, batch_logdensity, num_chains)
-    init_key, run_key = jax.random.split(jax.random.key(seed), 2)
-    if initial_positions is None:
-        starts = overdispersed_starts(init_key, batch_logdensity, theta_map, cov_map,
-                                      num_chains, init_spread)
-    else:
-        starts = _explicit_starts(initial_positions, num_chains, num_params)
-    states, extra_attrs = _initial_states(posterior, spec, kernel, starts, theta_map, cov_map)
-    return theta_map, cov_map, starts, states, extra_attrs, run_key
-
-
 # ----------------------------------------------------------------------------- checks
-def _num_draws(num_draws: int | None, num_samples: int | None) -> int:
-    """``num_draws``, or the deprecated ``num_samples`` with a :class:`FutureWarning`."""
-    if num_samples is not None:
-        if num_draws is not None:
-            raise TypeError("pass num_draws only (num_samples is its deprecated old name)")
-        warnings.warn(
-            "sample(num_samples=...) is deprecated: use num_draws=... (draws kept per chain)",
-            FutureWarning,
-            stacklevel=3,
-        )
-        num_draws = num_samples
-    num_draws = 10_000 if num_draws is None else num_draws
-    if int(num_draws) != num_draws or num_draws < 1:
-        raise ValueError(f"num_draws must be an integer >= 1, got {num_draws!r}")
-    return int(num_draws)
-
-
 def check_posterior(posterior: Any, spec: SamplerSpec) -> tuple[int, tuple[str, ...]]:
     """θ's size and names, after checking the posterior has what ``spec``'s sampler reads."""
     needed = _POSTERIOR_ATTRIBUTES + (_UNCONSTRAINED_ATTRIBUTES if spec.unconstrained else ())
@@ -309,23 +294,6 @@ def check_posterior(posterior: Any, spec: SamplerSpec) -> tuple[int, tuple[str, 
     if len(set(names)) != len(names):
         raise ValueError(f"posterior.param_names must be unique, got {names}")
     return num_params, names
-
-
-def _check_budget(spec: SamplerSpec, num_draws: int, num_chains: int, thin: int,
-                  burn_in: int | None, seed: int, init_spread: float) -> int:
-    """Validate the run's sizes; returns the burn-in (the sampler's default when None)."""
-    for name, value in (("num_chains", num_chains), ("thin", thin)):
-        if int(value) != value or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    if burn_in is None:
-        burn_in = spec.default_burn_in(num_draws, int(thin))
-    if int(burn_in) != burn_in or burn_in < 0:
-        raise ValueError(f"burn_in must be an integer >= 0, got {burn_in!r}")
-    if int(seed) != seed:
-        raise ValueError(f"seed must be an integer, got {seed!r}")
-    if not (np.isfinite(init_spread) and init_spread >= 0):
-        raise ValueError(f"init_spread must be a finite number >= 0, got {init_spread}")
-    return int(burn_in)
 
 
 def _run_settings(spec: SamplerSpec, method: str, settings: Any, chain_method: str | None,
@@ -370,122 +338,6 @@ def _batch_log_density(posterior: Any) -> Callable[[jax.Array], jax.Array]:
     return lambda thetas: batched(data, thetas)
 
 
-def _check_map(init: Any, num_params: int, batch_logdensity: Callable,
-               num_chains: int) -> tuple[np.ndarray, np.ndarray]:
-    for name in ("theta", "covariance"):
-        if not hasattr(init, name):
-            raise TypeError(
-                f"init lacks .{name}: pass the result of symplid.find_map (an object with "
-                ".theta and .covariance)"
-            )
-    theta = np.asarray(init.theta, dtype=np.float64)
-    cov = np.asarray(init.covariance, dtype=np.float64)
-    if theta.shape != (num_params,):
-        raise ValueError(f"init.theta must have shape ({num_params},), got {theta.shape}")
-    if cov.shape != (num_params, num_params):
-        raise ValueError(
-            f"init.covariance must have shape ({num_params}, {num_params}), got {cov.shape}"
-        )
-    if not np.all(np.isfinite(cov)):
-        raise ValueError("init.covariance contains non-finite entries")
-    try:
-        np.linalg.cholesky(0.5 * (cov + cov.T))
-    except np.linalg.LinAlgError:
-        raise ValueError("init.covariance is not positive definite") from None
-    # Same batch shape as the starting points: one compilation serves both.
-    value = float(batch_logdensity(jnp.tile(jnp.asarray(theta), (num_chains, 1)))[0])
-    if not np.isfinite(value):
-        raise ValueError(f"the log density at init.theta is not finite ({value})")
-    return theta, 0.5 * (cov + cov.T)
-
-
-def overdispersed_starts(
-    rng_key: jax.Array,
-    batch_logdensity: Callable[[jax.Array], jax.Array],
-    center: np.ndarray,
-    cov: np.ndarray,
-    num_chains: int,
-    spread: float = 2.0,
-    max_tries: int = 100,
-) -> np.ndarray:
-    """Starting points ``center + spread·L z`` with a finite log density, one per chain.
-
-    Parameters
-    ----------
-    rng_key
-        Key for the draws (round ``r`` uses ``fold_in(rng_key, r)``).
-    batch_logdensity
-        Log density over the parameters, vectorised over a leading axis
-        (e.g. ``jax.jit(jax.vmap(posterior.log_density))``).
-    center, cov
-        The MAP and its covariance (``L`` is the Cholesky factor of ``cov``).
-    num_chains
-        Number of starting points.
-    spread
-        Multiplier of ``L z``; 0 puts every chain at ``center``.
-    max_tries
-        Rounds of redrawing before a chain falls back to ``center`` (with a warning).
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape ``(num_chains, d)``.
-    """
-    center = np.asarray(center, dtype=np.float64)
-    starts = np.tile(center, (num_chains, 1))
-    if spread == 0:
-        return starts
-    chol = np.linalg.cholesky(cov)
-    pending = np.ones(num_chains, dtype=bool)
-    for attempt in range(max_tries):
-        z = np.asarray(jax.random.normal(jax.random.fold_in(rng_key, attempt),
-                                         (num_chains, center.size)))
-        candidates = center + spread * z @ chol.T
-        finite = np.isfinite(np.asarray(batch_logdensity(jnp.asarray(candidates))))
-        take = pending & finite
-        starts[take] = candidates[take]
-        pending &= ~take
-        if not pending.any():
-            return starts
-    warnings.warn(
-        f"{int(pending.sum())} chain(s) found no start with a finite log density within "
-        f"{max_tries} draws at init_spread={spread}; they start at the MAP",
-        UserWarning,
-        stacklevel=3,
-    )
-    return starts
-
-
-def _explicit_starts(initial_positions: Any, num_chains: int, num_params: int) -> np.ndarray:
-    starts = np.asarray(initial_positions, dtype=np.float64)
-    if starts.shape != (num_chains, num_params):
-        raise ValueError(
-            f"initial_positions must have shape ({num_chains}, {num_params}), "
-            f"got {starts.shape}"
-        )
-    return starts
-
-
-def _initial_states(posterior: Any, spec: SamplerSpec, kernel: SamplerKernel,
-                    starts: np.ndarray, theta_map: np.ndarray,
-                    cov_map: np.ndarray) -> tuple[Any, dict[str, Any]]:
-    """The chains' first states, from θ and the MAP covariance (pushed to z when the sampler
-    moves in the unconstrained space), and the attributes that records."""
-    if not spec.unconstrained:
-        if kernel.covariance_at is not None:  # e.g. DRAM with the variances on a log scale
-            cov_map = kernel.covariance_at(theta_map, cov_map)
-        return kernel.init_states(jnp.asarray(starts), jnp.asarray(cov_map)), {}
-    cov_z = pushforward_covariance(posterior.to_unconstrained, theta_map, cov_map)
-    z_starts = np.asarray(jax.vmap(posterior.to_unconstrained)(jnp.asarray(starts)))
-    if not np.all(np.isfinite(z_starts)):
-        raise ValueError(
-            "a starting point lies on a bound of the parameters (its unconstrained "
-            "value is infinite); use init_spread > 0 or move initial_positions inside"
-        )
-    states = kernel.init_states(jnp.asarray(starts), jnp.asarray(cov_z))
-    return states, {"unconstrained_map_covariance": cov_z.tolist()}
-
-
 def _attrs(method: str, seed: int, record_settings: dict, names: tuple[str, ...],
            theta_map: np.ndarray, cov_map: np.ndarray, starts: np.ndarray, run: ChainRun,
            extra: dict[str, Any], init: Any) -> dict[str, Any]:
@@ -501,8 +353,11 @@ def _attrs(method: str, seed: int, record_settings: dict, names: tuple[str, ...]
         "interrupted": int(run.interrupted),
         "sampling_seconds": float(run.elapsed),
         "restarted_chains": list(run.restarted_chains),
+        "stopped_by": "fixed budget" if run.budget is None else run.budget["stopped_by"],
         **extra,
     }
+    if run.budget is not None:  # JSON: netCDF keeps no nested attributes
+        attrs["budget"] = json.dumps(run.budget)
     if getattr(init, "hessian", None) is not None:
         attrs["hessian"] = np.asarray(init.hessian, dtype=np.float64).tolist()
     if getattr(init, "log_posterior", None) is not None:

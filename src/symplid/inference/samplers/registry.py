@@ -33,9 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.inference.samplers import dram, nuts
+from symplid.inference.samplers.chunk import DataStep
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
-from symplid.inference.samplers.run import DataStep
 from symplid.model.backends import LIKELIHOOD_BACKENDS
 from symplid.model.params import LOG_SCALE_GROUPS, ParameterSpace, pushforward_covariance
 from symplid.registry import Registry
@@ -65,6 +65,19 @@ def fixed_warmup(num_draws: int, thin: int) -> int:
     return 1000
 
 
+def adaptation_length(num_params: int) -> int:
+    """DRAM's first burn-in without a fixed budget: max(2000, 500 d) iterations, so that the
+    adaptive covariance has seen some hundred states per parameter (its d(d+1)/2 entries
+    settle at about that) before a draw is kept; the budget extends it while the chains
+    disagree (:mod:`~symplid.inference.samplers.budget`)."""
+    return max(2000, 500 * int(num_params))
+
+
+def warmup_length(num_params: int) -> int:
+    """NUTS' first burn-in without a fixed budget: its 1000 window-adaptation steps."""
+    return 1000
+
+
 @dataclass(frozen=True)
 class SamplerSpec:
     """Everything :func:`~symplid.inference.samplers.sample` needs to know about a sampler.
@@ -85,7 +98,10 @@ class SamplerSpec:
         Whether the kernel adapts during the burn-in (then ``build`` gets it as
         ``num_warmup``; otherwise 0, and one compiled kernel serves every burn-in).
     default_burn_in
-        ``(num_draws, thin) -> burn_in`` when ``sample(burn_in=None)``.
+        ``(num_draws, thin) -> burn_in`` when ``sample(burn_in=None)`` with a fixed budget.
+    first_burn_in
+        ``num_params -> burn_in`` when ``sample(burn_in=None, num_draws=None)``: the burn-in
+        before the budget's first check (:mod:`~symplid.inference.samplers.budget`).
     resolve
         ``resolve(settings, posterior, num_chains, chain_method) -> settings``: fills the
         settings left to the run (``None``: none are).
@@ -99,6 +115,7 @@ class SamplerSpec:
     unconstrained: bool = False
     adapts_during_burn_in: bool = False
     default_burn_in: Callable[[int, int], int] = half_the_run
+    first_burn_in: Callable[[int], int] = adaptation_length
     resolve: Callable[[Any, Any, int, str], Any] | None = None
     description: str = ""
 
@@ -277,6 +294,7 @@ SAMPLERS.register(
     "nuts",
     SamplerSpec(NUTSSettings, build_nuts, default_chain_method="sequential", unconstrained=True,
                 adapts_during_burn_in=True, default_burn_in=fixed_warmup,
+                first_burn_in=warmup_length,
                 description="the No-U-Turn sampler (BlackJAX), in the unconstrained space"),
 )
 
@@ -285,8 +303,10 @@ __all__ = [
     "LogVariances",
     "SamplerKernel",
     "SamplerSpec",
+    "adaptation_length",
     "build_dram",
     "build_nuts",
     "fixed_warmup",
     "half_the_run",
+    "warmup_length",
 ]

@@ -22,7 +22,7 @@ structure (``jax.eval_shape`` of its ``init_states``), which checks shapes and d
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import jax
@@ -34,11 +34,13 @@ from symplid.inference.samplers.api import (
     SamplerCheckpoint,
     check_posterior,
     draws_array,
+    finished_draws,
     make_settings,
     to_inference_data,
 )
+from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
-from symplid.inference.samplers.run import ChainRun, ChunkReport, ChunkSink, run_chains
+from symplid.inference.samplers.run import ChainRun, run_chains
 
 __all__ = ["checkpoint_arrays", "inference_data", "resume_sampling"]
 
@@ -106,12 +108,7 @@ def resume_sampling(
     idata: Any,
     checkpoint: SamplerCheckpoint | Mapping[str, Any],
     *,
-    progress: bool = True,
-    callback: Callable[[ChunkReport], None] | None = None,
-    progress_label: str | None = None,
-    progress_position: int | None = None,
-    return_state: bool = False,
-    sink: ChunkSink | None = None,
+    options: RunOptions | None = None,
 ):
     """Run the iterations an interrupted :func:`~.api.sample` run has left.
 
@@ -125,16 +122,20 @@ def resume_sampling(
         its :class:`~.api.InterruptedInBurnIn`.
     checkpoint
         Its :class:`~.api.SamplerCheckpoint`, or the arrays of :func:`checkpoint_arrays`.
-    progress, callback, progress_label, progress_position, return_state, sink
-        As for :func:`~.api.sample` (the ``sink`` receives the new chunks only).
+    options
+        As for :func:`~.api.sample`, of which ``progress``, ``progress_label``,
+        ``progress_position``, ``callback``, ``sink`` (it receives the new chunks only) and
+        ``return_state`` are read; the rest is the run's own (its recorded settings).
 
     Returns
     -------
     arviz.InferenceData
         The whole run: the kept draws followed by the new ones, ``attrs["iterations"]`` the
         iterations done in all, ``sampling_seconds`` summed. Interrupted again, it is marked
-        interrupted again and can be resumed again.
+        interrupted again and can be resumed again. A run without a fixed budget goes on
+        checking its targets where it left off (:mod:`~.budget`).
     """
+    options = RunOptions() if options is None else options
     attrs = dict(idata.attrs if hasattr(idata, "attrs") else idata)
     record = json.loads(attrs["settings"]) if isinstance(attrs["settings"], str) else dict(
         attrs["settings"])
@@ -143,21 +144,12 @@ def resume_sampling(
     num_params, names = check_posterior(posterior, spec)
     if list(names) != [str(n) for n in attrs["param_names"]]:
         raise ValueError("the posterior's parameters are not those of the draws")
-    kernel_settings = make_settings(method, spec.settings_class, record["kernel"])
-    burn_in, thin, num_draws = int(record["burn_in"]), int(record["thin"]), int(
-        record["num_draws"])
-    num_chains = int(record["num_chains"])
-    num_warmup = burn_in if spec.adapts_during_burn_in else 0
-    batch_logdensity = cached_or_built(
-        posterior, "batch-log-density", lambda: jax.jit(jax.vmap(posterior.log_density))
-    )
-    kernel: SamplerKernel = cached_or_built(
-        posterior, ("sampler", method, kernel_settings, num_warmup),
-        lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
-    )
+    kernel = _kernel(posterior, spec, method, record)
     if isinstance(checkpoint, Mapping):
-        checkpoint = _restore(checkpoint, _state_template(spec, kernel, num_chains, num_params))
-    total = burn_in + num_draws * thin
+        checkpoint = _restore(checkpoint, _state_template(spec, kernel, int(record["num_chains"]),
+                                                          num_params))
+    burn_in, thin = int(record["burn_in"]), int(record["thin"])
+    total = burn_in + int(record["num_draws"]) * thin
     if checkpoint.iterations_done >= total:
         raise ValueError(f"the run is finished ({total:,} iterations per chain): nothing to "
                          "resume")
@@ -167,13 +159,37 @@ def resume_sampling(
     _, run_key = jax.random.split(jax.random.key(int(record["seed"])), 2)
     # A run recorded before the rule existed ran without it.
     restart = bool(record.get("restart_stuck_chains", False))
-    run = run_chains(kernel.step, checkpoint.states, run_key, num_draws, record=kernel.record,
-                     burn_in=burn_in, thin=thin, chunk_size=int(record["chunk_size"]),
-                     chain_method=record["chain_method"], progress=progress,
-                     callback=callback, desc=progress_label or method.upper(),
-                     position=progress_position, start=checkpoint.iterations_done, sink=sink,
-                     restart_stuck_chains=restart, monitor=checkpoint.monitor)
+    until = Targets(**record["targets"]) if "targets" in record else None
     old = _old_draws(idata, names) if hasattr(idata, "posterior") else {}
+    run_options = RunOptions(
+        chunk_size=int(record["chunk_size"]), chain_method=record["chain_method"],
+        progress=options.progress, progress_label=options.progress_label or method.upper(),
+        progress_position=options.progress_position, callback=options.callback,
+        sink=options.sink, restart_stuck_chains=restart)
+    run = run_chains(kernel.step, checkpoint.states, run_key, int(record["num_draws"]),
+                     record=kernel.record, burn_in=burn_in, thin=thin, options=run_options,
+                     until=until, start=checkpoint.iterations_done, monitor=checkpoint.monitor,
+                     earlier=old.get("theta"))
+    return _whole_run(run, old, attrs, names, kernel, restart, record, options.return_state)
+
+
+def _kernel(posterior: Any, spec: SamplerSpec, method: str, record: dict) -> SamplerKernel:
+    """The run's kernel, built from its recorded settings (or the one kept on the posterior)."""
+    kernel_settings = make_settings(method, spec.settings_class, record["kernel"])
+    num_warmup = int(record["burn_in"]) if spec.adapts_during_burn_in else 0
+    batch_logdensity = cached_or_built(
+        posterior, "batch-log-density", lambda: jax.jit(jax.vmap(posterior.log_density))
+    )
+    return cached_or_built(
+        posterior, ("sampler", method, kernel_settings, num_warmup),
+        lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
+    )
+
+
+def _whole_run(run: ChainRun, old: dict[str, np.ndarray], attrs: dict[str, Any],
+               names: tuple[str, ...], kernel: SamplerKernel, restart: bool, record: dict,
+               return_state: bool) -> Any:
+    """The interrupted run's draws followed by the continuation's, as ``InferenceData``."""
     draws = {k: np.concatenate([old[k], v], axis=1) if k in old else v
              for k, v in run.draws.items()} if run.draws else old
     elapsed = float(attrs.get("sampling_seconds", 0.0)) + run.elapsed
@@ -181,10 +197,13 @@ def resume_sampling(
                  sampling_seconds=elapsed, **kernel.final_attrs(run.states))
     if restart:
         attrs["restarted_chains"] = list(run.restarted_chains)
+    if run.budget is not None:
+        attrs.update(stopped_by=run.budget["stopped_by"], budget=json.dumps(run.budget))
     checkpoint = SamplerCheckpoint(run.states, int(run.iterations_done), run.monitor)
     if not draws:  # interrupted again, still in the burn-in
         raise InterruptedInBurnIn(checkpoint, attrs)
-    whole = ChainRun(draws, run.states, run.iterations_done, run.interrupted, elapsed)
+    whole = finished_draws(ChainRun(draws, run.states, run.iterations_done, run.interrupted,
+                                    elapsed, run.monitor, (), run.budget), record)
     result = to_inference_data(whole, names, attrs)
     if return_state:
         return result, checkpoint

@@ -1,19 +1,17 @@
 """Chunked, multi-chain driver for any ``step(rng_key, state) -> (state, info)`` kernel.
 
 A run of ``burn_in + num_draws·thin`` iterations is cut into chunks of ``chunk_size``
-iterations. Each chunk is **one** compiled ``lax.scan`` over iterations whose body advances
-all chains at once (``vmap``), or, for ``chain_method="sequential"``, one chain (the same
-compiled one-chain chunk is then called for each chain in turn, which compiles faster than
-a batched kernel and lets data-dependent branches skip work). Between
-chunks control returns to Python: the progress bar moves, the chunk's draws and the chains'
-states go to the ``sink`` (a run folder streams them to disk), a callback runs, and a stop
-requested by a signal (:mod:`symplid.stopping`: checked before every chunk) or a
-``KeyboardInterrupt`` ends the run while keeping every draw already made. A chunk whose
-iterations are slow runs as several compiled calls of about half a second each
-(:mod:`~symplid.inference.samplers.pacing`), and a stop requested between two of them ends
-the run there, the iterations done kept as a shorter last chunk: a stop is obeyed within
-about a second whatever an iteration costs (the first call, which compiles, is waited for in
-a worker thread, :func:`symplid.stopping.waiting`), and a crash loses at most one chunk.
+iterations. Each chunk is **one** compiled loop over iterations (:mod:`~.chunk`).
+Between chunks control returns to Python: the progress bar moves, the chunk's draws and the
+chains' states go to the ``sink`` (a run folder streams them to disk), a callback runs, a
+budget set by the answer checks its targets (:mod:`~.budget`), and a stop requested by a
+signal (:mod:`symplid.stopping`: checked before every chunk) or a ``KeyboardInterrupt`` ends
+the run while keeping every draw already made. A chunk whose iterations are slow runs as
+several compiled calls of about half a second each (:mod:`~.pacing`), and a stop requested
+between two of them ends the run there, the iterations done kept as a shorter last chunk: a
+stop is obeyed within about a second whatever an iteration costs (the first call, which
+compiles, is waited for in a worker thread, :func:`symplid.stopping.waiting`), and a crash
+loses at most one chunk.
 
 Randomness: the key of iteration ``t`` of chain ``c`` is ``fold_in(chain_key[c], t)`` with
 ``chain_key = split(rng_key, num_chains)``. The draws therefore depend only on the key and
@@ -29,7 +27,6 @@ A single chain runs unbatched.
 
 from __future__ import annotations
 
-import functools
 import inspect
 import time
 import warnings
@@ -39,9 +36,10 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
-from symplid.compiled import cached_or_built
+from symplid.inference.samplers.budget import BudgetMonitor
+from symplid.inference.samplers.chunk import DataStep, RecordFn, StepFn, chunk_runner
+from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.pacing import Pacer
 from symplid.inference.samplers.restart import (
     BurnInMonitor,
@@ -54,8 +52,6 @@ from symplid.stopping import waiting
 __all__ = ["ChainRun", "ChunkReport", "ChunkSink", "DataStep", "SamplingInterrupted",
            "StuckChainsRestarted", "run_chains"]
 
-StepFn = Callable[[jax.Array, Any], tuple[Any, Any]]
-RecordFn = Callable[[Any, Any], dict[str, jax.Array]]
 ChunkSink = Callable[[dict[str, np.ndarray], Any, int, int, float], None]
 """``sink(draws, states, start, done, elapsed)``, called after every chunk: the draws the chunk
 kept (``name -> (num_chains, kept, ...)``, possibly none kept), the chains' states after it,
@@ -119,6 +115,9 @@ class ChainRun(NamedTuple):
     restarted_chains
         The chains restarted at the end of the burn-in
         (:meth:`~.restart.BurnInMonitor.records`); empty when none were.
+    budget
+        For a run with targets (``until``), what ended it and the statistics reached
+        (:meth:`~.budget.BudgetMonitor.record`); None for a fixed budget.
     """
 
     draws: dict[str, np.ndarray]
@@ -128,113 +127,7 @@ class ChainRun(NamedTuple):
     elapsed: float
     monitor: dict[str, np.ndarray] | None = None
     restarted_chains: tuple[dict[str, Any], ...] = ()
-
-
-class DataStep:
-    """A step that reads data: ``fn(data, rng_key, state) -> (state, info)``, called as
-    ``step(rng_key, state)``.
-
-    :func:`run_chains` passes ``data`` to the compiled chunk as an argument, so that the
-    chunk's program does not hold the data as constants: the same kernel on another data set
-    of the same shape (another seed of a sweep) is then the same program, which JAX's
-    persistent compilation cache serves instead of compiling again.
-    """
-
-    def __init__(self, fn: Callable[[Any, jax.Array, Any], tuple[Any, Any]], data: Any):
-        self.fn, self.data = fn, data
-
-    def __call__(self, rng_key: jax.Array, state: Any) -> tuple[Any, Any]:
-        return self.fn(self.data, rng_key, state)
-
-
-def _over_chains(fn: Callable, batched: bool) -> Callable:
-    """Apply a one-chain function to chains stacked on a leading axis.
-
-    Unbatched (one chain, leading axis of length 1), a ``lax.cond`` in the kernel really
-    skips work; under ``vmap`` it becomes a ``select`` that evaluates both branches.
-    """
-    if batched:
-        return jax.vmap(fn)
-
-    def single(*args):
-        out = fn(*jax.tree.map(lambda leaf: leaf[0], args))
-        return jax.tree.map(lambda leaf: leaf[None], out)
-
-    return single
-
-
-def _build_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
-    """One compiled chunk (:func:`_compile_chunk`), kept on ``step`` so that running the
-    same kernel again (another seed, more draws) reuses it."""
-    return cached_or_built(step, ("chunk", record, chunk_len, batched),
-                           lambda: _compile_chunk(step, record, chunk_len, batched))
-
-
-def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool):
-    """Compile one chunk: room for ``chunk_len`` iterations, of which the first
-    ``num_active`` (a run-time number) are run; the records past them are zeros.
-
-    The loop's trip count is an argument, so one compiled program runs any part of a chunk at
-    the cost of that part (:class:`~.pacing.Pacer` cuts slow chunks into half-second pieces);
-    each iteration computes what a ``lax.scan`` over the whole chunk computed. ``batched``
-    vmaps over the chains; otherwise the chunk advances one chain (leading axis of length 1).
-    """
-
-    reads = isinstance(step, DataStep)
-    data = step.data if reads else None
-
-    def chunk(states, chain_keys, start, num_active, data):
-        def one_chain(key, state, t):
-            key = jax.random.fold_in(key, t)
-            new_state, info = step.fn(data, key, state) if reads else step(key, state)
-            return new_state, record(new_state, info)
-
-        advance = _over_chains(one_chain, batched)
-
-        def at(i):
-            return jnp.broadcast_to(start + i, chain_keys.shape[:1])
-
-        shapes = jax.eval_shape(lambda s: advance(chain_keys, s, at(0))[1], states)
-        room = jax.tree.map(lambda a: jnp.zeros((chunk_len, *a.shape), a.dtype), shapes)
-
-        def body(carry):
-            i, current, records = carry
-            new, kept = advance(chain_keys, current, at(i))
-            records = jax.tree.map(
-                lambda all_, one: lax.dynamic_update_index_in_dim(all_, one, i, 0),
-                records, kept)
-            return i + 1, new, records
-
-        first = jnp.zeros((), jnp.asarray(num_active).dtype)
-        _, states, records = lax.while_loop(lambda carry: carry[0] < num_active, body,
-                                            (first, states, room))
-        return states, records
-
-    return functools.partial(jax.jit(chunk), data=data)
-
-
-def _chunk_runner(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,
-                  num_chains: int) -> Callable:
-    """``run(states, chain_keys, start, num_active) -> (states, records)`` for all chains."""
-    if chain_method == "vectorized" and num_chains > 1:
-        return _build_chunk(step, record, chunk_len, True)
-    single = _build_chunk(step, record, chunk_len, False)
-    if num_chains == 1:
-        return single
-
-    def one_after_another(states, chain_keys, start, num_active):
-        outputs = [
-            single(jax.tree.map(lambda leaf, c=c: leaf[c:c + 1], states),
-                   chain_keys[c:c + 1], start, num_active)
-            for c in range(num_chains)
-        ]
-        states = jax.tree.map(lambda *parts: jnp.concatenate(parts), *[o[0] for o in outputs])
-        # Records are (iteration, chain, ...): the chains go along axis 1.
-        records = jax.tree.map(lambda *parts: jnp.concatenate(parts, axis=1),
-                               *[o[1] for o in outputs])
-        return states, records
-
-    return one_after_another
+    budget: dict[str, Any] | None = None
 
 
 def run_chains(
@@ -246,17 +139,11 @@ def run_chains(
     record: RecordFn,
     burn_in: int = 0,
     thin: int = 1,
-    chunk_size: int = 5000,
-    chain_method: str = "vectorized",
-    progress: bool = True,
-    desc: str = "sampling",
-    position: int | None = None,
-    callback: Callable[[ChunkReport], None] | None = None,
-    num_samples: int | None = None,
+    options: RunOptions | None = None,
+    until: Targets | None = None,
     start: int = 0,
-    sink: ChunkSink | None = None,
-    restart_stuck_chains: bool = False,
     monitor: dict[str, np.ndarray] | None = None,
+    earlier: np.ndarray | None = None,
 ) -> ChainRun:
     """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
 
@@ -269,101 +156,78 @@ def run_chains(
     rng_key
         Root key; split once into one key per chain.
     num_draws
-        Draws to keep per chain after burn-in and thinning (``num_samples``: its deprecated
-        old name).
+        Draws to keep per chain after burn-in and thinning (with ``until``: at most).
     record
         ``record(state, info) -> dict`` of arrays kept at each kept iteration.
     burn_in
-        Iterations run first and discarded.
+        Iterations run first and discarded (with ``until``: the first burn-in).
     thin
         Keep one iteration in ``thin`` after burn-in; ``num_draws·thin`` iterations run.
-    chunk_size
-        Iterations per compiled chunk (the progress bar moves once per chunk).
-    chain_method
-        ``"vectorized"`` (``vmap``: all chains in lockstep; data-dependent branches such as
-        DRAM's second stage run for every chain whenever one needs them) or
-        ``"sequential"`` (the compiled one-chain chunk called for each chain in turn;
-        branches really skipped, one compilation for all chains). Irrelevant for one chain,
-        which always runs unbatched.
-    progress, desc, position
-        Show a tqdm progress bar; its label and line.
-    callback
-        Called with a :class:`ChunkReport` after each chunk; it may raise
-        ``KeyboardInterrupt`` to stop the run (used in tests to simulate Ctrl-C).
-    start
-        Iterations already done: ``states`` are the chains after them (the ``states`` of an
-        interrupted :class:`ChainRun`), and the run continues with iteration ``start + 1``.
-        Keys, burn-in, thinning and chunks follow the whole run's grid, so an interrupted run
-        continued this way gives the draws of the uninterrupted run (those after ``start``).
-    sink
-        Called after each chunk with its draws and the states (:data:`ChunkSink`), before
-        ``callback``; e.g. to write them to disk as the run goes.
-    restart_stuck_chains, monitor
-        At the end of the burn-in, restart every chain whose log density (``record``'s
-        ``"lp"``) stays far below the best chain's from a good chain's state
-        (:mod:`~symplid.inference.samplers.restart`; the chunk in which the burn-in ends runs
-        as two calls around the decision, one chunk from outside). ``monitor``: the
-        interrupted run's, continued.
+    options
+        The runner's :class:`~.options.RunOptions` (chunks, chain layout, progress bar,
+        ``sink`` and ``callback`` of every chunk, the restart of stuck chains from
+        ``record``'s ``"lp"``: :mod:`~.restart`); ``None``: the defaults without the restart.
+    until
+        Stop as soon as the draws meet these targets (:mod:`~.budget`), checked between
+        chunks; ``burn_in + num_draws·thin`` is then the cap on the iterations.
+    start, monitor, earlier
+        Iterations already done: ``states`` are the chains after them, the run continues
+        with iteration ``start + 1``; ``monitor`` is the interrupted run's
+        :attr:`ChainRun.monitor` and ``earlier`` (with ``until``) its draws of θ since the
+        first burn-in. Keys, burn-in, thinning, chunks and checks follow the whole run's
+        grid: continued this way, an interrupted run gives the uninterrupted run's draws.
 
     Returns
     -------
     ChainRun
-        Draws ``(num_chains, kept, ...)``, final states and run information. An interrupted
-        run returns the draws of the chunks that finished and warns.
+        Draws ``(num_chains, kept, ...)``, final states and run information (an interrupted
+        run: the chunks that finished, and a warning). With ``until``: every draw since the
+        first burn-in (:attr:`ChainRun.budget` says where the extended burn-in ends).
     """
-    if num_samples is not None:
-        if num_draws is not None:
-            raise TypeError("pass num_draws only (num_samples is its deprecated old name)")
-        warnings.warn("run_chains(num_samples=...) is deprecated: use num_draws=...",
-                      FutureWarning, stacklevel=2)
-        num_draws = num_samples
-    num_chains = _check_run(num_draws, burn_in, thin, chunk_size, chain_method, states)
+    options = RunOptions(restart_stuck_chains=False) if options is None else options
+    chain_method = options.chain_method or "vectorized"
+    num_chains = _check_run(num_draws, burn_in, thin, chain_method, states)
     total = int(burn_in) + int(num_draws) * int(thin)
     if int(start) != start or not 0 <= start < total:
         raise ValueError(f"start must be an integer in [0, {total}), got {start!r}")
     # Equal chunks of at most `chunk_size` iterations; the last one runs fewer than
     # `chunk_len` iterations only when `total` does not divide evenly (then by < num_chunks).
-    num_chunks = -(-total // int(chunk_size))
-    chunk_len = -(-total // num_chunks)
-    chunk_fn = _chunk_runner(step, record, chunk_len, chain_method, num_chains)
-    chain_keys = jax.random.split(rng_key, num_chains)
-    restarts = (BurnInMonitor(num_chains, int(burn_in), rng_key, monitor)
-                if restart_stuck_chains else None)
-    if restarts is not None:
-        restarts.resumed_from(int(start))
-    bar = _progress_bar(total, desc, progress, position, int(start))
-    started = time.perf_counter()
-    try:
-        loop = _Loop(chunk_fn, chain_keys, total, chunk_len, int(burn_in), int(thin), callback,
-                     int(start), sink, restarts)
-        states = loop.run(states, bar, started)
-    finally:
-        if bar is not None:
-            bar.close()
-    elapsed = time.perf_counter() - started
+    chunk_len = -(-total // -(-total // int(options.chunk_size)))
+    chunk_fn = chunk_runner(step, record, chunk_len, chain_method, num_chains)
+    loop = _Loop(chunk_fn, jax.random.split(rng_key, num_chains), total, chunk_len,
+                 int(burn_in), int(thin), options, int(start),
+                 _restarts(options, num_chains, int(burn_in), rng_key, monitor, int(start)),
+                 None if until is None else BudgetMonitor(until, int(burn_in), int(thin),
+                                                          num_chains, monitor))
+    loop.earlier = earlier
+    desc = options.progress_label or "sampling"
+    states, elapsed = loop.run(states, _progress_bar(total, desc, options.progress,
+                                                     options.progress_position, int(start)))
     if loop.interrupted:
-        warnings.warn(
-            f"{desc} interrupted after {loop.done} of {total} iterations; keeping the "
-            f"{loop.draws_kept} draws per chain made so far",
-            SamplingInterrupted,
-            stacklevel=2,
-        )
-    draws = {
-        name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1) for name, parts in loop.kept.items()
-    }
-    if restarts is None:
-        return ChainRun(draws, states, loop.done, loop.interrupted, elapsed)
-    return ChainRun(draws, states, loop.done, loop.interrupted, elapsed, restarts.arrays(),
-                    tuple(restarts.records()))
+        warnings.warn(f"{desc} interrupted after {loop.done} of {total} iterations; keeping "
+                      f"the {loop.draws_kept} draws per chain made so far",
+                      SamplingInterrupted, stacklevel=2)
+    return loop.result(states, elapsed)
 
 
-def _check_run(num_draws: Any, burn_in: Any, thin: Any, chunk_size: Any, chain_method: str,
+def _restarts(options: RunOptions, num_chains: int, burn_in: int, rng_key: jax.Array,
+              monitor: dict[str, np.ndarray] | None, start: int) -> BurnInMonitor | None:
+    """The restart rule of stuck chains (:mod:`~.restart`), continued from ``monitor``; None
+    when the run does not restart them."""
+    if not options.restart_stuck_chains:
+        return None
+    restarts = BurnInMonitor(num_chains, burn_in, rng_key, monitor)
+    restarts.resumed_from(start)
+    return restarts
+
+
+def _check_run(num_draws: Any, burn_in: Any, thin: Any, chain_method: str,
                states: Any) -> int:
     """Validate :func:`run_chains`' arguments; returns the number of chains."""
     if num_draws is None:
         raise TypeError("run_chains() needs num_draws, the draws to keep per chain")
     for name, value, low in (("num_draws", num_draws, 1), ("burn_in", burn_in, 0),
-                             ("thin", thin, 1), ("chunk_size", chunk_size, 1)):
+                             ("thin", thin, 1)):
         if int(value) != value or value < low:
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     if chain_method not in CHAIN_METHODS:
@@ -376,25 +240,60 @@ def _check_run(num_draws: Any, burn_in: Any, thin: Any, chunk_size: Any, chain_m
 
 class _Loop:
     """The chunk loop of :func:`run_chains`: runs chunks, keeps the draws past burn-in on the
-    thin grid, hands each chunk to the sink and the callback, and stops cleanly before a chunk
-    when a stop was requested (:mod:`symplid.stopping`) or on ``KeyboardInterrupt``."""
+    thin grid, hands each chunk to the sink and the callback, checks the budget
+    (:mod:`~.budget`) when one is set, and stops cleanly before a chunk when a stop was
+    requested (:mod:`symplid.stopping`) or on ``KeyboardInterrupt``."""
 
     def __init__(self, chunk_fn: Callable, chain_keys: jax.Array, total: int, chunk_len: int,
-                 burn_in: int, thin: int, callback: Callable[[ChunkReport], None] | None,
-                 start: int = 0, sink: ChunkSink | None = None,
-                 restarts: BurnInMonitor | None = None):
+                 burn_in: int, thin: int, options: RunOptions, start: int = 0,
+                 restarts: BurnInMonitor | None = None, budget: BudgetMonitor | None = None):
         self.chunk_fn, self.chain_keys = chunk_fn, chain_keys
         self.total, self.chunk_len, self.burn_in, self.thin = total, chunk_len, burn_in, thin
-        self.callback, self.sink, self.restarts = callback, sink, restarts
-        self.sink_takes_monitor = restarts is not None and _takes_monitor(sink)
+        self.callback, self.sink, self.restarts = options.callback, options.sink, restarts
+        self.budget, self.out_of_time = budget, False
+        self.earlier: np.ndarray | None = None  # a continued run's draws of θ before start
+        self.sink_takes_monitor = ((restarts is not None or budget is not None)
+                                   and _takes_monitor(self.sink))
         self.kept: dict[str, list[np.ndarray]] = {}
         self.done = start
         self.draws_kept = max(0, start - burn_in) // thin
         self.interrupted = False
         self.pacer = Pacer(chunk_len)
 
-    def run(self, states: Any, bar: Any, started: float) -> Any:
+    def result(self, states: Any, elapsed: float) -> ChainRun:
+        """The run's :class:`ChainRun`: the draws kept, and what ended a budget's run."""
+        draws = {name: np.swapaxes(np.concatenate(parts, axis=0), 0, 1)
+                 for name, parts in self.kept.items()}
+        budget = self.budget
+        if budget is not None and not budget.stopped_by:
+            budget.stopped_by = "interrupted" if self.interrupted else (
+                "wall time" if self.out_of_time else "iterations")
+        return ChainRun(draws, states, self.done, self.interrupted, elapsed,
+                        self.monitor_arrays(elapsed),
+                        () if self.restarts is None else tuple(self.restarts.records()),
+                        None if budget is None else budget.record())
+
+    def monitor_arrays(self, elapsed: float = 0.0) -> dict[str, np.ndarray] | None:
+        """What a checkpoint keeps of the restart rule and the budget (None: neither)."""
+        if self.restarts is None and self.budget is None:
+            return None
+        arrays = {} if self.restarts is None else self.restarts.arrays()
+        return arrays if self.budget is None else {**arrays, **self.budget.arrays(elapsed)}
+
+    def run(self, states: Any, bar: Any) -> tuple[Any, float]:
+        """The chains' states at the end, and the seconds it took; the bar closed."""
+        started = time.perf_counter()
+        try:
+            states = self._chunks(states, bar, started)
+        finally:
+            if bar is not None:
+                bar.close()
+        return states, time.perf_counter() - started
+
+    def _chunks(self, states: Any, bar: Any, started: float) -> Any:
         chunk_index = 0
+        if self._enough(started):  # a resumed run whose last check had not been made
+            return states
         while self.done < self.total:
             if stop_requested() is not None:  # a signal asked to stop: a safe point
                 self.interrupted = True
@@ -411,7 +310,8 @@ class _Loop:
                 bar.update(ran)
             try:
                 if self.sink is not None:
-                    extra = {"monitor": self.restarts.arrays()} if self.sink_takes_monitor else {}
+                    extra = ({"monitor": self.monitor_arrays(time.perf_counter() - started)}
+                             if self.sink_takes_monitor else {})
                     self.sink(chunk, states, self.done - ran, self.done,
                               time.perf_counter() - started, **extra)
                 if self.callback is not None:
@@ -424,7 +324,25 @@ class _Loop:
                 self.interrupted = True
                 break
             chunk_index += 1
+            if self._enough(started):
+                break
         return states
+
+    def _enough(self, started: float) -> bool:
+        """With a budget: whether its targets are met or its wall-time cap is reached
+        (:mod:`~.budget`), checking the draws when a check is due."""
+        if self.budget is None:
+            return False
+        self.out_of_time = (self.budget.out_of_time(time.perf_counter() - started)
+                            and self.budget.has_draws(self.done))
+        final = self.out_of_time or self.done >= self.total
+        if self.budget.due(self.done, final):
+            parts = [np.swapaxes(p, 0, 1) for p in self.kept.get("theta", [])]
+            before = [] if self.earlier is None else [np.asarray(self.earlier)]
+            theta = np.concatenate(before + parts, axis=1)
+            if self.budget.check(theta, self.done, final):
+                return True
+        return self.out_of_time
 
     def _advance(self, states: Any,
                  num_active: int) -> tuple[Any, dict[str, np.ndarray], int]:
@@ -488,7 +406,7 @@ class _Loop:
         if self.restarts.records():
             warnings.warn(restarted_message(self.restarts.records(),
                                             restart_threshold(num_params)),
-                          StuckChainsRestarted, stacklevel=4)
+                          StuckChainsRestarted, stacklevel=5)
         return states
 
     def _keep(self, records: dict[str, Any], num_active: int,
