@@ -181,7 +181,7 @@ def ess_rate(posterior, map_result, method: str, num_samples: int, burn_in: int,
     """Minimum bulk ESS per second of one ``symplid.sample`` call with four chains."""
     az = import_arviz()
     started, cpu = time.perf_counter(), time.process_time()
-    idata = sample(posterior, method, num_samples=num_samples, num_chains=4, seed=0,
+    idata = sample(posterior, method, num_draws=num_samples, num_chains=4, seed=0,
                    init=map_result, burn_in=burn_in,
                    options=RunOptions(chunk_size=chunk, chain_method=chain_method, progress=False))
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu

@@ -49,8 +49,13 @@ s = merge_overrides(Settings(), {"model.order": 2, "initial_state.x0": [1.0, 0.0
 s = resolve_for_data(s, obs, "b")
 post = build_posterior(s, obs, build_model(s, obs))
 init = find_map(post, seed=0, num_starts=1)
-budget = dict(num_draws=20000, burn_in=0, num_chains=4, seed=1, chunk_size=2000,
-              progress=False, init=init)
+budget = dict(num_draws=20000, burn_in=0, num_chains=4, seed=1, init=init)
+import inspect
+if "options" in inspect.signature(sample).parameters:  # the runner's options object
+    from symplid.inference.samplers import RunOptions
+    budget["options"] = RunOptions(chunk_size=2000, progress=False)
+else:  # a tree from before it
+    budget.update(chunk_size=2000, progress=False)
 sample(post, "dram", **budget)  # compiles
 times = []
 for _ in range(int(sys.argv[2])):

@@ -17,6 +17,7 @@ finished lost, nothing unfinished that looks complete.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import signal
@@ -252,26 +253,29 @@ def test_a_stop_inside_a_chunk_keeps_its_iterations_and_resumes_to_the_same_draw
     import itertools
 
     from sampler_targets import Gaussian2D
-    from symplid.inference.samplers import pacing, sample
+    from symplid.inference.samplers import RunOptions, pacing, sample
     from symplid.inference.samplers import run as runner
     from symplid.inference.samplers.resume import checkpoint_arrays, resume_sampling
     from symplid.inference.samplers.run import SamplingInterrupted
 
     target = Gaussian2D()
-    budget = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 40, "chunk_size": 100,
-              "progress": False, "init": target.map_result()}
-    full = sample(target, "dram", **budget)
+    budget = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 40,
+              "init": target.map_result()}
+    options = RunOptions(chunk_size=100, progress=False)
+    full = sample(target, "dram", **budget, options=options)
     looks = itertools.count()
     monkeypatch.setattr(pacing.Pacer, "length", lambda self, remaining: min(remaining, 7))
     monkeypatch.setattr(runner, "stop_requested",
                         lambda: signal.SIGTERM if next(looks) >= 20 else None)
     with pytest.warns(SamplingInterrupted):
-        part, checkpoint = sample(target, "dram", return_state=True, **budget)
+        part, checkpoint = sample(target, "dram", **budget,
+                                  options=dataclasses.replace(options, return_state=True))
     monkeypatch.undo()
     done = checkpoint.iterations_done
     assert 100 < done < 190 and done % 100 != 0  # inside the second chunk
     np.testing.assert_array_equal(draws_array(part), draws_array(full)[:, :done - 40])
-    resumed = resume_sampling(target, part, checkpoint_arrays(checkpoint), progress=False)
+    resumed = resume_sampling(target, part, checkpoint_arrays(checkpoint),
+                              options=RunOptions(progress=False))
     np.testing.assert_array_equal(draws_array(resumed), draws_array(full))
 
 
