@@ -18,8 +18,7 @@ from scipy.integrate import solve_ivp
 import symplid
 from symplid.workflow.building import build_model
 from symplid.workflow.fit import find_map_for
-from symplid.workflow.settings import Settings, merge_overrides
-from symplid.workflow.settings_data import resolve_for_data
+from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
 from symplid.workflow.step_size import (
     THRESHOLD_SD,
     _halvings,
