@@ -1,103 +1,11 @@
 """Run settings: nested frozen dataclasses with the paper's defaults, read from and written to TOML.
 
-A settings file has one table per section; every key is optional and defaults to the value
-used in the seed paper's Hénon–Heiles experiment (Section IV):
-
-.. code-block:: toml
-
-    seed = 0                      # seeds [map] and [sampler] unless they set their own
-
-    [model]                       # the state-space model, eq. (7)
-    potential = "polynomial"      # a name in symplid.dynamics.families.POTENTIAL_FAMILIES,
-                                  # or a user's expression ("k*(1 - cos(q1))") or file:PATH:NAME
-    hamiltonian = "separable"     # ½pᵀM⁻¹p + U(q); or a name in HAMILTONIAN_FAMILIES, or a
-                                  # user's H (expression or file); parameters: [model.parameters]
-    kinetic = "quadratic"         # T(p) of a user's potential: ½pᵀM⁻¹p, or an expression/file
-    order = 3                     # polynomial potential of total degree ≤ 3 (eqs 17–18)
-    width = 32                    # potential = "mlp" (or hamiltonian = "mlp"): units per layer,
-    depth = 2                     #   hidden layers,
-    activation = "tanh"           #   activation,
-    network_seed = 0              #   seed of the initial weights
-    integrator = "leapfrog"       # any name in symplid.dynamics.integrators.INTEGRATORS
-    binding = 0.0                 # Tao's ω for "tao"/"tao4" (non-separable H); 0: ω = 1/dt
-    dt = 0.25                     # learning step; each gap is split in ⌈gap/dt⌉ steps (eq. 14);
-                                  # "auto": chosen from the data by step doubling
-    process_noise_per = "gap"     # Σ added once per observation gap ("step": every substep;
-                                  # "none": no Σ, one integrated path, no filter)
-    noise = "auto"                # "isotropic": Σ = θ_Σ I, Γ = θ_Γ I; "diagonal": one variance per
-                                  # component; "per-kind": one Γ variance for q, one for p;
-                                  # "auto": per-kind for q and p columns, else isotropic
-    observation_noise = "additive" # "multiplicative": y = h(x)∘(1 + ε); "both" (filters.noise)
-    standardise = "auto"          # fit in q/a, p/a (a = RMS of the positions), report in the
-                                  # data's units; "auto": when a ∉ [0.1, 10] (workflow.scaling)
-    observation = "auto"          # "full" / "positions"; "auto" follows the data file's columns
-    mass = []                     # empty: M = I; else the diagonal of M
-    alpha = 1.0                   # scaled unscented transform
-    beta = 2.0
-    kappa = 0.0
-    jitter = 1e-12
-    damping = false               # true: learn a damping rate γ, ṗ = −∂U/∂q − γM⁻¹p
-
-    [initial_state]
-    mode = "known"                # "known": X_0 ~ N(x0, p0_var I); "learned": x0 joins θ
-    x0 = [0.2, -0.25, 0.3, -0.25] # (q1..qd, p1..pd); empty = centre the learned prior on y_1
-                                  # several trajectories: one for all, or K·2d numbers
-    p0_var = 1e-16
-    t0 = 0.0                      # or "first": the state at the first observation time
-
-    [priors]
-    process_var = "variances"     # Σ's prior: the variances' ("log-uniform": scaled to the data)
-    [priors.coefficients]         # one prior per group of θ; left out: the model family's
-    prior = "laplace"             #   default (polynomial: this one; mlp: normal(0, 1))
-    loc = 0.0
-    scale = 10.0
-    [priors.variances]
-    prior = "half-normal"
-    scale = 1.0
-    [priors.damping]              # γ of a damped model (bounded below by 0)
-    prior = "half-normal"
-    scale = 1.0
-    [priors.initial_state]        # used when initial_state.mode = "learned"
-    prior = "normal"
-    loc = 0.0                     # an offset from the centre (x0, or the first observation)
-    scale = 1.0
-
-    [map]
-    num_starts = 4
-    seed = 0
-    evidence = "quadrature"       # noise variances integrated on their log scale ("laplace")
-    adam_steps = 2000             # a neural family's MAP: Adam, then L-BFGS (no multistart)
-    learning_rate = 0.01
-    lbfgs_steps = 1000
-    sensitivity = true            # after the MAP: refits at dt/2 and with the other process noise
-
-    [sampler]
-    method = "dram"               # any name in symplid.inference.samplers.SAMPLERS
-    num_iterations = "auto"       # until the targets below are met; a number: a fixed budget
-    burn_in = "auto"              # half a fixed budget; else the sampler's, extended as needed
-    target_ess = 400.0            # bulk and tail ESS of every parameter ("auto" budget)
-    target_rhat = 1.01            # R-hat of every parameter ("auto" budget)
-    max_iterations = 200000       # cap per chain, burn-in included ("auto" budget)
-    max_seconds = 0.0             # cap on the sampling's wall time, 0: none ("auto" budget)
-    num_chains = 4
-    gamma = 0.01                  # DRAM second-stage scale
-    adapt_start = 200
-    variance_scale = "log"        # DRAM moves the variances as log(v) ("natural": as v)
-    thin = 1
-    seed = 0
-    chunk_size = 2000             # iterations per compiled block: draws saved, stops obeyed
-
-    [prediction]
-    integrator = "leapfrog"
-    dt = 0.01
-    t_end = 200.0
-    num_paths = 100
-
-    [plots]                       # figures only: never changes a result
-    time_unit = "s"               # the data's time unit, on every time axis
-    max_pair_params = 6           # parameters in the pair plot (the first ones of θ)
-    max_trace_params = 16         # parameters in the trace plot
-    truth = ""                    # the system that made the data, if known (e.g. "henon-heiles")
+A settings file has one table per section (``[model]``, ``[initial_state]``, ``[priors]``,
+``[map]``, ``[sampler]``, ``[prediction]``, ``[plots]``); every key is optional. The keys, their
+defaults (the paper's Hénon–Heiles experiment, Section IV, unless a key says otherwise) and
+their meanings are written once, in the schema (:mod:`symplid.workflow.settings_schema`,
+``setting(..., doc=...)``), from which the docs' settings reference is generated; a run folder's
+``settings.toml`` writes every value out.
 
 Every prior table names its family by ``prior``, as ``[model.parameters]`` does (the old key
 ``family`` of a ``[priors.GROUP]`` table, or of ``--set priors.GROUP.family=...``, is read with a
