@@ -23,8 +23,6 @@ from symplid.workflow.commandline import (
     UserError,
     compare_candidates,
     config_option,
-    echo_diagnostics,
-    fit_result_line,
     floats,
     integrator_registry,
     model_text,
@@ -32,15 +30,19 @@ from symplid.workflow.commandline import (
     noise_model_names,
     potential_registry,
     quiet_option,
-    report_after_fit,
     rk2_variants,
-    run_fit,
     sampler_registry,
     sets_option,
     settings_from_options,
-    simulate_to_file,
     time_or_word,
     user_errors,
+)
+from symplid.workflow.fit_command import (
+    echo_diagnostics,
+    fit_result_line,
+    report_after_fit,
+    run_fit,
+    simulate_to_file,
 )
 
 __all__ = ["main"]
