@@ -76,6 +76,7 @@ __all__ = [
     "format_table",
     "parse_integrators",
     "parse_orders",
+    "resolve_all",
     "write_comparison",
 ]
 
@@ -182,8 +183,9 @@ def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
     raise TypeError(f"obs must be an Observations or a list of them, got {type(obs).__name__}")
 
 
-def _resolve_all(settings: Settings, datasets: list[Observations], source: str) -> Settings:
-    """Settings resolved against every trajectory (they must share one layout)."""
+def resolve_all(settings: Settings, datasets: list[Observations], source: str) -> Settings:
+    """Settings resolved against every trajectory (they must share one layout; a known x0
+    holds one state, so several trajectories need a learned one)."""
 
     resolved = resolve_for_data(settings, datasets[0], source)
     if len(datasets) > 1 and settings.initial_state.mode == "known":
@@ -239,7 +241,7 @@ def fit_candidates(
     integrator_list = (
         [settings.model.integrator] if integrators is None else parse_integrators(integrators)
     )
-    base = _resolve_all(settings, datasets, source)
+    base = resolve_all(settings, datasets, source)
     damping_list = [settings.model.damping] if dampings is None else _dampings(dampings)
     noise_list = ([settings.model.process_noise_per] if process_noises is None
                   else _process_noises(process_noises))
