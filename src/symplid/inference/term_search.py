@@ -47,6 +47,7 @@ chosen subset, which :attr:`TermSearch.log_evidence_gap` reports.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -184,19 +185,31 @@ class _Fitter:
         return fit
 
     def fit(self, included: tuple[bool, ...], start: np.ndarray) -> SubsetFit:
+        """The subset's MAP and evidence from ``start`` (its excluded coefficients set to
+        zero). A search that fails from there is run again with two more starts, from where
+        it ended or, where the warm start cannot be evaluated (the motion escapes without the
+        term), from the default start."""
         if included in self.fits:
             return self.fits[included]
         t0 = time.perf_counter()
         self.view.select(included)
         init = self.view.embed(start)
+        fit = self._attempt(included, init, self.num_starts)
+        if not fit.success:
+            again = fit.theta if math.isfinite(fit.log_posterior) else None
+            fit = self._attempt(included, again, self.num_starts + 2)
+        return self.add(dataclasses.replace(fit, seconds=time.perf_counter() - t0))
+
+    def _attempt(self, included: tuple[bool, ...], init: np.ndarray | None,
+                 num_starts: int) -> SubsetFit:
         try:
-            result = find_map(self.view, seed=self.seed, num_starts=self.num_starts, init=init,
+            result = find_map(self.view, seed=self.seed, num_starts=num_starts, init=init,
                               warn=False)
-        except ValueError as err:  # not finite at the start: this subset cannot be evaluated
-            return self.add(SubsetFit(included, -math.inf, -math.inf, init, None, False,
-                                      time.perf_counter() - t0, str(err).split(";")[0]))
-        return self.add(_from_result(included, self.view.embed(result.theta), result,
-                                     time.perf_counter() - t0))
+        except ValueError as err:  # not finite at the start
+            return SubsetFit(included, -math.inf, -math.inf, self.view.embed(
+                np.zeros(self.view.num_params) if init is None else init), None, False, 0.0,
+                str(err).split(";")[0])
+        return _from_result(included, self.view.embed(result.theta), result, 0.0)
 
 
 def _from_result(included: tuple[bool, ...], theta: np.ndarray, result: Any,

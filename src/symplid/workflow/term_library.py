@@ -100,8 +100,8 @@ def _expression_settings(base: Settings, terms: Sequence[str], names: Sequence[s
     prior["prior"] = prior.pop("family")
     whole_h = _has_momentum(terms)
     key = "model.hamiltonian" if whole_h else "model.potential"
-    overrides = {key: expression, "model.parameters": {n: dict(prior) for n in names},
-                 "model.standardise": "off"}
+    overrides = {key: expression, "model.standardise": "off",
+                 **{f"model.parameters.{n}": dict(prior) for n in names}}
     return merge_overrides(base, overrides, source="terms")
 
 
