@@ -119,6 +119,9 @@ def discover(
     data = datasets[0] if len(datasets) == 1 else datasets
     model = build_model(resolved, datasets[0])
     posterior = build_posterior(resolved, data, model)
+    groups = set(posterior.param_groups[: library.size])
+    if not groups <= {"coefficients", "parameters"}:  # the layout puts the terms first
+        raise RuntimeError(f"the library's coefficients are not θ's first block: {groups}")
     t0 = time.perf_counter()
     search = search_terms(
         posterior, range(library.size), library.names, seed=resolved.map.seed,
