@@ -519,6 +519,9 @@ def discover(data, out, config, order, terms, x0, learn_initial_state, size_prio
     click.echo(format_terms(found.table))
     click.echo(f"chosen: {' + '.join(found.chosen) or '(none)'} ({found.search.num_fits} "
                f"fits)" + (f"; files in {out}" if out is not None else ""))
+    if found.search.stopped == "max_fits":
+        click.echo("symplid: the search stopped at --max-fits before it converged: the "
+                   "inclusion probabilities cover the subsets it visited", err=True)
 
 
 def _with_and_without_noise(settings) -> list[str]:

@@ -203,8 +203,12 @@ class _Fitter:
     def _attempt(self, included: tuple[bool, ...], init: np.ndarray | None,
                  num_starts: int) -> SubsetFit:
         try:
-            result = find_map(self.view, seed=self.seed, num_starts=num_starts, init=init,
-                              warn=False)
+            # A subset far from the data can end where a variance's scan from its bound
+            # climbs far above the "optimum" (exp overflows): its evidence is then NaN,
+            # which marks the fit failed; the overflow itself is no news.
+            with np.errstate(over="ignore"):
+                result = find_map(self.view, seed=self.seed, num_starts=num_starts,
+                                  init=init, warn=False)
         except ValueError as err:  # not finite at the start
             return SubsetFit(included, -math.inf, -math.inf, self.view.embed(
                 np.zeros(self.view.num_params) if init is None else init), None, False, 0.0,

@@ -209,7 +209,7 @@ def _summary(library: TermLibrary, search: TermSearch, table: pd.DataFrame,
         "num_fits": search.num_fits,
         "log_probability_gap": search.log_evidence_gap,
         "seconds": seconds,
-        "fit": None if chosen_fit is None else "fit",
+        "fit_folder": None if chosen_fit is None else "fit",
     }
 
 
