@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -109,7 +110,19 @@ def run_symplid(case: Case, obs: symplid.Observations, num_starts: int) -> dict:
     coef = np.array([row["coefficient"] for row in found.search.coefficients()])
     return {"chosen": chosen, "coef": coef, "seconds": time.perf_counter() - t0,
             "fits": found.search.num_fits,
-            "inclusion": found.table["inclusion_probability"].to_numpy()}
+            "inclusion": found.table["inclusion_probability"].to_numpy(),
+            "cos_margin": _cos_margin(case, found.search)}
+
+
+def _cos_margin(case: Case, search) -> float:
+    """log evidence of the best visited subset with cos q minus that of the best without it
+    (polynomials only); NaN when the library has no cos q."""
+    if "cos(q1)" not in case.terms:
+        return math.nan
+    j = case.terms.index("cos(q1)")
+    with_cos = [f.log_evidence for f in search.fits if f.included[j]]
+    without = [f.log_evidence for f in search.fits if not f.included[j]]
+    return max(with_cos) - max(without) if with_cos and without else math.nan
 
 
 def _forces(terms: Sequence[str], dim: int):
@@ -147,7 +160,7 @@ def run_sindy(case: Case, obs: symplid.Observations) -> dict:
                      for j in range(m)])
     chosen = {case.terms[j] for j in range(m) if nonzero[:, j].any()}
     return {"chosen": chosen, "coef": coef, "seconds": time.perf_counter() - t0, "fits": 0,
-            "inclusion": None}
+            "inclusion": None, "cos_margin": math.nan}
 
 
 # ----------------------------------------------------------------------------- the table
@@ -164,13 +177,28 @@ def rows_for(case: Case, seeds: Sequence[int], num_starts: int, csv_path: Path |
                    "chosen": " + ".join(t for t in case.terms if t in out["chosen"]),
                    "coef_error": float(np.linalg.norm(out["coef"] - truth)
                                        / np.linalg.norm(truth)),
-                   "seconds": out["seconds"], "fits": out["fits"]}
+                   "seconds": out["seconds"], "fits": out["fits"],
+                   **_inclusion_margins(case, out["inclusion"]),
+                   "cos_over_polynomials": out["cos_margin"]}
             rows.append(row)
             print(f"{case.name} seed {seed} {method}: {row['chosen']} "
-                  f"(error {row['coef_error']:.3g}, {row['seconds']:.1f} s)", flush=True)
+                  f"(error {row['coef_error']:.3g}, {row['seconds']:.1f} s, inclusion: true "
+                  f"≥ {row['min_true_inclusion']:.3f}, others ≤ "
+                  f"{row['max_other_inclusion']:.3f}; cos q over the best polynomial: "
+                  f"{row['cos_over_polynomials']:.2f} nats)", flush=True)
             if csv_path is not None:
                 _append(csv_path, row)
     return rows
+
+
+def _inclusion_margins(case: Case, inclusion: np.ndarray | None) -> dict:
+    """The smallest inclusion probability of a true term and the largest of another (the
+    issue's test: > 0.9 and < 0.5); NaN for a method without probabilities."""
+    if inclusion is None:
+        return {"min_true_inclusion": math.nan, "max_other_inclusion": math.nan}
+    true = np.array([t in case.truth for t in case.terms])
+    return {"min_true_inclusion": float(inclusion[true].min()),
+            "max_other_inclusion": float(inclusion[~true].max()) if (~true).any() else 0.0}
 
 
 def _append(path: Path, row: dict) -> None:
@@ -183,15 +211,19 @@ def _append(path: Path, row: dict) -> None:
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| case | method | seeds | exact recovery | median coefficient error | "
-             "mean fits | mean time (s) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| case | method | seeds | exact recovery | inclusion > 0.9 / < 0.5 | "
+             "median coefficient error | mean fits | mean time (s) |",
+             "|---|---|---|---|---|---|---|---|"]
     keys = sorted({(r["case"], r["method"]) for r in rows},
                   key=lambda k: (list(CASES).index(k[0]), k[1]))
     for case, method in keys:
         sel = [r for r in rows if r["case"] == case and r["method"] == method]
         hits = sum(bool(r["recovered"]) for r in sel)
+        clear = sum(r["min_true_inclusion"] > 0.9 and r["max_other_inclusion"] < 0.5
+                    for r in sel)
+        clear_text = "–" if method != "symplid" else f"{clear}/{len(sel)}"
         lines.append(
-            f"| {case} | {method} | {len(sel)} | {hits}/{len(sel)} | "
+            f"| {case} | {method} | {len(sel)} | {hits}/{len(sel)} | {clear_text} | "
             f"{np.median([r['coef_error'] for r in sel]):.3g} | "
             f"{np.mean([r['fits'] for r in sel]):.1f} | "
             f"{np.mean([r['seconds'] for r in sel]):.2f} |")
