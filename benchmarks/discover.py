@@ -28,8 +28,9 @@ A method recovers a seed when its set equals the true set exactly; the coefficie
 method, the recovery rate over the seeds, the median coefficient error and the mean time;
 ``--csv`` keeps one row per case, seed and method.
 
-Run: ``nice python benchmarks/discover.py --seeds 5 --cases hh20,well,pendulum``
-(symplid: 20–40 fits per seed; PySINDy: milliseconds).
+Run: ``nice python benchmarks/discover.py --seeds 5 --cases hh20,well,pendulum --csv b.csv``
+(symplid: 10–40 fits per seed; PySINDy: milliseconds); ``--table-only b.csv`` rebuilds the
+table.
 """
 
 from __future__ import annotations
@@ -210,6 +211,18 @@ def _append(path: Path, row: dict) -> None:
         writer.writerow(row)
 
 
+def read_rows(path: Path) -> list[dict]:
+    """The rows that ``--csv`` wrote, with their numbers read back."""
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    for row in rows:
+        row["recovered"] = row["recovered"] == "True"
+        for key in ("coef_error", "seconds", "fits", "min_true_inclusion",
+                    "max_other_inclusion", "cos_over_polynomials"):
+            row[key] = float(row[key])
+    return rows
+
+
 def table(rows: list[dict]) -> str:
     lines = ["| case | method | seeds | exact recovery | inclusion > 0.9 / < 0.5 | "
              "median coefficient error | mean fits | mean time (s) |",
@@ -239,7 +252,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--num-starts", type=int, default=2,
                         help="MAP starts of the whole library's fit")
     parser.add_argument("--csv", type=Path, default=None, help="append one row per fit here")
+    parser.add_argument("--table-only", type=Path, nargs="+", default=None, metavar="CSV",
+                        help="print the table of these CSV files (from --csv), fit nothing")
     args = parser.parse_args(argv)
+    if args.table_only:
+        print(table([row for path in args.table_only for row in read_rows(path)]))
+        return 0
     names = [c.strip() for c in args.cases.split(",")]
     unknown = [n for n in names if n not in CASES]
     if unknown:
