@@ -256,7 +256,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="print the table of these CSV files (from --csv), fit nothing")
     args = parser.parse_args(argv)
     if args.table_only:
-        print(table([row for path in args.table_only for row in read_rows(path)]))
+        rows = {(r["case"], r["seed"], r["method"]): r  # a repeated fit: the last row
+                for path in args.table_only for r in read_rows(path)}
+        print(table(list(rows.values())))
         return 0
     names = [c.strip() for c in args.cases.split(",")]
     unknown = [n for n in names if n not in CASES]
