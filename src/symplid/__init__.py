@@ -65,6 +65,7 @@ _PUBLIC = {
     "MapResult": "symplid.inference.map",
     "MultipleOptimaWarning": "symplid.inference.map",
     "find_map": "symplid.inference.map",
+    "discover": "symplid.workflow.discover",
     "sample": "symplid.inference.samplers",
     "DataError": "symplid.model.data",
     "Observations": "symplid.model.data",

@@ -475,6 +475,64 @@ def compare(
     )
 
 
+# ----------------------------------------------------------------------------- discover
+@main.command()
+@click.argument("data", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Folder for terms.csv, subsets.csv, summary.json, report.md (and fit/).",
+)
+@config_option("Settings file (TOML): integrator, dt, noise, priors, initial state.")
+@click.option("--order", type=click.IntRange(min=1), default=None,
+              help="The library: every monomial of U up to this order [default: model.order].")
+@click.option("--terms", type=str, default=None,
+              help="The library: your own terms, e.g. 'q1^2, q1^4, cos(q1)' (each gets a "
+              "coefficient with the coefficients' prior).")
+@click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
+@click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
+@click.option("--size-prior", type=click.Choice(["beta-binomial", "uniform"]),
+              default="beta-binomial", show_default=True,
+              help="Prior over subsets: every size equally likely, or every subset.")
+@click.option("--max-fits", type=click.IntRange(min=1), default=None,
+              help="Stop the search after this many fits [default: until it converges].")
+@click.option("--fit/--no-fit", "fit_chosen", default=False, show_default=True,
+              help="Fit the chosen model fully (sampler, report) into OUT/fit.")
+@sets_option
+@no_progress_option
+@user_errors
+def discover(data, out, config, order, terms, x0, learn_initial_state, size_prior, max_fits,
+             fit_chosen, sets, no_progress) -> None:
+    """Which terms of a library DATA need: each term's inclusion probability, the best
+    subsets by their evidence, and the chosen model's coefficients with 95 % intervals."""
+    from symplid.io import read_observations
+    from symplid.workflow.discover import discover as run_discover
+    from symplid.workflow.discover import format_terms
+    from symplid.workflow.term_library import LibraryError
+
+    if fit_chosen and out is None:
+        raise UserError("--fit writes the chosen model's run into OUT/fit: give --out")
+    obs = read_observations(data)
+    overrides = {
+        "initial_state.x0": floats(x0, "--x0"),
+        "initial_state.mode": "learned" if learn_initial_state else None,
+    }
+    settings, source = settings_from_options(config, overrides, sets)
+    try:
+        found = run_discover(obs, settings, terms=terms, order=order, out=out,
+                             fit_chosen=fit_chosen, size_prior=size_prior, max_fits=max_fits,
+                             progress=not no_progress, source=source)
+    except LibraryError as err:
+        raise UserError(str(err)) from None
+    click.echo(format_terms(found.table))
+    click.echo(f"chosen: {' + '.join(found.chosen) or '(none)'} ({found.search.num_fits} "
+               f"fits)" + (f"; files in {out}" if out is not None else ""))
+    if found.search.stopped == "max_fits":
+        click.echo("symplid: the search stopped at --max-fits before it converged: the "
+                   "inclusion probabilities cover the subsets it visited", err=True)
+
+
 def _with_and_without_noise(settings) -> list[str]:
     """``compare --process-noise``: the settings' process noise (``gap`` if it is none)
     beside none."""

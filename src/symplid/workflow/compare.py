@@ -78,6 +78,7 @@ __all__ = [
     "format_table",
     "parse_integrators",
     "parse_orders",
+    "resolve_all",
     "write_comparison",
 ]
 
@@ -184,8 +185,9 @@ def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
     raise TypeError(f"obs must be an Observations or a list of them, got {type(obs).__name__}")
 
 
-def _resolve_all(settings: Settings, datasets: list[Observations], source: str) -> Settings:
-    """Settings resolved against every trajectory (they must share one layout)."""
+def resolve_all(settings: Settings, datasets: list[Observations], source: str) -> Settings:
+    """Settings resolved against every trajectory (they must share one layout; a known x0
+    holds one state, so several trajectories need a learned one)."""
 
     resolved = resolve_for_data(settings, datasets[0], source)
     if len(datasets) > 1 and settings.initial_state.mode == "known":
@@ -241,7 +243,7 @@ def fit_candidates(
     integrator_list = (
         [settings.model.integrator] if integrators is None else parse_integrators(integrators)
     )
-    base = _resolve_all(settings, datasets, source)
+    base = resolve_all(settings, datasets, source)
     if base.model.dt == "auto":  # one step for all: the settings' own model's
         base = choose_step(base, datasets if len(datasets) > 1 else datasets[0],
                            search=find_map_for).settings
