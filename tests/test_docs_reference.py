@@ -42,7 +42,7 @@ def _rows() -> list[tuple[str, str, str]]:
 def _flat(d: dict, prefix: str = "") -> set[str]:
     out = set()
     for k, v in d.items():
-        if isinstance(v, dict) and v and "family" not in v:
+        if isinstance(v, dict) and v and "family" not in v and "prior" not in v:
             out |= _flat(v, f"{prefix}{k}.")
         else:
             out.add(f"{prefix}{k}")
