@@ -44,6 +44,7 @@ which lists every built-in method:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import jax
@@ -172,6 +173,15 @@ def tao_integrator(
     )
 
 
+def _hamilton_rhs(f: GeneralDynamics, d: int) -> Callable[[Array], Array]:
+    """Hamilton's equations (3) on the stacked state z = (q, p): ż = (∂H/∂p, −∂H/∂q)."""
+
+    def rhs(z: Array) -> Array:
+        return jnp.concatenate([f.grad_p(z[:d], z[d:]), -f.grad_q(z[:d], z[d:])])
+
+    return rhs
+
+
 def implicit_midpoint_integrator(name: str = "implicit-midpoint", iterations: int = 4
                                  ) -> Integrator:
     """The implicit midpoint rule, solved by ``iterations`` Newton iterations per step.
@@ -185,11 +195,8 @@ def implicit_midpoint_integrator(name: str = "implicit-midpoint", iterations: in
     iterations = int(iterations)
 
     def step(dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
-        f = as_general(dynamics)
         d = q.shape[0]
-
-        def rhs(z: Array) -> Array:
-            return jnp.concatenate([f.grad_p(z[:d], z[d:]), -f.grad_q(z[:d], z[d:])])
+        rhs = _hamilton_rhs(as_general(dynamics), d)
 
         def solve_point(z0: Array) -> Array:
             z = z0 + dt * rhs(z0)
@@ -235,11 +242,8 @@ def gauss_legendre_integrator(name: str = "gauss4", iterations: int = 4) -> Inte
     b1, b2 = GAUSS4_TABLEAU[1]
 
     def step(dynamics, q: Array, p: Array, dt: Array) -> tuple[Array, Array]:
-        f = as_general(dynamics)
         d = q.shape[0]
-
-        def rhs(z: Array) -> Array:
-            return jnp.concatenate([f.grad_p(z[:d], z[d:]), -f.grad_q(z[:d], z[d:])])
+        rhs = _hamilton_rhs(as_general(dynamics), d)
 
         def solve_point(z0: Array) -> Array:
             n = z0.shape[0]
