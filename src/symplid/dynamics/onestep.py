@@ -124,7 +124,7 @@ class Integrator:
     """The method as data, for compiled backends and damped forms: a
     :class:`~symplid.dynamics.schemes.Composition` (leapfrog sub-steps of ``w·Δt``) or a
     :class:`~symplid.dynamics.schemes.ButcherTableau`; None when the step is only a function.
-    A scheme is checked against :attr:`order` when the integrator is made."""
+    A scheme is checked against ``order`` when the integrator is made."""
     nonseparable: bool = False
     """Whether ``step`` also accepts :class:`~symplid.dynamics.integrators.GeneralDynamics` (a
     non-separable H)."""
