@@ -84,7 +84,7 @@ def _environment(tree: str) -> dict[str, str]:
 def latency(tree: str, data: Path, folder: Path, chunk: int, after: float) -> str:
     out = folder / f"run-{abs(hash(tree))}"
     fit = subprocess.Popen([sys.executable, "-m", "symplid.cli", "fit", str(data), "--out",
-                            str(out), "--method", "nuts", "--iterations", str(2 * chunk),
+                            str(out), "--method", "nuts", "--iterations", str(20 * chunk),
                             "--burn-in", "100", "--set", f"sampler.chunk_size={chunk}", *FIT],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                            env=_environment(tree))
