@@ -37,7 +37,6 @@ os.environ.setdefault("SYMPLID_USER_KERNEL", "1")
 
 import resource
 import tempfile
-import time
 from collections.abc import Callable
 
 import jax
@@ -45,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import symplid
+from compiled_kernel import loop_runner
 from symplid.dynamics.user_models import build_user_model
 from symplid.model import kernel as compiled_kernel
 from symplid.model import user_kernel
@@ -55,29 +55,6 @@ USER_MODELS = {
     "Morse (exp, sqrt)": ("D*(1 - exp(-a*(sqrt(q1^2 + q2^2) - r)))^2", ("D", "a", "r"),
                           (1.0, 1.0, 1.0), (1.2, 0.0, 0.0, 0.8)),
 }
-
-
-def loop_runner(step: Callable[[jax.Array], jax.Array], thetas: jax.Array
-                ) -> Callable[[], float]:
-    """A timer of ``step`` in a compiled ``fori_loop`` over ``thetas``: each call returns the
-    CPU seconds per iteration of one run (compiled and run once here)."""
-    count = thetas.shape[0]
-
-    @jax.jit
-    def run(thetas):
-        def body(i, total):
-            return total + jnp.sum(step(thetas[i]))
-
-        return jax.lax.fori_loop(0, count, body, 0.0)
-
-    jax.block_until_ready(run(thetas))
-
-    def once() -> float:
-        start = time.process_time()
-        jax.block_until_ready(run(thetas))
-        return (time.process_time() - start) / count
-
-    return once
 
 
 def best_times(runners: list[Callable[[], float]], repeats: int) -> list[float]:
