@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from csv_data import harmonic, write_csv
 from symplid.cli import main
 from symplid.workflow.interrupts import deferred_interrupts, supervised
 from symplid.workflow.results import RunFolder
@@ -40,21 +41,6 @@ def one_line_error(result, *words, code=2):
     assert "Traceback" not in result.output
     for word in words:
         assert word in lines[0], lines[0]
-
-
-def write_csv(path: Path, times, columns: dict[str, np.ndarray]) -> Path:
-    header = ",".join(["t", *columns])
-    rows = [",".join([f"{t:.17g}", *(f"{columns[c][k]:.17g}" for c in columns)])
-            for k, t in enumerate(times)]
-    path.write_text(header + "\n" + "\n".join(rows) + "\n")
-    return path
-
-
-def harmonic(times, noise=0.02, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.asarray(times, dtype=float)
-    return {"q1": np.cos(t) + noise * rng.normal(size=t.size),
-            "p1": -np.sin(t) + noise * rng.normal(size=t.size)}
 
 
 @pytest.fixture(scope="module")

@@ -7,28 +7,12 @@ that describes a user's model as written.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from csv_data import harmonic, write_csv
 from symplid.io import read_observations
 from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
-
-
-def write_csv(path: Path, times, columns: dict[str, np.ndarray]) -> Path:
-    header = ",".join(["t", *columns])
-    rows = [",".join([f"{t:.17g}", *(f"{columns[c][k]:.17g}" for c in columns)])
-            for k, t in enumerate(times)]
-    path.write_text(header + "\n" + "\n".join(rows) + "\n")
-    return path
-
-
-def harmonic(times, noise=0.02, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.asarray(times, dtype=float)
-    return {"q1": np.cos(t) + noise * rng.normal(size=t.size),
-            "p1": -np.sin(t) + noise * rng.normal(size=t.size)}
 
 
 # ----------------------------------------------------------------------------- t0 at the data
