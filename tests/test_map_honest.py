@@ -140,6 +140,24 @@ def test_a_coefficient_on_its_zero_floor_is_a_failure():
     assert map_checks.judge(floor, (floor,), pd, uniform, groups, noise) == ""
 
 
+def test_one_unneeded_term_on_its_floor_is_an_answer():
+    """k q²/2 + a q⁴/4 fitted to a harmonic oscillator: a on its floor beside k off it is the
+    right answer (the quartic term is not needed), not dynamics switched off; both on their
+    floors is."""
+    space = SearchSpace.of(ParameterSpace.from_priors(
+        ["k", "a", "obs_var"], ["parameters", "parameters", "obs_var"],
+        [HalfNormal(10.0), HalfNormal(10.0), HalfNormal(1.0)]), 1e-14)
+    groups, names = ("parameters", "parameters", "obs_var"), ("k", "a", "obs_var")
+    pd, noise = np.eye(3), np.array([1e-3])
+    quartic_off = _start([1.5, 1e-14, 1e-3], [2.0, 1.0, 1e-2])
+    assert map_checks.judge(quartic_off, (quartic_off,), pd, space, groups, noise,
+                            names=names) == ""
+    both = _start([1e-14, 1e-14, 1e-3], [2.0, 1.0, 1e-2])
+    reason = map_checks.judge(both, (both,), pd, space, groups, noise, names=names)
+    assert reason.startswith("puts the dynamic parameters k, a on their bounds")
+    assert map_checks.removes_dynamics(reason)
+
+
 # ----------------------------------------------------------------------------- the noise
 def test_noise_of_a_clumped_orbit_is_read_without_a_model():
     """25 positions with gaps of a fifth of a period: differences see the orbit (10⁴ times

@@ -21,10 +21,12 @@ when any of these holds at the best start's end point:
    A MAP that calls the motion itself noise (an orbit fitted as "no force, noise of the
    orbit's size") has explained nothing, whatever its log posterior.
 
-5. **Dynamics removed**: a dynamic coefficient sits on a bound at zero (a positive
-   parameter such as GM on its floor, 1e-14): the force it scales is switched off, and
-   whatever the fit explains it explains by noise (an orbit followed by process noise alone,
-   or fitted as a straight line through it). Never a MAP worth sampling from.
+5. **Dynamics removed**: every dynamic coefficient bounded below by zero sits on that bound
+   (a positive parameter such as GM on its floor, 1e-14): the force they scale is switched
+   off, and whatever the fit explains it explains by noise (an orbit followed by process
+   noise alone, or fitted as a straight line through it). Never a MAP worth sampling from.
+   One such coefficient on its floor beside another off it (a quartic term the data do not
+   need) is an answer, not a failure.
 
 The reason given is never empty: L-BFGS-B's stop message is put in words
 (:func:`stop_meaning`), and where the optimiser stopped by its own test but the Newton
@@ -128,19 +130,24 @@ def judge(best: StartResult, results: tuple[StartResult, ...], hessian: np.ndarr
 
 def dynamics_removed(theta: np.ndarray, space: SearchSpace, groups: tuple[str, ...],
                      names: tuple[str, ...] = ()) -> str:
-    """Case 5 of the module docstring: a dynamic coefficient held on a bound at zero (its
-    term, and with it the force it scales, switched off); "" when none is."""
+    """Case 5 of the module docstring: every dynamic coefficient bounded below by zero held
+    on that bound (the terms they scale, and with them the force, switched off); "" when
+    one of them is off its bound. A single term the data do not need (a quartic coefficient
+    on its floor beside a stiffness that is not) is an answer, not a failure."""
     u = space.to_u(np.asarray(theta, dtype=float))
     hits = space.at_bounds(u)
-    for i, group in enumerate(groups):
-        if group not in COEFFICIENT_GROUPS or not hits[i] or not space.on_lower_side(u, i):
-            continue
-        if space.lower[i] != 0.0:
-            continue
-        name = names[i] if i < len(names) else f"parameter {i}"
-        return (f"{DYNAMICS_REMOVED} {name} on its bound ({theta[i]:.3g}): the term "
-                "it scales is switched off and the motion is left to the noise")
-    return ""
+    zero_bounded = [i for i, group in enumerate(groups)
+                    if group in COEFFICIENT_GROUPS and space.lower[i] == 0.0]
+    held = [i for i in zero_bounded if hits[i] and space.on_lower_side(u, i)]
+    if not held or len(held) < len(zero_bounded):
+        return ""
+    label = [names[i] if i < len(names) else f"parameter {i}" for i in held]
+    values = ", ".join(f"{theta[i]:.3g}" for i in held)
+    if len(held) == 1:
+        return (f"{DYNAMICS_REMOVED} {label[0]} on its bound ({values}): the term it scales "
+                "is switched off and the motion is left to the noise")
+    return (f"{DYNAMICS_REMOVED}s {', '.join(label)} on their bounds ({values}): the terms "
+            "they scale are switched off and the motion is left to the noise")
 
 
 # L-BFGS-B's stop messages (SciPy's wording varies between versions, and its "ABNORMAL"

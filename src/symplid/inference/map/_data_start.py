@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -270,10 +271,13 @@ def _collocate(posterior: Any, paths: list[_Smoothed], base: np.ndarray):
 
 
 # ----------------------------------------------------------------------------- the start
-def data_start(posterior: Any, default: np.ndarray) -> DataStart | None:
+def data_start(posterior: Any, default: np.ndarray,
+               is_finite: Callable[[np.ndarray], bool] | None = None) -> DataStart | None:
     """A MAP start and per-parameter scales read from the data (module docstring), or None
     when the model or the data do not allow it. ``default`` supplies what the data cannot
-    (e.g. relative variances) and the centre of the collocation's first step."""
+    (e.g. relative variances) and the centre of the collocation's first step; ``is_finite``
+    (θ ↦ whether log π is finite there) lets a parameter lifted off its bound be brought
+    back towards it until the start can be evaluated (:func:`_lift_off_bound`)."""
     model = getattr(posterior, "model", None)
     if model is None or not getattr(posterior, "datasets", None) or not hasattr(
             model, "hamiltonian"):
@@ -297,6 +301,7 @@ def data_start(posterior: Any, default: np.ndarray) -> DataStart | None:
     scale = np.full(theta.size, np.nan)
     theta[dyn] = phi
     scale[dyn] = np.maximum(3.0 * stderr[: dyn.size], 0.1 * np.abs(phi))
+    lift = _lift_off_bound(posterior, dyn, phi, scale[dyn], np.asarray(default)[dyn])
     _set_variances(posterior, theta, noise_var, defect, data_var)
     if getattr(posterior, "learn_initial_state", False):
         _set_initial_states(posterior, theta, scale, paths, momenta, noise_var)
@@ -304,7 +309,37 @@ def data_start(posterior: Any, default: np.ndarray) -> DataStart | None:
     theta = np.clip(theta, lower, upper)
     if not np.all(np.isfinite(theta)):
         return None
-    return DataStart(theta, scale, noise_var, data_var)
+    return DataStart(_lifted(theta, dyn, lift, is_finite), scale, noise_var, data_var)
+
+
+def _lift_off_bound(posterior: Any, dyn: np.ndarray, phi: np.ndarray, scale: np.ndarray,
+                    default: np.ndarray) -> np.ndarray:
+    """How far above its bound to start each dynamic parameter that is bounded below only
+    and that the collocation left on the bound (0 for the others): its scale, else the
+    default start's distance from the bound. The MAP searches such a parameter as
+    log(θ − a) (:class:`~symplid.inference.map._space.SearchSpace`), where a start on the
+    bound has no gradient to leave it by."""
+    lower = np.asarray(posterior.lower, dtype=float)[dyn]
+    upper = np.asarray(posterior.upper, dtype=float)[dyn]
+    finite = np.where(np.isfinite(lower), lower, 0.0)
+    on_bound = (np.isfinite(lower) & ~np.isfinite(upper)
+                & (phi <= finite + 1e-9 * np.maximum(1.0, np.abs(finite))))
+    lift = np.where(np.isfinite(scale) & (scale > 0), scale, default - lower)
+    lift = np.where(np.isfinite(lift) & (lift > 0), lift, 1.0)
+    return np.where(on_bound, lift, 0.0)
+
+
+def _lifted(theta: np.ndarray, dyn: np.ndarray, lift: np.ndarray,
+            is_finite: Callable[[np.ndarray], bool] | None, halvings: int = 30) -> np.ndarray:
+    """θ with ``lift`` added to its dynamic parameters, halved while log π is not finite
+    there (a stiff term can make the propagator unstable); θ itself when no lift is."""
+    for _ in range(halvings if np.any(lift > 0) else 0):
+        trial = theta.copy()
+        trial[dyn] = theta[dyn] + lift
+        if is_finite is None or is_finite(trial):
+            return trial
+        lift = 0.5 * lift
+    return theta
 
 
 def _data_var(posterior: Any) -> float:

@@ -47,9 +47,14 @@ value, so its line search backs off. A start counts as converged only when L-BFG
 and the Newton decrement ½ gᵀH⁻¹g there, over the parameters that no bound holds (a bound
 holds a parameter when the gradient of −log π points out of its range there: the KKT sign
 condition, :func:`~._search.active_bounds`), is below 1e-3 (see :class:`StartResult`); the best
-start (highest log posterior) gives the MAP. It is reported failed (``success`` False, the
-reason in ``failure``, a :class:`MapConvergenceWarning`) when it did not converge, never
-moved from its start, is not a maximum, or explains the data as noise
+start (highest log posterior) gives the MAP. A start that L-BFGS-B ends where the decrement
+says log π still rises goes on from a Newton point in θ (:func:`~._search.escaped`, up to three
+more runs, each kept only if it ends higher): on the log scale a dynamics parameter driven to
+its floor has no gradient left to leave it by (a quartic coefficient of 1e-14, say), while in θ
+the way up is plain. For the same reason a data start that leaves such a parameter on its
+bound lifts it by its collocation scale (halved until log π is finite). The MAP is reported
+failed (``success`` False, the reason in ``failure``, a :class:`MapConvergenceWarning`) when
+it did not converge, never moved from its start, is not a maximum, or explains the data as noise
 (:mod:`symplid.inference.map._checks`); at a point that is no optimum the evidence is NaN.
 
 The Hessian, the covariance and the Laplace evidence are :mod:`symplid.inference.map._laplace`'s;
@@ -87,7 +92,7 @@ from symplid.inference.map._result import (
     MultipleOptimaWarning,
     StartResult,
 )
-from symplid.inference.map._search import Objective, judge_with_hessian, run_start
+from symplid.inference.map._search import Objective, escaped, judge_with_hessian, run_start
 from symplid.inference.map._space import SearchSpace
 from symplid.inference.map._starts import (
     as_theta,
@@ -202,12 +207,18 @@ def find_map(
                "maxcor": int(maxcor)}
     starts = _starts(posterior, objective, init, seed, int(num_starts), start_spread, names)
     results = [run_start(theta0, objective, options) for theta0 in starts]
+
+    def hessian_at(theta: np.ndarray) -> np.ndarray:
+        return np.asarray(fns["hessian"](jnp.asarray(theta)), dtype=float)
+
     hessians: list[np.ndarray | None] = [None] * len(results)
     if compute_hessian:
         for k, r in enumerate(results):
             if np.isfinite(r.log_posterior):
-                hessians[k] = np.asarray(fns["hessian"](jnp.asarray(r.theta)), dtype=float)
-                results[k] = judge_with_hessian(r, hessians[k], objective)
+                hessians[k] = hessian_at(r.theta)
+                results[k], hessians[k] = escaped(
+                    judge_with_hessian(r, hessians[k], objective), hessians[k], objective,
+                    options, hessian_at)
     k_best = max(
         range(len(results)),
         key=lambda k: (
@@ -294,7 +305,7 @@ def _starts(
     ("Starting points" in the module docstring)."""
     default = default_start(posterior)
     partial = isinstance(init, Mapping)  # declared starts of some parameters: the rest read
-    found = data_start(posterior, default) if init is None or partial else None
+    found = data_start(posterior, default, objective.is_finite) if init is None or partial else None
     if found is not None and not objective.is_finite(found.theta):
         found = None
     if init is not None:

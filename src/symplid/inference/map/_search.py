@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from symplid.inference.map._laplace import newton_decrement
+from symplid.inference.map._laplace import newton_decrement, repaired_eigenvalues
 from symplid.inference.map._result import StartResult
 from symplid.inference.map._space import SearchSpace
 from symplid.stopping import check as check_stop
@@ -153,6 +153,69 @@ def judge_with_hessian(
     )
 
 
+def newton_point(result: StartResult, hessian: np.ndarray,
+                 objective: Objective) -> np.ndarray | None:
+    """A point of higher log π than a start that stopped short of a maximum, or None.
+
+    The Newton step Δθ = H⁻¹g (H repaired as for the decrement) over the parameters no bound
+    holds, halved until log π rises, each trial projected into the box; a log-searched
+    parameter is kept a hair above its floor. This is how a search leaves a spot where its
+    own coordinates go flat but θ's do not: in u = log(θ − a) the gradient of a parameter
+    near its bound is (θ − a)·∂/∂θ, so L-BFGS-B stops at a dynamics parameter driven to its
+    floor (e.g. a quartic coefficient of 1e-14) even though log π still rises along it.
+    """
+    space = objective.space
+    theta = np.asarray(result.theta, dtype=float)
+    u = space.to_u(theta)
+    grad_u = np.asarray(objective.value_and_grad(jnp.asarray(u))[1], dtype=float)
+    scale = space.jacobian_diagonal(space.to_u(theta, floor=False))
+    free = ~active_bounds(u, grad_u, space)
+    if not (free.any() and np.all(np.isfinite(grad_u)) and np.all(np.isfinite(hessian))):
+        return None
+    g = -(grad_u / scale)[free]
+    _, vecs, fixed, _ = repaired_eigenvalues(hessian[np.ix_(free, free)])
+    step = np.zeros_like(theta)
+    step[free] = vecs @ ((vecs.T @ g) / fixed)
+    lo = np.where(space.log, space.lower + 10.0 * space.floor, space.lower)
+    hi = space.upper
+    for alpha in 0.5 ** np.arange(12):
+        trial = np.clip(theta + alpha * step, lo, hi)
+        value = objective.log_density(trial)
+        if np.isfinite(value) and value > result.log_posterior + 1e-6:
+            return trial
+    return None
+
+
+def escaped(
+    result: StartResult,
+    hessian: np.ndarray,
+    objective: Objective,
+    options: dict[str, Any],
+    hessian_at: Callable[[np.ndarray], np.ndarray],
+    rounds: int = 3,
+) -> tuple[StartResult, np.ndarray]:
+    """``result`` (judged by :func:`judge_with_hessian`) continued from a Newton point
+    (:func:`newton_point`) while its decrement says it is no maximum: up to ``rounds`` new
+    L-BFGS-B runs, each kept only where it ends higher; iterations and time accumulate."""
+    for _ in range(rounds):
+        if result.success or not np.isfinite(result.log_posterior):
+            break
+        trial = newton_point(result, hessian, objective)
+        if trial is None:
+            break
+        again = run_start(trial, objective, options)
+        if not again.log_posterior > result.log_posterior:
+            break
+        hessian = hessian_at(again.theta)
+        again = judge_with_hessian(again, hessian, objective)
+        result = dataclasses.replace(
+            again, start=result.start,
+            num_iterations=result.num_iterations + again.num_iterations,
+            num_evaluations=result.num_evaluations + again.num_evaluations,
+            seconds=result.seconds + again.seconds)
+    return result, hessian
+
+
 def active_bounds(u: np.ndarray, grad: np.ndarray, space: SearchSpace) -> np.ndarray:
     """Which entries of u a bound holds: on a bound (:meth:`SearchSpace.at_bounds`) with the
     gradient of −log π pointing out of the box or zero there (the KKT condition of a
@@ -185,4 +248,6 @@ def _projected_gradient(
     return float(np.max(np.abs(g))) if g.size else 0.0
 
 
-__all__ = ["Objective", "active_bounds", "judge_with_hessian", "run_start"]
+__all__ = [
+    "Objective", "active_bounds", "escaped", "judge_with_hessian", "newton_point", "run_start",
+]
