@@ -40,13 +40,19 @@ from symplid.inference.samplers import (
     draws_array,
     sample,
 )
-from symplid.io.chunks import ChunkWriter
+from symplid.io.chunks import ChunkWriter, remove_chunks
 from symplid.model.data import Observations
 from symplid.model.statespace import HamiltonianModel
 from symplid.stopping import check as check_stop
 from symplid.workflow.auto import auto_notes
 from symplid.workflow.building import build_model, build_posterior
 from symplid.workflow.interrupts import deferred_interrupts
+from symplid.workflow.mode_watch import (
+    MAX_REFINDS,
+    HigherModeFound,
+    mode_watch,
+    refound_record,
+)
 from symplid.workflow.model_builder import model_description, model_family
 from symplid.workflow.plan import ModelPlan
 from symplid.workflow.results import RunFolder
@@ -91,6 +97,9 @@ class FitOutcome:
     learning_step: dict[str, Any] | None = None
     """How ``model.dt = "auto"`` chose the step (:func:`~symplid.workflow.step_size.choose_step`;
     None for a given dt)."""
+    map_refound: tuple[dict[str, float], ...] = ()
+    """Each time the chains climbed above the MAP and it was searched again from there
+    (:mod:`symplid.workflow.mode_watch`; empty when they never did)."""
     plan: ModelPlan | None = None
     """The run's model, built once (:class:`~symplid.workflow.plan.ModelPlan`): what the
     report and the held-out scores after the fit build on (None: a resumed run)."""
@@ -176,11 +185,12 @@ def sample_for(
     return_state: bool = False,
     sink: Any = None,
     on_draws: Callable[[np.ndarray], None] | None = None,
+    callback: Callable[[Any], None] | None = None,
 ) -> Any:
     """Run the sampler of ``settings.sampler`` from the MAP; returns ArviZ ``InferenceData``
     (and the chains' final states with ``return_state``, see ``symplid.sample``); ``sink``
     receives each chunk's draws (:func:`chunk_sink`), ``on_draws`` the kept draws as soon as
-    the chains end (``symplid.sample``)."""
+    the chains end, ``callback`` a report after each chunk (``symplid.sample``)."""
 
     s = settings.sampler
     # The [sampler] section's method-specific keys go to the samplers whose settings class
@@ -194,6 +204,7 @@ def sample_for(
     options = RunOptions(chunk_size=s.chunk_size, progress=progress,
                          progress_label=progress_label, progress_position=progress_position,
                          sink=sink, on_draws=on_draws, return_state=return_state,
+                         callback=callback,
                          restart_stuck_chains=s.restart_stuck_chains, targets=_targets_of(s))
     return sample(posterior, method=s.method, num_draws=s.num_draws, num_chains=s.num_chains,
                   seed=s.seed, init=map_result, burn_in=s.resolved_burn_in, thin=s.thin,
@@ -313,28 +324,39 @@ def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
     model = plan.model(fit_settings, fit_obs)
     posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior, _warm_start(step, scaling, posterior))
-    check_stop()  # a safe point between the phases (symplid.stopping)
-    if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map._checks)
-        raise MapFailedError(failure_message(map_fit.failure, "settings",
-                                             _dynamic_names(posterior)))
-    groups = posterior.param_groups
-    map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
-    timings["map_s"] = time.perf_counter() - start
-    if folder is not None:
-        folder.write_map(map_result)
-    diagnostics = _diagnostics(plan, settings, obs, posterior, map_result, folder, timings,
-                               status, step)
-    start, handing_over = time.perf_counter(), [0.0]  # the caller's time is not the sampler's
-    try:
-        idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
-                                       progress_label, progress_position, return_state=True,
-                                       sink=None if folder is None else chunk_sink(folder),
-                                       on_draws=_draws_hook(on_sampled, map_result, posterior,
-                                                            scaling, groups, handing_over))
-    except InterruptedInBurnIn as stop:
+    groups, refound = posterior.param_groups, []
+    while True:  # the MAP searched again where the chains climb above it (.mode_watch)
+        check_stop()  # a safe point between the phases (symplid.stopping)
+        if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map._checks)
+            raise MapFailedError(failure_message(map_fit.failure, "settings",
+                                                 _dynamic_names(posterior)))
+        map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
+        timings["map_s"] = timings.get("map_s", 0.0) + time.perf_counter() - start
         if folder is not None:
-            save_burn_in(folder, settings, stop)
-        raise
+            folder.write_map(map_result)
+        diagnostics = _diagnostics(plan, settings, obs, posterior, map_result, folder,
+                                   timings, status, step)
+        start, handing_over = time.perf_counter(), [0.0]  # the caller's time: not sampling
+        watch = (mode_watch(map_fit.log_posterior)
+                 if len(refound) < MAX_REFINDS and hasattr(map_fit, "log_posterior") else None)
+        try:
+            idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
+                                           progress_label, progress_position,
+                                           return_state=True,
+                                           sink=None if folder is None else chunk_sink(folder),
+                                           on_draws=_draws_hook(on_sampled, map_result,
+                                                                posterior, scaling, groups,
+                                                                handing_over),
+                                           callback=watch)
+            break
+        except HigherModeFound as found:
+            map_fit, start = _search_again(settings, posterior, folder, found, status), \
+                time.perf_counter()
+            refound.append(refound_record(found, map_fit.log_posterior))
+        except InterruptedInBurnIn as stop:
+            if folder is not None:
+                save_burn_in(folder, settings, stop)
+            raise
     timings["sampler_s"] = time.perf_counter() - start - handing_over[0]
     if scaling is not None:
         idata = scaling.inference_data(idata, groups, obs)
@@ -343,8 +365,21 @@ def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
     outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
                          standardised_scale=None if scaling is None else scaling.scale,
                          diagnostics=diagnostics, plan=plan,
-                         learning_step=None if step is None else step.record)
+                         learning_step=None if step is None else step.record,
+                         map_refound=tuple(refound))
     return save_run(folder, outcome, checkpoint, warn)
+
+
+def _search_again(settings: Settings, posterior, folder: RunFolder | None,
+                  found: HigherModeFound, status: Callable[[str], None] | None) -> Any:
+    """The MAP searched again from the highest point the chains visited
+    (:mod:`symplid.workflow.mode_watch`); the first attempt's chunk files are removed."""
+    if status is not None:
+        status(f"the chains climbed above the MAP (log π {found.map_log_posterior:.2f} → "
+               f"{found.log_posterior:.2f}): searching the MAP again from there...")
+    if folder is not None:
+        remove_chunks(folder.file(RunFolder.CHUNKS))
+    return find_map_for(settings, posterior, found.theta)
 
 
 def _draws_hook(on_sampled, map_result, posterior, scaling, groups,
@@ -441,6 +476,8 @@ def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = No
         summary["timings"] = outcome.timings
         if outcome.learning_step is not None:
             summary["learning_step"] = outcome.learning_step
+        if outcome.map_refound:
+            summary["map_refound"] = list(outcome.map_refound)
         if outcome.standardised_scale is not None:
             summary["standardised_scale"] = outcome.standardised_scale
         summary["interrupted"] = interrupted

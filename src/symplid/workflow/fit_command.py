@@ -45,6 +45,10 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
         extra += (f"; the {outcome.settings.map.num_starts} MAP starts ended in "
                   f"{s['map_optima']} different optima (spread {s['map_optima_spread']:.2f} "
                   "nats; the best is used)")
+    if s.get("map_refound"):
+        from symplid.workflow.mode_watch import refound_line
+
+        extra += f"; {refound_line(s['map_refound'])}"
     if s.get("learning_step"):
         from symplid.workflow.step_size import step_line
 

@@ -85,6 +85,9 @@ class ChunkReport(NamedTuple):
         Draws kept per chain so far.
     states
         The chain states after the chunk (stacked over chains).
+    best
+        (log π, θ) of the highest point any chain has visited so far, burn-in included
+        (``None`` before the first finite one): a MAP below it was no maximum of π.
     """
 
     chunk: int
@@ -92,6 +95,7 @@ class ChunkReport(NamedTuple):
     total_iterations: int
     draws_kept: int
     states: Any
+    best: tuple[float, np.ndarray] | None = None
 
 
 class ChainRun(NamedTuple):
@@ -259,6 +263,7 @@ class _Loop:
         self.draws_kept = max(0, start - burn_in) // thin
         self.interrupted = False
         self.pacer = Pacer(chunk_len)
+        self.best: tuple[float, np.ndarray] | None = None  # highest (log π, θ) visited
 
     def result(self, states: Any, elapsed: float) -> ChainRun:
         """The run's :class:`ChainRun`: the draws kept, and what ended a budget's run."""
@@ -316,7 +321,7 @@ class _Loop:
                               time.perf_counter() - started, **extra)
                 if self.callback is not None:
                     self.callback(ChunkReport(chunk_index, self.done, self.total,
-                                              self.draws_kept, states))
+                                              self.draws_kept, states, self.best))
             except KeyboardInterrupt:
                 self.interrupted = self.done < self.total
                 break
@@ -415,6 +420,7 @@ class _Loop:
         ``(num_chains, kept, ...)`` (empty arrays in the burn-in)."""
         # Iterations start + 1 .. start + num_active; keep those past burn-in on the thin grid.
         iterations = np.arange(start + 1, start + num_active + 1)
+        self._note_best(records, num_active)
         if self.restarts is not None and self.restarts.pending:
             self.restarts.observe(iterations, np.asarray(records["lp"])[:num_active])
         keep = (iterations > self.burn_in) & ((iterations - self.burn_in) % self.thin == 0)
@@ -424,6 +430,19 @@ class _Loop:
                 self.kept.setdefault(name, []).append(value)
             self.draws_kept += int(keep.sum())
         return {name: np.swapaxes(value, 0, 1) for name, value in chunk.items()}
+
+
+    def _note_best(self, records: dict[str, Any], num_active: int) -> None:
+        """Remember the highest (log π, θ) of the iterations just run (:class:`ChunkReport`)."""
+        if "lp" not in records or "theta" not in records or num_active == 0:
+            return
+        lp = np.asarray(records["lp"], dtype=float)[:num_active]
+        finite = np.where(np.isfinite(lp), lp, -np.inf)
+        flat = int(np.argmax(finite))
+        value = float(finite.flat[flat])
+        if value > -np.inf and (self.best is None or value > self.best[0]):
+            where = np.unravel_index(flat, lp.shape)
+            self.best = (value, np.array(np.asarray(records["theta"])[where], dtype=float))
 
 
 def _takes_monitor(sink: Any) -> bool:
