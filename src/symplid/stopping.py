@@ -25,8 +25,8 @@ from typing import Any, TypeVar
 
 _T = TypeVar("_T")
 
-__all__ = ["POLL", "StopRequested", "abandoned", "check", "clear", "request", "requested",
-           "waiting"]
+__all__ = ["POLL", "StopRequested", "abandoned", "check", "clear", "first_call_waits",
+           "request", "requested", "waiting"]
 
 
 class StopRequested(KeyboardInterrupt):
@@ -116,3 +116,19 @@ def abandoned() -> bool:
     process should end with :func:`os._exit`, its files written, rather than tear the
     interpreter down under it."""
     return any(thread.is_alive() for thread in _ABANDONED)
+
+
+def first_call_waits(fn: Callable[..., _T]) -> Callable[..., _T]:
+    """``fn`` whose first call runs through :func:`waiting` (a jitted function's first call
+    compiles it: a stop asked for meanwhile is obeyed at once) and later calls directly."""
+    compiled: list[bool] = []
+
+    def call(*args: Any) -> _T:
+        if compiled:
+            return fn(*args)
+        value = waiting(fn, *args)
+        compiled.append(True)
+        return value
+
+    return call
+

@@ -104,6 +104,7 @@ from symplid.inference.map._starts import (
     warn_optima,
 )
 from symplid.model.params import ParameterSpace
+from symplid.stopping import first_call_waits
 
 Array = jax.Array
 EVIDENCE_METHODS = ("quadrature", "laplace")
@@ -131,13 +132,15 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
             return -with_data(data, space.to_theta(u))
 
         vg = jax.jit(jax.value_and_grad(negative_u))
-        return lambda u: vg(u, data)
+        # the first call compiles: a stop asked for meanwhile is obeyed (symplid.stopping)
+        return first_call_waits(lambda u: vg(u, data))
 
     key = ("map-search", space.log.tobytes(), space.lower.tobytes())
     return {
         "value_and_grad": cached_or_built(posterior, key, build_value_and_grad),
         "hessian": cached_or_built(
-            posterior, "map-hessian", lambda: hessian_function(with_data, data)
+            posterior, "map-hessian",
+            lambda: first_call_waits(hessian_function(with_data, data)),
         ),
     }
 
