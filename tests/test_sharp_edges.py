@@ -89,6 +89,11 @@ def test_step_advice_names_only_what_the_model_accepts(tmp_path, overrides, advi
     assert text.count(advice) == 2
     if "yoshida4" not in advice:
         assert "yoshida4" not in text
+    # a step the user set: the step chosen from the data is offered; a chosen one: not again
+    assert text.count('model.dt = "auto"') == 2
+    chosen = sensitivity_lines({"threshold_sd": 0.3, "step_size": {**step, "auto": True},
+                                "process_noise": noise})
+    assert advice in "\n".join(chosen) and '"auto"' not in "\n".join(chosen)
 
 
 # ----------------------------------------------------------------------------- expressions

@@ -310,8 +310,12 @@ def sensitivity_summary(checks: dict) -> list[str]:
 
 def _advice(step: dict) -> str:
     """The step-size check's advice (a run folder written before it had one: a smaller dt,
-    the one advice every model accepts)."""
-    return str(step.get("advice", "use a smaller dt"))
+    the one advice every model accepts), and, for a step the user set, the step chosen from
+    the data (``model.dt = "auto"``, :mod:`symplid.workflow.step_size`)."""
+    advice = str(step.get("advice", "use a smaller dt"))
+    if step.get("auto"):
+        return advice
+    return f'{advice}, or let the fit choose it from the data (model.dt = "auto", --dt auto)'
 
 
 def _largest(check: dict) -> str:

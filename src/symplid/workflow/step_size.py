@@ -320,4 +320,5 @@ def step_check(record: dict[str, Any]) -> dict[str, Any] | None:
     already (the chosen step halved), in that check's form; None when it has none."""
     if not record.get("shifts"):
         return None
-    return {"dt": record["dt"], "dt_refit": record["dt"] / 2, "shifts": record["shifts"]}
+    return {"dt": record["dt"], "dt_refit": record["dt"] / 2, "shifts": record["shifts"],
+            "auto": True}
