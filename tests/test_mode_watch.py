@@ -67,7 +67,8 @@ def test_a_fit_whose_map_search_ends_low_searches_again(monkeypatch):
         "model.potential": "k*q1^2/2", "model.dt": 0.1,
         "model.parameters.k": {"prior": "half-normal", "scale": 5.0},
         "initial_state.x0": [1.0, 0.0], "map.sensitivity": False, "map.num_starts": 2,
-        "sampler.num_chains": 4}), obs)
+        "map.evidence": "laplace", "sampler.num_chains": 4, "sampler.num_iterations": 4000,
+        "sampler.burn_in": 2000}), obs)
     real = fit_module.find_map_for
     calls: list[int] = []
 
