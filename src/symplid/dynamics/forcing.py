@@ -53,7 +53,7 @@ def input_names(num_inputs: int) -> tuple[str, ...]:
     return tuple(INPUT_NAME.format(i + 1) for i in range(int(num_inputs)))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True)
 class Force:
     """A generalised force ``fn(q, p, u, t, params) -> (d,)`` of one point.
 
@@ -72,9 +72,13 @@ class Force:
         exact for the first two, converged far below the step's error for the third.
     expressions
         The SymPy expressions of an expression force (None for a Python function).
+    text
+        What it was made from (the expressions, or ``file:PATH:NAME``). Two forces are equal
+        when their text, dimension, inputs and parameters are: models built on equal forces
+        share their compiled programs (:mod:`symplid.model.programs`).
     """
 
-    fn: Callable[..., Array]
+    fn: Callable[..., Array] = field(compare=False)
     dim: int
     num_inputs: int
     names: tuple[str, ...] = ()

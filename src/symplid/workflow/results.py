@@ -87,6 +87,7 @@ from symplid.io.runfiles import (
     write_json,
 )
 from symplid.model.data import Observations
+from symplid.workflow.driven import read_run_inputs, write_run_inputs
 from symplid.workflow.settings import Settings, dump_settings, load_settings
 
 __all__ = [
@@ -406,6 +407,7 @@ class RunFolder:
         """data.csv: the observations the run used (several trajectories: with a
         ``trajectory`` column, :mod:`symplid.io.trajectories`)."""
         self._check_writable()
+        write_run_inputs(self.path, obs)  # a driven run's sampled inputs, beside its data
         return write_trajectories(obs, self.file(self.DATA))
 
     def write_json(self, name: str, obj: Any) -> Path:
@@ -483,8 +485,12 @@ class RunFolder:
             return self._read(self.SETTINGS, load_settings)
 
     def read_data(self) -> Observations | list[Observations]:
-        """The run's data: one :class:`Observations`, or a list for several trajectories."""
-        return self._read(self.DATA, lambda path: read_trajectories([path]))
+        """The run's data: one :class:`Observations`, or a list for several trajectories; a
+        driven run's with their inputs (:mod:`symplid.workflow.driven`)."""
+        obs = self._read(self.DATA, lambda path: read_trajectories([path]))
+        if not self.file(self.SETTINGS).exists():
+            return obs
+        return read_run_inputs(self.path, obs, self.read_settings())  # a driven run's inputs
 
     def read_json(self, name: str) -> Any:
         return self._read(name, lambda path: read_json(path, self.remedy))

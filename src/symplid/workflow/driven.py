@@ -1,0 +1,174 @@
+"""Driven models in a run: the force of ``model.force`` and the inputs of ``[inputs]``.
+
+A run whose settings give ``model.force`` (:mod:`symplid.dynamics.forcing`) is driven: its
+data carry the inputs u(t) (:mod:`symplid.model.inputs`), read here from what ``[inputs]``
+says — the data file's input columns (``u1, u2, …`` or ``inputs.columns``, possibly on a
+denser grid than the observations), a file of their own (``inputs.file``) or expressions in t
+(``inputs.expressions``). The declared parameters that the force's expressions name are the
+force's (θ's ``force`` block); the others are H's. A run folder keeps sampled inputs beside
+its data (``inputs.csv``), so that its report, predictions and a resumed fit read them back.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from symplid.dynamics.forcing import INPUT_NAME, Force, force_parameters, user_force
+from symplid.dynamics.user_models import UserModelError
+from symplid.io import read_trajectories
+from symplid.io.inputfiles import INPUT_COLUMN, read_driven_csv, read_input_file
+from symplid.model.data import DataError, Observations
+from symplid.model.inputs import AnalyticInputs, SampledInputs
+
+__all__ = [
+    "INPUTS_FILE",
+    "attach_inputs",
+    "build_force",
+    "force_names",
+    "force_texts",
+    "hamiltonian_parameters",
+    "is_driven",
+    "read_driven",
+    "read_run_inputs",
+    "write_run_inputs",
+]
+
+#: The file of a run folder that keeps a driven run's sampled inputs.
+INPUTS_FILE = "inputs.csv"
+
+
+def is_driven(model: Any) -> bool:
+    """Whether the model settings give a force."""
+    return bool(str(getattr(model, "force", "")).strip())
+
+
+def force_texts(model: Any) -> str | tuple[str, ...]:
+    """``model.force`` as the force's expressions (one per momentum), or a ``file:`` spec."""
+    text = str(model.force).strip()
+    if text.startswith("file:"):
+        return text
+    return tuple(part.strip() for part in text.split(";") if part.strip())
+
+
+def force_names(model: Any) -> tuple[str, ...]:
+    """The declared parameters that belong to the force, in the order declared (every one
+    for a ``file:`` force that H does not name)."""
+    if not is_driven(model):
+        return ()
+    declared = tuple(p.name for p in model.parameters)
+    texts = force_texts(model)
+    if isinstance(texts, str):  # a file: what H's expression does not name
+        h_text = model.hamiltonian if model.hamiltonian != "separable" else model.potential
+        return tuple(n for n in declared if n not in force_parameters(h_text, declared))
+    return force_parameters(texts, declared)
+
+
+def hamiltonian_parameters(model: Any) -> tuple[str, ...]:
+    """The declared parameters of H (or U): those the force does not take."""
+    own = set(force_names(model))
+    return tuple(p.name for p in model.parameters if p.name not in own)
+
+
+def _num_inputs(texts: str | tuple[str, ...], data: Any) -> int:
+    signal = getattr(data, "inputs", None)
+    have = signal.num_inputs if signal is not None else 0
+    if isinstance(texts, str):
+        return have
+    used = [int(m) for text in texts for m in re.findall(r"\bu([1-9][0-9]*)\b", text)]
+    return max([have, *used])
+
+
+def build_force(model: Any, dim: int, data: Any = None) -> Force | None:
+    """The force of the model settings for ``dim`` coordinates (None for free motion).
+
+    Raises
+    ------
+    UserModelError
+        One line, as for a user's model: an expression that cannot be read, an unknown name.
+    """
+    if not is_driven(model):
+        return None
+    texts = force_texts(model)
+    first = data[0] if isinstance(data, list | tuple) and data else data
+    names = force_names(model)
+    clash = {"t", *(n for n in names if INPUT_COLUMN.match(n))}
+    bad = [p.name for p in model.parameters if p.name in clash]
+    if bad:
+        raise UserModelError(f"model.parameters: {bad[0]!r} names the time or an input of the "
+                             "force; choose another name")
+    return user_force(texts, dim, names, _num_inputs(texts, first),
+                      max_size=model.max_expression_size)
+
+
+# ---------------------------------------------------------------------------- inputs
+def _analytic(inputs: Any) -> AnalyticInputs:
+    expressions = {INPUT_NAME.format(k + 1): text for k, text in enumerate(inputs.expressions)}
+    return AnalyticInputs(expressions)
+
+
+def attach_inputs(obs: Any, inputs: Any, signal: Any = None) -> Any:
+    """``obs`` (one or a list) with the inputs that ``inputs`` settings give: ``signal``
+    when given (a run folder's), the expressions, or ``inputs.file``."""
+    if signal is None:
+        if inputs.expressions:
+            signal = _analytic(inputs)
+        elif inputs.file:
+            signal = read_input_file(Path(inputs.file).expanduser(), inputs.interpolation)
+        else:
+            return obs
+    if isinstance(obs, list):
+        return [replace(o, inputs=signal) for o in obs]
+    return replace(obs, inputs=signal)
+
+
+def read_driven(paths: Sequence[Path], settings: Any) -> Observations | list[Observations]:
+    """The data of a driven run with their inputs (module docstring).
+
+    Raises
+    ------
+    DataError
+        One line: no inputs where the force reads some, a missing input value, several data
+        files with input columns.
+    """
+    inputs = settings.inputs
+    if inputs.expressions or inputs.file:
+        if inputs.expressions and inputs.file:
+            raise DataError("give the inputs once: inputs.expressions or inputs.file")
+        return attach_inputs(read_trajectories(list(paths)), inputs)
+    if len(paths) != 1:
+        raise DataError("a driven model reads its inputs from the columns of one data file "
+                        "(or give inputs.file or inputs.expressions)")
+    return read_driven_csv(paths[0], inputs.columns, inputs.interpolation)
+
+
+def write_run_inputs(folder: Path, obs: Any) -> Path | None:
+    """Write a driven run's sampled inputs to ``folder``/inputs.csv (nothing for none or
+    for expressions, which the settings keep)."""
+    first = obs[0] if isinstance(obs, list) else obs
+    signal = getattr(first, "inputs", None)
+    if not isinstance(signal, SampledInputs):
+        return None
+    path = Path(folder) / INPUTS_FILE
+    with open(path, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(("t", *signal.names))
+        for t, row in zip(signal.times, signal.values, strict=True):
+            writer.writerow((repr(float(t)), *(repr(float(v)) for v in row)))
+    return path
+
+
+def read_run_inputs(folder: Path, obs: Any, settings: Any) -> Any:
+    """A run's data with its inputs: inputs.csv when the run has one, else the settings'."""
+    if not is_driven(settings.model):
+        return obs
+    path = Path(folder) / INPUTS_FILE
+    if path.exists():
+        signal = read_input_file(path, settings.inputs.interpolation)
+        return attach_inputs(obs, settings.inputs, signal)
+    return attach_inputs(obs, settings.inputs)
+
