@@ -355,9 +355,11 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
     help="start: paths from the initial state; end: a forecast from each draw's filtered "
     "state at the last observation, with process noise (forecast.npz).",
 )
+@click.option("--inputs", "inputs", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="A driven run's future inputs: a CSV t,u1,… to --t-end.")
 @quiet_option
 @user_errors
-def predict(run, t_end, dt, num_paths, start, no_progress) -> None:
+def predict(run, t_end, dt, num_paths, start, inputs, no_progress) -> None:
     """Predict from a finished run: MAP path and posterior band, or a forecast from the end of
     the data (--from end), saved with a figure."""
     if start == "end":
@@ -369,7 +371,7 @@ def predict(run, t_end, dt, num_paths, start, no_progress) -> None:
         return
     from symplid.workflow.run_tools import predict_run
 
-    result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths)
+    result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths, inputs=inputs)
     click.echo(result)
 
 

@@ -18,6 +18,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from symplid.dynamics.forcing import INPUT_NAME, Force, force_parameters, user_force
 from symplid.dynamics.user_models import UserModelError
 from symplid.io import read_trajectories
@@ -33,8 +35,10 @@ __all__ = [
     "force_texts",
     "hamiltonian_parameters",
     "is_driven",
+    "predicted_inputs",
     "read_driven",
     "read_run_inputs",
+    "refuse_forecast",
     "write_run_inputs",
 ]
 
@@ -172,3 +176,55 @@ def read_run_inputs(folder: Path, obs: Any, settings: Any) -> Any:
         return attach_inputs(obs, settings.inputs, signal)
     return attach_inputs(obs, settings.inputs)
 
+
+
+# ---------------------------------------------------------------------------- predictions
+def _merged(signal: Any, future: SampledInputs) -> SampledInputs:
+    """The run's samples before the future file's first time, then the future file's."""
+    if not isinstance(signal, SampledInputs):
+        return future
+    if future.num_inputs != signal.num_inputs:
+        raise DataError(f"the future inputs have {future.num_inputs} column(s), the run's "
+                        f"{signal.num_inputs}")
+    before = signal.times < future.times[0]
+    return SampledInputs(np.concatenate([signal.times[before], future.times]),
+                         np.concatenate([signal.values[before], future.values]),
+                         signal.names, signal.interpolation)
+
+
+def predicted_inputs(obs: Any, settings: Any, t_end: float, future: Path | None = None) -> Any:
+    """A driven run's data with the inputs a prediction to ``t_end`` needs: the future
+    inputs of ``future`` (a CSV ``t,u1,…``) appended to the run's, which must then cover
+    [t0, t_end].
+
+    Raises
+    ------
+    DataError
+        One line: the inputs do not reach ``t_end`` and no ``--inputs`` file was given.
+    """
+    if not is_driven(settings.model):
+        if future is not None:
+            raise DataError("--inputs gives the future inputs of a driven run (model.force); "
+                            "this run has no force")
+        return obs
+    trajectories = obs if isinstance(obs, list) else [obs]
+    out = []
+    for one in trajectories:
+        signal = one.inputs
+        if future is not None:
+            signal = _merged(signal, read_input_file(future, settings.inputs.interpolation))
+        if signal is None or signal.span[1] < t_end - 1e-9 * max(1.0, abs(t_end)):
+            reach = "no inputs" if signal is None else f"inputs to t = {signal.span[1]:g}"
+            raise DataError(f"the run is driven and has {reach}: predicting to t = "
+                            f"{t_end:g} needs the future inputs (--inputs FUTURE.csv with "
+                            "columns t,u1,…)")
+        out.append(replace(one, inputs=signal))
+    return out if isinstance(obs, list) else out[0]
+
+
+def refuse_forecast(settings: Any, what: str) -> None:
+    """One line for what has no driven form yet (forecasts from the filter's last state)."""
+    if is_driven(settings.model):
+        raise DataError(f"{what} of a driven run (model.force) is not available yet: predict "
+                        "paths from the initial state instead (symplid predict RUN --inputs "
+                        "FUTURE.csv)")
