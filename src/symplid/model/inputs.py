@@ -12,8 +12,9 @@ of each substep, their nodes; :func:`node_table` tabulates u there, gap by gap a
 substep, on the host, once per data set. The table is an argument of the compiled
 likelihood, never a constant in it. Before the first sample and after the last, within one
 substep of the window (yoshida4's inner nodes reach 0.35 of a substep outside it), a sampled
-input holds its end value; an input that does not cover the fitted or forecast window
-[t0, t_n] is an error.
+input continues its end piece (the last held value, the end segment's line, the spline's end
+cubic): holding a smooth input constant there would cost yoshida4 two orders; an input that
+does not cover the fitted or forecast window [t0, t_n] is an error.
 """
 
 from __future__ import annotations
@@ -105,6 +106,16 @@ class SampledInputs(InputSignal):
     def span(self) -> tuple[float, float]:
         return float(self.times[0]), float(self.times[-1])
 
+    def _end_lines(self, t: np.ndarray) -> np.ndarray:
+        """What the end segments' lines add to ``np.interp``'s held ends outside the span."""
+        t0, t1 = self.times[[0, 1]]
+        s0 = (self.values[1] - self.values[0]) / (t1 - t0)
+        tn1, tn = self.times[[-2, -1]]
+        sn = (self.values[-1] - self.values[-2]) / (tn - tn1)
+        before = np.minimum(t - t0, 0.0)[:, None]
+        after = np.maximum(t - tn, 0.0)[:, None]
+        return before * s0 + after * sn
+
     def evaluate(self, times: Any) -> np.ndarray:
         t = np.asarray(times, dtype=float)
         flat = t.ravel()
@@ -113,6 +124,7 @@ class SampledInputs(InputSignal):
         elif self.interpolation == "linear":
             out = np.stack([np.interp(flat, self.times, self.values[:, j])
                             for j in range(len(self.names))], axis=-1)
+            out = out + self._end_lines(flat)
         else:  # zero-order hold: the sample at or before t (the first before the record)
             index = np.clip(np.searchsorted(self.times, flat, side="right") - 1, 0, None)
             out = self.values[index]
@@ -192,6 +204,5 @@ def node_table(signal: Any, start: float, step_sizes: np.ndarray, num_steps: np.
     rows = np.minimum(np.arange(int(n.max()))[None, :], n[:, None] - 1)  # (G, S)
     frac = rows[..., None] + np.asarray(nodes, dtype=float)[None, None, :]
     times = starts[:, None, None] + h[:, None, None] * frac  # (G, S, K)
-    clamped = np.clip(times, lo, hi) if np.isfinite(lo) else times
-    values = signal.evaluate(clamped)[..., :num_inputs]
+    values = signal.evaluate(times)[..., :num_inputs]
     return times, values
