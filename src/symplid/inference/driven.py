@@ -28,7 +28,7 @@ from symplid.inference.predictive import (
 )
 from symplid.model.inputs import node_table
 
-__all__ = ["forced_band", "forced_paths"]
+__all__ = ["forced_band", "forced_paths", "power_balance"]
 
 
 def forced_paths(model: Any, signal: Any, params: Any, x0: Any, t0: float, t_end: float,
@@ -91,3 +91,48 @@ def forced_band(model: Any, signal: Any, draws: Any, x0: Any, t0: float, t_end: 
         finite_fraction=finite.mean(axis=0), num_draws=int(rows.size), dt=float(dt),
         every=1, integrator=with_force(integrator).name, seed=seed,
     )
+
+
+# ---------------------------------------------------------------------------- power balance
+def power_balance(model: Any, signal: Any, theta_psi: Any, x0: Any, t0: float,
+                  times: Any, dt: float, integrator: str = "leapfrog") -> dict[str, np.ndarray]:
+    """The energy budget of the MAP path over each gap between ``times``.
+
+    Along the path of θ_Ψ from ``x0`` at ``t0`` (forced ``integrator`` at step ``dt``), the
+    change of H over gap k, ΔH_k, against the work of the force there, split into the input's
+    part W_in = ∫ ∂H/∂p · (F − F|_{u=0}) dt (the input power) and the rest W_F0 = ∫ ∂H/∂p ·
+    F|_{u=0} dt (minus the dissipation, for a friction), by the trapezoid rule on the path's
+    steps. The power balance dH/dt = ∂H/∂p · F makes ``residual`` = ΔH − W_in − W_F0 a check
+    of the model's path: it shrinks with dt², while a model whose force is wrong for the data
+    shows in the fit, not here. Returns arrays of one entry per gap: ``dH``, ``work_input``,
+    ``work_other``, ``residual``.
+    """
+    times = np.asarray(times, dtype=float)
+    span = float(times[-1])
+    grid, paths = forced_paths(model, signal, np.asarray(theta_psi)[None], np.asarray(x0)[None],
+                               t0, span, dt, integrator, every=1)
+    path = paths[0]
+    d = model.hamiltonian.dim
+    k = np.asarray(theta_psi).shape[-1] - model.force.num_params
+    coeffs = jnp.asarray(theta_psi[:k])
+    theta_f = jnp.asarray(theta_psi[k:])
+    q, p = jnp.asarray(path[:, :d].T), jnp.asarray(path[:, d:].T)
+    u = jnp.asarray(signal.evaluate(grid)[..., : model.force.num_inputs])
+
+    def point(qi, pi, ui, ti):
+        h = model.energy(coeffs, jnp.concatenate([qi, pi]))
+        vel = jax.grad(lambda pp: model.energy(coeffs, jnp.concatenate([qi, pp])))(pi)
+        f = model.force(qi, pi, ui, ti, theta_f)
+        f0 = model.force(qi, pi, jnp.zeros_like(ui), ti, theta_f)
+        return h, vel @ (f - f0), vel @ f0
+
+    energy, p_in, p_other = jax.vmap(point, in_axes=(1, 1, 0, 0))(q, p, u, jnp.asarray(grid))
+    energy, p_in, p_other = (np.asarray(a) for a in (energy, p_in, p_other))
+    cum_in = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(grid) * (p_in[1:] + p_in[:-1]))])
+    cum_other = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(grid)
+                                                 * (p_other[1:] + p_other[:-1]))])
+    at = np.searchsorted(grid, np.concatenate([[t0], times]) - 1e-9 * max(1.0, span))
+    at = np.clip(at, 0, grid.size - 1)
+    dh, w_in, w_other = (np.diff(a[at]) for a in (energy, cum_in, cum_other))
+    return {"dH": dh, "work_input": w_in, "work_other": w_other,
+            "residual": dh - w_in - w_other}

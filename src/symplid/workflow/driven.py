@@ -35,6 +35,7 @@ __all__ = [
     "force_texts",
     "hamiltonian_parameters",
     "is_driven",
+    "power_balance_lines",
     "predicted_inputs",
     "read_driven",
     "read_run_inputs",
@@ -228,3 +229,31 @@ def refuse_forecast(settings: Any, what: str) -> None:
         raise DataError(f"{what} of a driven run (model.force) is not available yet: predict "
                         "paths from the initial state instead (symplid predict RUN --inputs "
                         "FUTURE.csv)")
+
+
+# ---------------------------------------------------------------------------- report
+def power_balance_lines(settings: Any, model: Any, posterior: Any, theta_map: Any) -> list[str]:
+    """The report's "Power balance" section of a driven run: per trajectory, along the MAP
+    path over the data (:func:`~symplid.inference.driven.power_balance`), the input's work,
+    the rest of the force's work (minus the dissipation), the change of H and the largest
+    gap's imbalance."""
+    from symplid.inference.driven import power_balance
+
+    if getattr(model, "force", None) is None:
+        return []
+    nc = model.num_dynamics_params
+    lines = ["## Power balance", "",
+             "Along the MAP path over the data: dH/dt = ∂H/∂p · F, the input's power "
+             "(F − F at u = 0) and the rest of the force's (friction: minus the dissipation).",
+             "", "| trajectory | input work | other work | ΔH | largest gap imbalance |",
+             "|---|---|---|---|---|"]
+    for k, obs in enumerate(posterior.datasets):
+        t0 = settings.initial_state.start_time(obs.times[0])
+        x0 = np.asarray(posterior.initial_state(theta_map, k))
+        times = obs.times[obs.times > t0]
+        dt = min(settings.prediction.dt, float(np.min(np.diff(times))) / 4)
+        b = power_balance(model, obs.inputs, np.asarray(theta_map[:nc]), x0, t0, times, dt,
+                          settings.prediction.integrator)
+        lines.append(f"| {k} | {b['work_input'].sum():.4g} | {b['work_other'].sum():.4g} | "
+                     f"{b['dH'].sum():.4g} | {np.abs(b['residual']).max():.2g} |")
+    return [*lines, ""]

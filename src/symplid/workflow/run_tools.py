@@ -17,7 +17,7 @@ from symplid.io import as_list
 from symplid.io.files import write_with
 from symplid.plotting import plot_predictive
 from symplid.plotting.style import DPI
-from symplid.workflow.driven import is_driven, predicted_inputs
+from symplid.workflow.driven import is_driven, power_balance_lines, predicted_inputs
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.model_builder import model_description
 from symplid.workflow.results import RunFolder, format_summary
@@ -179,6 +179,8 @@ def report_run(run: str | Path, plan: Any = None) -> str:
         lines += _restart_lines(idata)
     if summary.get("learning_step"):
         lines += step_lines(summary["learning_step"])
+    if idata is not None:
+        lines += power_balance_lines(settings, model, posterior, theta_map)
     checks = run_diagnostics(folder, settings, obs, posterior)
     if checks is not None:
         lines += sensitivity_lines(checks)
