@@ -127,7 +127,7 @@ def test_a_force_is_refused_where_it_has_no_form():
     force = user_force("b*u1", 1, ("b",), 1)
     with pytest.raises(ValueError, match="no separate damping"):
         HamiltonianModel(pot, force=force, damping=True)
-    with pytest.raises(ValueError, match="process_noise_per='gap'"):
+    with pytest.raises(ValueError, match="not 'step'"):
         HamiltonianModel(pot, force=force, process_noise_per="step")
     with pytest.raises(ValueError, match="no forced form"):
         HamiltonianModel(pot, "tao", force=force)
@@ -240,3 +240,31 @@ def test_the_power_balance_matches_an_independent_energy_budget():
     np.testing.assert_allclose(got["work_input"], np.diff(sol[2]), atol=1e-5)
     np.testing.assert_allclose(got["work_other"], np.diff(sol[3]), atol=1e-5)
     assert np.abs(got["residual"]).max() < 1e-5
+
+
+def test_without_process_noise_the_driven_likelihood_follows_one_path():
+    """process_noise_per='none': the Gaussian terms around the forced path, which the
+    forced path solver gives independently of the likelihood's loop."""
+    from symplid.dynamics.forced import bind_forced, forced_solve_gaps
+    from symplid.model.inputs import node_table
+
+    signal = AnalyticInputs({"u1": "sin(0.7*t)"})
+    times = np.linspace(0.5, 5.0, 10)
+    ys = np.cos(times)
+    pot = build_user_model("k*q1^2/2", "potential", 1, ("k",))
+    force = user_force("b*u1 - c*p1", 1, ("b", "c"), 1)
+    model = HamiltonianModel(pot, "leapfrog", dt=0.1, observation="positions",
+                             process_noise_per="none", force=force)
+    obs = Observations(times, ys, ("q1",), inputs=signal)
+    theta = np.array([1.3, 0.5, 0.2, 0.01])
+    x0 = np.array([1.0, 0.0])
+    got = float(model.log_likelihood(jnp.asarray(theta), obs, jnp.asarray(x0)))
+    prepared = model.prepare(obs)
+    nodes, inputs = node_table(signal, 0.0, np.asarray(prepared.inputs.step_size),
+                               np.asarray(prepared.inputs.num_steps), model.integrator.nodes, 1)
+    path = forced_solve_gaps(model.integrator, bind_forced(pot, force, jnp.asarray(theta[:3])),
+                             jnp.asarray(x0), prepared.inputs.step_size,
+                             prepared.inputs.num_steps, nodes, inputs, prepared.max_steps)
+    resid = ys - np.asarray(path)[:, 0]
+    want = float(np.sum(-0.5 * (resid**2 / 0.01 + np.log(2 * np.pi * 0.01))))
+    assert got == pytest.approx(want, rel=1e-12)

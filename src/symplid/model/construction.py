@@ -158,7 +158,7 @@ def _forced(integrator: Integrator, force: Any, hamiltonian: Any, damping: bool,
             process_noise_per: str) -> Integrator:
     """The forced form of ``integrator`` (:mod:`symplid.dynamics.forced`), after the checks
     that a force allows: the system's dimension, no separate γ (write the friction into F),
-    process noise per gap."""
+    process noise per gap or none."""
     if not isinstance(force, Force):
         raise TypeError(f"force must be a symplid.dynamics.forcing.Force, got "
                         f"{type(force).__name__}")
@@ -168,9 +168,10 @@ def _forced(integrator: Integrator, force: Any, hamiltonian: Any, damping: bool,
     if damping:
         raise ValueError("a model with a force has no separate damping rate γ: write the "
                          "friction into the force (e.g. '- c*p1')")
-    if process_noise_per != "gap":
-        raise ValueError("a model with a force needs process_noise_per='gap' (its inputs "
-                         f"are tabulated per gap), got {process_noise_per!r}")
+    if process_noise_per == "step":
+        raise ValueError("a model with a force adds process noise per gap or not at all "
+                         "(its inputs are tabulated per gap): process_noise_per='gap' or "
+                         "'none', not 'step'")
     return with_force(integrator)
 
 
