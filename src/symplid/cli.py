@@ -206,10 +206,28 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     show_default=True,
     help="Fraction of values to blank out at random (NaN).",
 )
+@click.option("--force", "force", type=str, default=None,
+              help="Drive the system: a force in q, p, u1, t and numbers (e.g. '0.8*u1 - "
+              "0.1*p1'); the file gets an input column u1 on a 5× denser grid.")
+@click.option("--input", "signal", type=str, default="multisine", show_default=True,
+              help="The input u1 of --force: multisine, chirp, steps, or a CSV t,u1.")
+@click.option("--input-seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the input's random phases or levels.")
+@click.option("--input-amplitude", type=float, default=1.0, show_default=True,
+              help="RMS (multisine) or amplitude of the input.")
 @user_errors
 def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, observation_noise,
-             rel_std, x0, missing) -> None:
+             rel_std, x0, missing, force, signal, input_seed, input_amplitude) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
+    if force is not None:
+        from symplid.workflow.driven import simulate_driven
+
+        if times or x0 or missing or observation_noise != "additive":
+            raise UserError("--force simulates on a regular grid from the system's x0 with "
+                            "additive noise: drop --times, --x0, --missing, --observation-noise")
+        click.echo(simulate_driven(system, out, force, signal, input_seed, input_amplitude,
+                                   t_end, num_obs, noise_std, seed, observation))
+        return
     click.echo(simulate_to_file(system, out, t_end, num_obs, times, noise_std, seed,
                                 observation, x0, missing, observation_noise, rel_std))
 

@@ -25,7 +25,7 @@ from symplid.dynamics.user_models import UserModelError
 from symplid.io import read_trajectories
 from symplid.io.inputfiles import INPUT_COLUMN, read_driven_csv, read_input_file
 from symplid.model.data import DataError, Observations
-from symplid.model.inputs import AnalyticInputs, SampledInputs
+from symplid.model.inputs import AnalyticInputs, InputSignal, SampledInputs
 
 __all__ = [
     "INPUTS_FILE",
@@ -40,6 +40,7 @@ __all__ = [
     "read_driven",
     "read_run_inputs",
     "refuse_forecast",
+    "simulate_driven",
     "write_run_inputs",
 ]
 
@@ -257,3 +258,82 @@ def power_balance_lines(settings: Any, model: Any, posterior: Any, theta_map: An
         lines.append(f"| {k} | {b['work_input'].sum():.4g} | {b['work_other'].sum():.4g} | "
                      f"{b['dH'].sum():.4g} | {np.abs(b['residual']).max():.2g} |")
     return [*lines, ""]
+
+
+# ---------------------------------------------------------------------------- simulate
+class _FunctionInputs(InputSignal):
+    """A signal from a function of t (a named excitation of :data:`~symplid.model.signals.
+    SIGNALS`), defined at every time."""
+
+    def __init__(self, fn: Any) -> None:
+        self.names = ("u1",)
+        self._fn = fn
+
+    @property
+    def span(self) -> tuple[float, float]:
+        return -np.inf, np.inf
+
+    def evaluate(self, times: Any) -> np.ndarray:
+        t = np.asarray(times, dtype=float)
+        return np.asarray(self._fn(t), dtype=float)[..., None]
+
+
+def simulate_driven(system: str, out: Path, force_text: str, signal: str, signal_seed: int,
+                    amplitude: float, t_end: float | None, num_obs: int | None,
+                    noise_std: float | None, seed: int, observation: str | None,
+                    dense: int = 5) -> str:
+    """``symplid simulate SYSTEM --force F --input NAME``: a driven record of a named system.
+
+    The force (numbers, q, p, u1, t: no parameters) acts on the system's H; u1 is a named
+    signal of :data:`~symplid.model.signals.SIGNALS` (seeded) or a CSV ``t,u1``. The truth is
+    the forced yoshida4 (rk4 for a non-separable H) at step 1e-3 against the signal itself;
+    the file holds t, the observed columns with noise at the observation times, and u1 on a
+    grid ``dense`` times finer (rows with empty observed cells). Returns its one line.
+    """
+    from symplid.dynamics.forced import bind_forced, forced_solve_gaps, with_force
+    from symplid.dynamics.hamiltonians import is_hamiltonian
+    from symplid.dynamics.systems import get_system
+    from symplid.dynamics.trajectory import substeps
+    from symplid.model.inputs import node_table
+    from symplid.model.signals import SIGNALS
+
+    sys_ = get_system(system)
+    if sys_.damping:
+        raise DataError(f"{sys_.name} is damped: write its friction into --force "
+                        "(e.g. '- 0.1*p1') and simulate its undamped form")
+    n = int(num_obs or sys_.num_obs)
+    end = float(t_end if t_end is not None else sys_.obs_interval * n)
+    if end <= 0:
+        raise DataError(f"--t-end must be positive, got {end:g}")
+    times = end / n * np.arange(1, n + 1)
+    dim = sys_.potential.dim
+    force = user_force(force_text, dim, (), 1, key="--force")
+    if signal.lower().endswith(".csv"):
+        source: Any = read_input_file(Path(signal), "cubic")
+    else:
+        source = _FunctionInputs(SIGNALS.get_entry(signal)(
+            amplitude=amplitude, seed=signal_seed, duration=end + 1.0))
+    integrator = with_force("rk4" if is_hamiltonian(sys_.potential) else "yoshida4")
+    counts, sizes = substeps(np.diff(np.concatenate([[0.0], times])), 1e-3)
+    nodes, inputs = node_table(source, 0.0, sizes, counts, integrator.nodes, 1)
+    dynamics = bind_forced(sys_.potential, force, np.asarray(sys_.coefficients, dtype=float))
+    states = np.asarray(forced_solve_gaps(integrator, dynamics, np.asarray(
+        sys_.initial_state, dtype=float), sizes, counts, nodes, inputs, int(counts.max())))
+    kind = observation or sys_.observation
+    observed = states if kind == "full" else states[:, :dim]
+    rng = np.random.default_rng(seed)
+    sd = sys_.noise_std if noise_std is None else noise_std
+    observed = observed + sd * rng.standard_normal(observed.shape)
+    grid = end / (n * dense) * np.arange(0, n * dense + 1)
+    u = source.evaluate(grid)[:, 0]
+    names = [f"q{i + 1}" for i in range(dim)] + ([f"p{i + 1}" for i in range(dim)]
+                                                  if kind == "full" else [])
+    with open(out, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["t", *names, "u1"])
+        for j, (t, value) in enumerate(zip(grid, u, strict=True)):
+            row = observed[j // dense - 1] if j % dense == 0 and j > 0 else None
+            cells = [repr(float(v)) for v in row] if row is not None else [""] * len(names)
+            writer.writerow([f"{t:.10g}", *cells, repr(float(value))])
+    return (f"{out}: {n} times × {len(names)} components of {sys_.name} driven by {signal} "
+            f"(F = {force.text}), u1 every {end / (n * dense):g}")
