@@ -293,3 +293,24 @@ def test_simulate_writes_a_driven_record_that_dop853_reproduces(tmp_path):
                      t_eval=obs.times, method="DOP853", rtol=1e-12, atol=1e-12).y.T
     np.testing.assert_allclose(obs.values, want[:, : obs.dim], atol=1e-9)
     np.testing.assert_allclose(obs.inputs.evaluate(obs.times)[:, 0], u(obs.times), atol=1e-12)
+
+
+def test_inputs_from_settings_and_a_run_folder_round_trip(tmp_path):
+    from symplid.workflow.driven import read_driven, read_run_inputs, write_run_inputs
+
+    data = tmp_path / "d.csv"
+    data.write_text("t,q1\n1,0.5\n2,0.4\n")
+    settings = settings_from_dict({"model": {"force": "u1"},
+                                   "inputs": {"expressions": ["0.5*sin(1.3*t)"]}})
+    obs = read_driven([data], settings)
+    np.testing.assert_allclose(obs.inputs.evaluate(np.array([2.0]))[:, 0], 0.5 * np.sin(2.6))
+    (tmp_path / "u.csv").write_text("t,u1\n0,0\n1,1\n2,4\n3,9\n")
+    settings = settings_from_dict({"model": {"force": "u1"},
+                                   "inputs": {"file": str(tmp_path / "u.csv"),
+                                              "interpolation": "zoh"}})
+    obs = read_driven([data], settings)
+    assert obs.inputs.evaluate(np.array([1.5]))[0, 0] == 1.0
+    write_run_inputs(tmp_path, obs)
+    back = read_run_inputs(tmp_path, Observations(obs.times, obs.values, obs.names), settings)
+    np.testing.assert_array_equal(back.inputs.values, obs.inputs.values)
+    assert back.inputs.interpolation == "zoh"
