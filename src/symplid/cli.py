@@ -458,14 +458,15 @@ def compare(
     from symplid.io import read_observations
     from symplid.workflow.compare import compare_models, format_table
     from symplid.workflow.compare_candidates import candidate_orders
+    from symplid.workflow.driven import read_data_for
 
-    obs = read_observations(data)
     overrides = {
         "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
     }
     names = [n.strip() for n in integrators.split(",")] if integrators else None
     if candidates is not None:
+        obs = read_observations(data)
         table = compare_candidates(obs, candidates, config, orders, overrides, sets, names,
                                    out, not no_progress, [False, True] if damping else None)
         best = table.iloc[0]
@@ -474,6 +475,7 @@ def compare(
                    + (f"; table in {out}" if out is not None else ""))
         return
     settings, source = settings_from_options(config, overrides, sets)
+    obs = read_data_for(data, settings)  # a driven model's inputs with the data
     table = compare_models(
         obs,
         settings,

@@ -37,6 +37,7 @@ __all__ = [
     "is_driven",
     "power_balance_lines",
     "predicted_inputs",
+    "read_data_for",
     "read_driven",
     "read_run_inputs",
     "refuse_forecast",
@@ -150,6 +151,15 @@ def read_driven(paths: Sequence[Path], settings: Any) -> Observations | list[Obs
         raise DataError("a driven model reads its inputs from the columns of one data file "
                         "(or give inputs.file or inputs.expressions)")
     return read_driven_csv(paths[0], inputs.columns, inputs.interpolation)
+
+
+def read_data_for(path: Path, settings: Any) -> Any:
+    """One data file for ``settings``: with its inputs when they are driven, else as it is."""
+    if is_driven(settings.model):
+        return read_driven([Path(path)], settings)
+    from symplid.io import read_observations
+
+    return read_observations(path)
 
 
 def write_run_inputs(folder: Path, obs: Any) -> Path | None:
