@@ -188,9 +188,12 @@ def _run_fit(paths, out, config, overrides, sets, holdout, overwrite, resume, no
 def _read_fit_data(paths: tuple[Path, ...], holdout: tuple[float | None, float | None],
                    settings: Any = None):
     from symplid.io import read_trajectories
-    from symplid.workflow.driven import is_driven, read_driven
+    from symplid.workflow.driven import is_driven, read_driven, refuse_forecast
 
     if settings is not None and is_driven(settings.model):  # the inputs with the data
+        if holdout != (None, None):  # refused before the fit, not after it
+            refuse_forecast(settings, "--holdout (scored by a forecast from the end of the "
+                            "data)")
         obs = read_driven(paths, settings)
     else:
         obs = read_trajectories(paths)
