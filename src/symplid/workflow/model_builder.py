@@ -77,9 +77,12 @@ def _shortened(text: str, limit: int) -> str:
 def model_description(model: ModelSettings, limit: int = 200) -> str:
     """The model of these settings in words, as the user wrote it: a user's expression (at
     most ``limit`` characters of it) or file with its declared parameters, else the family
-    (``"polynomial U(q) of order 3"``), and ``", damped"`` for a damped model."""
+    (``"polynomial U(q) of order 3"``), and ``", damped"`` for a damped model, the force for
+    a driven one."""
     family = model_family(model)
     damped = ", damped" if model.damping else ""
+    if is_driven(model):  # the force is part of the model, whatever the family
+        damped += f", force F = {_shortened(model.force, limit)}"
     if family.name == "user":
         whole = is_user_model(model.hamiltonian)
         kind, text = ("H(q, p)", model.hamiltonian) if whole else ("U(q)", model.potential)
