@@ -169,7 +169,8 @@ def test_dump_writes_every_key(tmp_path):
 
     expected = {
         f"{section}.{f.name}"
-        for section in ("model", "initial_state", "map", "sampler", "prediction", "plots")
+        for section in ("model", "initial_state", "map", "sampler", "prediction", "plots",
+                        "inputs")
         for f in dataclasses.fields(getattr(Settings(), section))
     }
     expected |= {"seed", "priors.coefficients.prior", "priors.coefficients.loc"}

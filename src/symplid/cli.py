@@ -206,10 +206,28 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
     show_default=True,
     help="Fraction of values to blank out at random (NaN).",
 )
+@click.option("--force", "force", type=str, default=None,
+              help="Drive the system: a force in q, p, u1, t and numbers (e.g. '0.8*u1 - "
+              "0.1*p1'); the file gets an input column u1 on a 5× denser grid.")
+@click.option("--input", "signal", type=str, default="multisine", show_default=True,
+              help="The input u1 of --force: multisine, chirp, steps, or a CSV t,u1.")
+@click.option("--input-seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the input's random phases or levels.")
+@click.option("--input-amplitude", type=float, default=1.0, show_default=True,
+              help="RMS (multisine) or amplitude of the input.")
 @user_errors
 def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, observation_noise,
-             rel_std, x0, missing) -> None:
+             rel_std, x0, missing, force, signal, input_seed, input_amplitude) -> None:
     """Noisy observations of a named SYSTEM (see --help for the names)."""
+    if force is not None:
+        from symplid.workflow.driven import simulate_driven
+
+        if times or x0 or missing or observation_noise != "additive":
+            raise UserError("--force simulates on a regular grid from the system's x0 with "
+                            "additive noise: drop --times, --x0, --missing, --observation-noise")
+        click.echo(simulate_driven(system, out, force, signal, input_seed, input_amplitude,
+                                   t_end, num_obs, noise_std, seed, observation))
+        return
     click.echo(simulate_to_file(system, out, t_end, num_obs, times, noise_std, seed,
                                 observation, x0, missing, observation_noise, rel_std))
 
@@ -355,9 +373,11 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
     help="start: paths from the initial state; end: a forecast from each draw's filtered "
     "state at the last observation, with process noise (forecast.npz).",
 )
+@click.option("--inputs", "inputs", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="A driven run's future inputs: a CSV t,u1,… to --t-end.")
 @quiet_option
 @user_errors
-def predict(run, t_end, dt, num_paths, start, no_progress) -> None:
+def predict(run, t_end, dt, num_paths, start, inputs, no_progress) -> None:
     """Predict from a finished run: MAP path and posterior band, or a forecast from the end of
     the data (--from end), saved with a figure."""
     if start == "end":
@@ -369,7 +389,7 @@ def predict(run, t_end, dt, num_paths, start, no_progress) -> None:
         return
     from symplid.workflow.run_tools import predict_run
 
-    result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths)
+    result = predict_run(run, t_end=t_end, dt=dt, num_paths=num_paths, inputs=inputs)
     click.echo(result)
 
 
@@ -438,14 +458,15 @@ def compare(
     from symplid.io import read_observations
     from symplid.workflow.compare import compare_models, format_table
     from symplid.workflow.compare_candidates import candidate_orders
+    from symplid.workflow.driven import read_data_for
 
-    obs = read_observations(data)
     overrides = {
         "initial_state.x0": floats(x0, "--x0"),
         "initial_state.mode": "learned" if learn_initial_state else None,
     }
     names = [n.strip() for n in integrators.split(",")] if integrators else None
     if candidates is not None:
+        obs = read_observations(data)
         table = compare_candidates(obs, candidates, config, orders, overrides, sets, names,
                                    out, not no_progress, [False, True] if damping else None)
         best = table.iloc[0]
@@ -454,6 +475,7 @@ def compare(
                    + (f"; table in {out}" if out is not None else ""))
         return
     settings, source = settings_from_options(config, overrides, sets)
+    obs = read_data_for(data, settings)  # a driven model's inputs with the data
     table = compare_models(
         obs,
         settings,

@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 
 from symplid.dynamics.damping import is_damped, with_damping
+from symplid.dynamics.forced import is_forced, with_force
+from symplid.dynamics.forcing import Force
 from symplid.dynamics.hamiltonians import is_hamiltonian
 from symplid.dynamics.integrators import Integrator, get_integrator, separable_only_error
 from symplid.dynamics.nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, with_binding
@@ -72,6 +74,7 @@ class ModelFields:
     damping: bool
     observation_noise: str
     binding: float | None
+    force: Any = None
 
 
 def normalise_fields(
@@ -91,6 +94,7 @@ def normalise_fields(
     damping: bool = False,
     observation_noise: str = "additive",
     binding: float | None = None,
+    force: Any = None,
 ) -> dict[str, Any]:
     """The normal fields of a model from a user's settings; ``ValueError`` on invalid ones.
 
@@ -112,6 +116,8 @@ def normalise_fields(
         _check_dampable(hamiltonian, separable)
         integrator = with_damping(integrator)
     _check_choices(process_noise_per, noise)
+    if force is not None:
+        integrator = _forced(integrator, force, hamiltonian, damping, process_noise_per)
     observation_noise = get_observation_noise(observation_noise).name
     if jitter < 0:
         raise ValueError("jitter must be ≥ 0")
@@ -128,7 +134,7 @@ def normalise_fields(
         process_noise_per=process_noise_per, noise=noise,
         mass=mass_matrix(mass, hamiltonian.dim), alpha=alpha, beta=beta, kappa=kappa,
         jitter=jitter, unroll=unroll, backend=check_backend_name(backend), damping=damping,
-        observation_noise=observation_noise, binding=binding,
+        observation_noise=observation_noise, binding=binding, force=force,
     )
 
 
@@ -138,12 +144,35 @@ def _integrator(integrator: Integrator, damping: bool, binding: float | None,
     an error for a damped one without ``damping`` and for ω given to a method without one."""
     if is_damped(integrator) and not damping:
         raise ValueError(f"the integrator {integrator.name!r} is damped: pass damping=True")
+    if is_forced(integrator):
+        integrator = integrator.base  # type: ignore[assignment]  # re-forced with the force
     if isinstance(integrator, TaoIntegrator):
         return with_binding(integrator, DEFAULT_BINDING_STEPS / dt if binding is None
                             else binding)
     if binding is not None:
         with_binding(integrator, binding)  # raises: ω is Tao's
     return integrator
+
+
+def _forced(integrator: Integrator, force: Any, hamiltonian: Any, damping: bool,
+            process_noise_per: str) -> Integrator:
+    """The forced form of ``integrator`` (:mod:`symplid.dynamics.forced`), after the checks
+    that a force allows: the system's dimension, no separate γ (write the friction into F),
+    process noise per gap or none."""
+    if not isinstance(force, Force):
+        raise TypeError(f"force must be a symplid.dynamics.forcing.Force, got "
+                        f"{type(force).__name__}")
+    if force.dim != hamiltonian.dim:
+        raise ValueError(f"the force acts on {force.dim} momenta but H has {hamiltonian.dim} "
+                         "coordinates")
+    if damping:
+        raise ValueError("a model with a force has no separate damping rate γ: write the "
+                         "friction into the force (e.g. '- c*p1')")
+    if process_noise_per == "step":
+        raise ValueError("a model with a force adds process noise per gap or not at all "
+                         "(its inputs are tabulated per gap): process_noise_per='gap' or "
+                         "'none', not 'step'")
+    return with_force(integrator)
 
 
 def _check_dampable(hamiltonian: Any, separable: bool) -> None:

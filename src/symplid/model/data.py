@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -33,11 +34,15 @@ class Observations:
         ±inf is an error.
     names
         Optional component names (``q1, q2, p1, p2``, ...), used by files and figures.
+    inputs
+        The measured inputs u(t) of a driven system (:mod:`symplid.model.inputs`), known
+        over the data's window and beyond it where forecasts need them; None without.
     """
 
     times: np.ndarray
     values: np.ndarray
     names: tuple[str, ...] | None = field(default=None)
+    inputs: Any = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         try:
@@ -99,5 +104,5 @@ class Observations:
         return self.num_times
 
     def subset(self, index: Sequence[int] | slice | np.ndarray) -> Observations:
-        """The observations at the given indices (keeps names)."""
-        return Observations(self.times[index], self.values[index], self.names)
+        """The observations at the given indices (keeps names and inputs)."""
+        return Observations(self.times[index], self.values[index], self.names, self.inputs)

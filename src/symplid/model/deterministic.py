@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.dynamics.damping import bind_dynamics
+from symplid.dynamics.forced import at_gap, bind_forced
 from symplid.dynamics.potentials import inverse_mass
 from symplid.dynamics.trajectory import propagate
 from symplid.filters import FilterResult, ObservationMoments
@@ -70,10 +71,18 @@ def build_trajectory_likelihood(
         # NaN reaches the gradient through the discarded branch (as in the filter).
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
         inv_mass = inverse_mass(model.mass, d)
-        dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
+        force = getattr(model, "force", None)
+        if force is not None:  # driven: each gap's inputs are put in below
+            dynamics = bind_forced(model.hamiltonian, force, theta[:nc], inv_mass)
+        else:
+            dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
 
         def gap(x, inp):
-            q, p = propagate(model.integrator, dynamics, x[:d], x[d:], inp.step_size,
+            if force is not None:
+                gap_dynamics = at_gap(dynamics, inp.times, inp.inputs)
+            else:
+                gap_dynamics = dynamics
+            q, p = propagate(model.integrator, gap_dynamics, x[:d], x[d:], inp.step_size,
                              inp.num_steps, max_steps, model.unroll, masked=not uniform_steps)
             x = jnp.concatenate([q, p])
             return x, x

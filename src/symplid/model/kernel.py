@@ -155,6 +155,8 @@ def unsupported_reason(model: StateSpaceModel, prepared: PreparedData | None = N
         return "no process noise: the deterministic-trajectory likelihood needs no filter"
     if getattr(model, "damping", False):
         return "the model is damped (γ); the kernel propagates undamped dynamics only"
+    if getattr(model, "force", None) is not None:
+        return "the model is driven (a force F(q, p, u, t)); the kernel propagates free motion"
     if not isinstance(model.hamiltonian, Polynomial) and not _user_expression(model):
         return f"the potential is a {type(model.hamiltonian).__name__}, not a Polynomial"
     if model.integrator.scheme is None:

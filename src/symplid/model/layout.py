@@ -4,12 +4,14 @@ Every entry of θ belongs to one :class:`Block`, and one :class:`ParameterLayout
 each block sits. A model's layout (:meth:`ParameterLayout.for_model`, eq. 7's θ_Ψ, θ_Σ, θ_Γ)
 is::
 
-    θ = [dynamics ..., damping, process_var ..., obs_var ..., obs_rel_var ...]
+    θ = [dynamics ..., damping, force ..., process_var ..., obs_var ..., obs_rel_var ...]
 
 * **dynamics**: the coefficients of U (``c[q1^2]``, …), the network weights of a neural
   potential, or the declared parameters of a user's model; the block is named after its prior
   group (``coefficients`` or ``parameters``);
 * ``damping``: the damping rate γ of a damped model (entry ``gamma``);
+* ``force``: the parameters θ_F of a driven model's generalised force
+  (:mod:`symplid.dynamics.forcing`), named parameters of group ``parameters``;
 * ``process_var``: Σ's variance(s), absent without process noise;
 * ``obs_var``: Γ's additive variance(s), absent for purely multiplicative noise;
 * ``obs_rel_var``: the relative variances r of multiplicative noise.
@@ -106,6 +108,7 @@ class ParameterLayout:
         additive: bool = True,
         multiplicative: bool = False,
         deterministic: bool = False,
+        force_names: Sequence[str] = (),
     ) -> ParameterLayout:
         """The layout of a state-space model's θ (module docstring).
 
@@ -128,6 +131,8 @@ class ParameterLayout:
             Whether the observation noise has additive variances, relative ones, or both.
         deterministic
             A model without process noise has no ``process_var``.
+        force_names
+            The parameters of a generalised force (block ``force``, group ``parameters``).
         """
         num_process = 0 if deterministic else (int(state_dim) if noise == "diagonal" else 1)
         process = (
@@ -139,6 +144,7 @@ class ParameterLayout:
             Block(parameter_group, parameter_group,
                   tuple(coefficient_name(str(n)) for n in param_names)),
             Block("damping", "damping", ("gamma",) if damping else ()),
+            Block("force", "parameters", tuple(str(n) for n in force_names)),
             Block("process_var", "process_var", tuple(process)),
             Block("obs_var", "obs_var", tuple(f"obs_var{s}" for s in labels) if additive else ()),
             Block("obs_rel_var", "obs_rel_var",

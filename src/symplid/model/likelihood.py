@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.dynamics.damping import bind_dynamics
+from symplid.dynamics.forced import at_gap, bind_forced
 from symplid.dynamics.potentials import inverse_mass
 from symplid.dynamics.trajectory import propagate
 from symplid.filters import (
@@ -54,9 +55,11 @@ FilterFn = Callable[..., FilterResult]
 
 __all__ = [
     "JAX_BACKEND",
+    "ForcedGapInputs",
     "GapInputs",
     "PreparedData",
     "StateSpaceModel",
+    "bind_model_dynamics",
     "build_filter",
     "filter_result",
     "log_likelihood",
@@ -70,10 +73,20 @@ class GapInputs(NamedTuple):
     num_steps: Array  # (n,) int
 
 
+class ForcedGapInputs(NamedTuple):
+    """A forced model's gaps: their substeps and the inputs at the integrator's nodes
+    (:func:`~symplid.model.inputs.node_table`)."""
+
+    step_size: Array  # (n,)
+    num_steps: Array  # (n,) int
+    times: Array  # (n, S, K): the nodes' times, substep by substep
+    inputs: Array  # (n, S, K, m): u there
+
+
 class PreparedData(NamedTuple):
     """Observations turned into arrays for the compiled filter (built once per data set)."""
 
-    inputs: GapInputs
+    inputs: GapInputs | ForcedGapInputs
     ys: Array
     masks: Array
     max_steps: int
@@ -183,7 +196,7 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
         _, proc, obs = model.split(theta)
         inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
-        dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
+        dynamics = bind_model_dynamics(model, theta[:nc], inv_mass)
         predict = _prediction(model, dynamics, proc, weights, max_steps, uniform_steps)
         if _multiplicative(model):  # Γ replaced by R_k(ŷ, S_h) (symplid.filters.noise)
             obs = model.noise_covariance(theta)
@@ -192,6 +205,16 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         return result._replace(log_likelihood=ll)
 
     return filter_fn
+
+
+def bind_model_dynamics(model: StateSpaceModel, theta_psi: Array, inv_mass: Any) -> Any:
+    """The dynamics the model's integrator steps, from θ_Ψ: with the force bound for a
+    driven model (:func:`~symplid.dynamics.forced.bind_forced`; each gap's inputs are put
+    in by the prediction), else :func:`~symplid.dynamics.damping.bind_dynamics`."""
+    force = getattr(model, "force", None)
+    if force is not None:
+        return bind_forced(model.hamiltonian, force, theta_psi, inv_mass)
+    return bind_dynamics(model.integrator, model.hamiltonian, theta_psi, inv_mass)
 
 
 def _multiplicative(model: StateSpaceModel) -> bool:
@@ -262,7 +285,7 @@ def _prediction(
 
         return predict_per_step
 
-    def propagate_points(points, step_size, num_steps):
+    def propagate_points(dynamics, points, step_size, num_steps):
         q, p = propagate(
             integrator,
             dynamics,
@@ -277,10 +300,14 @@ def _prediction(
         return jnp.concatenate([q, p])
 
     def predict_per_gap(m, chol, inp):
+        if isinstance(inp, ForcedGapInputs):  # this gap's inputs at the integrator's nodes
+            gap_dynamics = at_gap(dynamics, inp.times, inp.inputs)
+        else:
+            gap_dynamics = dynamics
         mn, pn, _ = unscented_predict(
             m,
             chol,
-            lambda pts: propagate_points(pts, inp.step_size, inp.num_steps),
+            lambda pts: propagate_points(gap_dynamics, pts, inp.step_size, inp.num_steps),
             proc,
             weights,
             jitter,

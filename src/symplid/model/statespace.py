@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.dynamics.forcing import Force
 from symplid.dynamics.hamiltonians import Hamiltonian, is_hamiltonian
 from symplid.dynamics.integrators import Integrator
 from symplid.dynamics.potentials import Potential, inverse_mass
@@ -54,8 +55,9 @@ from symplid.model.construction import NOISE_LAYOUTS as NOISE_LAYOUTS  # the cho
 from symplid.model.construction import PROCESS_NOISE_CHOICES as PROCESS_NOISE_CHOICES
 from symplid.model.construction import ModelFields, normalise_fields
 from symplid.model.data import DataError, Observations
+from symplid.model.inputs import node_table
 from symplid.model.layout import ParameterLayout
-from symplid.model.likelihood import JAX_BACKEND, GapInputs, PreparedData
+from symplid.model.likelihood import JAX_BACKEND, ForcedGapInputs, GapInputs, PreparedData
 from symplid.model.programs import compiled
 
 __all__ = ["NOISE_LAYOUTS", "PROCESS_NOISE_CHOICES", "HamiltonianModel"]
@@ -128,6 +130,12 @@ class HamiltonianModel(ModelFields):
     potential
         Deprecated keyword for ``hamiltonian`` (a ``FutureWarning``); so is the attribute
         ``model.potential``.
+    force
+        A generalised force F(q, p, u(t), t; θ_F) (:class:`~symplid.dynamics.forcing.Force`):
+        the driven system ṗ = −∂H/∂q + F. Its parameters θ_F follow H's in θ (block
+        ``force``); the integrator becomes its forced form (:mod:`symplid.dynamics.forced`)
+        and the data must carry the inputs (``Observations.inputs``). Not with ``damping``
+        (write the friction into F) and only with ``process_noise_per="gap"``.
 
     The settings are checked and made normal by
     :func:`~symplid.model.construction.normalise_fields` before they are stored: the fields
@@ -157,11 +165,12 @@ class HamiltonianModel(ModelFields):
         binding: float | None = None,
         *,
         potential: Potential | None = None,
+        force: Force | None = None,
     ) -> None:
         super().__init__(**normalise_fields(
             _renamed_potential(hamiltonian, potential), integrator, dt, observation,
             process_noise_per, noise, mass, alpha, beta, kappa, jitter, unroll, backend,
-            damping, observation_noise, binding,
+            damping, observation_noise, binding, force,
         ))
         check_backend(self)  # a forced backend must support the model
 
@@ -247,6 +256,7 @@ class HamiltonianModel(ModelFields):
             noise=self.noise, state_dim=self.state_dim, obs_noise_labels=self.obs_noise_labels,
             additive=noise_model.additive, multiplicative=noise_model.multiplicative,
             deterministic=self.deterministic,
+            force_names=self.force.names if self.force is not None else (),
         )
 
     @property
@@ -259,9 +269,15 @@ class HamiltonianModel(ModelFields):
         return self.layout.size_of("damping")
 
     @property
+    def num_force(self) -> int:
+        """How many parameters the model's force has (0 without a force)."""
+        return self.layout.size_of("force")
+
+    @property
     def num_dynamics_params(self) -> int:
-        """Size of θ_Ψ, the propagator's parameters: the coefficients, then γ when damped."""
-        return self.num_coefficients + self.num_damping
+        """Size of θ_Ψ, the propagator's parameters: the coefficients, then γ when damped, or
+        the force's parameters θ_F."""
+        return self.num_coefficients + self.num_damping + self.num_force
 
     @property
     def num_process_noise(self) -> int:
@@ -372,12 +388,23 @@ class HamiltonianModel(ModelFields):
         num_steps, step_size = substeps(gaps, self.dt)
         mask = data.mask
         return PreparedData(
-            GapInputs(jnp.asarray(step_size), jnp.asarray(num_steps)),
+            self._gap_inputs(data, float(t0), step_size, num_steps),
             jnp.asarray(np.where(mask, data.values, 0.0)),
             jnp.asarray(mask),
             int(num_steps.max()),
             bool(np.all(num_steps == num_steps.max())),
         )
+
+    def _gap_inputs(self, data: Observations, t0: float, step_size: np.ndarray,
+                    num_steps: np.ndarray) -> GapInputs | ForcedGapInputs:
+        """Each gap's substeps, and for a forced model the inputs at its nodes
+        (:func:`~symplid.model.inputs.node_table`)."""
+        if self.force is None:
+            return GapInputs(jnp.asarray(step_size), jnp.asarray(num_steps))
+        times, inputs = node_table(data.inputs, t0, step_size, num_steps,
+                                   self.integrator.nodes, self.force.num_inputs)
+        return ForcedGapInputs(jnp.asarray(step_size), jnp.asarray(num_steps),
+                               jnp.asarray(times), jnp.asarray(inputs))
 
     # ------------------------------------------------------------------ the likelihood
     @property

@@ -19,6 +19,7 @@ from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
 from symplid.model.variance_prior import process_variance_prior
 from symplid.workflow.auto import resolve_noise
+from symplid.workflow.driven import build_force
 from symplid.workflow.model_builder import build_model_family
 from symplid.workflow.settings_schema import Settings, prior_spec
 
@@ -55,6 +56,7 @@ def build_model(settings: Settings, obs: Observations | list[Observations],
         kappa=m.kappa,
         jitter=m.jitter,
         damping=m.damping,
+        force=build_force(m, layout.dim, obs),
     )
 
 

@@ -182,17 +182,25 @@ def _run_fit(paths, out, config, overrides, sets, holdout, overwrite, resume, no
         raise UserError("give the DATA file(s) to fit (or --resume an interrupted run)")
     if out is None:
         raise UserError("give the run folder to write: --out RUN")
-    obs, heldout = _read_fit_data(paths, holdout)
     settings, source = settings_from_options(config, overrides, sets)
+    obs, heldout = _read_fit_data(paths, holdout, settings)
     outcome = fit(obs, settings, out=out, progress=not no_progress, source=source,
                   overwrite=overwrite, warn=True, status=status)
     return outcome, heldout
 
 
-def _read_fit_data(paths: tuple[Path, ...], holdout: tuple[float | None, float | None]):
+def _read_fit_data(paths: tuple[Path, ...], holdout: tuple[float | None, float | None],
+                   settings: Any = None):
     from symplid.io import read_trajectories
+    from symplid.workflow.driven import is_driven, read_driven, refuse_forecast
 
-    obs = read_trajectories(paths)
+    if settings is not None and is_driven(settings.model):  # the inputs with the data
+        if holdout != (None, None):  # refused before the fit, not after it
+            refuse_forecast(settings, "--holdout (scored by a forecast from the end of the "
+                            "data)")
+        obs = read_driven(paths, settings)
+    else:
+        obs = read_trajectories(paths)
     if holdout == (None, None):
         return obs, None
     from symplid.workflow.forecasting import split_holdout

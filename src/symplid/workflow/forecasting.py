@@ -20,6 +20,7 @@ from symplid.inference.forecast import NoisyForecast, filtered_end_states, forec
 from symplid.inference.samplers import draws_array
 from symplid.model.data import DataError, Observations
 from symplid.plotting.predictive import plot_forecast
+from symplid.workflow.driven import refuse_forecast
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder
 from symplid.workflow.run_tools import save_atomically
@@ -52,6 +53,7 @@ class _Run:
 def _open(run: str | Path, plan: Any = None) -> _Run:
     folder = RunFolder(run, "r")
     settings = folder.read_settings()
+    refuse_forecast(settings, "a forecast from the end of the data (and its held-out scores)")
     obs = folder.read_data()
     if isinstance(obs, list):
         raise DataError(f"{folder.path}: a forecast from the end of the data follows one "

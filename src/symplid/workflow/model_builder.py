@@ -29,6 +29,7 @@ from symplid.dynamics.nonseparable import TaoIntegrator
 from symplid.dynamics.separable import has_kinetic
 from symplid.dynamics.user_models import QUADRATIC, is_user_model
 from symplid.model.priors import Prior, as_prior
+from symplid.workflow.driven import hamiltonian_parameters, is_driven
 from symplid.workflow.settings_schema import ModelSettings, PriorSettings, Settings
 from symplid.workflow.validate import SettingsError
 
@@ -54,7 +55,7 @@ def family_options(model: ModelSettings) -> FamilyOptions:
         depth=model.depth,
         activation=model.activation,
         network_seed=model.network_seed,
-        parameters=tuple(p.name for p in model.parameters),
+        parameters=hamiltonian_parameters(model),  # a force's own are not H's
         kinetic=model.kinetic,
         max_expression_size=model.max_expression_size,
     )
@@ -76,9 +77,12 @@ def _shortened(text: str, limit: int) -> str:
 def model_description(model: ModelSettings, limit: int = 200) -> str:
     """The model of these settings in words, as the user wrote it: a user's expression (at
     most ``limit`` characters of it) or file with its declared parameters, else the family
-    (``"polynomial U(q) of order 3"``), and ``", damped"`` for a damped model."""
+    (``"polynomial U(q) of order 3"``), and ``", damped"`` for a damped model, the force for
+    a driven one."""
     family = model_family(model)
     damped = ", damped" if model.damping else ""
+    if is_driven(model):  # the force is part of the model, whatever the family
+        damped += f", force F = {_shortened(model.force, limit)}"
     if family.name == "user":
         whole = is_user_model(model.hamiltonian)
         kind, text = ("H(q, p)", model.hamiltonian) if whole else ("U(q)", model.potential)
@@ -170,7 +174,8 @@ def follow_model(settings: Settings, dim: int, family: Any = None) -> Settings:
             return settings
     if not is_hamiltonian(family):
         return settings
-    integrator = NONSEPARABLE_DEFAULT if model.integrator == "leapfrog" else model.integrator
+    default = "rk4" if is_driven(model) else NONSEPARABLE_DEFAULT  # Tao's has no forced form
+    integrator = default if model.integrator == "leapfrog" else model.integrator
     prediction = settings.prediction
     if prediction.integrator == "leapfrog":
         prediction = dataclasses.replace(prediction, integrator=integrator)
@@ -193,7 +198,7 @@ def check_model_family(settings: Settings, dim: int, source: str, family: Any = 
         raise SettingsError(source, "model.kinetic", "is the T(p) of a user's potential "
                             "(model.potential = an expression or file:PATH:NAME); a whole H "
                             "carries its own")
-    if model.parameters and not user:
+    if model.parameters and not user and not is_driven(model):
         raise SettingsError(source, "model.parameters", "declares parameters of a user's "
                             "model, but the model is the family "
                             f"{model_family(model).name!r}; write model.potential or "

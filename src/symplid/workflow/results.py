@@ -86,7 +86,8 @@ from symplid.io.runfiles import (
     to_jsonable,
     write_json,
 )
-from symplid.model.data import Observations
+from symplid.model.data import DataError, Observations
+from symplid.workflow.driven import read_run_inputs, write_run_inputs
 from symplid.workflow.settings import Settings, dump_settings, load_settings
 
 __all__ = [
@@ -406,6 +407,7 @@ class RunFolder:
         """data.csv: the observations the run used (several trajectories: with a
         ``trajectory`` column, :mod:`symplid.io.trajectories`)."""
         self._check_writable()
+        write_run_inputs(self.path, obs)  # a driven run's sampled inputs, beside its data
         return write_trajectories(obs, self.file(self.DATA))
 
     def write_json(self, name: str, obj: Any) -> Path:
@@ -480,11 +482,15 @@ class RunFolder:
         ``family`` keys without a deprecation line: the file is the run's, not the user's."""
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", r".*\.family is deprecated", FutureWarning)
-            return self._read(self.SETTINGS, load_settings)
+            return self._read(self.SETTINGS, _whole_settings)
 
     def read_data(self) -> Observations | list[Observations]:
-        """The run's data: one :class:`Observations`, or a list for several trajectories."""
-        return self._read(self.DATA, lambda path: read_trajectories([path]))
+        """The run's data: one :class:`Observations`, or a list for several trajectories; a
+        driven run's with their inputs (:mod:`symplid.workflow.driven`)."""
+        obs = self._read(self.DATA, lambda path: read_trajectories([path]))
+        if not self.file(self.SETTINGS).exists():
+            return obs
+        return read_run_inputs(self.path, obs, self.read_settings())  # a driven run's inputs
 
     def read_json(self, name: str) -> Any:
         return self._read(name, lambda path: read_json(path, self.remedy))
@@ -535,3 +541,22 @@ def _check_parents(path: Path) -> None:
             raise RunFolderError(f"{path}: {parent} is a file, not a folder")
 
 
+
+
+#: The sections every run's settings.toml has had (a run writes all of them, in this order);
+#: ``[inputs]`` came later, so a run written before it lacks it.
+_RUN_SECTIONS = ("model", "initial_state", "priors", "map", "sampler", "prediction", "plots")
+
+
+def _whole_settings(path: Path) -> Settings:
+    """A run's settings.toml, which must hold every section a run writes: a file cut short
+    (it may still parse) is damaged, not a run with default settings."""
+    import tomllib
+
+    settings = load_settings(path)  # a file that is not TOML: its own one line
+    with open(path, "rb") as handle:
+        tables = tomllib.load(handle)
+    missing = [name for name in _RUN_SECTIONS if name not in tables]
+    if missing:
+        raise DataError(f"{path}: incomplete, no [{missing[0]}] section (cut short?)")
+    return settings

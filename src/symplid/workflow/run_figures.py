@@ -15,6 +15,7 @@ import numpy as np
 
 from symplid.dynamics.hamiltonians import is_hamiltonian
 from symplid.dynamics.potentials import coefficient_name
+from symplid.inference.driven import forced_band, forced_paths
 from symplid.inference.measures import potential_slices
 from symplid.inference.predict import posterior_predictive, predict_trajectory
 from symplid.io import as_list, observation_layout
@@ -107,9 +108,12 @@ def trajectory_paths(settings: Any, model: Any, posterior: Any, theta_map: np.nd
     the MAP's and each path of the band from its own draw's: the band carries the posterior
     of x0 with that of the dynamics (and is not pinched to a point at t0)."""
     p = settings.prediction
-    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
+    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped (or θ_F)
     every = max(1, round((t_end - t0) / dt / 2000))
     x0_map = np.asarray(posterior.initial_state(theta_map, k))
+    if getattr(model, "force", None) is not None:  # driven: the inputs integrated along
+        return _driven_paths(settings, model, posterior, theta_map, flat, k, t0, t_end, dt,
+                             num_paths, x0_map)
     times, path = predict_trajectory(model, theta_map[:nc], x0_map, t_end, dt=dt,
                                      integrator=p.integrator, t0=t0, every=every)
     band = None
@@ -120,6 +124,23 @@ def trajectory_paths(settings: Any, model: Any, posterior: Any, theta_map: np.nd
                                     integrator=p.integrator, num_paths=num_paths,
                                     seed=settings.seed + k, t0=t0, every=every)
     return times, path, band
+
+
+def _driven_paths(settings: Any, model: Any, posterior: Any, theta_map: np.ndarray,
+                  flat: np.ndarray | None, k: int, t0: float, t_end: float, dt: float,
+                  num_paths: int, x0_map: np.ndarray) -> tuple[np.ndarray, np.ndarray, Any]:
+    """:func:`trajectory_paths` of a driven model, with trajectory k's inputs."""
+    signal = posterior.datasets[k].inputs
+    nc, integrator = model.num_dynamics_params, settings.prediction.integrator
+    times, path = forced_paths(model, signal, theta_map[None, :nc], x0_map[None], t0, t_end,
+                               dt, integrator)
+    band = None
+    if flat is not None and num_paths > 0:
+        x0 = (np.asarray(posterior.initial_state(flat, k))
+              if posterior.learn_initial_state else x0_map)
+        band = forced_band(model, signal, flat[:, :nc], x0, t0, t_end, dt, integrator,
+                           num_paths, settings.seed + k)
+    return times, path[0], band
 
 
 def fit_figures(settings: Any, data: Any, model: Any, posterior: Any, theta_map: np.ndarray,

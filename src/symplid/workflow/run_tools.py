@@ -17,6 +17,7 @@ from symplid.io import as_list
 from symplid.io.files import write_with
 from symplid.plotting import plot_predictive
 from symplid.plotting.style import DPI
+from symplid.workflow.driven import is_driven, power_balance_lines, predicted_inputs
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.model_builder import model_description
 from symplid.workflow.results import RunFolder, format_summary
@@ -88,8 +89,13 @@ def predict_run(
     t_end: float | None = None,
     dt: float | None = None,
     num_paths: int | None = None,
+    inputs: Path | None = None,
 ) -> str:
     """MAP path and posterior predictive band to ``t_end``; writes predictions.npz and a figure.
+
+    A driven run (``model.force``) integrates its inputs along: beyond the data's inputs it
+    needs the future ones, ``inputs`` (a CSV ``t,u1,…``), and refuses in one line without
+    them (:func:`~symplid.workflow.driven.predicted_inputs`).
 
     The paths start from the known initial state or, when it was learned, the MAP path from
     the MAP's and each path of the band from its own draw's. ``t_end``, ``dt`` and
@@ -103,6 +109,9 @@ def predict_run(
     folder = RunFolder(run, "r")
     settings, obs, model, posterior = _load(folder)
     t_end, dt, num_paths, _ = _prediction_args(settings, obs, t_end, dt, num_paths)
+    if inputs is not None or is_driven(settings.model):
+        obs = predicted_inputs(obs, settings, t_end, inputs)
+        posterior = build_posterior(settings, obs, model)
     theta_map = np.asarray(folder.read_map()["theta"], dtype=float)
     draws = _draws(folder, num_paths > 0, "predicting the MAP path only")
     flat = None if draws is None else draws.reshape(-1, draws.shape[-1])
@@ -170,6 +179,8 @@ def report_run(run: str | Path, plan: Any = None) -> str:
         lines += _restart_lines(idata)
     if summary.get("learning_step"):
         lines += step_lines(summary["learning_step"])
+    if idata is not None:
+        lines += power_balance_lines(settings, model, posterior, theta_map)
     checks = run_diagnostics(folder, settings, obs, posterior)
     if checks is not None:
         lines += sensitivity_lines(checks)

@@ -81,6 +81,8 @@ def can_standardise(model_settings: Any) -> str | None:
         return f"the Hamiltonian is {model_settings.hamiltonian!r}, not separable"
     if getattr(model_settings, "potential", "polynomial") != "polynomial":
         return f"the potential is {model_settings.potential!r}, not a polynomial"
+    if str(getattr(model_settings, "force", "")).strip():
+        return "the model has a force (its parameters are in the data's units)"
     return None
 
 

@@ -22,6 +22,7 @@ from symplid.filters.noise import OBSERVATION_NOISE
 from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
 from symplid.inference.samplers.dram import VARIANCE_SCALES
+from symplid.model.inputs import INTERPOLATIONS
 from symplid.model.prior_spec import PriorSpec
 from symplid.model.priors import HalfNormal, Laplace, Normal, Prior
 from symplid.model.statespace import PROCESS_NOISE_CHOICES
@@ -38,6 +39,7 @@ __all__ = [
     "PRIOR_SYNONYMS",
     "RENAMED",
     "InitialStateSettings",
+    "InputSettings",
     "MapSettings",
     "ModelSettings",
     "PlotSettings",
@@ -51,6 +53,11 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- sections
+def _as_written(text: str) -> bool:
+    """Any text is kept as written (an expression, a path): not a choice, not lowercased."""
+    return True
+
+
 @dataclass(frozen=True)
 class ModelSettings:
     """The state-space model of eq. (7) and its unscented filter (Theorem 1).
@@ -177,6 +184,42 @@ class ModelSettings:
         doc="Learn a damping rate γ: ṗ = −∂U/∂q − γM⁻¹p (CLI ``--damping``).",
     )
     """Learn a damping rate γ: ṗ = −∂U/∂q − γM⁻¹p (:mod:`symplid.dynamics.damping`)."""
+    force: str = setting(
+        "", other=_as_written,
+        doc=(
+            "A generalised force F(q, p, u, t): ṗ = −∂H/∂q + F, an expression in q1..qd, "
+            "p1..pd, the inputs u1..um, t and declared parameters (one per momentum, separated "
+            "by ``;``), or ``file:PATH:NAME``; empty: none (free motion)."
+        ),
+    )
+
+
+@dataclass(frozen=True)
+class InputSettings:
+    """The measured inputs u(t) of a driven model (``model.force``): input columns of the
+    data file, a file of their own, or expressions in t (:mod:`symplid.model.inputs`)."""
+
+    columns: tuple[str, ...] = setting(
+        (),
+        doc=(
+            "The data file's input columns, read as u1, u2, … in this order; empty: the "
+            "columns named u1, u2, …."
+        ),
+    )
+    file: str = setting(
+        "", other=_as_written,
+        doc="A CSV file t,u1,… of the inputs (instead of columns of the data file).",
+    )
+    expressions: tuple[str, ...] = setting(
+        (),
+        doc="The inputs u1, u2, … as expressions in t (a known excitation), e.g. "
+            "``[\"0.5*sin(1.3*t)\"]``.",
+    )
+    interpolation: str = setting(
+        "linear", choices=INTERPOLATIONS,
+        doc="Between input samples: ``\"zoh\"`` (hold the last), ``\"linear\"`` or "
+            "``\"cubic\"`` (spline).",
+    )
 
 
 @dataclass(frozen=True)
@@ -483,6 +526,7 @@ class Settings:
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     prediction: PredictionSettings = field(default_factory=PredictionSettings)
     plots: PlotSettings = field(default_factory=PlotSettings)
+    inputs: InputSettings = field(default_factory=InputSettings)
 
 
 def prior_spec(settings: Settings) -> PriorSpec:

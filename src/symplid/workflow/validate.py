@@ -143,6 +143,10 @@ def check_value(
         if spec.other is not None and spec.other(value):
             return value.strip()
         out = _choose(value.strip().lower(), value, spec, key, source, error)
+    elif typing.get_args(tp) == (str, Ellipsis):  # a list of texts, kept as written
+        if not isinstance(value, list | tuple) or not all(isinstance(x, str) for x in value):
+            raise error(source, key, f"must be a list of strings, got {value!r}")
+        return tuple(x.strip() for x in value)
     else:  # tuple[float, ...]
         if not isinstance(value, list | tuple) or any(
             isinstance(x, bool) or not isinstance(x, int | float) for x in value
