@@ -6,7 +6,7 @@ Why Sphinx: the docstrings are numpydoc with Sphinx cross-reference roles, the C
 at build (myst-nb) -- the stack of the projects symplid's users know (ArviZ, PyMC, BlackJAX,
 dynamax). Build (from the repository root)::
 
-    SYMPLID_DOCS_BUDGET=quick sphinx-build -W --keep-going -b html docs docs/_build/html
+    SYMPLID_EXAMPLE_BUDGET=quick sphinx-build -j auto -W --keep-going -b html docs docs/_build/html
 """
 
 from __future__ import annotations
@@ -93,6 +93,9 @@ sphinx_gallery_conf = {
     "download_all_examples": False,
     "plot_gallery": os.environ.get("SYMPLID_DOCS_GALLERY", "True"),
     "abort_on_example_error": True,
+    # the examples run side by side in as many processes as sphinx-build's -j gives (joblib),
+    # each in its own: the longest examples take minutes, mostly compiling on one core
+    "parallel": True,
     "min_reported_time": 1,
     "show_signature": False,
     "default_thumb_file": str(HERE / "figures" / "fig1_phase_portraits.png"),

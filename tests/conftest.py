@@ -14,7 +14,8 @@ import symplid
 
 
 def pytest_configure(config):
-    """Share compiled programs between tests and xdist workers through JAX's disk cache.
+    """Share compiled programs between tests, xdist workers and the command-line processes
+    the tests start, through JAX's disk cache.
 
     Many tests build the same model structure afresh; XLA compiles it to the same program,
     which the persistent cache then serves instead of compiling again.
@@ -28,6 +29,10 @@ def pytest_configure(config):
         tempfile.gettempdir(), f"symplid-test-jax-cache-{os.getuid()}"
     )
     runtime.enable_compilation_cache(folder)
+    # The command-line runs the tests start as processes read the same folder, so that a
+    # program compiled in one test is not compiled again by a subprocess (and the tests
+    # leave the user's own cache alone).
+    os.environ["SYMPLID_CACHE_DIR"] = folder
 
     # The suite is a top-level user, like the command line: the sweep specs its tests build
     # may name the studies' experiments ("paper", the default, and "baselines").

@@ -28,7 +28,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 TIMES = np.array([0.7, 1.5, 2.0, 3.1])  # gaps of 3, 4, 2 and 5 substeps at dt = 0.25
-TOL = 1e-12  # as test_compiled_kernel.py
+TOL = 1e-12  # as test_kernel.py
 
 # (d, order, integrator, mass, Σ per): the register path (fixed tables) and the memory path.
 CASES = [

@@ -105,7 +105,7 @@ def test_narrower_variant_gives_the_same_numbers(isa):
         reference = dataclasses.replace(model, backend="jax").log_likelihood_fn(data, x0)
         expected = [float(reference(th)) for th in thetas]
         assert np.all(np.isfinite(expected)), case
-        tolerance = 1e-12 * np.maximum(1.0, np.abs(expected))  # as test_compiled_kernel.py
+        tolerance = 1e-12 * np.maximum(1.0, np.abs(expected))  # as test_kernel.py
         for got in (single, batch, here_single, here_batch):
             assert np.all(np.abs(np.subtract(got, expected)) <= tolerance), case
         assert np.all(np.abs(np.subtract(single, here_single)) <= tolerance), case

@@ -42,7 +42,7 @@ The rule
    err(2h) read off the same sum over the even nodes. When that estimate exceeds
    ``tolerance`` (1e-3 nats) the step is halved once (the old nodes are kept).
    ``details["error_estimate"]`` is the estimate. Measured on the 1-D oscillator of
-   ``tests/test_evidence.py``: 1e-3 nats from brute-force quadrature over all parameters,
+   ``tests/test_map_evidence.py``: 1e-3 nats from brute-force quadrature over all parameters,
    with about 160 profile fits (1.3 s); the Laplace evidence was 0.7 and 1.3 nats low.
 5. **More variances** (``noise = "diagonal"``): a product grid would need 13ᵐ profile fits, so
    the integral is taken along each of the m axes of A only, and combined as
@@ -50,7 +50,7 @@ The rule
    of functions of the whitened coordinates (in particular for a Gaussian g, where it is
    the Laplace approximation in log-variance coordinates), and it still corrects each
    axis's skewness. About 10 fits per axis. ``method`` says which rule was used. On the
-   oscillator of ``tests/test_evidence.py`` (forced to this rule with two variances) it was
+   oscillator of ``tests/test_map_evidence.py`` (forced to this rule with two variances) it was
    0.15 nats from the product grid, where the Laplace evidence was 0.7–1.3 nats off.
 
 A new variance group (e.g. further noise parameters) is integrated as soon as its name is in
