@@ -48,7 +48,8 @@ def fit(model, data, x0):
     posterior = symplid.Posterior(model, data, x0=x0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", symplid.BoundWarning)
-        return posterior, symplid.find_map(posterior, seed=0, num_starts=1 if QUICK else 2)
+        return posterior, symplid.find_map(posterior, seed=0, num_starts=1 if QUICK else 2,
+                                           evidence="laplace")
 
 
 def plot_coefficients(system, fits, path: Path) -> None:

@@ -57,7 +57,8 @@ FINE_DT = 0.01
 def map_fit(posterior):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", symplid.BoundWarning)
-        return symplid.find_map(posterior, seed=0, num_starts=1 if QUICK else 2)
+        return symplid.find_map(posterior, seed=0, num_starts=1 if QUICK else 2,
+                                evidence="laplace")
 
 
 def plot_coefficients(system, results, path: Path) -> None:
