@@ -41,8 +41,7 @@ LAYERS = {
     "plotting": 5,
     "workflow": 6,
     "studies": 7,  # the research studies, beside the library: only cli and the top use them
-    "cli": 8,
-    "cli_studies": 8,  # the command line's `symplid study` group
+    "cli": 8,  # the command line: the only package that imports click
     "": 9,  # symplid/__init__.py: the public facade over everything
 }
 
@@ -166,7 +165,22 @@ def test_only_the_command_line_and_the_top_use_the_studies():
     users = sorted(m for m, targets in GRAPH.items() if _layer(m) < LAYERS["studies"]
                    and any(_layer(t) == LAYERS["studies"] for t in targets))
     assert not users, f"the core reaches symplid.studies from {users}"
-    assert any(t.startswith("symplid.studies") for t in GRAPH["symplid.cli_studies"])
+    assert any(t.startswith("symplid.studies") for t in GRAPH["symplid.cli.study_commands"])
+
+
+def test_only_the_command_line_imports_click():
+    """click is the command line's: the layers below (the workflow too) are usable without it."""
+    users = sorted(
+        module for module in MODULES if not module.startswith("symplid.cli")
+        for node in ast.walk(TREES[module])
+        if (isinstance(node, ast.Import) and any(a.name.split(".")[0] == "click"
+                                                 for a in node.names))
+        or (isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "click"
+            and not node.level)
+    )
+    assert not users, f"click imported outside symplid.cli: {sorted(set(users))}"
+    assert any(isinstance(node, ast.Import) and node.names[0].name == "click"
+               for node in ast.walk(TREES["symplid.cli.errors"]))
 
 
 def test_no_import_cycles():
