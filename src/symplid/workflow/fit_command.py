@@ -151,7 +151,7 @@ def run_fit(paths: tuple[Path, ...], out: Path, config: Path | None, overrides: 
     """``symplid fit``: a new run from the data files, or ``--resume`` of an interrupted one.
     Returns the outcome and the held-out observations (or None). ``status`` receives the fit's
     status lines (what it is doing; none with ``no_progress``)."""
-    from symplid.inference.samplers import SamplingInterrupted
+    from symplid.sampling import SamplingInterrupted
 
     with warnings.catch_warnings():
         # The fit's own line says that (and where) the sampler was stopped: the sampler's
