@@ -273,7 +273,8 @@ def forecast_with_noise(
     S, T = theta.shape[0], times.size
     z = jax.random.normal(key_x, (S, T, model.state_dim))
     e = np.asarray(jax.random.normal(key_y, (S, T, H.shape[0])))
-    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
+    coefficients = model.layout.unpack(theta).get(model.parameter_group, theta[:, :0])
+    gammas = np.asarray(model.damping_rate(theta))  # 0 when undamped (then unused)
     proc, obs_var = (np.asarray(v) for v in jax.vmap(_noise_diagonals(model))(theta))
     noise_scale = np.sqrt(np.maximum(proc, 0.0))
     per_step = model.process_noise_per == "step"
@@ -282,7 +283,8 @@ def forecast_with_noise(
     run = jit_for(model.hamiltonian, _noisy_paths, model.integrator, int(num_steps.max()))
     states = np.array(
         run(
-            jnp.asarray(theta[:, :nc]),
+            jnp.asarray(coefficients),
+            jnp.asarray(gammas),
             jnp.asarray(np.nan_to_num(starts)),
             jnp.asarray(noise_scale),
             z * jnp.asarray(scale_by_gap)[None, :, None],
@@ -322,14 +324,14 @@ def _noise_diagonals(model: HamiltonianModel):
     return diagonals
 
 
-def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, starts,
-                 scale, z, step_sizes, num_steps, inv_mass):
+def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, gammas,
+                 starts, scale, z, step_sizes, num_steps, inv_mass):
     """Every draw's path over the gaps, process noise added per gap (compiled per potential
     by :func:`~symplid.compiled.jit_for`)."""
     d = potential.dim
 
-    def one(c, start, sc, zz):
-        dynamics = bind_dynamics(integrator, potential, c, inv_mass)
+    def one(c, g, start, sc, zz):
+        dynamics = bind_dynamics(integrator, potential, c, inv_mass, g)
 
         def gap(x, inputs):
             h, n, zk = inputs
@@ -340,7 +342,7 @@ def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coeffic
         _, xs = jax.lax.scan(gap, start, (step_sizes, num_steps, zz))
         return xs
 
-    return jax.vmap(one)(coefficients, starts, scale, z)
+    return jax.vmap(one)(coefficients, gammas, starts, scale, z)
 
 
 def filtered_end_states(

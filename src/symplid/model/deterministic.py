@@ -70,7 +70,9 @@ def build_trajectory_likelihood(
         # NaN reaches the gradient through the discarded branch (as in the filter).
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
         inv_mass = inverse_mass(model.mass, d)
-        dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
+        coefficients = model.split(theta)[0]
+        dynamics = bind_dynamics(model.integrator, model.hamiltonian, coefficients, inv_mass,
+                                 model.damping_rate(theta))
 
         def gap(x, inp):
             q, p = propagate(model.integrator, dynamics, x[:d], x[d:], inp.step_size,

@@ -181,9 +181,10 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         variances = theta[nc:]
         variances_ok = jnp.all(variances > 0)
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
-        _, proc, obs = model.split(theta)
+        coefficients, proc, obs = model.split(theta)
         inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
-        dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
+        dynamics = bind_dynamics(model.integrator, model.hamiltonian, coefficients, inv_mass,
+                                 model.damping_rate(theta))
         predict = _prediction(model, dynamics, proc, weights, max_steps, uniform_steps)
         if _multiplicative(model):  # Γ replaced by R_k(ŷ, S_h) (symplid.filters.noise)
             obs = model.noise_covariance(theta)
