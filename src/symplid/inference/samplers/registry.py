@@ -36,7 +36,7 @@ from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
 from symplid.model.backends import LIKELIHOOD_BACKENDS
-from symplid.model.params import LOG_SCALE_GROUPS, ParameterSpace, pushforward_covariance
+from symplid.model.params import ParameterSpace, pushforward_covariance
 from symplid.registry import Registry
 
 Array = jax.Array
@@ -140,13 +140,13 @@ class LogVariances:
     """θ ↔ w with the variances (bounded below only) as w = log(v − a), the rest as is,
     and the log density of w (log π(θ(w)) + Σ w over the variances: the log-Jacobian).
     A user model's declared parameters bounded below only move on the same log scale
-    (:data:`~symplid.model.params.LOG_SCALE_GROUPS`). The map is the posterior's
-    :class:`~symplid.model.params.Reparameterisation` restricted to those entries."""
+    (:data:`~symplid.model.params.LOG_SCALE_GROUPS`). The map, and with it the mask of the
+    entries on the log scale, is the posterior's one
+    :class:`~symplid.model.params.Reparameterisation` for DRAM
+    (:meth:`~symplid.model.params.ParameterSpace.log_scale`)."""
 
     def __init__(self, posterior: Any) -> None:
-        space = ParameterSpace.of(posterior)
-        chosen = np.array([g in LOG_SCALE_GROUPS for g in space.groups], dtype=bool)
-        self.reparameterisation = space.reparameterisation(chosen & space.lower_only)
+        self.reparameterisation = ParameterSpace.of(posterior).log_scale()
         self.mask = self.reparameterisation.transformed  # the bounded-below-only ones
         self._log_density = posterior.log_density
 
