@@ -273,12 +273,39 @@ def forecast_with_noise(
     S, T = theta.shape[0], times.size
     z = jax.random.normal(key_x, (S, T, model.state_dim))
     e = np.asarray(jax.random.normal(key_y, (S, T, H.shape[0])))
+    proc, obs_var = (np.asarray(v) for v in jax.vmap(_noise_diagonals(model))(theta))
+    states = _noisy_states(model, theta, starts, proc, z, num_steps, step_sizes)
+    obs_mean = states @ H.T
+    observations, rel_var = _new_observations(model, theta, obs_mean, obs_var, e,
+                                              jax.random.fold_in(key_y, 1))
+    levels = tuple(float(q) for q in quantiles)
+    return NoisyForecast(
+        times, float(t_start), levels, _nanquantile(states, levels),
+        _nanquantile(observations, levels), states, observations, obs_var, obs_mean, rel_var,
+    )
+
+
+def _noise_diagonals(model: HamiltonianModel):
+    """θ ↦ (diag Σ, diag Γ), to be vmapped over the draws."""
+
+    def diagonals(theta):
+        _, proc, obs = model.split(theta)
+        return jnp.diagonal(proc), jnp.diagonal(obs)
+
+    return diagonals
+
+
+def _noisy_states(model: HamiltonianModel, theta: np.ndarray, starts: np.ndarray,
+                  proc: np.ndarray, z: Array, num_steps: np.ndarray,
+                  step_sizes: np.ndarray) -> np.ndarray:
+    """Every draw's states at the forecast times ``(S, T, 2d)``: Ψ over each gap, process
+    noise of variance ``proc`` added per gap (per substep: ``n·Σ`` over n), NaN where a start
+    or a path is not finite. θ_Ψ is read by the layout (the coefficients' block and γ)."""
     coefficients = model.layout.unpack(theta).get(model.parameter_group, theta[:, :0])
     gammas = np.asarray(model.damping_rate(theta))  # 0 when undamped (then unused)
-    proc, obs_var = (np.asarray(v) for v in jax.vmap(_noise_diagonals(model))(theta))
     noise_scale = np.sqrt(np.maximum(proc, 0.0))
     per_step = model.process_noise_per == "step"
-    scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
+    scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(num_steps.size)
     inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
     run = jit_for(model.hamiltonian, _noisy_paths, model.integrator, int(num_steps.max()))
     states = np.array(
@@ -295,33 +322,25 @@ def forecast_with_noise(
     )
     states[~np.all(np.isfinite(starts), axis=1)] = np.nan
     states[~np.isfinite(states)] = np.nan
-    obs_mean = states @ H.T
+    return states
+
+
+def _new_observations(model: HamiltonianModel, theta: np.ndarray, obs_mean: np.ndarray,
+                      obs_var: np.ndarray, e: np.ndarray,
+                      key_rel: Array) -> tuple[np.ndarray, np.ndarray | None]:
+    """New observations around ``obs_mean`` by the model's observation noise (additive with
+    the normals ``e``; multiplicative with normals drawn from ``key_rel``), and the relative
+    variances (None without multiplicative noise)."""
     noise = model.noise_model
-    if noise.multiplicative:
-        rel_var = np.asarray(jax.vmap(model.relative_variances)(theta))
-        e_rel = np.asarray(jax.random.normal(jax.random.fold_in(key_y, 1), e.shape))
-        observations = noise.sample(
-            obs_mean, np.maximum(obs_var, 0.0)[:, None, :],
-            np.maximum(rel_var, 0.0)[:, None, :], np.stack([e_rel, e]),
-        )
-    else:
-        rel_var = None
-        observations = obs_mean + np.sqrt(np.maximum(obs_var, 0.0))[:, None, :] * e
-    levels = tuple(float(q) for q in quantiles)
-    return NoisyForecast(
-        times, float(t_start), levels, _nanquantile(states, levels),
-        _nanquantile(observations, levels), states, observations, obs_var, obs_mean, rel_var,
+    if not noise.multiplicative:
+        return obs_mean + np.sqrt(np.maximum(obs_var, 0.0))[:, None, :] * e, None
+    rel_var = np.asarray(jax.vmap(model.relative_variances)(theta))
+    e_rel = np.asarray(jax.random.normal(key_rel, e.shape))
+    observations = noise.sample(
+        obs_mean, np.maximum(obs_var, 0.0)[:, None, :],
+        np.maximum(rel_var, 0.0)[:, None, :], np.stack([e_rel, e]),
     )
-
-
-def _noise_diagonals(model: HamiltonianModel):
-    """θ ↦ (diag Σ, diag Γ), to be vmapped over the draws."""
-
-    def diagonals(theta):
-        _, proc, obs = model.split(theta)
-        return jnp.diagonal(proc), jnp.diagonal(obs)
-
-    return diagonals
+    return observations, rel_var
 
 
 def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, gammas,
