@@ -145,6 +145,9 @@ def run_sweep(
 ) -> Any:
     """Run every unfinished cell of a sweep on Dask and gather the results table.
 
+    (Its length is the documentation of its parameters; the body is a list of steps, each a
+    function of its own.)
+
     Parameters
     ----------
     spec
