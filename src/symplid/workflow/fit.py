@@ -495,7 +495,7 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
             out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
             if "ess_tail" in table:
                 out["ess_tail_min"] = float(np.nanmin(table["ess_tail"].to_numpy()))
-    # Chains restarted at the end of the burn-in (inference.samplers.restart); 0: none.
+    # Chains restarted at the end of the burn-in (sampling.restart); 0: none.
     out["restarted_chains"] = len(idata.attrs.get("restarted_chains", None) or [])
     out.update(_budget_summary(idata))
     return out
