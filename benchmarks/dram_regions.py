@@ -58,7 +58,8 @@ def per_iteration(log_density, theta, cov, linalg: str, chains: int, iterations:
     import jax
     import jax.numpy as jnp
 
-    from symplid.inference.samplers import RunOptions, dram, run_chains
+    from symplid.inference.samplers import dram
+    from symplid.sampling import RunOptions, run_chains
 
     settings = dram.DRAMSettings(linalg=linalg, paired_stages=chains > 1)
     step = dram.build_kernel(log_density, settings)

@@ -72,7 +72,7 @@ def fit_symplid(sim, train, draws: int, seed: int):
     nd = model.num_dynamics_params
     if draws <= 0:
         return model, np.asarray(result.theta)[None, :nd]
-    from symplid.inference.samplers import sample
+    from symplid.sampling import sample
 
     idata = sample(posterior, method="dram", num_draws=draws, num_chains=2, seed=seed,
                    init=result, burn_in=draws)

@@ -43,10 +43,10 @@ runtime.limit_threads()
 
 from symplid.dynamics.systems import get_system  # noqa: E402
 from symplid.inference.map import find_map  # noqa: E402
-from symplid.inference.samplers import RunOptions, draws_array, sample  # noqa: E402
 from symplid.model.priors import LogUniform  # noqa: E402
 from symplid.model.simulate import simulate  # noqa: E402
 from symplid.model.variance_prior import data_variance_scale  # noqa: E402
+from symplid.sampling import RunOptions, draws_array, sample  # noqa: E402
 from symplid.workflow.fit import build_model, build_posterior  # noqa: E402
 from symplid.workflow.settings import Settings, merge_overrides  # noqa: E402
 

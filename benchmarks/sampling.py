@@ -45,7 +45,8 @@ import numpy as np  # noqa: E402
 
 import symplid  # noqa: E402
 from symplid.inference.diagnostics import import_arviz  # noqa: E402
-from symplid.inference.samplers import RunOptions, dram, run_chains, sample  # noqa: E402
+from symplid.inference.samplers import dram  # noqa: E402
+from symplid.sampling import RunOptions, run_chains, sample  # noqa: E402
 
 TARGET_ITERATIONS_PER_SECOND = 50_000  # issue #10
 

@@ -54,8 +54,8 @@ import arviz as az  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from symplid.inference.samplers import RunOptions, draws_array, sample  # noqa: E402
 from symplid.model.params import ParameterSpace  # noqa: E402
+from symplid.sampling import RunOptions, draws_array, sample  # noqa: E402
 from symplid.studies.paper import EXPERIMENT, cell_data, cell_data_noise  # noqa: E402
 from symplid.studies.paper_calibration import true_values  # noqa: E402
 from symplid.workflow.building import build_model, build_posterior  # noqa: E402

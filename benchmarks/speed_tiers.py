@@ -101,7 +101,8 @@ def measure(repeats: int, dram_iterations: int) -> dict[str, float]:
     import jax
     import jax.numpy as jnp
 
-    from symplid.inference.samplers import RunOptions, dram, run_chains
+    from symplid.inference.samplers import dram
+    from symplid.sampling import RunOptions, run_chains
 
     backend = os.environ.get("SYMPLID_BENCH_BACKEND", "jax")
     theta, loglik, log_density = paper_target(backend)

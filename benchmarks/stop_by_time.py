@@ -41,7 +41,7 @@ _THROUGHPUT = """
 import sys, time
 from symplid.io import read_observations
 from symplid.inference.map import find_map
-from symplid.inference.samplers import sample
+from symplid.sampling import sample
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
 obs = read_observations(sys.argv[1])
@@ -52,7 +52,7 @@ init = find_map(post, seed=0, num_starts=1)
 budget = dict(num_draws=20000, burn_in=0, num_chains=4, seed=1, init=init)
 import inspect
 if "options" in inspect.signature(sample).parameters:  # the runner's options object
-    from symplid.inference.samplers import RunOptions
+    from symplid.sampling import RunOptions
     budget["options"] = RunOptions(chunk_size=2000, progress=False)
 else:  # a tree from before it
     budget.update(chunk_size=2000, progress=False)

@@ -17,10 +17,10 @@ from click.testing import CliRunner
 from sampler_targets import Gaussian2D, TwoModes
 from symplid.cli import main
 from symplid.inference.diagnostics import import_arviz
-from symplid.inference.samplers import RunOptions, Targets, draws_array, sample
-from symplid.inference.samplers.budget import BudgetMonitor, draw_statistics
-from symplid.inference.samplers.resume import checkpoint_arrays, resume_sampling
-from symplid.inference.samplers.run import SamplingInterrupted
+from symplid.sampling import RunOptions, Targets, draws_array, sample
+from symplid.sampling.budget import BudgetMonitor, draw_statistics
+from symplid.sampling.resume import checkpoint_arrays, resume_sampling
+from symplid.sampling.run import SamplingInterrupted
 from symplid.workflow.results import RunFolder
 
 az = import_arviz()

@@ -78,6 +78,22 @@ def test_conformal_splitting_contracts_the_symplectic_form_by_exp_minus_gamma_h(
     assert np.max(np.abs(rk.T @ omega @ rk - math.exp(-gamma * h) * omega)) > 1e-9
 
 
+def test_a_damped_integrator_is_given_its_rate_by_name():
+    """γ is an argument of its own (the model's layout places it in θ), never the last entry
+    of the parameters: without it a damped integrator refuses; with it, zero damping is the
+    undamped flow exactly."""
+    pot = symplid.Polynomial(1, 2)
+    c = jnp.asarray(pot.coefficients_from({"q1^2": 0.5}))
+    integ = with_damping("leapfrog")
+    with pytest.raises(TypeError, match="gamma"):
+        bind_dynamics(integ, pot, c)
+    x = jnp.asarray([1.0, 0.0])
+    damped = solve(integ, bind_dynamics(integ, pot, c, gamma=0.0), x, 0.1, 50, every=50)
+    plain = symplid.get_integrator("leapfrog")
+    undamped = solve(plain, bind_dynamics(plain, pot, c), x, 0.1, 50, every=50)
+    np.testing.assert_array_equal(np.asarray(damped), np.asarray(undamped))
+
+
 def test_rayleigh_damping_with_a_mass_matrix_uses_the_matrix_exponential():
     mass = np.array([[2.0, 0.5], [0.5, 1.0]])
     inv_mass = np.linalg.inv(mass)
@@ -121,7 +137,7 @@ def test_damped_energy_decays_as_the_exact_solution(name, order):
     integ = with_damping(name)
     errors = []
     for n in (400, 800):
-        dyn = bind_dynamics(integ, pot, jnp.append(c, gamma))
+        dyn = bind_dynamics(integ, pot, c, gamma=gamma)
         path = np.asarray(solve(integ, dyn, jnp.asarray([1.0, 0.0]), t_end / n, n, every=n // 20))
         times = np.linspace(0.0, t_end, 21)
         exact = damped_oscillator(times, gamma)

@@ -12,14 +12,8 @@ from scipy import stats
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, MapResult, moment_z_scores
-from symplid.inference.samplers import (
-    RunOptions,
-    dram,
-    dram_stages,
-    draws_array,
-    run_chains,
-    sample,
-)
+from symplid.inference.samplers import dram, dram_stages
+from symplid.sampling import RunOptions, draws_array, run_chains, sample
 
 # ----------------------------------------------------------------------------------------
 # Independent NumPy versions of the target and of the delayed-rejection formula

@@ -16,10 +16,10 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana
-from symplid.inference.samplers import RunOptions, draws_array, sample
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.registry import resolve_dram
 from symplid.model import kernel as compiled_kernel
+from symplid.sampling import RunOptions, draws_array, sample
 
 STATS = ("stage1_accepted", "stage2_attempted", "stage2_accepted", "accepted")
 

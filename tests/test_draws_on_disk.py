@@ -22,8 +22,8 @@ import pytest
 from click.testing import CliRunner
 
 from symplid.cli import main
-from symplid.inference.samplers import draws_array
 from symplid.io.chunks import read_chunks
+from symplid.sampling import draws_array
 from symplid.workflow.results import RunFolder, RunFolderError
 
 FIT = ["--order", "2", "--x0", "1,0", "--iterations", "6000", "--burn-in", "1000", "--chains",

@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from symplid.inference.samplers import draws_array
 from symplid.io.chunks import read_chunks
+from symplid.sampling import draws_array
 from symplid.workflow.results import RunFolder
 
 FIT = ["--order", "2", "--x0", "1,0", "--chains", "2", "--no-progress", "--no-report",
@@ -253,10 +253,10 @@ def test_a_stop_inside_a_chunk_keeps_its_iterations_and_resumes_to_the_same_draw
     import itertools
 
     from sampler_targets import Gaussian2D
-    from symplid.inference.samplers import RunOptions, pacing, sample
-    from symplid.inference.samplers import run as runner
-    from symplid.inference.samplers.resume import checkpoint_arrays, resume_sampling
-    from symplid.inference.samplers.run import SamplingInterrupted
+    from symplid.sampling import RunOptions, pacing, sample
+    from symplid.sampling import run as runner
+    from symplid.sampling.resume import checkpoint_arrays, resume_sampling
+    from symplid.sampling.run import SamplingInterrupted
 
     target = Gaussian2D()
     budget = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 40,

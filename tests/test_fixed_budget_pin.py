@@ -24,7 +24,7 @@ import pytest
 
 import symplid
 from sampler_targets import GammaVariance, Gaussian2D
-from symplid.inference.samplers import RunOptions, draws_array, sample
+from symplid.sampling import RunOptions, draws_array, sample
 
 PINNED = {
     "gaussian-dram": "8734ab9ed71ed283446f9e0757858888",

@@ -37,13 +37,13 @@ LAYERS = {
     "filters": 2,
     "model": 3,
     "inference": 4,
-    "io": 5,
-    "plotting": 5,
-    "workflow": 6,
-    "studies": 7,  # the research studies, beside the library: only cli and the top use them
-    "cli": 8,
-    "cli_studies": 8,  # the command line's `symplid study` group
-    "": 9,  # symplid/__init__.py: the public facade over everything
+    "sampling": 5,  # the sampling runner: chunks, restarts, stopping rules, progress
+    "io": 6,
+    "plotting": 6,
+    "workflow": 7,
+    "studies": 8,  # the research studies, beside the library: only cli and the top use them
+    "cli": 9,  # the command line: the only package that imports click
+    "": 10,  # symplid/__init__.py: the public facade over everything
 }
 
 
@@ -58,7 +58,7 @@ def _namespaces() -> tuple[str, ...]:
 
 #: A public namespace without a layer of its own (``symplid/priors.py``, re-exporting from the
 #: layers) is part of the facade.
-LAYERS |= {name: 9 for name in _namespaces() if name not in LAYERS}
+LAYERS |= {name: 10 for name in _namespaces() if name not in LAYERS}
 
 
 def _modules() -> dict[str, Path]:
@@ -157,7 +157,7 @@ def test_the_by_name_scan_sees_the_references_it_must():
     """The scan is not blind: the top-level lazy table and a study's cell function (by
     ``"module:function"`` in its tests' specs, and by import) are found."""
     assert "symplid.dynamics.integrators" in NAMED["symplid"]
-    assert "symplid.inference.samplers" in NAMED["symplid"]
+    assert "symplid.sampling" in NAMED["symplid"]
     assert BY_NAME.fullmatch("symplid.studies.paper_cells:run_cell")
     assert not BY_NAME.fullmatch("see symplid.studies.register_studies()")
 
@@ -166,7 +166,22 @@ def test_only_the_command_line_and_the_top_use_the_studies():
     users = sorted(m for m, targets in GRAPH.items() if _layer(m) < LAYERS["studies"]
                    and any(_layer(t) == LAYERS["studies"] for t in targets))
     assert not users, f"the core reaches symplid.studies from {users}"
-    assert any(t.startswith("symplid.studies") for t in GRAPH["symplid.cli_studies"])
+    assert any(t.startswith("symplid.studies") for t in GRAPH["symplid.cli.study_commands"])
+
+
+def test_only_the_command_line_imports_click():
+    """click is the command line's: the layers below (the workflow too) are usable without it."""
+    users = sorted(
+        module for module in MODULES if not module.startswith("symplid.cli")
+        for node in ast.walk(TREES[module])
+        if (isinstance(node, ast.Import) and any(a.name.split(".")[0] == "click"
+                                                 for a in node.names))
+        or (isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "click"
+            and not node.level)
+    )
+    assert not users, f"click imported outside symplid.cli: {sorted(set(users))}"
+    assert any(isinstance(node, ast.Import) and node.names[0].name == "click"
+               for node in ast.walk(TREES["symplid.cli.errors"]))
 
 
 def test_no_import_cycles():

@@ -239,6 +239,8 @@ def test_every_consumer_selects_from_the_one_object():
 
     dram = LogVariances(Target())
     np.testing.assert_array_equal(dram.mask, [False, False, True, False])
+    # the mask is data on the space's one map for DRAM, usable without a sampler
+    np.testing.assert_array_equal(space.log_scale().transformed, dram.mask)
     w = dram.to_w(jnp.asarray([0.3, 0.75, 0.2, 0.4]))
     np.testing.assert_allclose(w, [0.3, 0.75, np.log(0.2), 0.4], rtol=1e-15)
     assert float(dram.log_jacobian(w)) == pytest.approx(np.log(0.2), rel=1e-14)

@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from sampler_targets import Gaussian2D
 from symplid.cli import main
-from symplid.inference.samplers import RunOptions, sample
+from symplid.sampling import RunOptions, sample
 from symplid.workflow import settings_data
 from symplid.workflow.settings import Settings, SettingsError, merge_overrides
 

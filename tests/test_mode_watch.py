@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sampler_targets import Gaussian2D, MapResult
-from symplid.inference.samplers import RunOptions, sample
+from symplid.sampling import RunOptions, sample
 from symplid.model.data import Observations
 from symplid.workflow import fit as fit_module
 from symplid.workflow.mode_watch import MODE_MARGIN, HigherModeFound, mode_watch

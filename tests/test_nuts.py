@@ -11,7 +11,8 @@ from blackjax.adaptation.base import get_filter_adapt_info_fn
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, moment_z_scores
-from symplid.inference.samplers import RunOptions, draws_array, nuts, sample
+from symplid.inference.samplers import nuts
+from symplid.sampling import RunOptions, draws_array, sample
 
 TARGETS = {"gaussian": Gaussian2D, "banana": Banana, "gamma": GammaVariance}
 

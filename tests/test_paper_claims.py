@@ -401,9 +401,10 @@ def test_dram_chunk_takes_the_data_as_an_argument():
     import jax
     import jax.numpy as jnp
 
-    from symplid.inference.samplers import RunOptions, dram
-    from symplid.inference.samplers.chunk import DataStep, _compile_chunk
-    from symplid.inference.samplers.run import run_chains
+    from symplid.inference.samplers import dram
+    from symplid.sampling import RunOptions
+    from symplid.sampling.chunk import DataStep, _compile_chunk
+    from symplid.sampling.run import run_chains
 
     settings = dram.DRAMSettings()
 

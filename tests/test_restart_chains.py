@@ -15,20 +15,15 @@ import numpy as np
 import pytest
 
 from sampler_targets import Gaussian2D, TwoModes, moment_z_scores
-from symplid.inference.samplers import (
-    InterruptedInBurnIn,
-    RunOptions,
-    draws_array,
-    sample,
-)
-from symplid.inference.samplers.restart import burn_in_window, restart_threshold
-from symplid.inference.samplers.resume import (
+from symplid.io.chunks import ChunkWriter, read_chunks
+from symplid.sampling import InterruptedInBurnIn, RunOptions, draws_array, sample
+from symplid.sampling.restart import burn_in_window, restart_threshold
+from symplid.sampling.resume import (
     checkpoint_arrays,
     inference_data,
     resume_sampling,
 )
-from symplid.inference.samplers.run import SamplingInterrupted, StuckChainsRestarted
-from symplid.io.chunks import ChunkWriter, read_chunks
+from symplid.sampling.run import SamplingInterrupted, StuckChainsRestarted
 
 # burn_in 90 is not on the chunk grid of 40: the chunk that crosses it is cut there.
 SMALL = {"num_draws": 150, "num_chains": 4, "seed": 3, "burn_in": 90}
@@ -174,7 +169,7 @@ def test_a_restart_survives_the_chunk_files(tmp_path):
 def test_a_stop_inside_the_cut_chunk_takes_the_decision_again(monkeypatch):
     """Ctrl-C while the second half of the chunk in which the burn-in ends runs: the run stops
     at the chunk's start, the decision undone, and resumes to the uninterrupted run."""
-    from symplid.inference.samplers import run as run_module
+    from symplid.sampling import run as run_module
 
     target = TwoModes(gap=60.0)
     init, starts = target.map_result(), _starts((3,))

@@ -15,14 +15,9 @@ from click.testing import CliRunner
 
 from sampler_targets import Gaussian2D
 from symplid.cli import main
-from symplid.inference.samplers import (
-    InterruptedInBurnIn,
-    RunOptions,
-    draws_array,
-    sample,
-)
-from symplid.inference.samplers.resume import checkpoint_arrays, resume_sampling
-from symplid.inference.samplers.run import SamplingInterrupted
+from symplid.sampling import InterruptedInBurnIn, RunOptions, draws_array, sample
+from symplid.sampling.resume import checkpoint_arrays, resume_sampling
+from symplid.sampling.run import SamplingInterrupted
 from symplid.workflow.results import RunFolder
 
 BUDGET = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 90}

@@ -20,7 +20,7 @@ import pytest
 from click.testing import CliRunner
 
 from symplid.cli import main
-from symplid.inference.samplers import sample
+from symplid.sampling import sample
 
 TINY = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
         "2", "--no-progress", "--no-report", "--set", "map.num_starts=1", "--set",

@@ -13,14 +13,8 @@ import pytest
 import symplid  # noqa: F401  (float64)
 from sampler_targets import MapResult
 from symplid.inference.diagnostics import import_arviz
-from symplid.inference.samplers import (
-    SAMPLERS,
-    RunOptions,
-    SamplerKernel,
-    SamplerSpec,
-    draws_array,
-    sample,
-)
+from symplid.inference.samplers import SAMPLERS, SamplerKernel, SamplerSpec
+from symplid.sampling import RunOptions, draws_array, sample
 
 az = import_arviz()
 

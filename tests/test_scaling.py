@@ -157,3 +157,28 @@ def test_fit_writes_the_run_in_the_data_units(well, tmp_path):
     folder = RunFolder(tmp_path / "run", "r")
     assert folder.read_settings().model.standardise == "on"
     np.testing.assert_allclose(folder.read_map()["theta"], outcome.map_result.theta)
+
+
+def test_a_model_states_its_own_scaling_law(well):
+    """``HamiltonianModel.standardised(a)``, from Python without settings: the map θ = D θ'
+    under which the likelihood of data × a is the standardised one times a^−N (the exact
+    symmetry of the module docstring), the same D the fit's scaling uses."""
+    system, obs, _ = well
+    a = 37.0
+    big = symplid.Observations(obs.times, obs.values * a, obs.names)
+    model = symplid.HamiltonianModel(system.potential, noise="per-kind", backend="jax")
+    to_user = model.standardised(a)
+    np.testing.assert_array_equal(to_user.scale, Scaling(a, (1, 2, 3, 4)).factors(
+        model.param_groups))
+    np.testing.assert_allclose(system.potential.standardised(a), [a, 1.0, 1 / a, 1 / a**2],
+                               rtol=1e-15)
+    theta_std = model.pack(system.coefficients * [1.0, 1.0, 1.1, 0.9], 1e-4, [0.01, 0.02])
+    theta_user = to_user.from_unconstrained(theta_std)
+    x0 = system.initial_state
+    ll_user = model.log_likelihood(theta_user, big, x0 * a, 1e-4 * a**2)
+    ll_std = model.log_likelihood(theta_std, obs, x0, 1e-4)
+    assert float(ll_user) == pytest.approx(float(ll_std) - big.values.size * math.log(a),
+                                           rel=1e-10)
+    with pytest.raises(ValueError, match="scaling law"):
+        symplid.HamiltonianModel(symplid.FunctionPotential(lambda q, c: c[0] * q[0] ** 2, 1, 1),
+                                 backend="jax").standardised(a)

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from symplid.inference.samplers import draws_array
 from symplid.io.chunks import read_chunks
+from symplid.sampling import draws_array
 from symplid.workflow.results import RunFolder
 
 FIT = ["--order", "2", "--x0", "1,0", "--burn-in", "100", "--chains", "2", "--no-progress",
@@ -179,7 +179,7 @@ def test_the_third_signal_of_a_kind_ends_the_process_at_once_in_one_line():
 def test_the_sampler_stops_before_the_next_chunk_with_the_draws_of_the_whole_run():
     from sampler_targets import Gaussian2D
     from symplid import stopping
-    from symplid.inference.samplers import RunOptions, sample
+    from symplid.sampling import RunOptions, sample
 
     target = Gaussian2D()
     budget = {"num_draws": 200, "num_chains": 2, "burn_in": 40, "init": target.map_result()}

@@ -17,9 +17,9 @@ import pytest
 from scipy.special import digamma
 
 from symplid.inference.diagnostics import import_arviz
-from symplid.inference.samplers import RunOptions, sample
-from symplid.inference.samplers.api import draws_array
 from symplid.inference.samplers.dram import DRAMSettings
+from symplid.sampling import RunOptions, sample
+from symplid.sampling.api import draws_array
 from symplid.workflow.settings import Settings, merge_overrides
 
 SHAPE, SCALE = 0.5, 1e-4

@@ -103,8 +103,8 @@ def test_fit_hands_over_the_draws_before_writing_them(tmp_path, standardise):
     """Before ``posterior.nc`` exists, with the MAP and the names; in the data's units also
     when the fit ran in standardised coordinates: the very draws then written."""
     from symplid.dynamics.systems import get_system
-    from symplid.inference.samplers import draws_array
     from symplid.model.simulate import simulate
+    from symplid.sampling import draws_array
     from symplid.workflow.fit import fit
     from symplid.workflow.results import RunFolder
     from symplid.workflow.settings import Settings, merge_overrides

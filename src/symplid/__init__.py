@@ -68,7 +68,7 @@ _PUBLIC = {
     "MultipleOptimaWarning": "symplid.inference.map",
     "find_map": "symplid.inference.map",
     "discover": "symplid.workflow.discover",
-    "sample": "symplid.inference.samplers",
+    "sample": "symplid.sampling",
     "DataError": "symplid.model.data",
     "Observations": "symplid.model.data",
     "AnalyticInputs": "symplid.model.inputs",

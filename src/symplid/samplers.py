@@ -11,18 +11,22 @@ registration of a :class:`SamplerSpec` whose ``build`` returns a :class:`Sampler
 
 from symplid.inference.samplers import (
     SAMPLERS,
-    ChainRun,
-    ChunkReport,
     DRAMInfo,
     DRAMSettings,
     DRAMState,
-    InterruptedInBurnIn,
     NUTSSettings,
     NUTSState,
-    RunOptions,
-    SamplerCheckpoint,
     SamplerKernel,
     SamplerSpec,
+)
+from symplid.inference.samplers import dram as dram  # the old paths symplid.samplers.dram, .nuts
+from symplid.inference.samplers import nuts as nuts
+from symplid.sampling import (
+    ChainRun,
+    ChunkReport,
+    InterruptedInBurnIn,
+    RunOptions,
+    SamplerCheckpoint,
     SamplingInterrupted,
     Targets,
     draws_array,
@@ -30,8 +34,6 @@ from symplid.inference.samplers import (
     run_chains,
     sample,
 )
-from symplid.inference.samplers import dram as dram  # the old paths symplid.samplers.dram, .nuts
-from symplid.inference.samplers import nuts as nuts
 
 __all__ = [
     "SAMPLERS",

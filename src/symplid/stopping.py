@@ -7,7 +7,7 @@ segmentation fault. Symplid's command line therefore installs handlers that only
 the signal here (:func:`request`, from :mod:`symplid.workflow.interrupts`); the long loops ask
 at points where stopping is safe and cheap:
 
-* the sampler between two compiled chunks (:func:`symplid.inference.samplers.run.run_chains`
+* the sampler between two compiled chunks (:func:`symplid.sampling.run.run_chains`
   ends the run there and keeps every finished chunk);
 * the optimisers at each evaluation of their objective (the MAP's L-BFGS-B starts, the neural
   fit's Adam and L-BFGS steps), which :func:`check` turns into :class:`StopRequested`;

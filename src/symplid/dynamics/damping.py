@@ -30,7 +30,8 @@ M ∝ I.
 
 A damped integrator steps :class:`DampedDynamics` (∂U/∂q, M⁻¹p and γ) and keeps the common
 signature ``integrator.step(dynamics, q, p, dt)``; the parameters of the propagator (θ_Ψ of
-eq. 7) are then the potential's coefficients followed by γ (:func:`bind_dynamics`).
+eq. 7) are then the potential's coefficients and γ, each given by name (:func:`bind_dynamics`:
+where they sit in θ is the model's layout, :mod:`symplid.model.layout`).
 """
 
 from __future__ import annotations
@@ -209,13 +210,15 @@ def is_damped(integrator: Any) -> bool:
 
 
 def bind_dynamics(
-    integrator: Integrator, potential: Any, params: Array, inv_mass: Any = None
+    integrator: Integrator, potential: Any, params: Array, inv_mass: Any = None,
+    gamma: Array | float | None = None,
 ) -> Dynamics | DampedDynamics:
-    """The dynamics ``integrator`` steps, from θ_Ψ = ``params`` (one vector).
-
-    For a damped integrator θ_Ψ = [coefficients of U ..., γ]; otherwise the coefficients.
+    """The dynamics ``integrator`` steps, from the potential's (or H's) parameters ``params``
+    and, for a damped integrator, the damping rate ``gamma`` (θ's ``damping`` block, which the
+    model's layout places: :meth:`~symplid.model.statespace.HamiltonianModel.damping_rate`).
     """
     if not is_damped(integrator):
         return make_dynamics(potential, params, inv_mass)
-    params = jnp.asarray(params)
-    return damped_dynamics(make_dynamics(potential, params[:-1], inv_mass), params[-1], inv_mass)
+    if gamma is None:
+        raise TypeError("a damped integrator needs the damping rate: bind_dynamics(..., gamma=)")
+    return damped_dynamics(make_dynamics(potential, params, inv_mass), gamma, inv_mass)

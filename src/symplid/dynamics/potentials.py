@@ -23,6 +23,7 @@ coefficients of **−U** in this same order.
 from __future__ import annotations
 
 import itertools
+import math
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -37,6 +38,7 @@ __all__ = [
     "Polynomial",
     "Potential",
     "coefficient_name",
+    "degree_scaling",
     "hamiltonian",
     "has_kinetic",
     "inverse_mass",
@@ -47,6 +49,15 @@ __all__ = [
 ]
 
 Array = jax.Array
+
+
+def degree_scaling(degrees: Any, a: float) -> np.ndarray:
+    """a^(2−k) for each total degree k: the factor of a monomial's coefficient when positions
+    and momenta are over ``a`` (:meth:`Polynomial.standardised`)."""
+    a = float(a)
+    if not (math.isfinite(a) and a > 0):
+        raise ValueError(f"the position scale must be a positive number, got {a!r}")
+    return np.array([a ** (2 - int(k)) for k in degrees], dtype=float)
 
 
 @runtime_checkable
@@ -149,6 +160,17 @@ class Polynomial:
     @property
     def param_names(self) -> tuple[str, ...]:
         return tuple(term_name(e) for e in self.exponents)
+
+    def standardised(self, a: float) -> np.ndarray:
+        """The scaling law of the coefficients in positions and momenta over ``a``
+        (q' = q/a, p' = p/a, t' = t): c = D c' with D_α = a^(2−|α|), since
+        H'(q', p') = H(a q', a p') / a² generates the same motion (eqs 2 and 13) and
+        c'_α = c_α · a^(|α|−2).
+
+        >>> Polynomial(dim=1, order=4).standardised(10.0)
+        array([10.  ,  1.  ,  0.1 ,  0.01])
+        """
+        return degree_scaling([sum(e) for e in self.exponents], a)
 
     def _check(self, q: Array, coefficients: Array) -> None:
         if q.shape[0] != self.dim:

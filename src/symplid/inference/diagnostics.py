@@ -84,7 +84,7 @@ def summary(
     ----------
     idata
         ``arviz.InferenceData`` with a ``posterior`` group (as from
-        :func:`symplid.inference.samplers.sample`).
+        :func:`symplid.sampling.sample`).
     var_names
         Parameters to summarise; all by default.
     rhat_threshold, ess_threshold

@@ -273,38 +273,11 @@ def forecast_with_noise(
     S, T = theta.shape[0], times.size
     z = jax.random.normal(key_x, (S, T, model.state_dim))
     e = np.asarray(jax.random.normal(key_y, (S, T, H.shape[0])))
-    nc = model.num_dynamics_params  # θ_Ψ: the coefficients, and γ when damped
     proc, obs_var = (np.asarray(v) for v in jax.vmap(_noise_diagonals(model))(theta))
-    noise_scale = np.sqrt(np.maximum(proc, 0.0))
-    per_step = model.process_noise_per == "step"
-    scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(T)
-    inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
-    run = jit_for(model.hamiltonian, _noisy_paths, model.integrator, int(num_steps.max()))
-    states = np.array(
-        run(
-            jnp.asarray(theta[:, :nc]),
-            jnp.asarray(np.nan_to_num(starts)),
-            jnp.asarray(noise_scale),
-            z * jnp.asarray(scale_by_gap)[None, :, None],
-            jnp.asarray(step_sizes),
-            jnp.asarray(num_steps),
-            inv_mass,
-        )
-    )
-    states[~np.all(np.isfinite(starts), axis=1)] = np.nan
-    states[~np.isfinite(states)] = np.nan
+    states = _noisy_states(model, theta, starts, proc, z, num_steps, step_sizes)
     obs_mean = states @ H.T
-    noise = model.noise_model
-    if noise.multiplicative:
-        rel_var = np.asarray(jax.vmap(model.relative_variances)(theta))
-        e_rel = np.asarray(jax.random.normal(jax.random.fold_in(key_y, 1), e.shape))
-        observations = noise.sample(
-            obs_mean, np.maximum(obs_var, 0.0)[:, None, :],
-            np.maximum(rel_var, 0.0)[:, None, :], np.stack([e_rel, e]),
-        )
-    else:
-        rel_var = None
-        observations = obs_mean + np.sqrt(np.maximum(obs_var, 0.0))[:, None, :] * e
+    observations, rel_var = _new_observations(model, theta, obs_mean, obs_var, e,
+                                              jax.random.fold_in(key_y, 1))
     levels = tuple(float(q) for q in quantiles)
     return NoisyForecast(
         times, float(t_start), levels, _nanquantile(states, levels),
@@ -322,14 +295,62 @@ def _noise_diagonals(model: HamiltonianModel):
     return diagonals
 
 
-def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, starts,
-                 scale, z, step_sizes, num_steps, inv_mass):
+def _noisy_states(model: HamiltonianModel, theta: np.ndarray, starts: np.ndarray,
+                  proc: np.ndarray, z: Array, num_steps: np.ndarray,
+                  step_sizes: np.ndarray) -> np.ndarray:
+    """Every draw's states at the forecast times ``(S, T, 2d)``: Ψ over each gap, process
+    noise of variance ``proc`` added per gap (per substep: ``n·Σ`` over n), NaN where a start
+    or a path is not finite. θ_Ψ is read by the layout (the coefficients' block and γ)."""
+    coefficients = model.layout.unpack(theta).get(model.parameter_group, theta[:, :0])
+    gammas = np.asarray(model.damping_rate(theta))  # 0 when undamped (then unused)
+    noise_scale = np.sqrt(np.maximum(proc, 0.0))
+    per_step = model.process_noise_per == "step"
+    scale_by_gap = np.sqrt(num_steps) if per_step else np.ones(num_steps.size)
+    inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
+    run = jit_for(model.hamiltonian, _noisy_paths, model.integrator, int(num_steps.max()))
+    states = np.array(
+        run(
+            jnp.asarray(coefficients),
+            jnp.asarray(gammas),
+            jnp.asarray(np.nan_to_num(starts)),
+            jnp.asarray(noise_scale),
+            z * jnp.asarray(scale_by_gap)[None, :, None],
+            jnp.asarray(step_sizes),
+            jnp.asarray(num_steps),
+            inv_mass,
+        )
+    )
+    states[~np.all(np.isfinite(starts), axis=1)] = np.nan
+    states[~np.isfinite(states)] = np.nan
+    return states
+
+
+def _new_observations(model: HamiltonianModel, theta: np.ndarray, obs_mean: np.ndarray,
+                      obs_var: np.ndarray, e: np.ndarray,
+                      key_rel: Array) -> tuple[np.ndarray, np.ndarray | None]:
+    """New observations around ``obs_mean`` by the model's observation noise (additive with
+    the normals ``e``; multiplicative with normals drawn from ``key_rel``), and the relative
+    variances (None without multiplicative noise)."""
+    noise = model.noise_model
+    if not noise.multiplicative:
+        return obs_mean + np.sqrt(np.maximum(obs_var, 0.0))[:, None, :] * e, None
+    rel_var = np.asarray(jax.vmap(model.relative_variances)(theta))
+    e_rel = np.asarray(jax.random.normal(key_rel, e.shape))
+    observations = noise.sample(
+        obs_mean, np.maximum(obs_var, 0.0)[:, None, :],
+        np.maximum(rel_var, 0.0)[:, None, :], np.stack([e_rel, e]),
+    )
+    return observations, rel_var
+
+
+def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coefficients, gammas,
+                 starts, scale, z, step_sizes, num_steps, inv_mass):
     """Every draw's path over the gaps, process noise added per gap (compiled per potential
     by :func:`~symplid.compiled.jit_for`)."""
     d = potential.dim
 
-    def one(c, start, sc, zz):
-        dynamics = bind_dynamics(integrator, potential, c, inv_mass)
+    def one(c, g, start, sc, zz):
+        dynamics = bind_dynamics(integrator, potential, c, inv_mass, g)
 
         def gap(x, inputs):
             h, n, zk = inputs
@@ -340,7 +361,7 @@ def _noisy_paths(potential: Any, integrator: Integrator, max_steps: int, coeffic
         _, xs = jax.lax.scan(gap, start, (step_sizes, num_steps, zz))
         return xs
 
-    return jax.vmap(one)(coefficients, starts, scale, z)
+    return jax.vmap(one)(coefficients, gammas, starts, scale, z)
 
 
 def filtered_end_states(

@@ -204,6 +204,15 @@ def time_grid(t0: float, t_end: float, dt: float, every: int = 1) -> tuple[np.nd
     return t0 + h * k, n, h
 
 
+def _split_damping_rate(integrator: Integrator, row: Array) -> tuple[Array, Array | None]:
+    """θ_Ψ → (the Hamiltonian's parameters, γ): for a damped ``integrator`` a row is
+    [coefficients ..., γ], the order of a model's layout (its dynamics block, then ``damping``:
+    :mod:`symplid.model.layout`); otherwise the coefficients, and no γ."""
+    if not is_damped(integrator):
+        return row, None
+    return row[..., :-1], row[..., -1]
+
+
 def _batch_paths(potential, integrator, num_steps, every, coefficients, x0, step_size, inv_mass):
     """States at the stored steps for a batch of (coefficients, x0): ``(B, T, 2d)``.
 
@@ -211,7 +220,8 @@ def _batch_paths(potential, integrator, num_steps, every, coefficients, x0, step
     """
 
     def one(c: Array, x: Array) -> Array:
-        dynamics = bind_dynamics(integrator, potential, c, inv_mass)
+        params, gamma = _split_damping_rate(integrator, c)
+        dynamics = bind_dynamics(integrator, potential, params, inv_mass, gamma)
         return solve(integrator, dynamics, x, step_size, num_steps, every)
 
     return jax.vmap(one)(coefficients, x0)

@@ -239,6 +239,9 @@ def search_terms(
 ) -> TermSearch:
     """The stepwise search of the module docstring over the coefficients at ``terms``.
 
+    (Over eighty lines: the documentation of its parameters, and the one stepwise loop of the
+    module docstring, kept whole so that it reads against it.)
+
     Parameters
     ----------
     posterior

@@ -1,12 +1,12 @@
 """Draws streamed to a run folder, one file per compiled chunk of the sampler.
 
-The sampler runs in chunks (:func:`symplid.inference.samplers.run.run_chains`). After each,
+The sampler runs in chunks (:func:`symplid.sampling.run.run_chains`). After each,
 :class:`ChunkWriter` writes ``draws/chunk-NNNNNN.npz`` through the one atomic writer
 (:func:`symplid.io.files.write_with`: a temporary file and a rename), holding
 
 * ``draw_<name>``: the draws the chunk kept, ``(num_chains, kept, ...)`` (none in the burn-in),
   ``theta`` and the sampler's statistics;
-* the chains' states after the chunk (:func:`~symplid.inference.samplers.resume.checkpoint_arrays`:
+* the chains' states after the chunk (:func:`~symplid.sampling.resume.checkpoint_arrays`:
   ``leaf_<i>``, ``treedef``, ``iterations_done`` and, in a run that restarts stuck chains,
   ``monitor_<name>``), what ``fit --resume`` continues from;
 * ``start`` and ``done`` (iterations per chain before and after it) and ``elapsed`` (sampling
@@ -56,7 +56,7 @@ def chunk_path(folder: Path, index: int) -> Path:
 
 
 class ChunkWriter:
-    """A :data:`~symplid.inference.samplers.run.ChunkSink` that writes each chunk to ``folder``.
+    """A :data:`~symplid.sampling.run.ChunkSink` that writes each chunk to ``folder``.
 
     Parameters
     ----------
@@ -84,8 +84,8 @@ class ChunkWriter:
 
     def __call__(self, draws: Mapping[str, np.ndarray], states: Any, start: int, done: int,
                  elapsed: float, monitor: Mapping[str, np.ndarray] | None = None) -> None:
-        from symplid.inference.samplers.api import SamplerCheckpoint
-        from symplid.inference.samplers.resume import checkpoint_arrays
+        from symplid.sampling.api import SamplerCheckpoint
+        from symplid.sampling.resume import checkpoint_arrays
 
         arrays = {f"{_DRAW}{name}": np.asarray(value) for name, value in draws.items()}
         arrays.update(checkpoint_arrays(SamplerCheckpoint(states, int(done),

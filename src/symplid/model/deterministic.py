@@ -74,8 +74,9 @@ def build_trajectory_likelihood(
         force = getattr(model, "force", None)
         if force is not None:  # driven: each gap's inputs are put in below
             dynamics = bind_forced(model.hamiltonian, force, theta[:nc], inv_mass)
-        else:
-            dynamics = bind_dynamics(model.integrator, model.hamiltonian, theta[:nc], inv_mass)
+        else:  # H's coefficients and γ through the layout
+            dynamics = bind_dynamics(model.integrator, model.hamiltonian, model.split(theta)[0],
+                                     inv_mass, model.damping_rate(theta))
 
         def gap(x, inp):
             if force is not None:

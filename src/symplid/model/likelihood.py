@@ -194,9 +194,9 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         variances = theta[nc:]
         variances_ok = jnp.all(variances > 0)
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
-        _, proc, obs = model.split(theta)
+        coefficients, proc, obs = model.split(theta)
         inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
-        dynamics = bind_model_dynamics(model, theta[:nc], inv_mass)
+        dynamics = bind_model_dynamics(model, theta, inv_mass)
         predict = _prediction(model, dynamics, proc, weights, max_steps, uniform_steps)
         if _multiplicative(model):  # Γ replaced by R_k(ŷ, S_h) (symplid.filters.noise)
             obs = model.noise_covariance(theta)
@@ -207,14 +207,17 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
     return filter_fn
 
 
-def bind_model_dynamics(model: StateSpaceModel, theta_psi: Array, inv_mass: Any) -> Any:
-    """The dynamics the model's integrator steps, from θ_Ψ: with the force bound for a
-    driven model (:func:`~symplid.dynamics.forced.bind_forced`; each gap's inputs are put
-    in by the prediction), else :func:`~symplid.dynamics.damping.bind_dynamics`."""
+def bind_model_dynamics(model: StateSpaceModel, theta: Array, inv_mass: Any) -> Any:
+    """The dynamics the model's integrator steps, from θ: a driven model's force bound with
+    θ_Ψ = [H's parameters, θ_F] (:func:`~symplid.dynamics.forced.bind_forced`; each gap's
+    inputs are put in by the prediction), else H's coefficients and γ, read through the
+    layout (:func:`~symplid.dynamics.damping.bind_dynamics`)."""
     force = getattr(model, "force", None)
     if force is not None:
-        return bind_forced(model.hamiltonian, force, theta_psi, inv_mass)
-    return bind_dynamics(model.integrator, model.hamiltonian, theta_psi, inv_mass)
+        return bind_forced(model.hamiltonian, force, theta[..., :model.num_dynamics_params],
+                           inv_mass)
+    return bind_dynamics(model.integrator, model.hamiltonian, model.split(theta)[0], inv_mass,
+                         model.damping_rate(theta))
 
 
 def _multiplicative(model: StateSpaceModel) -> bool:

@@ -85,7 +85,8 @@ class Reparameterisation:
     * NUTS and the Laplace push-forward: every entry (:meth:`ParameterSpace.reparameterisation`);
     * the MAP search: the entries bounded below only (its search space,
       ``symplid.inference.map``), u = log(θ − a);
-    * DRAM with ``variance_scale = "log"``: those of them in :data:`LOG_SCALE_GROUPS`;
+    * DRAM with ``variance_scale = "log"``: those of them in :data:`LOG_SCALE_GROUPS`
+      (:meth:`ParameterSpace.log_scale`; its mask, :attr:`transformed`, is DRAM's);
     * standardisation (``symplid.workflow.scaling``): no entry, D the unit factors
       (:meth:`linear`).
 
@@ -323,6 +324,14 @@ class ParameterSpace:
         """The map z ↦ θ by each parameter's bounds, on the entries ``select`` picks (a
         boolean mask; None: all) and the identity on the others (:class:`Reparameterisation`)."""
         return Reparameterisation(self.lower, self.upper, select)
+
+    def log_scale(self) -> Reparameterisation:
+        """DRAM's map with ``variance_scale = "log"``: the entries of :data:`LOG_SCALE_GROUPS`
+        bounded below only as log(θ − a), the others as they are. Which entries move on the
+        log scale is the result's :attr:`~Reparameterisation.transformed` mask (none: DRAM
+        moves in θ)."""
+        chosen = np.array([g in LOG_SCALE_GROUPS for g in self.groups], dtype=bool)
+        return self.reparameterisation(chosen & self.lower_only)
 
     def from_unconstrained(self, z: Array) -> Array:
         """z ∈ ℝᵈ ↦ θ: a + eᶻ, b − eᶻ, a + (b − a)·σ(z) or z, by each parameter's bounds."""

@@ -31,9 +31,9 @@ def state_names(dim: int, observation: str = "full") -> tuple[str, ...]:
     return q + p if observation == "full" else q
 
 
-def _trajectory(potential, integrator, coefficients, x0, step_sizes, num_steps, inv_mass):
+def _trajectory(potential, integrator, coefficients, gamma, x0, step_sizes, num_steps, inv_mass):
     """States at the end of every gap: :func:`~symplid.dynamics.trajectory.solve_gaps`."""
-    dynamics = bind_dynamics(integrator, potential, coefficients, inv_mass)
+    dynamics = bind_dynamics(integrator, potential, coefficients, inv_mass, gamma)
     return solve_gaps(integrator, dynamics, x0, step_sizes, num_steps)
 
 
@@ -63,9 +63,9 @@ def true_trajectory(
     params = np.asarray(coefficients, dtype=float)
     if damping:
         integ = with_damping(integ)
-        params = np.append(params, float(damping))
     xs = jit_for(potential, _trajectory, integ)(
         jnp.asarray(params),
+        jnp.asarray(float(damping)),
         jnp.asarray(x0),
         jnp.asarray(step_sizes),
         jnp.asarray(num_steps),

@@ -335,6 +335,15 @@ class HamiltonianModel(ModelFields):
         obs = jnp.eye(self.obs_dim) * (r_var[0] if r_var.shape[0] == 1 else r_var)
         return coeffs, proc, obs
 
+    def standardised(self, a: float) -> Any:
+        """θ = D θ' for data with positions and momenta over ``a`` (q' = q/a, p' = p/a): a
+        :class:`~symplid.model.params.Reparameterisation` whose ``from_unconstrained`` maps a
+        standardised θ' to the data's units (:mod:`symplid.model.standardise`; a model with a
+        polynomial potential only)."""
+        from symplid.model.standardise import standardised_map
+
+        return standardised_map(self.hamiltonian, self.param_groups, a)
+
     def damping_rate(self, theta: Array) -> Array:
         """γ from θ (0 for an undamped model)."""
         theta = jnp.asarray(theta)

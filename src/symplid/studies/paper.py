@@ -27,9 +27,9 @@ from symplid.dynamics.damping import with_damping
 from symplid.dynamics.potentials import hamiltonian
 from symplid.dynamics.systems import get_system
 from symplid.inference.predict import predict_trajectory, prediction_horizon
-from symplid.inference.samplers import draws_array
 from symplid.model.data import Observations
 from symplid.model.simulate import simulate, true_trajectory
+from symplid.sampling import draws_array
 from symplid.studies.paper_calibration import cell_calibration, true_values
 from symplid.studies.paper_cells import (
     CELL_KEYS,

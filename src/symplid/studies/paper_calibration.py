@@ -171,7 +171,7 @@ def evaluate_calibration(rows: Any, label: str) -> dict[str, Any]:
 
 def _restarted(ok: Any) -> dict[str, Any]:
     """The chains the sampler restarted at the end of the burn-in (stuck far below the
-    others, :mod:`symplid.inference.samplers.restart`) over the rows: how many, in which
+    others, :mod:`symplid.sampling.restart`) over the rows: how many, in which
     seeds (none recorded: cells run before the rule)."""
     if "restarted_chains" not in ok:
         return {"chains": 0, "seeds": []}

@@ -41,12 +41,12 @@ import numpy as np
 
 from symplid.dynamics.potentials import Polynomial
 from symplid.inference.diagnostics import summary as diagnostics_summary
-from symplid.inference.samplers import RunOptions, draws_array, sample
 from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.prior_spec import PriorSpec
 from symplid.model.priors import LogNormal, LogUniform, Normal, Prior
 from symplid.model.simulate import true_trajectory
+from symplid.sampling import RunOptions, draws_array, sample
 from symplid.studies.claims_stats import RANK_DRAWS, truth_rank
 from symplid.workflow.experiment import Experiment
 from symplid.workflow.fit import build_model, find_map_for

@@ -259,43 +259,48 @@ def fit_candidates(
         for order, integrator, damping, noise in grid:
             bar.set_postfix_str(f"order {order}, {integrator}" + (", damped" if damping else "")
                                 + (", no process noise" if noise == "none" else ""))
-            model_settings = dataclasses.replace(base.model, order=order, integrator=integrator,
-                                                 damping=damping, process_noise_per=noise)
-            s = dataclasses.replace(base, model=model_settings)
-            start = time.perf_counter()
-            # model.standardise: fit on q/a, p/a, report in the data's units (workflow.scaling)
-            scaling = scaling_for(s, datasets)
-            fit_s = s if scaling is None else scaling.settings(s)
-            fit_sets = datasets if scaling is None else [scaling.observations(d) for d in datasets]
-            fit_data = fit_sets[0] if len(fit_sets) == 1 else fit_sets
-            model = build_model(fit_s, fit_sets[0])
-            posterior = build_posterior(fit_s, fit_data, model)  # type: ignore[arg-type]
-            init = _start_without_noise(posterior, with_noise.get((order, integrator, damping)),
-                                        s)
-            result = find_map(
-                posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False,
-                init=map_start(s) if init is None else init,  # declared starts, if any
-            )
-            if noise != "none":
-                with_noise[(order, integrator, damping)] = without_process_var(
-                    posterior.param_groups, result.theta)
-            seconds = time.perf_counter() - start
-            log_prior = float(posterior.log_prior(np.asarray(result.theta)))
-            log_likelihood = result.log_posterior - log_prior
-            if scaling is not None:
-                result = scaling.map_result(result, posterior.param_groups, datasets)
-                log_likelihood += scaling.log_likelihood_shift(datasets)
-            fits.append(
-                CandidateFit(
-                    order, integrator, s, posterior, result, log_likelihood, seconds, damping,
-                    label or model_family(s.model).name,
-                    noise,
-                )
-            )
+            fits.append(_fit_candidate(base, datasets, (order, integrator, damping, noise),
+                                       with_noise, label))
             bar.update(1)
     finally:
         bar.close()
     return fits
+
+
+def _fit_candidate(base: Settings, datasets: list[Observations],
+                   candidate: tuple[int, str, bool, str], with_noise: dict[tuple, np.ndarray],
+                   label: str | None) -> CandidateFit:
+    """The MAP of one (order, integrator, damping, process noise) candidate of
+    :func:`fit_candidates`; a candidate with process noise leaves its MAP in ``with_noise``
+    for the same candidate without."""
+    order, integrator, damping, noise = candidate
+    model_settings = dataclasses.replace(base.model, order=order, integrator=integrator,
+                                         damping=damping, process_noise_per=noise)
+    s = dataclasses.replace(base, model=model_settings)
+    start = time.perf_counter()
+    # model.standardise: fit on q/a, p/a, report in the data's units (workflow.scaling)
+    scaling = scaling_for(s, datasets)
+    fit_s = s if scaling is None else scaling.settings(s)
+    fit_sets = datasets if scaling is None else [scaling.observations(d) for d in datasets]
+    fit_data = fit_sets[0] if len(fit_sets) == 1 else fit_sets
+    model = build_model(fit_s, fit_sets[0])
+    posterior = build_posterior(fit_s, fit_data, model)  # type: ignore[arg-type]
+    init = _start_without_noise(posterior, with_noise.get((order, integrator, damping)), s)
+    result = find_map(
+        posterior, seed=s.map.seed, num_starts=s.map.num_starts, warn=False,
+        init=map_start(s) if init is None else init,  # declared starts, if any
+    )
+    if noise != "none":
+        with_noise[(order, integrator, damping)] = without_process_var(
+            posterior.param_groups, result.theta)
+    seconds = time.perf_counter() - start
+    log_prior = float(posterior.log_prior(np.asarray(result.theta)))
+    log_likelihood = result.log_posterior - log_prior
+    if scaling is not None:
+        result = scaling.map_result(result, posterior.param_groups, datasets)
+        log_likelihood += scaling.log_likelihood_shift(datasets)
+    return CandidateFit(order, integrator, s, posterior, result, log_likelihood, seconds,
+                        damping, label or model_family(s.model).name, noise)
 
 
 def _process_noises(values: Sequence[str]) -> list[str]:

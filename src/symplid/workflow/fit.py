@@ -32,17 +32,11 @@ from symplid.inference.map import (
     find_map,
     half_normal_start,
 )
-from symplid.inference.samplers import (
-    SAMPLERS,
-    InterruptedInBurnIn,
-    RunOptions,
-    Targets,
-    draws_array,
-    sample,
-)
+from symplid.inference.samplers import SAMPLERS
 from symplid.io.chunks import ChunkWriter, remove_chunks
 from symplid.model.data import Observations
 from symplid.model.statespace import HamiltonianModel
+from symplid.sampling import InterruptedInBurnIn, RunOptions, Targets, draws_array, sample
 from symplid.stopping import check as check_stop
 from symplid.workflow.auto import auto_notes
 from symplid.workflow.building import build_model, build_posterior
@@ -451,7 +445,7 @@ def _diagnostics(plan, settings, obs, posterior, map_result, folder, timings,
 def save_burn_in(folder: RunFolder, settings: Settings, stop: InterruptedInBurnIn) -> None:
     """A run stopped in its burn-in keeps the chains' state and the draws' attributes, so
     that ``fit --resume`` can continue it (there are no draws yet)."""
-    from symplid.inference.samplers.resume import checkpoint_arrays
+    from symplid.sampling.resume import checkpoint_arrays
 
     with deferred_interrupts():
         folder.write_npz(RunFolder.SAMPLER_STATE, **checkpoint_arrays(stop.checkpoint))
@@ -489,7 +483,7 @@ def save_run(folder: RunFolder | None, outcome: FitOutcome, checkpoint: Any = No
             folder.write_summary(summary)
             if interrupted:
                 if checkpoint is not None:
-                    from symplid.inference.samplers.resume import checkpoint_arrays
+                    from symplid.sampling.resume import checkpoint_arrays
 
                     folder.write_npz(RunFolder.SAMPLER_STATE, **checkpoint_arrays(checkpoint))
                 folder.mark_interrupted(
@@ -538,7 +532,7 @@ def fit_summary(posterior, map_result, idata, table=None) -> dict[str, Any]:
             out["ess_min"] = float(np.nanmin(table["ess_bulk"].to_numpy()))
             if "ess_tail" in table:
                 out["ess_tail_min"] = float(np.nanmin(table["ess_tail"].to_numpy()))
-    # Chains restarted at the end of the burn-in (inference.samplers.restart); 0: none.
+    # Chains restarted at the end of the burn-in (sampling.restart); 0: none.
     out["restarted_chains"] = len(idata.attrs.get("restarted_chains", None) or [])
     out.update(_budget_summary(idata))
     return out
@@ -548,7 +542,7 @@ def _budget_summary(idata) -> dict[str, Any]:
     """What ended the sampling (``stopped_by``: ``"target"``, the cap ``"iterations"`` or
     ``"wall time"``, ``"fixed budget"``, ``"interrupted"``), the iterations per chain and,
     for a budget set by the answer, its targets and burn-in
-    (:mod:`~symplid.inference.samplers.budget`)."""
+    (:mod:`~symplid.sampling.budget`)."""
     attrs = idata.attrs
     out: dict[str, Any] = {"stopped_by": str(attrs.get("stopped_by", "fixed budget")),
                            "iterations": int(attrs.get("iterations", 0))}

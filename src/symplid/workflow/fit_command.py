@@ -1,21 +1,22 @@
 """What ``symplid fit`` and ``symplid simulate`` do for the command line: read the data, fit or
 resume into a run folder, and say the result in one line (the commands themselves, click's
-options and the one-line errors are :mod:`symplid.cli` and :mod:`~.commandline`).
+options and the one-line errors are :mod:`symplid.cli`; the values of the options are read by
+:mod:`~.commandline`). Nothing here prints: the lines are returned, and the fit's status lines
+go to the ``status`` callable the command line passes in.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
-
-import click
 
 from symplid.workflow.commandline import UserError, converged, floats, settings_from_options
 
 __all__ = [
-    "echo_diagnostics",
+    "diagnostics_lines",
     "fit_result_line",
     "report_after_fit",
     "run_fit",
@@ -60,16 +61,11 @@ def fit_result_line(out: Path, outcome: Any, seconds: float) -> str:
     )
 
 
-def echo_diagnostics(out: Path, outcome: Any = None) -> None:
-    """Print the lines ``symplid fit`` and ``symplid report`` show for the run's sensitivity
-    checks (:func:`~symplid.workflow.sensitivity.sensitivity_summary`; none when the run has
-    none): the fit's ``outcome``'s, else the run folder's ``diagnostics.json``."""
-    for line in _diagnostics_lines(out, outcome):
-        click.echo(line)
-
-
-def _diagnostics_lines(out: Path, outcome: Any) -> list[str]:
-    """An unreadable ``diagnostics.json`` is one line, never an error."""
+def diagnostics_lines(out: Path, outcome: Any = None) -> list[str]:
+    """The lines ``symplid fit`` and ``symplid report`` show for the run's sensitivity checks
+    (:func:`~symplid.workflow.sensitivity.sensitivity_summary`; none when the run has none):
+    the fit's ``outcome``'s, else the run folder's ``diagnostics.json``. An unreadable
+    ``diagnostics.json`` is one line, never an error."""
     from symplid.workflow.results import RunFolder
     from symplid.workflow.sensitivity import sensitivity_summary
 
@@ -154,23 +150,25 @@ def simulate_to_file(system: str, out: Path, t_end: float | None, num_obs: int |
 
 def run_fit(paths: tuple[Path, ...], out: Path, config: Path | None, overrides: dict[str, Any],
             sets: tuple[str, ...], holdout: tuple[float | None, float | None], overwrite: bool,
-            resume: bool, no_progress: bool) -> tuple[Any, Any]:
+            resume: bool, no_progress: bool,
+            status: Callable[[str], None] | None = None) -> tuple[Any, Any]:
     """``symplid fit``: a new run from the data files, or ``--resume`` of an interrupted one.
-    Returns the outcome and the held-out observations (or None)."""
-    from symplid.inference.samplers import SamplingInterrupted
+    Returns the outcome and the held-out observations (or None). ``status`` receives the fit's
+    status lines (what it is doing; none with ``no_progress``)."""
+    from symplid.sampling import SamplingInterrupted
 
     with warnings.catch_warnings():
         # The fit's own line says that (and where) the sampler was stopped: the sampler's
         # warning would be a second line.
         warnings.simplefilter("ignore", SamplingInterrupted)
         return _run_fit(paths, out, config, overrides, sets, holdout, overwrite, resume,
-                        no_progress)
+                        no_progress, None if no_progress else status)
 
 
-def _run_fit(paths, out, config, overrides, sets, holdout, overwrite, resume, no_progress):
+def _run_fit(paths, out, config, overrides, sets, holdout, overwrite, resume, no_progress,
+             status):
     from symplid.workflow.fit import fit
 
-    status = None if no_progress else lambda text: click.echo(f"symplid: {text}", err=True)
     given = config is not None or bool(sets) or any(v is not None for v in overrides.values())
     if resume and out is None:
         raise UserError("--resume continues the run in --out RUN: give --out")

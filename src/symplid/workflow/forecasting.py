@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from symplid.inference.forecast import NoisyForecast, filtered_end_states, forecast_with_noise
-from symplid.inference.samplers import draws_array
 from symplid.model.data import DataError, Observations
 from symplid.plotting.predictive import plot_forecast
+from symplid.sampling import draws_array
 from symplid.workflow.driven import refuse_forecast
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.results import RunFolder

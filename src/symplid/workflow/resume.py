@@ -5,7 +5,7 @@ keeps its settings, data, MAP, draws and the chains' states (``sampler_state.npz
 :mod:`symplid.workflow.results`); a run killed outright keeps its draws and states in the
 chunk files of ``draws/`` (:mod:`symplid.io.chunks`), which are preferred when present.
 :func:`resume_fit` reloads them, runs the iterations left
-(:func:`symplid.inference.samplers.resume.resume_sampling`: on the whole run's key and chunk
+(:func:`symplid.sampling.resume.resume_sampling`: on the whole run's key and chunk
 grid, so the draws are those an uninterrupted run with the same seed makes) and saves the run
 as :func:`symplid.workflow.fit.fit` does: a finished run, or interrupted again.
 
@@ -24,10 +24,10 @@ from pathlib import Path
 from typing import Any
 
 from symplid.inference.map import MapResult
-from symplid.inference.samplers import InterruptedInBurnIn, RunOptions
-from symplid.inference.samplers.resume import inference_data, resume_sampling
 from symplid.io.chunks import read_chunks, remove_chunks
 from symplid.io.runfiles import flatten
+from symplid.sampling import InterruptedInBurnIn, RunOptions
+from symplid.sampling.resume import inference_data, resume_sampling
 from symplid.workflow.fit import (
     FitOutcome,
     build_model,

@@ -11,12 +11,12 @@ import numpy as np
 from symplid.inference.diagnostics import ESS_THRESHOLD, RHAT_THRESHOLD, quiet_arviz
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import MapResult
-from symplid.inference.samplers import draws_array
-from symplid.inference.samplers.restart import restart_threshold, restarted_message
 from symplid.io import as_list
 from symplid.io.files import write_with
 from symplid.plotting import plot_predictive
 from symplid.plotting.style import DPI
+from symplid.sampling import draws_array
+from symplid.sampling.restart import restart_threshold, restarted_message
 from symplid.workflow.driven import is_driven, power_balance_lines, predicted_inputs
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.model_builder import model_description

@@ -42,11 +42,12 @@ from typing import Any
 
 import numpy as np
 
-from symplid.dynamics.potentials import monomial_exponents
+from symplid.dynamics.potentials import Polynomial, degree_scaling
 from symplid.inference.map import MapResult
 from symplid.io import observation_layout
 from symplid.model.data import Observations
 from symplid.model.params import Reparameterisation
+from symplid.model.standardise import standardised_factors
 
 __all__ = [
     "AUTO_RANGE",
@@ -127,20 +128,11 @@ class Scaling:
 
     # ------------------------------------------------------------------ θ
     def factors(self, groups: Sequence[str]) -> np.ndarray:
-        """D: θ_user = D θ' entry by entry, for θ's groups (coefficients in order first)."""
-        a = self.scale
-        out = np.ones(len(groups))
-        k = 0
-        for i, group in enumerate(groups):
-            if group == "coefficients":
-                out[i] = a ** (2 - self.degrees[k])
-                k += 1
-            elif group in ("process_var", "obs_var"):
-                out[i] = a**2
-            elif group == "initial_state":
-                out[i] = a
-            # "damping" (γ, 1/time) and "obs_rel_var" (relative) are scale-free: factor 1
-        return out
+        """D: θ_user = D θ' entry by entry, for θ's groups (coefficients in order first):
+        the polynomial's law (:func:`~symplid.dynamics.potentials.degree_scaling`) and each
+        group's (:func:`~symplid.model.standardise.standardised_factors`)."""
+        return standardised_factors(groups, self.scale,
+                                    degree_scaling(self.degrees, self.scale))
 
     def reparameterisation(self, groups: Sequence[str]) -> Reparameterisation:
         """θ_user = D θ' as the one :class:`~symplid.model.params.Reparameterisation` of θ
@@ -220,5 +212,5 @@ def scaling_for(settings: Any, datasets: Any) -> Scaling | None:
     dim = observation_layout(
         datasets if isinstance(datasets, Observations) else datasets[0]
     ).dim
-    degrees = tuple(int(sum(e)) for e in monomial_exponents(dim, order))
+    degrees = tuple(int(sum(e)) for e in Polynomial(dim, order).exponents)
     return Scaling(position_scale(datasets), degrees)

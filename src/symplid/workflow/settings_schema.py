@@ -354,7 +354,7 @@ class SamplerSettings:
     ``num_iterations = "auto"`` (the default) samples until every parameter's bulk and tail
     ESS reach ``target_ess`` and its R-hat is at most ``target_rhat``, checked between the
     chunks, or up to ``max_iterations`` per chain or ``max_seconds`` of sampling, whichever
-    comes first (:mod:`symplid.inference.samplers.budget`); the burn-in starts at the
+    comes first (:mod:`symplid.sampling.budget`); the burn-in starts at the
     sampler's own first burn-in and is extended while the chains disagree. A number is a fixed
     budget: ``num_iterations`` then counts every iteration of a chain, ``burn_in`` included
     (``"auto"``: half of them, the paper's 100,000 of 200,000); the draws kept per chain are

@@ -145,6 +145,9 @@ def run_sweep(
 ) -> Any:
     """Run every unfinished cell of a sweep on Dask and gather the results table.
 
+    (Its length is the documentation of its parameters; the body is a list of steps, each a
+    function of its own.)
+
     Parameters
     ----------
     spec
@@ -192,15 +195,7 @@ def run_sweep(
         A cell function that cannot be resolved, ``workers`` < 1 or given with ``scheduler``, an
         unreachable scheduler.
     """
-    if workers is not None and (
-        isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1
-    ):
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
-    if workers is not None and scheduler is not None:
-        raise ValueError(
-            "workers sets the size of the local cluster; do not give it with scheduler"
-        )
-
+    _check_workers(workers, scheduler)
     require_sweep_modules()
     spec = _as_spec(spec, experiment)
     if experiment is not None and spec.experiment != experiment.name:
@@ -219,36 +214,47 @@ def run_sweep(
     done = {c.id for c in spec.cells if _is_finished(cells_dir / f"{c.id}.json")}
     todo = [c for c in spec.cells if c.id not in done]
     t_start = time.perf_counter()
-    num_failed = 0
-    if todo:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(
-            total=len(spec.cells),
-            initial=len(done),
-            desc=spec.name,
-            unit="cell",
-            disable=not progress,
-            dynamic_ncols=True,
-        )
-        try:
-            with dask_client(scheduler, workers, len(todo), worker_env) as client:
-                num_failed = execute_cells(client, todo, fn, fn_name, cells_dir, bar)
-        finally:
-            bar.close()
+    num_failed = (_run_cells(spec, todo, len(done), (fn, fn_name), cells_dir,
+                             (scheduler, workers, worker_env), progress) if todo else 0)
     table = load_results(out, spec)
     write_table(table, out)
     if figures:
         draw_figures(experiment, table, out / FIGURES_DIR, spec.setting_columns)
     table.attrs["sweep"] = {
-        "cells": len(spec.cells),
-        "skipped": len(done),
-        "ran": len(todo),
-        "failed_now": num_failed,
-        "failed": int((table["status"] == "failed").sum()),
+        "cells": len(spec.cells), "skipped": len(done), "ran": len(todo),
+        "failed_now": num_failed, "failed": int((table["status"] == "failed").sum()),
         "wall_time_s": time.perf_counter() - t_start,
     }
     return table
+
+
+def _check_workers(workers: Any, scheduler: Any) -> None:
+    """``workers``: a positive integer, and only for the local cluster (no ``scheduler``)."""
+    if workers is not None and (
+        isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1
+    ):
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    if workers is not None and scheduler is not None:
+        raise ValueError(
+            "workers sets the size of the local cluster; do not give it with scheduler"
+        )
+
+
+def _run_cells(spec: SweepSpec, todo: list, num_done: int, cell: tuple[Any, str],
+               cells_dir: Path, cluster: tuple[Any, int | None, Mapping[str, str] | None],
+               progress: bool) -> int:
+    """Run the cells ``todo`` on Dask (``cluster``: scheduler, local workers, their
+    environment) with a bar that moves once per finished cell; returns how many failed."""
+    from tqdm.auto import tqdm
+
+    scheduler, workers, worker_env = cluster
+    bar = tqdm(total=len(spec.cells), initial=num_done, desc=spec.name, unit="cell",
+               disable=not progress, dynamic_ncols=True)
+    try:
+        with dask_client(scheduler, workers, len(todo), worker_env) as client:
+            return execute_cells(client, todo, *cell, cells_dir, bar)
+    finally:
+        bar.close()
 
 
 def _as_spec(

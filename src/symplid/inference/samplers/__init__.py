@@ -1,10 +1,9 @@
-"""Posterior samplers: DRAM (the paper's), NUTS (BlackJAX), the registry and the chunked runner.
+"""Posterior samplers' kernels: DRAM (the paper's), NUTS (BlackJAX) and their registry.
 
 Each sampler is a pair of pure functions in the BlackJAX style, ``init`` and a ``step``
-built by ``build_kernel(logdensity_fn, settings)``; :func:`run_chains` drives any such
-kernel in compiled chunks over several chains, and :func:`sample` puts it all together and
-returns ArviZ ``InferenceData``. How the chains are run is one :class:`RunOptions`; by
-default the run lasts until the draws meet its :class:`Targets` (:mod:`.budget`).
+built by ``build_kernel(logdensity_fn, settings)``; nothing here runs a chain. The runner
+(:mod:`symplid.sampling`: chunks, starting points, restarts of stuck chains, the stopping
+rule, progress, resumption and :func:`symplid.sampling.sample`) drives any such kernel.
 
 Adding a sampler is one registration in :data:`SAMPLERS`: a :class:`SamplerSpec` with the
 settings class and a ``build(posterior, settings, num_warmup, batch_logdensity)`` that returns
@@ -14,41 +13,20 @@ and the sweeps then offer it by name.
 """
 
 from symplid.inference.samplers import dram, nuts
-from symplid.inference.samplers.api import (
-    InterruptedInBurnIn,
-    SamplerCheckpoint,
-    draws_array,
-    sample,
-)
-from symplid.inference.samplers.budget import STOPPED_BY
 from symplid.inference.samplers.dram import DRAMInfo, DRAMSettings, DRAMState
 from symplid.inference.samplers.nuts import NUTSSettings, NUTSState
-from symplid.inference.samplers.options import RunOptions, Targets
-from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
-from symplid.inference.samplers.run import ChainRun, ChunkReport, SamplingInterrupted, run_chains
-from symplid.inference.samplers.starts import overdispersed_starts
+from symplid.inference.samplers.registry import SAMPLERS, DataStep, SamplerKernel, SamplerSpec
 
 __all__ = [
     "SAMPLERS",
-    "STOPPED_BY",
-    "ChainRun",
-    "ChunkReport",
     "DRAMInfo",
     "DRAMSettings",
     "DRAMState",
-    "InterruptedInBurnIn",
+    "DataStep",
     "NUTSSettings",
     "NUTSState",
-    "RunOptions",
-    "SamplerCheckpoint",
     "SamplerKernel",
     "SamplerSpec",
-    "SamplingInterrupted",
-    "Targets",
     "dram",
-    "draws_array",
     "nuts",
-    "overdispersed_starts",
-    "run_chains",
-    "sample",
 ]

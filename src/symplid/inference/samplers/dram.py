@@ -139,7 +139,7 @@ class DRAMSettings:
         ``False``, where stage 2 is evaluated only when needed). Pays where a batch costs
         little more than one point: four vectorised chains make a batch of eight, which the
         compiled kernel evaluates 2.3 times faster than two batches of four.
-        ``None`` (default): :func:`~symplid.inference.samplers.sample` decides from the
+        ``None`` (default): :func:`~symplid.sampling.sample` decides from the
         chains and the likelihood backend (:func:`~.registry.resolve_dram`).
     linalg
         How the step's own arithmetic is compiled (the same numbers to rounding):

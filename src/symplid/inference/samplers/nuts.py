@@ -14,12 +14,12 @@ adaptation, so that the transition has the common signature
   then on the parameters stay fixed: plain NUTS.
 
 Warm-up and sampling are therefore the same compiled function: the chunked runner
-(:func:`symplid.inference.samplers.run.run_chains`) treats warm-up as burn-in, so one compilation
+(:func:`symplid.sampling.run.run_chains`) treats warm-up as burn-in, so one compilation
 serves both, the progress bar moves during warm-up, and Ctrl-C works there too. Each chain
 adapts its own parameters.
 
 Everything runs in the *unconstrained* space of the posterior
-(``log_density_unconstrained``, Jacobian included); :mod:`symplid.inference.samplers.api` maps the
+(``log_density_unconstrained``, Jacobian included); :mod:`symplid.sampling.api` maps the
 draws back.
 """
 

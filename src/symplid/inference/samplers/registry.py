@@ -1,4 +1,4 @@
-"""The sampler registry: every MCMC method :func:`~symplid.inference.samplers.sample` can run.
+"""The sampler registry: every MCMC method :func:`~symplid.sampling.sample` can run.
 
 A sampler is registered once, as a :class:`SamplerSpec`: its settings class, how its chains
 are laid out by default, whether it moves in the unconstrained space of the posterior, how
@@ -33,14 +33,30 @@ import jax.numpy as jnp
 import numpy as np
 
 from symplid.inference.samplers import dram, nuts
-from symplid.inference.samplers.chunk import DataStep
 from symplid.inference.samplers.dram import DRAMSettings
 from symplid.inference.samplers.nuts import NUTSSettings
 from symplid.model.backends import LIKELIHOOD_BACKENDS
-from symplid.model.params import LOG_SCALE_GROUPS, ParameterSpace, pushforward_covariance
+from symplid.model.params import ParameterSpace, pushforward_covariance
 from symplid.registry import Registry
 
 Array = jax.Array
+
+
+class DataStep:
+    """A step that reads data: ``fn(data, rng_key, state) -> (state, info)``, called as
+    ``step(rng_key, state)``.
+
+    The runner (:func:`symplid.sampling.run_chains`) passes ``data`` to the compiled chunk as
+    an argument, so that the chunk's program does not hold the data as constants: the same
+    kernel on another data set of the same shape (another seed of a sweep) is then the same
+    program, which JAX's persistent compilation cache serves instead of compiling again.
+    """
+
+    def __init__(self, fn: Callable[[Any, jax.Array, Any], tuple[Any, Any]], data: Any):
+        self.fn, self.data = fn, data
+
+    def __call__(self, rng_key: jax.Array, state: Any) -> tuple[Any, Any]:
+        return self.fn(self.data, rng_key, state)
 
 
 class SamplerKernel(NamedTuple):
@@ -69,7 +85,7 @@ def adaptation_length(num_params: int) -> int:
     """DRAM's first burn-in without a fixed budget: max(2000, 500 d) iterations, so that the
     adaptive covariance has seen some hundred states per parameter (its d(d+1)/2 entries
     settle at about that) before a draw is kept; the budget extends it while the chains
-    disagree (:mod:`~symplid.inference.samplers.budget`)."""
+    disagree (:mod:`~symplid.sampling.budget`)."""
     return max(2000, 500 * int(num_params))
 
 
@@ -80,7 +96,7 @@ def warmup_length(num_params: int) -> int:
 
 @dataclass(frozen=True)
 class SamplerSpec:
-    """Everything :func:`~symplid.inference.samplers.sample` needs to know about a sampler.
+    """Everything :func:`~symplid.sampling.sample` needs to know about a sampler.
 
     Parameters
     ----------
@@ -90,7 +106,7 @@ class SamplerSpec:
     build
         ``build(posterior, settings, num_warmup, batch_logdensity) -> SamplerKernel``.
     default_chain_method
-        ``"vectorized"`` or ``"sequential"`` (see :func:`~.run.run_chains`).
+        ``"vectorized"`` or ``"sequential"`` (see :func:`symplid.sampling.run_chains`).
     unconstrained
         Whether the chains move in the unconstrained space (the posterior must then have
         ``to_unconstrained``, ``from_unconstrained`` and ``log_density_unconstrained``).
@@ -101,7 +117,7 @@ class SamplerSpec:
         ``(num_draws, thin) -> burn_in`` when ``sample(burn_in=None)`` with a fixed budget.
     first_burn_in
         ``num_params -> burn_in`` when ``sample(burn_in=None, num_draws=None)``: the burn-in
-        before the budget's first check (:mod:`~symplid.inference.samplers.budget`).
+        before the budget's first check (:mod:`~symplid.sampling.budget`).
     resolve
         ``resolve(settings, posterior, num_chains, chain_method) -> settings``: fills the
         settings left to the run (``None``: none are).
@@ -124,13 +140,13 @@ class LogVariances:
     """θ ↔ w with the variances (bounded below only) as w = log(v − a), the rest as is,
     and the log density of w (log π(θ(w)) + Σ w over the variances: the log-Jacobian).
     A user model's declared parameters bounded below only move on the same log scale
-    (:data:`~symplid.model.params.LOG_SCALE_GROUPS`). The map is the posterior's
-    :class:`~symplid.model.params.Reparameterisation` restricted to those entries."""
+    (:data:`~symplid.model.params.LOG_SCALE_GROUPS`). The map, and with it the mask of the
+    entries on the log scale, is the posterior's one
+    :class:`~symplid.model.params.Reparameterisation` for DRAM
+    (:meth:`~symplid.model.params.ParameterSpace.log_scale`)."""
 
     def __init__(self, posterior: Any) -> None:
-        space = ParameterSpace.of(posterior)
-        chosen = np.array([g in LOG_SCALE_GROUPS for g in space.groups], dtype=bool)
-        self.reparameterisation = space.reparameterisation(chosen & space.lower_only)
+        self.reparameterisation = ParameterSpace.of(posterior).log_scale()
         self.mask = self.reparameterisation.transformed  # the bounded-below-only ones
         self._log_density = posterior.log_density
 
@@ -225,7 +241,7 @@ def _backend(posterior: Any) -> Any:
 
 def _dram_step(posterior: Any, settings: DRAMSettings, scale: LogVariances | None) -> Callable:
     """DRAM's transition (in θ, or in w with the variances on a log scale); one that takes
-    the observations as an argument (:class:`~.run.DataStep`) when the posterior offers
+    the observations as an argument (:class:`DataStep`) when the posterior offers
     ``log_density_with`` and ``data``, so that the compiled chunk is the same program for
     every data set of the same shape."""
     with_data = getattr(posterior, "log_density_with", None)
@@ -300,6 +316,7 @@ SAMPLERS.register(
 
 __all__ = [
     "SAMPLERS",
+    "DataStep",
     "LogVariances",
     "SamplerKernel",
     "SamplerSpec",

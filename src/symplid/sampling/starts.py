@@ -1,5 +1,5 @@
 """Where the chains start: overdispersed points around the MAP, or points given, and the
-samplers' first states there (see :mod:`~symplid.inference.samplers.api`, "Starting points").
+samplers' first states there (see :mod:`~symplid.sampling.api`, "Starting points").
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """How long each compiled call of the sampler runs: about half a second, whatever an
 iteration costs.
 
-The sampler (:func:`symplid.inference.samplers.run.run_chains`) runs in chunks of
+The sampler (:func:`symplid.sampling.run.run_chains`) runs in chunks of
 ``chunk_size`` iterations, and control comes back to Python only between two compiled calls:
 that is where a stop (:mod:`symplid.stopping`) is obeyed. A chunk of DRAM iterations takes a
 fraction of a second, but one of NUTS iterations, each a tree of gradient evaluations of the

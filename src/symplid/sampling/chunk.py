@@ -22,28 +22,12 @@ import jax.numpy as jnp
 from jax import lax
 
 from symplid.compiled import cached_or_built
+from symplid.inference.samplers.registry import DataStep
 
 __all__ = ["DataStep", "RecordFn", "StepFn", "chunk_runner"]
 
 StepFn = Callable[[jax.Array, Any], tuple[Any, Any]]
 RecordFn = Callable[[Any, Any], dict[str, jax.Array]]
-
-
-class DataStep:
-    """A step that reads data: ``fn(data, rng_key, state) -> (state, info)``, called as
-    ``step(rng_key, state)``.
-
-    :func:`run_chains` passes ``data`` to the compiled chunk as an argument, so that the
-    chunk's program does not hold the data as constants: the same kernel on another data set
-    of the same shape (another seed of a sweep) is then the same program, which JAX's
-    persistent compilation cache serves instead of compiling again.
-    """
-
-    def __init__(self, fn: Callable[[Any, jax.Array, Any], tuple[Any, Any]], data: Any):
-        self.fn, self.data = fn, data
-
-    def __call__(self, rng_key: jax.Array, state: Any) -> tuple[Any, Any]:
-        return self.fn(self.data, rng_key, state)
 
 
 def _over_chains(fn: Callable, batched: bool) -> Callable:

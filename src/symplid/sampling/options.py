@@ -1,10 +1,10 @@
 """What the runner is told besides the sampler: :class:`RunOptions` and :class:`Targets`.
 
-:func:`~symplid.inference.samplers.sample` takes the sampler's own arguments (method, draws,
+:func:`~symplid.sampling.sample` takes the sampler's own arguments (method, draws,
 chains, seed, MAP, burn-in, thinning, kernel settings) and one :class:`RunOptions`: how the
 chains start, how the run is cut into chunks and shown, where each chunk goes, whether stuck
 chains are restarted, and, for a run without a fixed number of draws, the :class:`Targets`
-that end it (:mod:`~symplid.inference.samplers.budget`).
+that end it (:mod:`~symplid.sampling.budget`).
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ class Targets:
 
 @dataclass(frozen=True)
 class RunOptions:
-    """How :func:`~symplid.inference.samplers.sample` runs its chains (none of it changes a
+    """How :func:`~symplid.sampling.sample` runs its chains (none of it changes a
     draw, except the starting points and the restart of stuck chains).
 
     Parameters
@@ -97,7 +97,7 @@ class RunOptions:
         Given the kept draws of θ ``(chain, draw, param)`` as soon as the chains end.
     restart_stuck_chains
         Restart, at the end of the burn-in, a chain stuck far below the best one
-        (:mod:`~symplid.inference.samplers.restart`).
+        (:mod:`~symplid.sampling.restart`).
     return_state
         Also return the chains' final states (:class:`~.api.SamplerCheckpoint`).
     targets

@@ -37,11 +37,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.inference.samplers.budget import BudgetMonitor
-from symplid.inference.samplers.chunk import DataStep, RecordFn, StepFn, chunk_runner
-from symplid.inference.samplers.options import RunOptions, Targets
-from symplid.inference.samplers.pacing import Pacer
-from symplid.inference.samplers.restart import (
+from symplid.sampling.budget import BudgetMonitor
+from symplid.sampling.chunk import DataStep, RecordFn, StepFn, chunk_runner
+from symplid.sampling.options import RunOptions, Targets
+from symplid.sampling.pacing import Pacer
+from symplid.sampling.progress import progress_bar
+from symplid.sampling.restart import (
     BurnInMonitor,
     restart_threshold,
     restarted_message,
@@ -67,7 +68,7 @@ class SamplingInterrupted(UserWarning):
 
 class StuckChainsRestarted(UserWarning):
     """Warning: chains stuck far below the best one at the end of the burn-in were restarted
-    from good chains' states (:mod:`~symplid.inference.samplers.restart`)."""
+    from good chains' states (:mod:`~symplid.sampling.restart`)."""
 
 
 class ChunkReport(NamedTuple):
@@ -205,7 +206,7 @@ def run_chains(
                                                           num_chains, monitor))
     loop.earlier = earlier
     desc = options.progress_label or "sampling"
-    states, elapsed = loop.run(states, _progress_bar(total, desc, options.progress,
+    states, elapsed = loop.run(states, progress_bar(total, desc, options.progress,
                                                      options.progress_position, int(start)))
     if loop.interrupted:
         warnings.warn(f"{desc} interrupted after {loop.done} of {total} iterations; keeping "
@@ -454,13 +455,3 @@ def _takes_monitor(sink: Any) -> bool:
     except (TypeError, ValueError):
         return False
     return any(p.name == "monitor" or p.kind is p.VAR_KEYWORD for p in parameters)
-
-
-def _progress_bar(total: int, desc: str, enabled: bool, position: int | None = None,
-                  initial: int = 0):
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="it", unit_scale=True, dynamic_ncols=True,
-                position=position, initial=initial)

@@ -40,7 +40,7 @@ Overdispersed starts let R-hat see a chain that has not found the bulk of the po
 on a rugged likelihood such a chain can settle in a secondary mode of negligible mass and
 spoil the run. With ``restart_stuck_chains`` (the default) a chain whose log density at the
 end of the burn-in stays far below the best chain's is restarted from a good chain's state
-before any draw is kept (:mod:`~symplid.inference.samplers.restart` states and argues the
+before any draw is kept (:mod:`~symplid.sampling.restart` states and argues the
 rule); R-hat and ESS are computed on the kept draws as before.
 """
 
@@ -58,11 +58,11 @@ import numpy as np
 from symplid.compiled import cached_or_built
 from symplid.inference.diagnostics import import_arviz
 from symplid.inference.map import find_map
-from symplid.inference.samplers.budget import kept_after_burn_in
-from symplid.inference.samplers.options import RunOptions, Targets
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
-from symplid.inference.samplers.run import ChainRun, run_chains
-from symplid.inference.samplers.starts import chain_starts
+from symplid.sampling.budget import kept_after_burn_in
+from symplid.sampling.options import RunOptions, Targets
+from symplid.sampling.run import ChainRun, run_chains
+from symplid.sampling.starts import chain_starts
 
 __all__ = [
     "InterruptedInBurnIn",

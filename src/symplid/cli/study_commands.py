@@ -1,9 +1,9 @@
-"""``symplid study``: the named studies (paper claims, baselines, SBC, shift decomposition).
+"""``symplid sweep`` and ``symplid study``: many fits, on Dask, and the named studies (paper
+claims, baselines, SBC, shift decomposition).
 
-Each command runs a study of :mod:`symplid.studies` (imported when the command runs, so that
-the rest of the command line never loads them) and, like every command, ends a user mistake
-with one line and exit code 2 (:func:`symplid.workflow.commandline.user_errors`). The group
-is added to :func:`symplid.cli.main`.
+Each study command runs a study of :mod:`symplid.studies` (imported when the command runs, so
+that the rest of the command line never loads them) and, like every command, ends a user
+mistake with one line and exit code 2 (:func:`symplid.cli.errors.user_errors`).
 """
 
 from __future__ import annotations
@@ -12,15 +12,55 @@ from pathlib import Path
 
 import click
 
-from symplid.workflow.commandline import (
+from symplid.cli.errors import user_errors
+from symplid.cli.options import (
     baselines_study_options,
     no_progress_option,
     sbc_study_options,
     shift_study_options,
-    user_errors,
 )
 
-__all__ = ["study"]
+__all__ = ["study", "sweep"]
+
+
+# ----------------------------------------------------------------------------- sweep
+@click.command()
+@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Sweep folder (a rerun skips the finished cells).",
+)
+@click.option(
+    "--scheduler",
+    type=str,
+    default=None,
+    help="A dask.distributed scheduler address [default: a local cluster].",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Local worker processes [default: one per core].",
+)
+@no_progress_option
+@user_errors
+def sweep(spec, out, scheduler, workers, no_progress) -> None:
+    """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
+    from symplid.studies import register_studies
+    from symplid.workflow.experiment import EXPERIMENTS
+    from symplid.workflow.sweep import run_sweep
+    from symplid.workflow.sweep_spec import get_experiment, named_experiment, read_sweep_file
+
+    register_studies(EXPERIMENTS)  # the studies a spec may name, "paper" the default
+    data = read_sweep_file(spec)
+    experiment = get_experiment(named_experiment(data, str(spec)), str(spec))
+    table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress,
+                      experiment=experiment)
+    counts = table["status"].value_counts().to_dict() if "status" in table else {}
+    done = ", ".join(f"{v} {k}" for k, v in counts.items())
+    click.echo(f"{out}: {len(table)} cells ({done}); results.csv and results.parquet")
 
 
 @click.group()

@@ -1,8 +1,10 @@
-"""The ``symplid`` command line: reproduce, simulate, fit, predict, report.
+"""The commands that make or read one run: reproduce, simulate, fit, predict, report.
 
-Every user mistake (a bad file, a misspelt setting, an impossible value, a bad option) ends
-with one line on stderr and exit code 2, never a traceback; Ctrl-C (exit code 130) and SIGTERM
-(143) keep whatever the sampler had drawn and say "interrupted".
+The commands parse their options and print; what they do is :mod:`symplid.workflow`
+(:mod:`~symplid.workflow.fit_command`, :mod:`~symplid.workflow.run_tools`, ...). Every user
+mistake ends with one line on stderr and exit code 2 (:func:`~symplid.cli.errors.user_errors`);
+Ctrl-C (exit code 130) and SIGTERM (143) keep whatever the sampler had drawn and say
+"interrupted".
 """
 
 from __future__ import annotations
@@ -13,19 +15,12 @@ from pathlib import Path
 
 import click
 
-from symplid import __version__
-from symplid.cli_studies import study
-from symplid.workflow.commandline import (
-    Interrupted,
+from symplid.cli.errors import Interrupted, user_errors
+from symplid.cli.options import (
     LazyChoice,
-    OneLineErrors,
     RegistryOption,
-    UserError,
-    compare_candidates,
     config_option,
-    floats,
     integrator_registry,
-    model_text,
     no_progress_option,
     noise_model_names,
     potential_registry,
@@ -33,42 +28,21 @@ from symplid.workflow.commandline import (
     rk2_variants,
     sampler_registry,
     sets_option,
-    settings_from_options,
-    time_or_word,
-    user_errors,
 )
+from symplid.workflow.commandline import UserError, floats, model_text, time_or_word
 from symplid.workflow.fit_command import (
-    echo_diagnostics,
+    diagnostics_lines,
     fit_result_line,
     report_after_fit,
     run_fit,
     simulate_to_file,
 )
 
-__all__ = ["main"]
-
-
-@click.group(
-    cls=OneLineErrors,
-    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
-)
-@click.version_option(version=__version__, prog_name="symplid")  # no importlib.metadata
-def main() -> None:
-    """Bayesian identification of Hamiltonian dynamics from sparse, noisy data.
-
-    A symplectic integrator inside a UKF marginal likelihood, MAP and DRAM/NUTS posterior
-    sampling, and predictions with uncertainty. Start with `symplid reproduce --quick`.
-
-    Compiled code is cached in ~/.cache/symplid/jax (SYMPLID_CACHE_DIR=off disables it).
-    """
-    from symplid import runtime
-
-    runtime.enable_compilation_cache()
-    runtime.one_line_warnings()
+__all__ = ["fit", "predict", "report", "reproduce", "simulate"]
 
 
 # ----------------------------------------------------------------------------- reproduce
-@main.command()
+@click.command()
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
@@ -151,7 +125,7 @@ def reproduce(out, seed, chains, iterations, burn_in, rk2, workers, quick, no_pr
 
 
 # ----------------------------------------------------------------------------- simulate
-@main.command(epilog="SYSTEM is one of the registered systems (symplid.SYSTEMS).")
+@click.command(epilog="SYSTEM is one of the registered systems (symplid.SYSTEMS).")
 @click.argument("system", type=str)
 @click.option(
     "--out",
@@ -233,7 +207,7 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
 
 
 # ----------------------------------------------------------------------------- fit
-@main.command()
+@click.command()
 @click.argument("data", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Run folder to write (must not exist, or be empty)  [required]")
@@ -330,9 +304,9 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
     }
     start = time.perf_counter()
     outcome, heldout = run_fit(data, out, config, overrides, sets, (holdout, holdout_after),
-                               overwrite, resume, no_progress)
+                               overwrite, resume, no_progress, status=_status)
     click.echo(fit_result_line(out, outcome, time.perf_counter() - start))
-    echo_diagnostics(out, outcome)  # the MAP-level sensitivity checks
+    _echo_lines(diagnostics_lines(out, outcome))  # the MAP-level sensitivity checks
     if outcome.interrupted:
         raise Interrupted
     if report:
@@ -349,7 +323,7 @@ def fit(data, out, config, order, potential, hamiltonian, integrator, dt, dampin
 
 
 # ----------------------------------------------------------------------------- predict
-@main.command()
+@click.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
 @click.option(
     "--t-end",
@@ -394,7 +368,7 @@ def predict(run, t_end, dt, num_paths, start, inputs, no_progress) -> None:
 
 
 # ----------------------------------------------------------------------------- report
-@main.command()
+@click.command()
 @click.argument("run", type=click.Path(file_okay=False, path_type=Path))
 @quiet_option
 @user_errors
@@ -403,207 +377,14 @@ def report(run, no_progress) -> None:
     from symplid.workflow.run_tools import report_run
 
     click.echo(report_run(run))
-    echo_diagnostics(run)  # the fit's sensitivity checks, as report.md shows them
+    _echo_lines(diagnostics_lines(run))  # the fit's sensitivity checks, as report.md shows them
 
 
-# ----------------------------------------------------------------------------- compare
-@main.command()
-@click.argument("data", type=click.Path(path_type=Path))
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Folder for compare.csv and compare.txt.",
-)
-@config_option("Settings file (TOML) shared by every candidate.")
-@click.option(
-    "--orders",
-    type=str,
-    default=None,
-    help="Polynomial orders, e.g. 2..5 or 2,3,5 [default: 2..5 for the polynomial family; "
-    "another family, or a user's model, is one candidate].",
-)
-@click.option(
-    "--integrators",
-    type=str,
-    default=None,
-    help="Comma-separated propagators [default: the settings' one].",
-)
-@click.option(
-    "--damping",
-    is_flag=True,
-    help="Every candidate without and with a learned damping rate γ (is damping needed?).",
-)
-@click.option(
-    "--process-noise",
-    is_flag=True,
-    help="Every candidate with process noise and without (model.process_noise_per = none: "
-    "one integrated path, no filter): does the model need Σ?",
-)
-@click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
-@click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
-@click.option("--candidates", type=str, default=None,
-              help="Comma-separated settings files, one whole model each (e.g. two of your "
-              "own): rank them instead of polynomial orders.")
-@sets_option
-@no_progress_option
-@user_errors
-def compare(
-    data, out, config, orders, integrators, damping, process_noise, x0, learn_initial_state,
-    candidates, sets, no_progress,
-) -> None:
-    """Rank polynomial orders (propagators, damping, process noise), or whole models
-    (--candidates), for DATA by the log evidence (Gaussian in the coefficients, the noise
-    variances integrated on their log scale)."""
-    from symplid.io import read_observations
-    from symplid.workflow.compare import compare_models, format_table
-    from symplid.workflow.compare_candidates import candidate_orders
-    from symplid.workflow.driven import read_data_for
-
-    overrides = {
-        "initial_state.x0": floats(x0, "--x0"),
-        "initial_state.mode": "learned" if learn_initial_state else None,
-    }
-    names = [n.strip() for n in integrators.split(",")] if integrators else None
-    if candidates is not None:
-        obs = read_observations(data)
-        table = compare_candidates(obs, candidates, config, orders, overrides, sets, names,
-                                   out, not no_progress, [False, True] if damping else None)
-        best = table.iloc[0]
-        click.echo(format_table(table))
-        click.echo(f"best: {best['model']} with {best['integrator']}"
-                   + (f"; table in {out}" if out is not None else ""))
-        return
-    settings, source = settings_from_options(config, overrides, sets)
-    obs = read_data_for(data, settings)  # a driven model's inputs with the data
-    table = compare_models(
-        obs,
-        settings,
-        orders=candidate_orders(settings, orders),
-        integrators=names,
-        out=out,
-        progress=not no_progress,
-        source=source,
-        dampings=[False, True] if damping else None,
-        process_noises=_with_and_without_noise(settings) if process_noise else None,
-    )
-    click.echo(format_table(table))
-    best = table.iloc[0]
-    click.echo(
-        f"best: order {best['order']} with {best['integrator']}"
-        + (f", damped (γ = {best['gamma']:.3g})" if best["damping"] else "")
-        + (", no process noise" if best["process_noise"] == "none" else "")
-        + (f"; table in {out}" if out is not None else "")
-    )
+def _status(text: str) -> None:
+    """A status line of the fit (what it is doing), on stderr."""
+    click.echo(f"symplid: {text}", err=True)
 
 
-# ----------------------------------------------------------------------------- discover
-@main.command()
-@click.argument("data", type=click.Path(path_type=Path))
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Folder for terms.csv, subsets.csv, summary.json, report.md (and fit/).",
-)
-@config_option("Settings file (TOML): integrator, dt, noise, priors, initial state.")
-@click.option("--order", type=click.IntRange(min=1), default=None,
-              help="The library: every monomial of U up to this order [default: model.order].")
-@click.option("--terms", type=str, default=None,
-              help="The library: your own terms, e.g. 'q1^2, q1^4, cos(q1)' (each gets a "
-              "coefficient with the coefficients' prior).")
-@click.option("--x0", type=str, default=None, help="Known initial state q1..qd,p1..pd.")
-@click.option("--learn-initial-state", is_flag=True, help="Learn x0 with θ.")
-@click.option("--size-prior", type=click.Choice(["beta-binomial", "uniform"]),
-              default="beta-binomial", show_default=True,
-              help="Prior over subsets: every size equally likely, or every subset.")
-@click.option("--max-fits", type=click.IntRange(min=1), default=None,
-              help="Stop the search after this many fits [default: until it converges].")
-@click.option("--fit/--no-fit", "fit_chosen", default=False, show_default=True,
-              help="Fit the chosen model fully (sampler, report) into OUT/fit.")
-@sets_option
-@no_progress_option
-@user_errors
-def discover(data, out, config, order, terms, x0, learn_initial_state, size_prior, max_fits,
-             fit_chosen, sets, no_progress) -> None:
-    """Which terms of a library DATA need: each term's inclusion probability, the best
-    subsets by their evidence, and the chosen model's coefficients with 95 % intervals."""
-    from symplid.io import read_observations
-    from symplid.workflow.discover import discover as run_discover
-    from symplid.workflow.discover import format_terms
-    from symplid.workflow.term_library import LibraryError
-
-    if fit_chosen and out is None:
-        raise UserError("--fit writes the chosen model's run into OUT/fit: give --out")
-    obs = read_observations(data)
-    overrides = {
-        "initial_state.x0": floats(x0, "--x0"),
-        "initial_state.mode": "learned" if learn_initial_state else None,
-    }
-    settings, source = settings_from_options(config, overrides, sets)
-    try:
-        found = run_discover(obs, settings, terms=terms, order=order, out=out,
-                             fit_chosen=fit_chosen, size_prior=size_prior, max_fits=max_fits,
-                             progress=not no_progress, source=source)
-    except LibraryError as err:
-        raise UserError(str(err)) from None
-    click.echo(format_terms(found.table))
-    click.echo(f"chosen: {' + '.join(found.chosen) or '(none)'} ({found.search.num_fits} "
-               f"fits)" + (f"; files in {out}" if out is not None else ""))
-    if found.search.stopped == "max_fits":
-        click.echo("symplid: the search stopped at --max-fits before it converged: the "
-                   "inclusion probabilities cover the subsets it visited", err=True)
-
-
-def _with_and_without_noise(settings) -> list[str]:
-    """``compare --process-noise``: the settings' process noise (``gap`` if it is none)
-    beside none."""
-    per = settings.model.process_noise_per
-    return ["gap" if per == "none" else per, "none"]
-
-
-# ----------------------------------------------------------------------------- sweep, study
-@main.command()
-@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Sweep folder (a rerun skips the finished cells).",
-)
-@click.option(
-    "--scheduler",
-    type=str,
-    default=None,
-    help="A dask.distributed scheduler address [default: a local cluster].",
-)
-@click.option(
-    "--workers",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Local worker processes [default: one per core].",
-)
-@no_progress_option
-@user_errors
-def sweep(spec, out, scheduler, workers, no_progress) -> None:
-    """Run a sweep (SPEC: a TOML grid or list of cells) on Dask; one full fit per cell."""
-    from symplid.studies import register_studies
-    from symplid.workflow.experiment import EXPERIMENTS
-    from symplid.workflow.sweep import run_sweep
-    from symplid.workflow.sweep_spec import get_experiment, named_experiment, read_sweep_file
-
-    register_studies(EXPERIMENTS)  # the studies a spec may name, "paper" the default
-    data = read_sweep_file(spec)
-    experiment = get_experiment(named_experiment(data, str(spec)), str(spec))
-    table = run_sweep(spec, out, scheduler=scheduler, workers=workers, progress=not no_progress,
-                      experiment=experiment)
-    counts = table["status"].value_counts().to_dict() if "status" in table else {}
-    done = ", ".join(f"{v} {k}" for k, v in counts.items())
-    click.echo(f"{out}: {len(table)} cells ({done}); results.csv and results.parquet")
-
-
-main.add_command(study)  # the named studies (symplid.cli_studies)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    main()
+def _echo_lines(lines: list[str]) -> None:
+    for line in lines:
+        click.echo(line)

@@ -39,7 +39,7 @@ from symplid.inference._convergence import (
     normal_scores,
     parameter_statistics,
 )
-from symplid.inference.samplers.options import Targets
+from symplid.sampling.options import Targets
 
 __all__ = ["STOPPED_BY", "BudgetMonitor", "draw_statistics", "kept_after_burn_in"]
 

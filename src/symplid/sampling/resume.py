@@ -1,4 +1,4 @@
-"""Continue an interrupted run of :func:`~symplid.inference.samplers.sample` where it stopped.
+"""Continue an interrupted run of :func:`~symplid.sampling.sample` where it stopped.
 
 An interrupted run (Ctrl-C, SIGTERM, a ``callback`` raising ``KeyboardInterrupt``) keeps its
 draws and, with ``sample(..., return_state=True)``, the chains' states after the last
@@ -29,7 +29,8 @@ import jax
 import numpy as np
 
 from symplid.compiled import cached_or_built
-from symplid.inference.samplers.api import (
+from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
+from symplid.sampling.api import (
     InterruptedInBurnIn,
     SamplerCheckpoint,
     check_posterior,
@@ -38,9 +39,8 @@ from symplid.inference.samplers.api import (
     make_settings,
     to_inference_data,
 )
-from symplid.inference.samplers.options import RunOptions, Targets
-from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
-from symplid.inference.samplers.run import ChainRun, run_chains
+from symplid.sampling.options import RunOptions, Targets
+from symplid.sampling.run import ChainRun, run_chains
 
 __all__ = ["checkpoint_arrays", "inference_data", "resume_sampling"]
 
