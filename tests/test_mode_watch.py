@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from sampler_targets import Gaussian2D, MapResult
-from symplid.sampling import RunOptions, sample
 from symplid.model.data import Observations
+from symplid.sampling import RunOptions, sample
 from symplid.workflow import fit as fit_module
 from symplid.workflow.mode_watch import MODE_MARGIN, HigherModeFound, mode_watch
 from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data

@@ -194,7 +194,7 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         variances = theta[nc:]
         variances_ok = jnp.all(variances > 0)
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
-        coefficients, proc, obs = model.split(theta)
+        _, proc, obs = model.split(theta)
         inv_mass = inverse_mass(model.mass, model.hamiltonian.dim)
         dynamics = bind_model_dynamics(model, theta, inv_mass)
         predict = _prediction(model, dynamics, proc, weights, max_steps, uniform_steps)
