@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.compiled import cached
 from symplid.model.prior_spec import log_density_sum
 from symplid.model.priors import Prior
 
@@ -326,23 +327,39 @@ class ParameterSpace:
 
     def from_unconstrained(self, z: Array) -> Array:
         """z ∈ ℝᵈ ↦ θ: a + eᶻ, b − eᶻ, a + (b − a)·σ(z) or z, by each parameter's bounds."""
-        return self._bijector.from_unconstrained(jnp.asarray(z, dtype=float))
+        return self._compiled("from_unconstrained", jnp.asarray(z, dtype=float))
 
     def to_unconstrained(self, theta: Array) -> Array:
         """θ ↦ z, the inverse of :meth:`from_unconstrained` (±∞ on a bound)."""
-        return self._bijector.to_unconstrained(jnp.asarray(theta, dtype=float))
+        return self._compiled("to_unconstrained", jnp.asarray(theta, dtype=float))
 
     def log_abs_det_jacobian(self, z: Array) -> Array:
         """log |det ∂θ/∂z| of :meth:`from_unconstrained` (a sum over the parameters)."""
-        return self._bijector.log_abs_det_jacobian(jnp.asarray(z, dtype=float))
+        return self._compiled("log_abs_det_jacobian", jnp.asarray(z, dtype=float))
 
     def pushforward_covariance(self, theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """A covariance of θ at ``theta`` pushed to z (see :func:`pushforward_covariance`)."""
-        return pushforward_covariance(self.to_unconstrained, theta, cov)
+        jacobian = cached(self, ("space", "jacobian"),
+                          lambda: jax.jit(jax.jacfwd(self._bijector.to_unconstrained)))
+        return pushforward_covariance(self.to_unconstrained, theta, cov, jacobian)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without the compiled programs (a worker process compiles its own)."""
+        return {k: v for k, v in vars(self).items() if k != "_symplid_compiled"}
+
+    def _compiled(self, name: str, x: Array) -> Array:
+        """The bijector's ``name`` at ``x``: traced inline inside a trace; on a concrete array
+        one compiled program per shape, kept on this space (run eagerly, each of its dozen
+        array operations would be a program of its own, compiled in every process)."""
+        fn = getattr(self._bijector, name)
+        if isinstance(x, jax.core.Tracer):
+            return fn(x)
+        return cached(self, ("space", name), lambda: jax.jit(fn))(x)
 
 
 def pushforward_covariance(
-    to_unconstrained: Callable[[Array], Array], theta: np.ndarray, cov: np.ndarray
+    to_unconstrained: Callable[[Array], Array], theta: np.ndarray, cov: np.ndarray,
+    jacobian: Callable[[Array], Array] | None = None,
 ) -> np.ndarray:
     """A covariance of θ pushed to the unconstrained space: ``J Σ Jᵀ``, ``J = ∂z/∂θ``.
 
@@ -352,8 +369,11 @@ def pushforward_covariance(
     factor e² either way on a log scale) by rescaling its row and column, which keeps the
     correlations; a coordinate whose push-forward is not finite (θ exactly on a bound)
     gets the cap and no correlation. The window adaptation of NUTS refines all of this.
+    ``jacobian`` (θ ↦ ∂z/∂θ, e.g. compiled once by the caller) replaces
+    ``jax.jacfwd(to_unconstrained)``.
     """
-    jac = np.asarray(jax.jacfwd(to_unconstrained)(jnp.asarray(theta)))
+    jacobian = jax.jacfwd(to_unconstrained) if jacobian is None else jacobian
+    jac = np.asarray(jacobian(jnp.asarray(theta, dtype=float)))
     broken = ~np.all(np.isfinite(jac), axis=1)
     jac = np.where(broken[:, None], 0.0, jac)
     cov_z = jac @ cov @ jac.T
