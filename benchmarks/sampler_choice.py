@@ -4,7 +4,7 @@ Workload: ``symplid fit DATA --config FILE --method M --no-report`` with the bud
 answer (``sampler.num_iterations = "auto"``: every parameter's bulk and tail ESS ≥ 400 and
 R-hat ≤ 1.01, checked between chunks, at most ``max_iterations``) and the map's sensitivity
 refits off (they do not depend on the sampler). Systems: the paper's Hénon–Heiles (its
-default data, a cubic polynomial U, full state observed), the three examples of
+default data, a cubic polynomial U, full state observed, x0 learned), the three examples of
 ``examples/user_models/`` (Kepler, Lotka–Volterra, a pendulum), the elastic pendulum of
 ``benchmarks/own_models.py`` (two parameters, positions only) and a non-separable H made
 here, a pendulum-like oscillator whose mass depends on q: H = p²/(2(1 + a q²)) + k q²/2
@@ -65,6 +65,9 @@ num_chains = 2
 HENON = """# The paper's Hénon–Heiles system: a cubic polynomial U, the full state observed.
 [model]
 order = 3
+
+[initial_state]
+mode = "learned"
 
 [sampler]
 num_chains = 2
