@@ -11,8 +11,8 @@ setting); the command line and the worker processes it starts do.
 
 Every program is kept, however quick its compilation: a fit also runs a hundred small ones
 (the bijectors, random draws, the start's array arithmetic) that compile in 0.02–0.2 s each,
-about 6 s of a warm pendulum fit when compiled again in every process; read back from disk
-they cost a few milliseconds each.
+about 6 s of a warm pendulum fit when compiled again in every process; they are read back
+from disk instead.
 
 The folder is ``$SYMPLID_CACHE_DIR``, else ``$XDG_CACHE_HOME/symplid/jax``, else
 ``~/.cache/symplid/jax``; ``SYMPLID_CACHE_DIR=off`` disables it.
