@@ -16,7 +16,11 @@ Geyer's sequences as array operations).
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import logging
+import sys
+import threading
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -38,6 +42,7 @@ __all__ = [
     "ConvergenceWarning",
     "convergence_table",
     "import_arviz",
+    "prefetch_arviz",
     "quiet_arviz",
     "summary",
 ]
@@ -57,6 +62,26 @@ def import_arviz() -> ModuleType:
         import arviz
 
     return arviz
+
+
+def prefetch_arviz() -> None:
+    """Start importing ArviZ in a daemon thread, so that its seconds (xarray, pandas,
+    matplotlib) pass while the caller computes: a fit needs it only when its draws are made
+    ``InferenceData``, and most of a MAP search runs compiled code, which leaves the
+    interpreter free. :func:`import_arviz` then finds it imported, or waits for the import
+    under way. Does nothing when ArviZ is imported already. Its import-time notice (a
+    ``FutureWarning`` of some versions) is ignored by a filter, not by ``catch_warnings``,
+    which is not safe beside another thread.
+    """
+    if "arviz" in sys.modules:
+        return
+    warnings.filterwarnings("ignore", category=FutureWarning, module=r"arviz(\.|$)")
+    threading.Thread(target=_import_quietly, name="symplid-import-arviz", daemon=True).start()
+
+
+def _import_quietly() -> None:
+    with contextlib.suppress(Exception):  # import_arviz raises it again where it is needed
+        importlib.import_module("arviz")
 
 
 def _extreme(values: np.ndarray, pick) -> str:

@@ -28,6 +28,7 @@ L-BFGS-B handles directly.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from symplid.compiled import cached
 from symplid.model.prior_spec import log_density_sum
 from symplid.model.priors import Prior
 
@@ -72,6 +74,28 @@ class ParameterProperties:
         """The map from the real line onto ``(lower, upper)`` (module docstring)."""
         lo, hi = math.isfinite(self.lower), math.isfinite(self.upper)
         return ("identity", "log-upper", "log", "logit")[2 * lo + hi]
+
+
+def _compiled_on_arrays(method: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+    """``method(self, x)`` as one compiled program, kept on ``self``, when ``x`` is a concrete
+    JAX array: run eagerly, each of its dozen array operations would be a program of its own,
+    compiled again in every process. NumPy arrays and tracers (inside a trace) go through it
+    as they are, so a traced program is unchanged."""
+
+    @functools.wraps(method)
+    def run(self: Any, x: Any) -> Any:
+        if isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer):
+            key = ("bijector", method.__name__)
+            return cached(self, key, lambda: jax.jit(functools.partial(method, self)))(x)
+        return method(self, x)
+
+    return run
+
+
+def _without_programs(owner: Any) -> dict[str, Any]:
+    """``owner``'s state for pickling, without its compiled programs (a process compiles its
+    own)."""
+    return {k: v for k, v in vars(owner).items() if k != "_symplid_compiled"}
 
 
 class Reparameterisation:
@@ -128,11 +152,15 @@ class Reparameterisation:
     def size(self) -> int:
         return self.lower.size
 
+    def __getstate__(self) -> dict[str, Any]:
+        return _without_programs(self)
+
     @property
     def transformed(self) -> np.ndarray:
         """Which entries go through a bijector other than the identity (a bool mask)."""
         return self.log_lower | self.log_upper | self.logit
 
+    @_compiled_on_arrays
     def from_unconstrained(self, z: Any) -> Any:
         """z ↦ θ = D·f(z)."""
         xp = _array_module(z)
@@ -144,6 +172,7 @@ class Reparameterisation:
         theta = xp.where(self.logit, self._lo + width * _sigmoid(xp, z), theta)
         return theta if self.scale is None else theta * self.scale
 
+    @_compiled_on_arrays
     def to_unconstrained(self, theta: Any) -> Any:
         """θ ↦ z, the inverse of :meth:`from_unconstrained` (±∞ on a bound, NaN beyond it)."""
         xp = _array_module(theta)
@@ -156,6 +185,7 @@ class Reparameterisation:
         z = xp.where(self.logit, xp.log(u) - xp.log1p(-u), z)
         return z
 
+    @_compiled_on_arrays
     def log_abs_det_jacobian(self, z: Any) -> Any:
         """log |det ∂θ/∂z|, a sum over the entries (along the last axis)."""
         xp = _array_module(z)
@@ -166,6 +196,7 @@ class Reparameterisation:
         total = xp.sum(terms, axis=-1)
         return total if self.scale is None else total + float(np.sum(np.log(np.abs(self.scale))))
 
+    @_compiled_on_arrays
     def jacobian_diagonal(self, z: Any) -> Any:
         """∂θ_i/∂z_i, entry by entry (the Jacobian is diagonal): D·(eᶻ, −eᶻ, (b − a)·σ(1 − σ)
         or 1)."""
@@ -220,6 +251,9 @@ class ParameterSpace:
         self.lower = np.array([p.lower for p in self.properties], dtype=float)
         self.upper = np.array([p.upper for p in self.properties], dtype=float)
         self._bijector = Reparameterisation(self.lower, self.upper)
+
+    def __getstate__(self) -> dict[str, Any]:
+        return _without_programs(self)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -347,11 +381,14 @@ class ParameterSpace:
 
     def pushforward_covariance(self, theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """A covariance of θ at ``theta`` pushed to z (see :func:`pushforward_covariance`)."""
-        return pushforward_covariance(self.to_unconstrained, theta, cov)
+        jacobian = cached(self, ("space", "jacobian"),
+                          lambda: jax.jit(jax.jacfwd(self._bijector.to_unconstrained)))
+        return pushforward_covariance(self.to_unconstrained, theta, cov, jacobian)
 
 
 def pushforward_covariance(
-    to_unconstrained: Callable[[Array], Array], theta: np.ndarray, cov: np.ndarray
+    to_unconstrained: Callable[[Array], Array], theta: np.ndarray, cov: np.ndarray,
+    jacobian: Callable[[Array], Array] | None = None,
 ) -> np.ndarray:
     """A covariance of θ pushed to the unconstrained space: ``J Σ Jᵀ``, ``J = ∂z/∂θ``.
 
@@ -361,8 +398,11 @@ def pushforward_covariance(
     factor e² either way on a log scale) by rescaling its row and column, which keeps the
     correlations; a coordinate whose push-forward is not finite (θ exactly on a bound)
     gets the cap and no correlation. The window adaptation of NUTS refines all of this.
+    ``jacobian`` (θ ↦ ∂z/∂θ, e.g. compiled once by the caller) replaces
+    ``jax.jit(jax.jacfwd(to_unconstrained))``.
     """
-    jac = np.asarray(jax.jacfwd(to_unconstrained)(jnp.asarray(theta)))
+    jacobian = jax.jit(jax.jacfwd(to_unconstrained)) if jacobian is None else jacobian
+    jac = np.asarray(jacobian(jnp.asarray(theta, dtype=float)))
     broken = ~np.all(np.isfinite(jac), axis=1)
     jac = np.where(broken[:, None], 0.0, jac)
     cov_z = jac @ cov @ jac.T

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from symplid.inference.diagnostics import prefetch_arviz
 from symplid.inference.diagnostics import summary as diagnostics_summary
 from symplid.inference.map import (
     MapConvergenceWarning,
@@ -274,6 +275,7 @@ def fit(
     can use them meanwhile.
     """
 
+    prefetch_arviz()  # ArviZ's seconds of import pass during the MAP search
     plan = ModelPlan.from_settings(settings, obs, source)  # the run's one model
     given, settings = settings, plan.settings
     for note in auto_notes(given, settings, obs) if status is not None else ():

@@ -365,7 +365,9 @@ class SamplerSettings:
 
     method: str = setting(
         "dram", choices=SAMPLERS,
-        doc="The sampler: any name in ``symplid.samplers.SAMPLERS``.",
+        doc=("The sampler: any name in ``symplid.samplers.SAMPLERS``. DRAM, the default, "
+             "reached the ESS and R-hat targets first on every system measured against NUTS "
+             "(the table in the how-to on the sampling budget)."),
     )
     num_iterations: int | str = setting(
         "auto", minimum=1, words=("auto",),

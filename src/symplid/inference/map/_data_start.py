@@ -229,7 +229,8 @@ def _residual_fn(posterior: Any, paths: list[_Smoothed], dyn: np.ndarray, base: 
                 out.append(((p - p_obs) / v_scale)[measured])
         return jnp.concatenate(out)
 
-    return jax.jit(residuals), jax.jit(jax.jacfwd(residuals)), field, a_scale
+    # the field compiled for the defects after the fit (eagerly, a dozen programs of its own)
+    return jax.jit(residuals), jax.jit(jax.jacfwd(residuals)), jax.jit(field), a_scale
 
 
 def _collocate(posterior: Any, paths: list[_Smoothed], base: np.ndarray):
