@@ -209,19 +209,7 @@ def find_map(
     options = {"maxiter": int(maxiter), "ftol": float(ftol), "gtol": float(gtol),
                "maxcor": int(maxcor)}
     starts = _starts(posterior, objective, init, seed, int(num_starts), start_spread, names)
-    results = [run_start(theta0, objective, options) for theta0 in starts]
-
-    def hessian_at(theta: np.ndarray) -> np.ndarray:
-        return np.asarray(fns["hessian"](jnp.asarray(theta)), dtype=float)
-
-    hessians: list[np.ndarray | None] = [None] * len(results)
-    if compute_hessian:
-        for k, r in enumerate(results):
-            if np.isfinite(r.log_posterior):
-                hessians[k] = hessian_at(r.theta)
-                results[k], hessians[k] = escaped(
-                    judge_with_hessian(r, hessians[k], objective), hessians[k], objective,
-                    options, hessian_at)
+    results, hessians = _searched(starts, objective, options, fns["hessian"], compute_hessian)
     k_best = max(
         range(len(results)),
         key=lambda k: (
@@ -236,18 +224,9 @@ def find_map(
     failure = judge(best, tuple(results), hessians[k_best], space,
                     tuple(parameter_space.groups), model_free_noise(posterior),
                     given_start=init is not None, names=names)
-    laplace: tuple[Any, Any, bool, float] = (None, None, False, math.nan)
-    if compute_hessian:
-        bound_idx = [names.index(n) for n in at_bounds]
-        laplace = (hessians[k_best],
-                   *_laplace(hessians[k_best], best, bound_idx, objective, u_best, warn))
-        if not is_optimum(failure):  # no evidence at a point that is not an optimum
-            laplace = (*laplace[:3], math.nan)
-    log_evidence, method, details = laplace[3], "laplace" if compute_hessian else "none", {}
-    if (compute_hessian and evidence == "quadrature" and np.isfinite(best.log_posterior)
-            and is_optimum(failure)):
-        log_evidence, method, details = _quadrature(
-            fns, space, parameter_space.groups, names, best.theta, laplace[3])
+    laplace, log_evidence, method, details = _evidence_at(
+        best, hessians[k_best], failure, at_bounds, names, objective, u_best, fns,
+        parameter_space.groups, evidence if compute_hessian else "none", warn)
     optima = distinct_optima(results, laplace[1], space)
     if warn:
         _warn_outcome(best, failure, at_bounds, names, space, u_best)
@@ -266,6 +245,46 @@ def find_map(
         log_evidence_laplace=laplace[3], evidence_method=method, evidence=details,
         optima=optima, failure=failure,
     )
+
+
+def _searched(starts: list[np.ndarray], objective: Objective, options: dict[str, Any],
+              hessian_fn: Callable, compute_hessian: bool
+              ) -> tuple[list[StartResult], list[np.ndarray | None]]:
+    """Each start's L-BFGS-B run, judged by its Hessian and continued from a Newton point
+    where it is no maximum (:func:`~._search.escaped`); the Hessians (None where none)."""
+    results = [run_start(theta0, objective, options) for theta0 in starts]
+
+    def hessian_at(theta: np.ndarray) -> np.ndarray:
+        return np.asarray(hessian_fn(jnp.asarray(theta)), dtype=float)
+
+    hessians: list[np.ndarray | None] = [None] * len(results)
+    if compute_hessian:
+        for k, r in enumerate(results):
+            if np.isfinite(r.log_posterior):
+                hessians[k] = hessian_at(r.theta)
+                results[k], hessians[k] = escaped(
+                    judge_with_hessian(r, hessians[k], objective), hessians[k], objective,
+                    options, hessian_at)
+    return results, hessians
+
+
+def _evidence_at(best: StartResult, hessian: np.ndarray | None, failure: str,
+                 at_bounds: tuple[str, ...], names: tuple[str, ...], objective: Objective,
+                 u_best: np.ndarray, fns: dict[str, Callable], groups: Any, evidence: str,
+                 warn: bool) -> tuple[tuple[Any, Any, bool, float], float, str, dict[str, Any]]:
+    """((Hessian, covariance, repaired?, Laplace log evidence), log evidence, its method,
+    details) at the best point; ``evidence`` "none" when no Hessian was computed. No
+    evidence at a point that is not an optimum (NaN)."""
+    if evidence == "none" or hessian is None:
+        return (None, None, False, math.nan), math.nan, "none", {}
+    bound_idx = [names.index(n) for n in at_bounds]
+    laplace = (hessian, *_laplace(hessian, best, bound_idx, objective, u_best, warn))
+    if not is_optimum(failure):
+        laplace = (*laplace[:3], math.nan)
+    if evidence == "quadrature" and np.isfinite(best.log_posterior) and is_optimum(failure):
+        return laplace, *_quadrature(fns, objective.space, groups, names, best.theta,
+                                     laplace[3])
+    return laplace, laplace[3], "laplace", {}
 
 
 def _quadrature(fns: dict[str, Callable], space: SearchSpace, groups: tuple[str, ...],
