@@ -136,10 +136,12 @@ print("BENCH " + json.dumps({"parse": parse, "fit": fitted - start, "report": do
 """
 
 
-def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra: list[str],
-              cores: list[int] | None) -> dict:
+def child_fit(child: str, src: Path, data: Path, config: Path, out: Path, cache: Path,
+              extra: list[str], cores: list[int] | None) -> tuple[dict, dict]:
+    """Run the script ``child`` (a fit) on the tree ``src`` in its own process, pinned to
+    ``cores``; returns the clock it prints on its ``BENCH`` line and the run's summary."""
     env = dict(os.environ, PYTHONPATH=str(src), SYMPLID_CACHE_DIR=str(cache))
-    proc = subprocess.run([sys.executable, "-c", CHILD, str(data), str(config), str(out),
+    proc = subprocess.run([sys.executable, "-c", child, str(data), str(config), str(out),
                            *extra], env=env, capture_output=True, text=True,
                           preexec_fn=None if cores is None else
                           (lambda: os.sched_setaffinity(0, set(cores))), check=False)
@@ -147,8 +149,12 @@ def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra
     if proc.returncode != 0 or line is None:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         raise SystemExit(f"the fit failed with {src}: {' | '.join(tail)}")
-    clock = json.loads(line[6:])
-    summary = json.loads((out / "summary.json").read_text())
+    return json.loads(line[6:]), json.loads((out / "summary.json").read_text())
+
+
+def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra: list[str],
+              cores: list[int] | None) -> dict:
+    clock, summary = child_fit(CHILD, src, data, config, out, cache, extra, cores)
     t = summary.get("timings", {})
     wall = clock["parse"] + clock["fit"] + clock["report"]
     ess, rhat = summary.get("ess_min", float("nan")), summary.get("rhat_max", float("nan"))

@@ -27,7 +27,6 @@ Run: ``python benchmarks/sampler_choice.py [--systems pendulum kepler] [--src OT
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -143,17 +142,7 @@ print("BENCH " + json.dumps({"wall": wall, "cost": cost, "d": int(theta.size)}))
 def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra: list[str],
               cores: list[int] | None) -> dict:
     """One fit in a child process; its clock, the gradient's cost and its summary."""
-    env = dict(os.environ, PYTHONPATH=str(src), SYMPLID_CACHE_DIR=str(cache))
-    proc = subprocess.run([sys.executable, "-c", CHILD, str(data), str(config), str(out),
-                           *extra], env=env, capture_output=True, text=True,
-                          preexec_fn=None if cores is None else
-                          (lambda: os.sched_setaffinity(0, set(cores))), check=False)
-    line = next((x for x in proc.stdout.splitlines() if x.startswith("BENCH ")), None)
-    if proc.returncode != 0 or line is None:
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-        raise SystemExit(f"the fit failed with {src}: {' | '.join(tail)}")
-    clock = json.loads(line[6:])
-    summary = json.loads((out / "summary.json").read_text())
+    clock, summary = own_models.child_fit(CHILD, src, data, config, out, cache, extra, cores)
     ess = min(summary["ess_min"], summary.get("ess_tail_min", summary["ess_min"]))
     sampling = summary["timings"]["sampler_s"]
     return {"d": clock["d"], "grad": clock["cost"]["g"] / clock["cost"]["f"],
