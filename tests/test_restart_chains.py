@@ -219,8 +219,8 @@ def test_a_fit_reports_its_restarted_chains():
     """``summary.json``'s count, the fit's line and the report's paragraph."""
     from types import SimpleNamespace
 
-    from symplid.workflow.fit import fit_summary
     from symplid.workflow.fit_command import fit_result_line
+    from symplid.workflow.fit_files import fit_summary
     from symplid.workflow.run_tools import _restart_lines
 
     target = TwoModes(gap=60.0)

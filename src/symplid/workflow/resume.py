@@ -28,10 +28,9 @@ from symplid.io.chunks import read_chunks, remove_chunks
 from symplid.io.runfiles import flatten
 from symplid.sampling import InterruptedInBurnIn, RunOptions
 from symplid.sampling.resume import inference_data, resume_sampling
-from symplid.workflow.fit import (
+from symplid.workflow.fit import build_model, build_posterior
+from symplid.workflow.fit_files import (
     FitOutcome,
-    build_model,
-    build_posterior,
     chunk_sink,
     run_fingerprint,
     save_burn_in,
