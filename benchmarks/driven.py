@@ -3,7 +3,7 @@
 The classic nonlinear system-identification set-up: a forced Duffing oscillator
 q̈ = −k1 q − k3 q³ − c q̇ + b u(t), (k1, k3, c, b) = (1, 0.5, 0.2, 1), excited by a multisine
 (8 tones over 0.05–0.5 Hz, random phases), positions observed every 0.25 s with noise sd 0.05,
-the input logged every 0.05 s (``examples/driven/simulate_data.py``). Each method learns from
+the input logged every 0.05 s (``examples/driven/driven_data.py``). Each method learns from
 N noisy samples and then **simulates** the response to a new multisine (another seed) from
 rest, 200 points over 50 s; the score is the RMSE of the simulated positions against the
 noise-free truth (DOP853):
@@ -37,7 +37,7 @@ GAP, NOISE, TEST_POINTS = 0.25, 0.05, 200
 
 def _simulator():
     spec = importlib.util.spec_from_file_location(
-        "driven_data", ROOT / "examples" / "driven" / "simulate_data.py")
+        "driven_data", ROOT / "examples" / "driven" / "driven_data.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

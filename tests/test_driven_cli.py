@@ -17,7 +17,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "driven"
 
 
 def _simulator():
-    spec = importlib.util.spec_from_file_location("driven_data", EXAMPLES / "simulate_data.py")
+    spec = importlib.util.spec_from_file_location("driven_data", EXAMPLES / "driven_data.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -163,9 +163,9 @@ class Polynomial:
 
     def standardised(self, a: float) -> np.ndarray:
         """The scaling law of the coefficients in positions and momenta over ``a``
-        (q' = q/a, p' = p/a, t' = t): c = D c' with D_α = a^(2−|α|), since
+        (q' = q/a, p' = p/a, t' = t): c = D c' with ``D_α = a**(2 − deg α)``, since
         H'(q', p') = H(a q', a p') / a² generates the same motion (eqs 2 and 13) and
-        c'_α = c_α · a^(|α|−2).
+        ``c'_α = c_α · a**(deg α − 2)`` (deg α the monomial's total degree).
 
         >>> Polynomial(dim=1, order=4).standardised(10.0)
         array([10.  ,  1.  ,  0.1 ,  0.01])

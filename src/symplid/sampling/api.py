@@ -138,7 +138,7 @@ def sample(
     burn_in
         Iterations discarded first; by default, with a fixed budget DRAM ``num_draws·thin``
         (the paper's ratio), NUTS 1000 warm-up steps; else the sampler's first burn-in
-        (:attr:`~.registry.SamplerSpec.first_burn_in`), extended while the chains disagree.
+        (the sampler's ``SamplerSpec.first_burn_in``), extended while the chains disagree.
     thin
         Keep every ``thin``-th iteration after burn-in.
     settings

@@ -14,7 +14,7 @@ The input is a multisine (``symplid.model.signals.multisine``: 8 tones over 0.05
 random phases from ``--seed``, RMS 1), or a chirp or steps (``--input``). ``--free`` records
 the free decay instead (u = 0, from q = 1): the input gain b then has nothing to act on.
 
-Run: ``python simulate_data.py SYSTEM OUT.csv [--seed N] [--input NAME] [--free]``.
+Run: ``python driven_data.py SYSTEM OUT.csv [--seed N] [--input NAME] [--free]``.
 """
 
 from __future__ import annotations
