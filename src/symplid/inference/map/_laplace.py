@@ -60,6 +60,13 @@ def repaired_eigenvalues(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     return lam, vecs, np.maximum(np.abs(lam), floor), floor
 
 
+def newton_step(grad: np.ndarray, hessian: np.ndarray) -> np.ndarray:
+    """H⁻¹g with H repaired as in step 2: the Newton step up log π (g its gradient, H the
+    Hessian of −log π)."""
+    _, vecs, fixed, _ = repaired_eigenvalues(hessian)
+    return vecs @ ((vecs.T @ grad) / fixed)
+
+
 def newton_decrement(grad: np.ndarray, hessian: np.ndarray) -> float:
     """½ gᵀH⁻¹g with H repaired as in step 2: the gain in log π a Newton step promises."""
     if grad.size == 0:
@@ -192,6 +199,7 @@ __all__ = [
     "hessian_function",
     "laplace_covariance",
     "newton_decrement",
+    "newton_step",
     "repaired_eigenvalues",
     "scan_from_bound",
 ]

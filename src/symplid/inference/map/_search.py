@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from symplid.inference.map._laplace import newton_decrement, repaired_eigenvalues
+from symplid.inference.map._laplace import newton_decrement, newton_step
 from symplid.inference.map._result import StartResult
 from symplid.inference.map._space import SearchSpace
 from symplid.stopping import check as check_stop
@@ -136,14 +136,9 @@ def judge_with_hessian(
     at the optimum the objective's rounding-level roughness is all a line search sees);
     a start stopped by the iteration limit has not converged.
     """
-    space = objective.space
-    u = space.to_u(result.theta)
-    grad_u = np.asarray(objective.value_and_grad(jnp.asarray(u))[1], dtype=float)
-    scale = space.jacobian_diagonal(space.to_u(result.theta, floor=False))
-    free = ~active_bounds(u, grad_u, space)
+    g, free = _free_gradient(result.theta, objective)
     decrement = math.inf
-    if np.all(np.isfinite(grad_u)) and np.all(np.isfinite(hessian)):
-        g = -(grad_u / scale)[free]  # gradient of log π in θ
+    if g is not None and np.all(np.isfinite(hessian)):
         decrement = newton_decrement(g, hessian[np.ix_(free, free)])
     message = result.message.upper()
     stopped_itself = "CONVERGENCE" in message or "ABNORMAL" in message
@@ -151,6 +146,20 @@ def judge_with_hessian(
     return dataclasses.replace(
         result, success=bool(lbfgs_ok and decrement < 1e-3), newton_decrement=decrement
     )
+
+
+def _free_gradient(theta: np.ndarray, objective: Objective) -> tuple[np.ndarray | None,
+                                                                     np.ndarray]:
+    """(∇ log π in θ over the parameters no bound holds, their mask) at θ; the gradient is
+    None where the search's gradient is not finite."""
+    space = objective.space
+    u = space.to_u(theta)
+    grad_u = np.asarray(objective.value_and_grad(jnp.asarray(u))[1], dtype=float)
+    free = ~active_bounds(u, grad_u, space)
+    if not np.all(np.isfinite(grad_u)):
+        return None, free
+    scale = space.jacobian_diagonal(space.to_u(theta, floor=False))
+    return -(grad_u / scale)[free], free
 
 
 def newton_point(result: StartResult, hessian: np.ndarray,
@@ -166,16 +175,11 @@ def newton_point(result: StartResult, hessian: np.ndarray,
     """
     space = objective.space
     theta = np.asarray(result.theta, dtype=float)
-    u = space.to_u(theta)
-    grad_u = np.asarray(objective.value_and_grad(jnp.asarray(u))[1], dtype=float)
-    scale = space.jacobian_diagonal(space.to_u(theta, floor=False))
-    free = ~active_bounds(u, grad_u, space)
-    if not (free.any() and np.all(np.isfinite(grad_u)) and np.all(np.isfinite(hessian))):
+    g, free = _free_gradient(theta, objective)
+    if g is None or not (free.any() and np.all(np.isfinite(hessian))):
         return None
-    g = -(grad_u / scale)[free]
-    _, vecs, fixed, _ = repaired_eigenvalues(hessian[np.ix_(free, free)])
     step = np.zeros_like(theta)
-    step[free] = vecs @ ((vecs.T @ g) / fixed)
+    step[free] = newton_step(g, hessian[np.ix_(free, free)])
     lo = np.where(space.log, space.lower + 10.0 * space.floor, space.lower)
     hi = space.upper
     for alpha in 0.5 ** np.arange(12):
