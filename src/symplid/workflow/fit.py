@@ -264,8 +264,7 @@ def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
         diagnostics = _diagnostics(plan, settings, obs, posterior, map_result, folder,
                                    timings, status, step)
         start, handing_over = time.perf_counter(), [0.0]  # the caller's time: not sampling
-        watch = (mode_watch(map_fit.log_posterior)
-                 if len(refound) < MAX_REFINDS and hasattr(map_fit, "log_posterior") else None)
+        watch = mode_watch(map_fit.log_posterior) if len(refound) < MAX_REFINDS else None
         try:
             idata, checkpoint = sample_for(settings, posterior, map_fit, progress,
                                            progress_label, progress_position,
@@ -277,8 +276,8 @@ def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
                                            callback=watch)
             break
         except HigherModeFound as found:
-            map_fit, start = _search_again(settings, posterior, folder, found, status), \
-                time.perf_counter()
+            start = time.perf_counter()  # the search again is the MAP's time
+            map_fit = _search_again(settings, posterior, folder, found, status)
             refound.append(refound_record(found, map_fit.log_posterior))
         except InterruptedInBurnIn as stop:
             if folder is not None:
