@@ -150,7 +150,7 @@ def run_chains(
     monitor: dict[str, np.ndarray] | None = None,
     earlier: np.ndarray | None = None,
 ) -> ChainRun:
-    """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
+    """Run several chains of a kernel in compiled chunks (:mod:`~.chunk`).
 
     Parameters
     ----------
