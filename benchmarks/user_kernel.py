@@ -165,7 +165,7 @@ def flags(repeats: int) -> None:
         user_kernel._OPT_FLAGS[:] = [level] + [f for f in base_flags if not f.startswith("-O")]
         with tempfile.TemporaryDirectory() as cache:
             os.environ["SYMPLID_KERNEL_CACHE"] = cache
-            user_kernel._Units.loaded.clear()
+            user_kernel._Units.found.clear()
             model = symplid.HamiltonianModel(build_user_model(text, "potential", 2, params),
                                              integrator="leapfrog", dt=0.25)
             th = jnp.asarray(model.pack(np.array(values), 1e-6, 0.05**2))

@@ -82,9 +82,8 @@ class _Units:
     """The process's loaded units by key and the notes already given (XLA's registry of FFI
     targets is per process, so this one is too)."""
 
-    loaded: ClassVar[dict[str, UserUnit]] = {}
+    found: ClassVar[dict[str, UserUnit | str]] = {}  # by expression: the unit, or why none
     by_key: ClassVar[dict[str, UserUnit]] = {}
-    failed: ClassVar[dict[str, str]] = {}
     noted: ClassVar[set[str]] = set()
 
 
@@ -247,10 +246,6 @@ def _load(path: Path, isa: str) -> UserUnit:
     return unit
 
 
-def _expression(potential: Any) -> Any:
-    return getattr(potential, "expression", None)
-
-
 def _note(reason: str) -> None:
     if reason not in _Units.noted:
         _Units.noted.add(reason)
@@ -267,7 +262,7 @@ def find_unit(potential: Any, isa: str) -> UserUnit | str:
 
 
 def _find_unit(potential: Any, isa: str) -> UserUnit | str:
-    expr = _expression(potential)
+    expr = getattr(potential, "expression", None)
     if expr is None:
         return "the potential has no expression (a Python function: the JAX tier runs it)"
     if potential.num_params < 1:
@@ -277,23 +272,23 @@ def _find_unit(potential: Any, isa: str) -> UserUnit | str:
     except UnsupportedExpression as err:
         return f"the expression cannot be compiled: {err}"
     ident = f"{code.canonical}|{isa}|{os.environ.get('SYMPLID_CXX', '')}"
-    if ident in _Units.loaded:
-        return _Units.loaded[ident]
-    if ident in _Units.failed:
-        return _Units.failed[ident]
+    if ident not in _Units.found:
+        _Units.found[ident] = _built_and_loaded(code, isa)
+    return _Units.found[ident]
+
+
+def _built_and_loaded(code: ForceCode, isa: str) -> UserUnit | str:
+    """The unit of ``code`` built (or found in the cache) and loaded, or why not (noted)."""
     built = _build(code, isa)
     if isinstance(built, str):
-        _Units.failed[ident] = built
         _note(built)
         return built
     try:
-        unit = _load(built, isa)
+        return _load(built, isa)
     except (OSError, AttributeError, RuntimeError, ValueError) as err:
-        _Units.failed[ident] = reason = f"the compiled unit cannot be loaded ({err})"
+        reason = f"the compiled unit cannot be loaded ({err})"
         _note(reason)
         return reason
-    _Units.loaded[ident] = unit
-    return unit
 
 
 def unit_reason(potential: Any, isa: str) -> str | None:

@@ -263,7 +263,8 @@ def finished_draws(run: ChainRun, record: dict[str, Any]) -> ChainRun:
 def _built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
                   burn_in: int) -> tuple[Any, SamplerKernel]:
     """The posterior's batched log density and the sampler's kernel, built once per
-    posterior and settings (kept on the posterior)."""
+    posterior and settings (kept on the posterior): a run and its continuation
+    (:func:`~.resume.resume_sampling`) share them."""
     batch_logdensity = cached_or_built(
         posterior, "batch-log-density", lambda: _batch_log_density(posterior)
     )

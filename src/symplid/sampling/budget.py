@@ -130,7 +130,7 @@ class BudgetMonitor:
         return (done - self.first_burn_in) // self.thin >= MIN_DRAWS
 
     def _after_burn_in(self, theta: np.ndarray) -> np.ndarray:
-        return theta[:, (self.burn_in - self.first_burn_in) // self.thin:]
+        return _after(theta, self.burn_in, self.first_burn_in, self.thin)
 
     def trim(self, draws: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The draws ``name -> (chain, draw, ...)`` kept since the first burn-in, without
@@ -161,5 +161,11 @@ def kept_after_burn_in(draws: dict[str, np.ndarray], arrays: dict[str, Any] | No
     if not arrays or f"{_PREFIX}burn_in" not in arrays:
         return draws
     extended = int(np.asarray(arrays[f"{_PREFIX}burn_in"]))
-    return {name: value[:, (extended - int(first_burn_in)) // int(thin):]
+    return {name: _after(value, extended, int(first_burn_in), int(thin))
             for name, value in draws.items()}
+
+
+def _after(draws: np.ndarray, burn_in: int, first_burn_in: int, thin: int) -> np.ndarray:
+    """``draws`` (chain, draw, ...) kept since ``first_burn_in`` without those before the
+    extended ``burn_in``: the one slicing :class:`BudgetMonitor` and a checkpoint share."""
+    return draws[:, (burn_in - first_burn_in) // thin:]

@@ -28,11 +28,11 @@ from typing import Any
 import jax
 import numpy as np
 
-from symplid.compiled import cached_or_built
 from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, SamplerSpec
 from symplid.sampling.api import (
     InterruptedInBurnIn,
     SamplerCheckpoint,
+    _built_kernel,
     check_posterior,
     draws_array,
     finished_draws,
@@ -176,14 +176,7 @@ def resume_sampling(
 def _kernel(posterior: Any, spec: SamplerSpec, method: str, record: dict) -> SamplerKernel:
     """The run's kernel, built from its recorded settings (or the one kept on the posterior)."""
     kernel_settings = make_settings(method, spec.settings_class, record["kernel"])
-    num_warmup = int(record["burn_in"]) if spec.adapts_during_burn_in else 0
-    batch_logdensity = cached_or_built(
-        posterior, "batch-log-density", lambda: jax.jit(jax.vmap(posterior.log_density))
-    )
-    return cached_or_built(
-        posterior, ("sampler", method, kernel_settings, num_warmup),
-        lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
-    )
+    return _built_kernel(posterior, spec, method, kernel_settings, int(record["burn_in"]))[1]
 
 
 def _whole_run(run: ChainRun, old: dict[str, np.ndarray], attrs: dict[str, Any],

@@ -150,7 +150,7 @@ def run_chains(
     monitor: dict[str, np.ndarray] | None = None,
     earlier: np.ndarray | None = None,
 ) -> ChainRun:
-    """Run several chains of a kernel in chunks of a compiled ``lax.scan``.
+    """Run several chains of a kernel in compiled chunks (:mod:`~.chunk`).
 
     Parameters
     ----------
@@ -418,26 +418,28 @@ class _Loop:
     def _keep(self, records: dict[str, Any], num_active: int,
               start: int) -> dict[str, np.ndarray]:
         """Keep the chunk's iterations past burn-in on the thin grid; returns them
-        ``(num_chains, kept, ...)`` (empty arrays in the burn-in)."""
+        ``(num_chains, kept, ...)`` (empty arrays in the burn-in). ``records`` hold exactly
+        the ``num_active`` iterations run (:meth:`_compute` trims them)."""
         # Iterations start + 1 .. start + num_active; keep those past burn-in on the thin grid.
         iterations = np.arange(start + 1, start + num_active + 1)
-        self._note_best(records, num_active)
+        self._note_best(records)
         if self.restarts is not None and self.restarts.pending:
-            self.restarts.observe(iterations, np.asarray(records["lp"])[:num_active])
+            self.restarts.observe(iterations, np.asarray(records["lp"]))
         keep = (iterations > self.burn_in) & ((iterations - self.burn_in) % self.thin == 0)
-        chunk = {name: np.asarray(value)[:num_active][keep] for name, value in records.items()}
+        chunk = {name: np.asarray(value)[keep] for name, value in records.items()}
         if keep.any():
             for name, value in chunk.items():
                 self.kept.setdefault(name, []).append(value)
             self.draws_kept += int(keep.sum())
         return {name: np.swapaxes(value, 0, 1) for name, value in chunk.items()}
 
-
-    def _note_best(self, records: dict[str, Any], num_active: int) -> None:
+    def _note_best(self, records: dict[str, Any]) -> None:
         """Remember the highest (log π, θ) of the iterations just run (:class:`ChunkReport`)."""
-        if "lp" not in records or "theta" not in records or num_active == 0:
+        if "lp" not in records or "theta" not in records:
             return
-        lp = np.asarray(records["lp"], dtype=float)[:num_active]
+        lp = np.asarray(records["lp"], dtype=float)
+        if lp.size == 0:
+            return
         finite = np.where(np.isfinite(lp), lp, -np.inf)
         flat = int(np.argmax(finite))
         value = float(finite.flat[flat])
