@@ -18,6 +18,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.integrate import cumulative_trapezoid
 
 from symplid.dynamics.forced import bind_forced, forced_solve_gaps, with_force
 from symplid.dynamics.potentials import inverse_mass
@@ -120,17 +121,14 @@ def power_balance(model: Any, signal: Any, theta_psi: Any, x0: Any, t0: float,
     u = jnp.asarray(signal.evaluate(grid)[..., : model.force.num_inputs])
 
     def point(qi, pi, ui, ti):
-        h = model.energy(coeffs, jnp.concatenate([qi, pi]))
-        vel = jax.grad(lambda pp: model.energy(coeffs, jnp.concatenate([qi, pp])))(pi)
+        h, vel = jax.value_and_grad(lambda pp: model.energy(coeffs, jnp.concatenate([qi, pp])))(pi)
         f = model.force(qi, pi, ui, ti, theta_f)
         f0 = model.force(qi, pi, jnp.zeros_like(ui), ti, theta_f)
         return h, vel @ (f - f0), vel @ f0
 
     energy, p_in, p_other = jax.vmap(point, in_axes=(1, 1, 0, 0))(q, p, u, jnp.asarray(grid))
     energy, p_in, p_other = (np.asarray(a) for a in (energy, p_in, p_other))
-    cum_in = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(grid) * (p_in[1:] + p_in[:-1]))])
-    cum_other = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(grid)
-                                                 * (p_other[1:] + p_other[:-1]))])
+    cum_in, cum_other = (cumulative_trapezoid(a, grid, initial=0.0) for a in (p_in, p_other))
     at = np.searchsorted(grid, np.concatenate([[t0], times]) - 1e-9 * max(1.0, span))
     at = np.clip(at, 0, grid.size - 1)
     dh, w_in, w_other = (np.diff(a[at]) for a in (energy, cum_in, cum_other))

@@ -50,6 +50,19 @@ __all__ = ["build_trajectory_likelihood", "noise_variances"]
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
+def bind_model_dynamics(model: Any, theta: Array, inv_mass: Any) -> Any:
+    """The dynamics the model's integrator steps, from θ: a driven model's force bound with
+    θ_Ψ = [H's parameters, θ_F] (:func:`~symplid.dynamics.forced.bind_forced`; each gap's
+    inputs are put in by the prediction), else H's coefficients and γ, read through the
+    layout (:func:`~symplid.dynamics.damping.bind_dynamics`)."""
+    force = getattr(model, "force", None)
+    if force is not None:
+        return bind_forced(model.hamiltonian, force, theta[..., :model.num_dynamics_params],
+                           inv_mass)
+    return bind_dynamics(model.integrator, model.hamiltonian, model.split(theta)[0], inv_mass,
+                         model.damping_rate(theta))
+
+
 def build_trajectory_likelihood(
     model: Any, max_steps: int, uniform_steps: bool
 ) -> Callable[..., FilterResult]:
@@ -71,12 +84,8 @@ def build_trajectory_likelihood(
         # NaN reaches the gradient through the discarded branch (as in the filter).
         theta = theta.at[nc:].set(jnp.where(variances > 0, variances, jnp.abs(variances) + 1e-12))
         inv_mass = inverse_mass(model.mass, d)
+        dynamics = bind_model_dynamics(model, theta, inv_mass)
         force = getattr(model, "force", None)
-        if force is not None:  # driven: each gap's inputs are put in below
-            dynamics = bind_forced(model.hamiltonian, force, theta[:nc], inv_mass)
-        else:  # H's coefficients and γ through the layout
-            dynamics = bind_dynamics(model.integrator, model.hamiltonian, model.split(theta)[0],
-                                     inv_mass, model.damping_rate(theta))
 
         def gap(x, inp):
             if force is not None:

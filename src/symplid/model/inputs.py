@@ -97,34 +97,22 @@ class SampledInputs(InputSignal):
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "values", values)
         object.__setattr__(self, "names", names)
-        if self.interpolation == "cubic":
-            from scipy.interpolate import CubicSpline
+        if self.interpolation != "zoh":  # both continue their end pieces outside the span
+            from scipy.interpolate import CubicSpline, make_interp_spline
 
-            object.__setattr__(self, "_spline", CubicSpline(times, values, axis=0))
+            spline = (CubicSpline(times, values, axis=0) if self.interpolation == "cubic"
+                      else make_interp_spline(times, values, k=1, axis=0))
+            object.__setattr__(self, "_spline", spline)
 
     @property
     def span(self) -> tuple[float, float]:
         return float(self.times[0]), float(self.times[-1])
 
-    def _end_lines(self, t: np.ndarray) -> np.ndarray:
-        """What the end segments' lines add to ``np.interp``'s held ends outside the span."""
-        t0, t1 = self.times[[0, 1]]
-        s0 = (self.values[1] - self.values[0]) / (t1 - t0)
-        tn1, tn = self.times[[-2, -1]]
-        sn = (self.values[-1] - self.values[-2]) / (tn - tn1)
-        before = np.minimum(t - t0, 0.0)[:, None]
-        after = np.maximum(t - tn, 0.0)[:, None]
-        return before * s0 + after * sn
-
     def evaluate(self, times: Any) -> np.ndarray:
         t = np.asarray(times, dtype=float)
         flat = t.ravel()
-        if self.interpolation == "cubic":
+        if self._spline is not None:
             out = self._spline(flat)
-        elif self.interpolation == "linear":
-            out = np.stack([np.interp(flat, self.times, self.values[:, j])
-                            for j in range(len(self.names))], axis=-1)
-            out = out + self._end_lines(flat)
         else:  # zero-order hold: the sample at or before t (the first before the record)
             index = np.clip(np.searchsorted(self.times, flat, side="right") - 1, 0, None)
             out = self.values[index]

@@ -31,8 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.dynamics.damping import bind_dynamics
-from symplid.dynamics.forced import at_gap, bind_forced
+from symplid.dynamics.forced import at_gap
 from symplid.dynamics.potentials import inverse_mass
 from symplid.dynamics.trajectory import propagate
 from symplid.filters import (
@@ -48,7 +47,7 @@ from symplid.filters import (
 )
 from symplid.filters.backends import LikelihoodBackend
 from symplid.filters.noise import ObservationNoise
-from symplid.model.deterministic import build_trajectory_likelihood
+from symplid.model.deterministic import bind_model_dynamics, build_trajectory_likelihood
 
 Array = jax.Array
 FilterFn = Callable[..., FilterResult]
@@ -205,19 +204,6 @@ def build_filter(model: StateSpaceModel, max_steps: int, uniform_steps: bool) ->
         return result._replace(log_likelihood=ll)
 
     return filter_fn
-
-
-def bind_model_dynamics(model: StateSpaceModel, theta: Array, inv_mass: Any) -> Any:
-    """The dynamics the model's integrator steps, from θ: a driven model's force bound with
-    θ_Ψ = [H's parameters, θ_F] (:func:`~symplid.dynamics.forced.bind_forced`; each gap's
-    inputs are put in by the prediction), else H's coefficients and γ, read through the
-    layout (:func:`~symplid.dynamics.damping.bind_dynamics`)."""
-    force = getattr(model, "force", None)
-    if force is not None:
-        return bind_forced(model.hamiltonian, force, theta[..., :model.num_dynamics_params],
-                           inv_mass)
-    return bind_dynamics(model.integrator, model.hamiltonian, model.split(theta)[0], inv_mass,
-                         model.damping_rate(theta))
 
 
 def _multiplicative(model: StateSpaceModel) -> bool:
