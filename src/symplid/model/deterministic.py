@@ -45,7 +45,7 @@ from symplid.filters import FilterResult, ObservationMoments
 
 Array = jax.Array
 
-__all__ = ["build_trajectory_likelihood", "noise_variances"]
+__all__ = ["bind_model_dynamics", "build_trajectory_likelihood", "noise_variances"]
 
 _LOG_2PI = math.log(2.0 * math.pi)
 

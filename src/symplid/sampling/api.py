@@ -67,6 +67,7 @@ from symplid.sampling.starts import chain_starts
 __all__ = [
     "InterruptedInBurnIn",
     "SamplerCheckpoint",
+    "built_kernel",
     "check_posterior",
     "draws_array",
     "finished_draws",
@@ -161,7 +162,7 @@ def sample(
     plan = _plan(spec, num_draws, num_params, num_chains, thin, burn_in, seed, options.targets)
     kernel_settings, chain_method = _run_settings(spec, method, settings, options.chain_method,
                                                   posterior, int(num_chains))
-    batch_logdensity, kernel = _built_kernel(posterior, spec, method, kernel_settings,
+    batch_logdensity, kernel = built_kernel(posterior, spec, method, kernel_settings,
                                              plan.burn_in)
     init = find_map(posterior, seed=seed) if init is None else init
     theta_map, cov_map, starts, states, extra_attrs, run_key = chain_starts(
@@ -260,7 +261,7 @@ def finished_draws(run: ChainRun, record: dict[str, Any]) -> ChainRun:
     return run._replace(draws=draws)
 
 
-def _built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
+def built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
                   burn_in: int) -> tuple[Any, SamplerKernel]:
     """The posterior's batched log density and the sampler's kernel, built once per
     posterior and settings (kept on the posterior): a run and its continuation

@@ -32,7 +32,7 @@ from symplid.inference.samplers.registry import SAMPLERS, SamplerKernel, Sampler
 from symplid.sampling.api import (
     InterruptedInBurnIn,
     SamplerCheckpoint,
-    _built_kernel,
+    built_kernel,
     check_posterior,
     draws_array,
     finished_draws,
@@ -176,7 +176,7 @@ def resume_sampling(
 def _kernel(posterior: Any, spec: SamplerSpec, method: str, record: dict) -> SamplerKernel:
     """The run's kernel, built from its recorded settings (or the one kept on the posterior)."""
     kernel_settings = make_settings(method, spec.settings_class, record["kernel"])
-    return _built_kernel(posterior, spec, method, kernel_settings, int(record["burn_in"]))[1]
+    return built_kernel(posterior, spec, method, kernel_settings, int(record["burn_in"]))[1]
 
 
 def _whole_run(run: ChainRun, old: dict[str, np.ndarray], attrs: dict[str, Any],
