@@ -74,11 +74,14 @@ MAX_FIRST_TRIES = 3
 @dataclass
 class StepChoice:
     """The outcome of :func:`choose_step`: the settings at the chosen step, the MAP there (in
-    the data's units, to start the fit from) and the record saved with the run."""
+    the data's units, to start the fit from), the record saved with the run and the posterior
+    at the chosen step in the fit's coordinates (the fit runs on it: the programs the search
+    compiled at that step, its objective and Hessian, are not compiled again)."""
 
     settings: Any
     theta: np.ndarray | None
     record: dict[str, Any] = field(default_factory=dict)
+    posterior: Any = None
 
 
 def smallest_gap(obs: Any, t0: float | str = "first") -> float:
@@ -99,18 +102,19 @@ def smallest_gap(obs: Any, t0: float | str = "first") -> float:
 
 def map_at_step(settings: Any, obs: Any, dt: float, init: np.ndarray | None = None,
                 hessian: bool = False, search: Callable | None = None,
-                plan: Any = None) -> tuple[Any, Any]:
+                plan: Any = None, posterior: Any = None) -> tuple[Any, Any]:
     """(MAP in the data's units, posterior) of ``settings`` at learning step ``dt``: from
     ``init`` (θ in the data's units, one start: a warm start from the MAP at another step),
     or, without ``init``, by ``search(settings, posterior)`` (the fit's whole search). The
     Laplace covariance only with ``hessian`` (or from ``search``); a warm start's evidence is
     Laplace's (the search reads the sds only: no quadrature). ``plan``: the fit's
-    :class:`~symplid.workflow.plan.ModelPlan`, whose U or H every refit reuses."""
+    :class:`~symplid.workflow.plan.ModelPlan`, whose U or H every refit reuses. ``posterior``:
+    the one an earlier call at this ``dt`` returned (its compiled programs are reused)."""
     at = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=float(dt)))
     if init is not None:
         at = dataclasses.replace(at, map=dataclasses.replace(at.map, evidence="laplace"))
     return refit_map(at, obs, init, compute_hessian=hessian,
-                     search=search if init is None else None, plan=plan)
+                     search=search if init is None else None, plan=plan, posterior=posterior)
 
 
 def _sds(result: Any) -> np.ndarray:
@@ -155,25 +159,28 @@ class _Search:
     candidates: list[tuple[float, float, bool]] = field(default_factory=list)
     refits: int = 0
     plan: Any = None
+    posteriors: dict[float, Any] = field(default_factory=dict)
+
+    def refit(self, dt: float, init: np.ndarray, hessian: bool = False) -> Any:
+        """The MAP at ``dt`` from ``init`` (data units), on the posterior kept for ``dt``."""
+        result, self.posteriors[dt] = map_at_step(self.settings, self.obs, dt, init,
+                                                  hessian=hessian, plan=self.plan,
+                                                  posterior=self.posteriors.get(dt))
+        _found(result, dt)
+        self.refits += 1
+        self.maps[dt] = np.asarray(result.theta, dtype=float)
+        return result
 
     def theta_at(self, dt: float) -> np.ndarray:
         """The MAP at ``dt``, refitted from the MAP found at the nearest step if not known."""
         if dt not in self.maps:
             nearest = min(self.maps, key=lambda s: abs(math.log(s / dt)))
-            result, _ = map_at_step(self.settings, self.obs, dt, self.maps[nearest],
-                                    plan=self.plan)
-            _found(result, dt)
-            self.refits += 1
-            self.maps[dt] = np.asarray(result.theta, dtype=float)
+            self.refit(dt, self.maps[nearest])
         return self.maps[dt]
 
     def laplace_at(self, dt: float) -> None:
         """The Laplace sds at ``dt`` (one refit from its MAP, with the Hessian)."""
-        result, _ = map_at_step(self.settings, self.obs, dt, self.theta_at(dt), hessian=True,
-                                plan=self.plan)
-        _found(result, dt)
-        self.refits += 1
-        self.maps[dt] = np.asarray(result.theta, dtype=float)
+        result = self.refit(dt, self.theta_at(dt), hessian=True)
         self.sds, self.sds_dt = _sds(result), dt
 
     def check(self, dt: float) -> dict[str, float]:
@@ -252,7 +259,7 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
                     order, _sds(first), dt, {dt: np.asarray(first.theta, dtype=float)},
-                    plan=plan)
+                    plan=plan, posteriors={dt: posterior})
     if status is not None:
         status(f'model.dt = "auto": halving the step until no parameter moves by more than '
                f"{THRESHOLD_SD:g} posterior sds...")
@@ -277,7 +284,7 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
               "passed": passed, "tried": tried, "refits": state.refits + tries,
               "seconds": time.perf_counter() - start}
     chosen = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=dt))
-    return StepChoice(chosen, state.theta_at(dt), record)
+    return StepChoice(chosen, state.theta_at(dt), record, state.posteriors.get(dt))
 
 
 def _unsearched(settings: Any, gap: float, base: dict[str, Any], why: str) -> StepChoice:
