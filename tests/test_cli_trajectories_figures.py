@@ -33,6 +33,7 @@ from symplid.workflow.settings import load_settings
 #: Known initial states, one per trajectory (K·2d numbers): A from (1, 0), B from (0, 0.8).
 SHORT = ["--order", "2", "--x0", "1,0,0,0.8", "--chains", "1", "--no-progress", "--set",
          "map.num_starts=1", "--set", "prediction.num_paths=5"]
+SHORT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 SHORT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 

@@ -47,7 +47,7 @@ def test_no_process_noise_in_the_data_is_not_taken_for_noise(double_well):
     data = symplid.simulate(double_well, seed=0)
     settings = merge_overrides(Settings(), {
         "initial_state.x0": list(double_well.initial_state), "map.num_starts": 1,
-        "model.noise": "isotropic"})
+        "model.noise": "isotropic", "model.dt": 0.25})
     table = compare_models(data, settings, orders=4, integrators="leapfrog",
                            process_noises=["none", "gap"], progress=False)
     ev = dict(zip(table["process_noise"], table["log_evidence"], strict=True))
