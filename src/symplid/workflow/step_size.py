@@ -47,6 +47,7 @@ __all__ = [
     "MAX_HALVINGS",
     "MAX_JUMP",
     "THRESHOLD_SD",
+    "UNSEARCHED_STEP",
     "StepChoice",
     "choose_step",
     "map_at_step",
@@ -69,6 +70,10 @@ MAX_JUMP = 3
 
 MAX_FIRST_TRIES = 3
 """How many steps (each half the last) the first, whole MAP search is tried at."""
+
+UNSEARCHED_STEP = 0.25
+"""The step of a family whose MAP is too costly to refit (a neural one): the library's fixed
+step before ``"auto"`` became the default, at most the data's smallest gap, unchecked."""
 
 
 @dataclass
@@ -254,8 +259,10 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     base = {"smallest_gap": gap, "integrator": settings.model.integrator, "order": order,
             "threshold_sd": THRESHOLD_SD}
     if model_family(settings.model).neural:
-        return _unsearched(settings, gap, base, "a neural family's MAP is its whole Adam + "
-                           "L-BFGS fit: the step is the data's smallest gap, unchecked")
+        return _unsearched(settings, min(gap, UNSEARCHED_STEP), base,
+                           "a neural family's MAP is its whole Adam + L-BFGS fit, too costly to "
+                           f"refit: the step is min(the data's smallest gap, "
+                           f"{UNSEARCHED_STEP:g}), unchecked; give model.dt to choose it")
     dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
                     order, _sds(first), dt, {dt: np.asarray(first.theta, dtype=float)},
@@ -287,9 +294,9 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     return StepChoice(chosen, state.theta_at(dt), record, state.posteriors.get(dt))
 
 
-def _unsearched(settings: Any, gap: float, base: dict[str, Any], why: str) -> StepChoice:
-    chosen = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=gap))
-    record = {**base, "dt": gap, "shifts": {}, "largest_shift_sd": None, "passed": False,
+def _unsearched(settings: Any, dt: float, base: dict[str, Any], why: str) -> StepChoice:
+    chosen = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=dt))
+    record = {**base, "dt": dt, "shifts": {}, "largest_shift_sd": None, "passed": False,
               "not_searched": why, "tried": "", "refits": 0, "seconds": 0.0}
     return StepChoice(chosen, None, record)
 
