@@ -111,13 +111,13 @@ def map_at_step(settings: Any, obs: Any, dt: float, init: np.ndarray | None = No
     """(MAP in the data's units, posterior) of ``settings`` at learning step ``dt``: from
     ``init`` (θ in the data's units, one start: a warm start from the MAP at another step),
     or, without ``init``, by ``search(settings, posterior)`` (the fit's whole search). The
-    Laplace covariance only with ``hessian`` (or from ``search``); a warm start's evidence is
-    Laplace's (the search reads the sds only: no quadrature). ``plan``: the fit's
+    Laplace covariance only with ``hessian`` (or from ``search``); the evidence is always
+    Laplace's (the search reads the sds only: no quadrature, which the fit computes once, at
+    the chosen step). ``plan``: the fit's
     :class:`~symplid.workflow.plan.ModelPlan`, whose U or H every refit reuses. ``posterior``:
     the one an earlier call at this ``dt`` returned (its compiled programs are reused)."""
-    at = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=float(dt)))
-    if init is not None:
-        at = dataclasses.replace(at, map=dataclasses.replace(at.map, evidence="laplace"))
+    at = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=float(dt)),
+                             map=dataclasses.replace(settings.map, evidence="laplace"))
     return refit_map(at, obs, init, compute_hessian=hessian,
                      search=search if init is None else None, plan=plan, posterior=posterior)
 
