@@ -24,7 +24,6 @@ from symplid.workflow.step_size import (
     _halvings,
     choose_step,
     map_at_step,
-    median_gap,
     smallest_gap,
     step_lines,
 )
@@ -58,10 +57,6 @@ def test_smallest_gap_over_trajectories_and_from_t0():
     assert smallest_gap(a) == pytest.approx(0.25)
     assert smallest_gap([a, b]) == pytest.approx(0.1)
     assert smallest_gap(a, t0=0.45) == pytest.approx(0.05)  # t0 → first observation
-    # the first candidate step: the median gap (0.25, 0.5, 0.75 and 0.1, 0.4)
-    assert median_gap(a) == pytest.approx(0.5)
-    assert median_gap([a, b]) == pytest.approx(0.4)
-    assert median_gap(a, t0=0.45) == pytest.approx(0.375)
 
 
 def test_halvings_follow_the_integrators_order():

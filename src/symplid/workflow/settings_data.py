@@ -9,7 +9,6 @@ the model's U or H is built, :func:`check_data` with it.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import warnings
 from typing import Any
@@ -142,10 +141,8 @@ def _check_data(obs: Any, settings: Settings, source: str) -> None:
             )
         starts = np.concatenate([[float(init.t0)], times[:-1]])
     gaps = times[-starts.size :] - starts
-    # "auto": the first step the fit tries is the median gap (symplid.workflow.step_size)
-    positive = gaps[gaps > 0]
-    first_step = float(np.median(positive)) if positive.size else math.inf
-    dt = first_step if model.dt == "auto" else model.dt
+    # "auto": the first step the fit tries is the smallest gap (symplid.workflow.step_size)
+    dt = float(np.min(gaps[gaps > 0], initial=np.inf)) if model.dt == "auto" else model.dt
     steps = np.ceil(gaps / dt)
     if np.max(steps) > MAX_SUBSTEPS_PER_GAP:
         k = int(np.argmax(steps))

@@ -5,15 +5,12 @@ order p moves it by about C·dt^p. A fit at a given dt cannot see this bias; hal
 shows it (Richardson): θ̂(dt) − θ̂(dt/2) ≈ C·dt^p·(1 − 2^−p). The search chooses **the largest
 step whose halving moves no dynamics parameter** (:data:`~symplid.workflow.sensitivity.
 DYNAMICS_GROUPS`) **by more than** :data:`THRESHOLD_SD` **posterior sds at the MAP**, never
-above the data's median gap:
+above the data's smallest gap:
 
-1. the first candidate is the data's median gap (:func:`median_gap`; a step above it would
-   leave most gaps at one step, ⌈gap/dt⌉ = 1). Every substep is at most dt (a gap shorter than
-   dt is one step of its own length), so irregular times with one near-coincident pair do not
-   force a tiny step: the check below decides. For evenly spaced data the median gap is the
-   gap. Its MAP is the fit's whole search (``map.num_starts`` starts and the Laplace sds). If
-   that search fails, the step is halved and searched again (up to :data:`MAX_FIRST_TRIES`
-   times);
+1. the first candidate is the data's smallest gap (:func:`smallest_gap`; a step above it
+   would be cut to the gap anyway, ⌈gap/dt⌉ = 1); its MAP is the fit's whole search
+   (``map.num_starts`` starts and the Laplace sds). If that search fails, the step is halved
+   and searched again (up to :data:`MAX_FIRST_TRIES` times);
 2. the MAP at dt/2 is found from the MAP at dt (one warm start, no Hessian) and each
    parameter's move is measured in the sds of the last Laplace covariance;
 3. a move above the threshold: the integrator's order p predicts how many halvings bring it
@@ -54,7 +51,6 @@ __all__ = [
     "StepChoice",
     "choose_step",
     "map_at_step",
-    "median_gap",
     "smallest_gap",
     "step_check",
     "step_line",
@@ -66,7 +62,7 @@ THRESHOLD_SD = 0.1
 may cause."""
 
 MAX_HALVINGS = 8
-"""The chosen step is at least the median gap / 2^MAX_HALVINGS; a search that reaches it
+"""The chosen step is at least the smallest gap / 2^MAX_HALVINGS; a search that reaches it
 keeps it and says that the check did not pass."""
 
 MAX_JUMP = 3
@@ -93,9 +89,9 @@ class StepChoice:
     posterior: Any = None
 
 
-def _gaps(obs: Any, t0: float | str) -> np.ndarray:
-    """Every positive time between consecutive observations (and between ``t0`` and the
-    first, for a numeric ``t0``) over every trajectory."""
+def smallest_gap(obs: Any, t0: float | str = "first") -> float:
+    """The smallest positive time between consecutive observations (and between ``t0`` and
+    the first, for a numeric ``t0``) over every trajectory: the largest useful step."""
     gaps = []
     for o in as_list(obs):
         times = np.asarray(o.times, dtype=float)
@@ -106,18 +102,7 @@ def _gaps(obs: Any, t0: float | str) -> np.ndarray:
     positive = np.concatenate(gaps)
     if positive.size == 0:
         raise ValueError("the data have no two distinct observation times to choose dt from")
-    return positive
-
-
-def smallest_gap(obs: Any, t0: float | str = "first") -> float:
-    """The smallest positive time between consecutive observations (and between ``t0`` and
-    the first, for a numeric ``t0``) over every trajectory."""
-    return float(np.min(_gaps(obs, t0)))
-
-
-def median_gap(obs: Any, t0: float | str = "first") -> float:
-    """The median of the same gaps: the search's first candidate step."""
-    return float(np.median(_gaps(obs, t0)))
+    return float(np.min(positive))
 
 
 def map_at_step(settings: Any, obs: Any, dt: float, init: np.ndarray | None = None,
@@ -231,7 +216,7 @@ def _found(result: Any, dt: float) -> None:
 def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
                   status: Callable[[str], None] | None,
                   plan: Any = None) -> tuple[float, Any, Any, int]:
-    """The fit's whole MAP search at the median gap, at half of it if it fails, ...: (dt,
+    """The fit's whole MAP search at the smallest gap, at half of it if it fails, ...: (dt,
     MAP in the data's units, posterior, tries). Raises the last failure's MapFailedError."""
     from symplid.inference.map import MapFailedError, failure_message
 
@@ -271,33 +256,29 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     -------
     StepChoice
         The settings with the chosen ``model.dt``, the MAP there and the record:
-        ``dt``, ``smallest_gap``, ``median_gap`` (the first candidate), ``integrator``,
-        ``order``, ``threshold_sd``, ``shifts``
+        ``dt``, ``smallest_gap``, ``integrator``, ``order``, ``threshold_sd``, ``shifts``
         (each dynamics parameter's move when the chosen step is halved, in its Laplace sds),
         ``largest_shift_sd``, ``passed``, ``tried`` (each step tried and its largest move, in
         words), ``refits`` and ``seconds``.
     """
     start = time.perf_counter()
     gap = smallest_gap(obs, settings.initial_state.t0)
-    first_step = median_gap(obs, settings.initial_state.t0)
     order = int(get_integrator(settings.model.integrator).order)
-    base = {"smallest_gap": gap, "median_gap": first_step,
-            "integrator": settings.model.integrator, "order": order,
+    base = {"smallest_gap": gap, "integrator": settings.model.integrator, "order": order,
             "threshold_sd": THRESHOLD_SD}
     if model_family(settings.model).neural:
         return _unsearched(settings, min(gap, UNSEARCHED_STEP), base,
                            "a neural family's MAP is its whole Adam + L-BFGS fit, too costly to "
                            f"refit: the step is min(the data's smallest gap, "
                            f"{UNSEARCHED_STEP:g}), unchecked; give model.dt to choose it")
-    dt, first, posterior, tries = _first_search(settings, obs, first_step, search, status,
-                                                plan)
+    dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
                     order, _sds(first), dt, {dt: np.asarray(first.theta, dtype=float)},
                     plan=plan, posteriors={dt: posterior})
     if status is not None:
         status(f'model.dt = "auto": halving the step until no parameter moves by more than '
                f"{THRESHOLD_SD:g} posterior sds...")
-    moves, passed, smallest = {}, False, first_step / 2**MAX_HALVINGS
+    moves, passed, smallest = {}, False, gap / 2**MAX_HALVINGS
     while dt >= smallest:
         moves = state.check(dt)
         largest = _largest(moves)
@@ -348,8 +329,7 @@ def step_lines(record: dict[str, Any]) -> list[str]:
                   "learning step may still bias the parameters; use a higher-order integrator "
                   "(yoshida4).", ""]
     lines += [f"dt = {record['dt']:.4g} ({record['integrator']}, order {record['order']}; the "
-              f"data's median gap is {record.get('median_gap', record['smallest_gap']):.4g}, "
-              f"its smallest {record['smallest_gap']:.4g}): the largest step tried "
+              f"data's smallest gap is {record['smallest_gap']:.4g}): the largest step tried "
               f"whose halving moves no dynamics parameter by more than "
               f"{record['threshold_sd']:g} posterior sds at the MAP; {record['refits']} MAP "
               f"refits, {record['seconds']:.0f} s.", "",
