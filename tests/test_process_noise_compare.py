@@ -70,7 +70,8 @@ def test_cli_compare_prefers_the_filter_when_the_states_are_perturbed(double_wel
     x0 = ",".join(str(v) for v in double_well.initial_state)
     result = CliRunner().invoke(main, [
         "compare", str(path), "--orders", "4", "--process-noise", "--x0", x0, "--out", str(out),
-        "--set", "map.num_starts=1", "--set", "model.noise=isotropic", "--no-progress"],
+        "--set", "map.num_starts=1", "--set", "model.noise=isotropic", "--set", "model.dt=0.25",
+        "--no-progress"],
         catch_exceptions=False)
     assert result.exit_code == 0, result.output
     assert "best: order 4 with leapfrog; table" in result.output  # not "no process noise"
