@@ -230,7 +230,8 @@ def test_the_truth_of_a_named_system_by_the_models_coefficient_names(two_traject
     from symplid.workflow.settings import Settings, merge_overrides
 
     data = read_trajectories([two_trajectories["A"]])
-    settings = merge_overrides(Settings(), {"plots.truth": "harmonic", "model.order": 3})
+    settings = merge_overrides(Settings(), {"plots.truth": "harmonic", "model.order": 3,
+                                            "model.dt": 0.25})
     system, values = truth_values(settings, build_model(settings, data))
     assert system.name == "harmonic"
     # U = q²/2: the model's other terms (q, q³) are truly zero.
