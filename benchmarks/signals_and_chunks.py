@@ -58,7 +58,7 @@ def _default_sigint() -> None:
 def _one_stop(data: Path, out: Path, phase: str, signum: int, delay: float) -> tuple[float, str]:
     fit = subprocess.Popen([*CLI, "fit", str(data), "--out", str(out), "--x0",
                             "0.2,-0.25,0.3,-0.25", "--no-progress", "--no-report",
-                            "--iterations", "200000", "--burn-in", "2000"],
+                            "--iterations", "200000", "--burn-in", "2000", "--dt", "0.25"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                            preexec_fn=_default_sigint)
     trigger = out / "data.csv" if phase == "map" else out / "draws" / "chunk-000000.npz"
@@ -107,6 +107,7 @@ def overhead(repeats: int, iterations: int) -> None:
     base = Settings()
     base = dataclasses.replace(
         base, initial_state=dataclasses.replace(base.initial_state, x0=tuple(hh.initial_state)),
+        model=dataclasses.replace(base.model, dt=0.25),  # the paper's step, not "auto"
         sampler=dataclasses.replace(base.sampler, num_iterations=iterations,
                                     burn_in=iterations // 2))
     settings = resolve_for_data(base, obs, "benchmark")

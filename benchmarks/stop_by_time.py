@@ -36,6 +36,7 @@ import numpy as np
 FIT = ["--order", "2", "--x0", "1,0", "--chains", "2", "--no-progress", "--no-report",
        "--set", "map.num_starts=1", "--set", "map.sensitivity=false",
        "--set", "map.evidence=laplace"]
+FIT += ["--dt", "0.25"]  # a fixed step: the workload of the measurements before "auto"
 
 _THROUGHPUT = """
 import sys, time
@@ -45,7 +46,8 @@ from symplid.sampling import sample
 from symplid.workflow.fit import build_model, build_posterior
 from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
 obs = read_observations(sys.argv[1])
-s = merge_overrides(Settings(), {"model.order": 2, "initial_state.x0": [1.0, 0.0]}, source="b")
+s = merge_overrides(Settings(), {"model.order": 2, "model.dt": 0.25,
+                                 "initial_state.x0": [1.0, 0.0]}, source="b")
 s = resolve_for_data(s, obs, "b")
 post = build_posterior(s, obs, build_model(s, obs))
 init = find_map(post, seed=0, num_starts=1)

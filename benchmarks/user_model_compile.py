@@ -59,7 +59,7 @@ def child(size: int) -> dict:
     obs = symplid.Observations(t, values, ("q1", "q2", "p1", "p2"))
     settings = resolve_for_data(settings_from_dict({
         "initial_state": {"x0": [1.0, 0.0, 0.0, 0.5]},
-        "model": {"potential": expression(size),
+        "model": {"potential": expression(size), "dt": 0.25,
                   "parameters": {"k": {"prior": "half-normal", "scale": 2.0}}}}), obs)
     start = time.perf_counter()
     model = build_model(settings, obs)

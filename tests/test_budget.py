@@ -134,6 +134,7 @@ def test_a_resumed_run_without_a_budget_equals_the_uninterrupted_one(method, tmp
 FIT = ["--order", "2", "--x0", "1,0", "--chains", "4", "--no-progress", "--no-report",
        "--set", "map.num_starts=1", "--set", "map.sensitivity=false",
        "--set", "sampler.chunk_size=500"]
+FIT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 
 
 def run(*args):

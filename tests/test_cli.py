@@ -26,6 +26,7 @@ SUMMARY_KEYS = {
 }
 TINY_FIT = ["--iterations", "800", "--burn-in", "400", "--chains", "2", "--no-progress",
             "--no-report"]
+TINY_FIT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 TINY_FIT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 
@@ -129,6 +130,8 @@ def test_same_seed_same_fit(tmp_path, harmonic_csv):
             "2",
             "--x0",
             "1,0",
+            "--dt",
+            "0.25",
             "--iterations",
             "300",
             "--burn-in",

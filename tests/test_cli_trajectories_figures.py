@@ -33,6 +33,7 @@ from symplid.workflow.settings import load_settings
 #: Known initial states, one per trajectory (K·2d numbers): A from (1, 0), B from (0, 0.8).
 SHORT = ["--order", "2", "--x0", "1,0,0,0.8", "--chains", "1", "--no-progress", "--set",
          "map.num_starts=1", "--set", "prediction.num_paths=5"]
+SHORT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 SHORT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 
@@ -229,7 +230,8 @@ def test_the_truth_of_a_named_system_by_the_models_coefficient_names(two_traject
     from symplid.workflow.settings import Settings, merge_overrides
 
     data = read_trajectories([two_trajectories["A"]])
-    settings = merge_overrides(Settings(), {"plots.truth": "harmonic", "model.order": 3})
+    settings = merge_overrides(Settings(), {"plots.truth": "harmonic", "model.order": 3,
+                                            "model.dt": 0.25})
     system, values = truth_values(settings, build_model(settings, data))
     assert system.name == "harmonic"
     # U = q²/2: the model's other terms (q, q³) are truly zero.

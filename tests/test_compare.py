@@ -89,7 +89,7 @@ def settings(double_well):
     # "auto" would give one per kind and a parameter more to every candidate)
     return merge_overrides(
         Settings(), {"initial_state.x0": list(system.initial_state), "map.num_starts": 1,
-                     "model.noise": "isotropic"}
+                     "model.noise": "isotropic", "model.dt": 0.25}
     )
 
 

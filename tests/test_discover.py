@@ -92,7 +92,7 @@ def well():
     data = symplid.simulate(system, seed=0)
     settings = merge_overrides(Settings(), {
         "initial_state.x0": list(system.initial_state), "map.num_starts": 1,
-        "model.noise": "isotropic"})
+        "model.noise": "isotropic", "model.dt": 0.25})
     return system, data, settings
 
 
@@ -130,7 +130,7 @@ def test_paper_data_seed_0_finds_the_henon_heiles_terms(tmp_path):
     system = symplid.get_system("henon-heiles")
     data = symplid.simulate(system, seed=0)
     settings = merge_overrides(Settings(), {"initial_state.x0": list(system.initial_state),
-                                            "map.num_starts": 2})
+                                            "map.num_starts": 2, "model.dt": 0.25})
     found = discover(data, settings, order=3, out=tmp_path, progress=False)
     inclusion = dict(zip(found.table["term"], found.table["inclusion_probability"],
                          strict=True))

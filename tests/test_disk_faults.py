@@ -22,6 +22,7 @@ import pytest
 
 FIT = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1"]
+FIT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 FIT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 

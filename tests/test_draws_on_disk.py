@@ -29,6 +29,7 @@ from symplid.workflow.results import RunFolder, RunFolderError
 FIT = ["--order", "2", "--x0", "1,0", "--iterations", "6000", "--burn-in", "1000", "--chains",
        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1", "--set",
        "sampler.chunk_size=200"]
+FIT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 FIT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 

@@ -37,6 +37,7 @@ from symplid.workflow.results import RunFolder
 FIT = ["--order", "2", "--x0", "1,0", "--chains", "2", "--no-progress", "--no-report",
        "--set", "map.num_starts=1", "--set", "map.sensitivity=false",
        "--set", "map.evidence=laplace"]
+FIT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 
 
 def _environment(cache: bool = True) -> dict[str, str]:

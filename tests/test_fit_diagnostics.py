@@ -27,6 +27,7 @@ from symplid.workflow.results import RunFolder
 from symplid.workflow.settings import Settings, merge_overrides
 
 TINY = ["--iterations", "600", "--burn-in", "300", "--chains", "2", "--no-progress"]
+TINY += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 
 
 def run(*args: str):
@@ -156,7 +157,8 @@ def test_a_stop_during_the_checks_keeps_the_map(tmp_path, harmonic_csv, monkeypa
     monkeypatch.setattr(sensitivity, "refit_map", _stop)
     obs = read_observations(harmonic_csv)
     settings = merge_overrides(Settings(), {
-        "model.order": 2, "initial_state.x0": [1.0, 0.0], "sampler.num_iterations": 600,
+        "model.order": 2, "model.dt": 0.25, "initial_state.x0": [1.0, 0.0],
+        "sampler.num_iterations": 600,
         "sampler.burn_in": 300, "sampler.num_chains": 2})
     out = tmp_path / "stopped"
     with pytest.raises(StopRequested):

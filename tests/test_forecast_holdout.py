@@ -22,6 +22,7 @@ from symplid.model.statespace import HamiltonianModel
 from symplid.workflow.results import RunFolder
 
 TINY = ["--iterations", "600", "--burn-in", "300", "--chains", "2", "--no-progress"]
+TINY += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 TINY += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 

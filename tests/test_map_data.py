@@ -234,7 +234,7 @@ def test_fit_stops_before_sampling_when_the_map_fails(tmp_path: Path, monkeypatc
                         functools.partial(symplid.find_map, maxiter=1))
     out = tmp_path / "run"
     result = runner.invoke(main, ["fit", str(data), "--out", str(out), "--order", "2",
-                                  "--x0", "1,0", "--iterations", "400",
+                                  "--x0", "1,0", "--dt", "0.25", "--iterations", "400",
                                   "--burn-in", "200", "--chains", "2", "--no-progress",
                                   "--no-report"])
     assert result.exit_code == 2, result.output

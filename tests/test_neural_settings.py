@@ -30,7 +30,7 @@ X0 = [0.2, -0.25, 0.3, -0.25]
 
 def mlp_settings(**model) -> Settings:
     return settings_from_dict({
-        "model": {"potential": "mlp", **model},
+        "model": {"potential": "mlp", "dt": 0.25, **model},
         "sampler": {"method": "nuts"},
         "initial_state": {"x0": X0},
     })

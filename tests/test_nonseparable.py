@@ -355,7 +355,7 @@ def test_settings_name_the_hamiltonian_and_its_integrators(pendulum_data):
     with pytest.raises(SettingsError, match=r"model\.binding is Tao's"):
         resolve_for_data(binding, pendulum_data)
     qp = settings_from_dict({**base, "model": {"hamiltonian": "polynomial-qp", "order": 2,
-                                               "integrator": "implicit-midpoint"},
+                                               "integrator": "implicit-midpoint", "dt": 0.05},
                              "prediction": {"integrator": "implicit-midpoint"}})
     model = build_model(resolve_for_data(qp, pendulum_data), pendulum_data)
     assert model.num_coefficients == PolynomialHamiltonian(2, 2).num_params == 14

@@ -47,7 +47,7 @@ def test_no_process_noise_in_the_data_is_not_taken_for_noise(double_well):
     data = symplid.simulate(double_well, seed=0)
     settings = merge_overrides(Settings(), {
         "initial_state.x0": list(double_well.initial_state), "map.num_starts": 1,
-        "model.noise": "isotropic"})
+        "model.noise": "isotropic", "model.dt": 0.25})
     table = compare_models(data, settings, orders=4, integrators="leapfrog",
                            process_noises=["none", "gap"], progress=False)
     ev = dict(zip(table["process_noise"], table["log_evidence"], strict=True))
@@ -70,7 +70,8 @@ def test_cli_compare_prefers_the_filter_when_the_states_are_perturbed(double_wel
     x0 = ",".join(str(v) for v in double_well.initial_state)
     result = CliRunner().invoke(main, [
         "compare", str(path), "--orders", "4", "--process-noise", "--x0", x0, "--out", str(out),
-        "--set", "map.num_starts=1", "--set", "model.noise=isotropic", "--no-progress"],
+        "--set", "map.num_starts=1", "--set", "model.noise=isotropic", "--set", "model.dt=0.25",
+        "--no-progress"],
         catch_exceptions=False)
     assert result.exit_code == 0, result.output
     assert "best: order 4 with leapfrog; table" in result.output  # not "no process noise"

@@ -27,6 +27,7 @@ from symplid.workflow.results import RunFolder
 
 TINY = ["--iterations", "400", "--burn-in", "200", "--chains", "2", "--no-progress",
         "--no-report", "--set", "sampler.chunk_size=100"]
+TINY += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 TINY += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 

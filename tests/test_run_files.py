@@ -25,6 +25,7 @@ from symplid.sampling import sample
 TINY = ["--order", "2", "--x0", "1,0", "--iterations", "400", "--burn-in", "200", "--chains",
         "2", "--no-progress", "--no-report", "--set", "map.num_starts=1", "--set",
         "sampler.chunk_size=100"]
+TINY += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 TINY += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 

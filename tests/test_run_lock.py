@@ -22,6 +22,7 @@ from symplid.io.files import FolderLock, FolderLockedError
 
 FIT = ["--order", "2", "--x0", "1,0", "--burn-in", "200", "--chains", "2", "--no-progress",
        "--no-report", "--set", "map.num_starts=1", "--overwrite"]
+FIT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 FIT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 
 

@@ -38,7 +38,7 @@ def well():
 
 def _settings(x0, **extra) -> Settings:
     overrides = {"initial_state.x0": list(x0), "model.noise": "isotropic", "model.order": 4,
-                 "map.num_starts": 2, **extra}
+                 "map.num_starts": 2, "model.dt": 0.25, **extra}
     return merge_overrides(Settings(), overrides)
 
 
@@ -137,8 +137,8 @@ def test_fit_writes_the_run_in_the_data_units(well, tmp_path):
     system, _, big = well
     s = merge_overrides(Settings(), {
         "initial_state.x0": list(system.initial_state * SCALE), "model.order": 4,
-        "map.num_starts": 2, "sampler.num_iterations": 400, "sampler.burn_in": 200,
-        "sampler.num_chains": 1,
+        "model.dt": 0.25, "map.num_starts": 2, "sampler.num_iterations": 400,
+        "sampler.burn_in": 200, "sampler.num_chains": 1,
     })
     notes: list[str] = []
     with warnings.catch_warnings():

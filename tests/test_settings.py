@@ -34,11 +34,11 @@ def _load_text(tmp_path, text: str, name: str = "run.toml") -> Settings:
 # ----------------------------------------------------------------------------- defaults
 def test_defaults_are_the_papers_numbers():
     s = Settings()
-    # Section IV of the paper: cubic potential, leapfrog at dt = 0.25, process
-    # noise once per gap. The noise layout and the standardisation default to "auto" (decided
-    # by the data); the paper's experiment sets one isotropic variance each for Σ and Γ and
-    # no standardisation itself (see test_paper_settings_fix_the_auto_defaults).
-    assert (s.model.order, s.model.integrator, s.model.dt) == (3, "leapfrog", 0.25)
+    # Section IV of the paper: cubic potential, leapfrog, process noise once per gap. The
+    # learning step, the noise layout and the standardisation default to "auto" (decided by
+    # the data); the paper's experiment sets its dt = 0.25, one isotropic variance each for Σ
+    # and Γ and no standardisation itself (see test_paper_settings_fix_the_auto_defaults).
+    assert (s.model.order, s.model.integrator, s.model.dt) == (3, "leapfrog", "auto")
     assert (s.model.process_noise_per, s.model.noise, s.model.observation) == (
         "gap",
         "auto",
@@ -83,11 +83,16 @@ def test_paper_settings_fix_the_auto_defaults(hh_data):
     from symplid.studies.paper import PaperConfig, paper_settings
     from symplid.studies.paper_cells import known_initial_state
     from symplid.workflow.settings import resolve_for_data
+    from symplid.workflow.sweep_spec import cell_settings, sweep_spec_from_dict
 
     for approach in ("leapfrog", "rk2"):
         m = resolve_for_data(paper_settings(PaperConfig(), approach), hh_data).model
         assert (m.noise, m.standardise, m.observation_noise) == ("isotropic", "off", "additive")
+        assert m.dt == 0.25  # the paper's step, where a user's fit chooses it ("auto")
     assert known_initial_state({})["model"] == {"noise": "isotropic", "standardise": "off"}
+    cell = sweep_spec_from_dict({"base": {}, "sweep": {"grid": {"seed": [0]}}}).cells[0]
+    assert cell.settings["dt"] == 0.25  # a paper sweep's cell too
+    assert cell_settings(cell.settings).model.dt == 0.25
     # while a user's full-state file gets one variance per kind, positions-only one in all
     init = paper_settings(PaperConfig(), "leapfrog").initial_state
     default = resolve_for_data(Settings(initial_state=init), hh_data).model
@@ -102,7 +107,7 @@ def test_defaults_build_the_papers_model():
     model = symplid.HamiltonianModel(
         symplid.Polynomial(dim=2, order=m.order),
         integrator=m.integrator,
-        dt=m.dt,
+        dt=0.25,  # the paper's (the default "auto" is chosen by the fit from the data)
         process_noise_per=m.process_noise_per,
         noise="isotropic",  # the paper's (the default "auto" is resolved from the data)
         observation_noise=m.observation_noise,
@@ -312,7 +317,7 @@ def test_merge_overrides_sets_dotted_keys():
 
 def test_merge_overrides_skips_none_and_reseeds():
     s = merge_overrides(Settings(), {"seed": 9, "model.dt": None})
-    assert (s.seed, s.map.seed, s.sampler.seed, s.model.dt) == (9, 9, 9, 0.25)
+    assert (s.seed, s.map.seed, s.sampler.seed, s.model.dt) == (9, 9, 9, "auto")
     s = merge_overrides(Settings(), {"seed": 9, "sampler.seed": 2})
     assert (s.map.seed, s.sampler.seed) == (9, 2)
 
@@ -483,7 +488,7 @@ def test_process_var_prior_setting_scales_a_log_uniform_to_the_data():
     b = float(np.mean(np.var(obs.values, axis=0, ddof=1)))
     for choice, want in (("variances", HalfNormal(1.0)), ("log-uniform", LogUniform(b * 1e-8, b))):
         settings = merge_overrides(Settings(), {"model.order": 2, "initial_state.x0": [1.0, 0.0],
-                                                "priors.process_var": choice})
+                                                "model.dt": 0.25, "priors.process_var": choice})
         posterior = build_posterior(settings, obs, build_model(settings, obs))
         groups = np.asarray(posterior.param_groups)
         sigma = [p for p, g in zip(posterior.priors, groups, strict=True) if g == "process_var"]

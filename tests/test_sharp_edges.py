@@ -23,7 +23,8 @@ def test_learned_initial_state_with_data_from_t0_just_works(tmp_path):
 
     t = np.arange(0.0, 12.0)
     obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
-    learned = merge_overrides(Settings(), {"initial_state.mode": "learned", "model.order": 2})
+    learned = merge_overrides(Settings(), {"initial_state.mode": "learned", "model.order": 2,
+                                           "model.dt": 0.25})
     resolved = resolve_for_data(learned, obs)
     assert resolved.initial_state.t0 == "first"
     posterior = build_posterior(resolved, obs, build_model(resolved, obs))
@@ -56,7 +57,7 @@ def _resolved(tmp_path, overrides):
     return resolve_for_data(merge_overrides(settings_from_dict({
         "initial_state": {"mode": "learned"},
         "model": {"parameters": {"a": {"prior": "normal", "loc": 0.0, "scale": 1.0}}}
-        if "model.hamiltonian" in overrides else {}}), overrides), obs), obs
+        if "model.hamiltonian" in overrides else {}}), {"model.dt": 0.25, **overrides}), obs), obs
 
 
 @pytest.mark.parametrize(("overrides", "advice"), [
@@ -343,7 +344,8 @@ def test_report_and_summary_describe_a_user_model_as_written(tmp_path):
     out = tmp_path / "run"
     result = CliRunner().invoke(main, [
         "fit", str(data), "--config", str(config), "--out", str(out), "--iterations", "400",
-        "--burn-in", "200", "--chains", "2", "--no-progress", "--set", "map.sensitivity=false",
+        "--dt", "0.25", "--burn-in", "200", "--chains", "2", "--no-progress",
+        "--set", "map.sensitivity=false",
         "--set", "sampler.chunk_size=100"], catch_exceptions=False)
     assert result.exit_code == 0, result.output
     written = "U(q) = k*(1 - cos(q1)) (parameters: k)"

@@ -29,6 +29,7 @@ from symplid.workflow.results import RunFolder
 
 FIT = ["--order", "2", "--x0", "1,0", "--burn-in", "100", "--chains", "2", "--no-progress",
        "--no-report", "--set", "sampler.chunk_size=500", "--iterations", "2000000"]
+FIT += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
 FIT += ["--set", "map.sensitivity=false"]  # the MAP refits: test_fit_diagnostics.py
 #: A longer MAP search to land signals in; a short one to reach sampling soon.
 STARTS = {"map": ["--set", "map.num_starts=8"],

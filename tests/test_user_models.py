@@ -186,7 +186,8 @@ def test_a_singular_potential_gives_minus_infinity_not_an_error():
     t = np.linspace(1.0, 4.0, 4)
     obs = Observations(t, np.zeros((4, 2)), ("q1", "q2"))
     s = resolve_for_data(settings_from_dict({
-        "model": {"potential": KEPLER, "parameters": {"GM": {"prior": "half-normal"}}},
+        "model": {"potential": KEPLER, "dt": 0.25,
+                  "parameters": {"GM": {"prior": "half-normal"}}},
         "initial_state": {"x0": [0.0, 0.0, 0.0, 0.0]}}), obs)
     posterior = build_posterior(s, obs, build_model(s, obs))
     assert float(posterior.log_likelihood(np.array([1.0, 0.1, 0.1]))) == -math.inf

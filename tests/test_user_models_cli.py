@@ -170,7 +170,7 @@ def test_polynomial_qp_from_the_command_line_reports(tmp_path):
         size=(20, 2))
     np.savetxt(data, np.column_stack([t, values]), delimiter=",", header="t,q1,p1", comments="")
     out = tmp_path / "run"
-    result = run("fit", data, "--out", out, "--x0", "1,0",
+    result = run("fit", data, "--out", out, "--x0", "1,0", "--dt", "0.25",
                  "--set", "model.hamiltonian=polynomial-qp", "--set", "model.order=2",
                  "--integrator", "implicit-midpoint",
                  "--set", "prediction.integrator=implicit-midpoint", "--iterations", "200",

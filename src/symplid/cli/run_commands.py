@@ -223,7 +223,8 @@ def simulate(system, out, t_end, num_obs, times, noise_std, seed, observation, o
 @click.option("--integrator", cls=RegistryOption, registry=integrator_registry, default=None,
               help="Learning propagator: {choices}.")
 @click.option("--dt", type=str, default=None,
-              help='Learning step: a number, or "auto" (chosen from the data by step doubling).')
+              help='Learning step: a number, or "auto" (the default: chosen from the data by '
+                   'step doubling).')
 @click.option("--damping", is_flag=True, default=None,
               help="Learn a damping rate γ (ṗ = −∂U/∂q − γM⁻¹p; model.damping = true).")
 @click.option("--observation-noise", type=LazyChoice(noise_model_names), default=None,

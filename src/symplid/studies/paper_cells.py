@@ -23,6 +23,7 @@ from symplid.workflow.validate import Spec
 
 __all__ = [
     "CELL_KEYS",
+    "PAPER_DT",
     "PAPER_MAP",
     "PAPER_MODEL",
     "PAPER_PRIORS",
@@ -36,6 +37,8 @@ __all__ = [
 _DEFAULTS = settings_to_dict(Settings())
 #: The paper's model settings that differ from the library's "auto" defaults.
 PAPER_MODEL = {"noise": "isotropic", "standardise": "off"}
+#: The paper's learning step (Section IV), where a user's fit defaults to "auto".
+PAPER_DT = 0.25
 #: The paper's DRAM moves θ itself (the library's default moves the variances as log v).
 PAPER_SAMPLER = {"variance_scale": "natural"}
 #: The paper reports no evidence: the Laplace value (no extra fits) is recorded; nor do its
@@ -62,8 +65,10 @@ CELL_KEYS: dict[str, Spec] = {
     "num_obs": Spec(int, None, "number of observations", minimum=1),
     "obs_interval": Spec(float, None, "time between observations", minimum=0.0, strict=True),
     "integrator": _mapped(str, "model.integrator", "learning propagator", choices=INTEGRATORS),
-    "dt": _mapped(float, "model.dt", 'learning step (eq. 14); "auto": chosen from the data',
-                  minimum=0.0, strict=True, words=("auto",)),
+    # the paper's fixed step, not the library's "auto" default: the paper's cells (and their
+    # ids) stay the paper's setting; a cell asks for "auto" by name
+    "dt": Spec(float, PAPER_DT, 'learning step (eq. 14); "auto": chosen from the data',
+               setting="model.dt", minimum=0.0, strict=True, words=("auto",)),
     "order": _mapped(int, "model.order", "order of the polynomial potential", minimum=1),
     "sampler": _mapped(str, "sampler.method", "MCMC method", choices=SAMPLERS),
     "num_iterations": _mapped(

@@ -40,8 +40,9 @@ from symplid.io import observation_layout
 from symplid.io.runfiles import write_json
 from symplid.model.data import Observations
 from symplid.workflow.compare import resolve_all
-from symplid.workflow.fit import build_model, build_posterior, fit
+from symplid.workflow.fit import build_model, build_posterior, find_map_for, fit
 from symplid.workflow.settings import Settings
+from symplid.workflow.step_size import choose_step
 from symplid.workflow.term_library import TermLibrary, term_library
 
 __all__ = ["Discovery", "discover", "format_terms", "report_text", "subsets_table", "terms_table",
@@ -97,7 +98,9 @@ def discover(
         One trajectory or a list of them (sharing the model; see ``initial_state.mode``).
     settings
         Everything but the model's terms: integrator, dt, noise, priors (the coefficients'
-        prior is every term's), initial state, damping, MAP starts and seed.
+        prior is every term's), initial state, damping, MAP starts and seed. ``model.dt =
+        "auto"`` (the default) is chosen once, for the whole library's model
+        (:func:`~symplid.workflow.step_size.choose_step`), and every subset uses it.
     terms, order
         The library: a list of terms (or comma-separated text), or the polynomial of
         ``order`` in q (default: ``model.order`` of the polynomial family).
@@ -117,6 +120,8 @@ def discover(
     library = term_library(settings, dim, terms, order)
     resolved = resolve_all(library.settings, datasets, source)
     data = datasets[0] if len(datasets) == 1 else datasets
+    if resolved.model.dt == "auto":  # one step for every subset: the whole library's
+        resolved = choose_step(resolved, data, search=find_map_for).settings
     model = build_model(resolved, datasets[0])
     posterior = build_posterior(resolved, data, model)
     groups = set(posterior.param_groups[: library.size])
@@ -131,7 +136,9 @@ def discover(
     chosen_fit = None
     if fit_chosen:
         chosen = library.subset_settings(search.best.included)
-        chosen = dataclasses.replace(chosen, initial_state=resolved.initial_state)
+        chosen = dataclasses.replace(chosen, initial_state=resolved.initial_state,
+                                     model=dataclasses.replace(chosen.model,
+                                                               dt=resolved.model.dt))
         chosen_fit = fit(data, chosen, out=None if out is None else Path(out) / "fit",
                          progress=progress, source=source)
     table = terms_table(search, chosen_fit)

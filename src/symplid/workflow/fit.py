@@ -248,8 +248,12 @@ def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
     scaling = scaling_for(settings, obs)
     fit_settings = settings if scaling is None else scaling.settings(settings)
     fit_obs = obs if scaling is None else scaling.observations(obs)
-    model = plan.model(fit_settings, fit_obs)
-    posterior = build_posterior(fit_settings, fit_obs, model)
+    if step is not None and step.posterior is not None:  # the search's, at the chosen step
+        posterior = step.posterior
+        model = posterior.model
+    else:
+        model = plan.model(fit_settings, fit_obs)
+        posterior = build_posterior(fit_settings, fit_obs, model)
     map_fit = find_map_for(settings, posterior, _warm_start(step, scaling, posterior))
     groups, refound = posterior.param_groups, []
     while True:  # the MAP searched again where the chains climb above it (.mode_watch)
@@ -362,7 +366,8 @@ def _diagnostics(plan, settings, obs, posterior, map_result, folder, timings,
     if not settings.map.sensitivity:
         return None
     if status is not None:
-        status("sensitivity checks: the MAP refitted at dt/2 and with the other process-noise "
+        half = "" if step is not None else "at dt/2 and "  # "auto": the search's own halving
+        status(f"sensitivity checks: the MAP refitted {half}with the other process-noise "
                "model (map.sensitivity = false skips them)...")
     start = time.perf_counter()
     checks = sensitivity_checks(settings, obs, posterior, map_result, plan=plan,

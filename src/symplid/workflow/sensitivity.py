@@ -68,7 +68,7 @@ coefficients, a user model's parameters, the damping rate), not the noise varian
 
 def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
               compute_hessian: bool = True, search: Any = None,
-              plan: Any = None) -> tuple[Any, Any]:
+              plan: Any = None, posterior: Any = None) -> tuple[Any, Any]:
     """(MAP result in the data's units, posterior) of ``settings`` on ``obs``, one start.
 
     The fit runs in standardised coordinates when ``settings`` ask for them (as a fit does,
@@ -79,16 +79,13 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
     fit's whole search (:func:`symplid.workflow.fit.find_map_for`) in the fit's coordinates.
     ``plan``: the fit's :class:`~symplid.workflow.plan.ModelPlan`, whose U or H the refit
     reuses (no second parse of a user's expression); None builds it from ``settings``.
+    ``posterior``: the posterior of these very settings in the fit's coordinates, returned by
+    an earlier refit; its compiled programs (the search's objective and Hessian, cached on
+    it) are reused instead of compiled again.
     """
     scaling = scaling_for(settings, obs)
-    fit_settings = settings if scaling is None else scaling.settings(settings)
-    fit_obs = obs
-    if scaling is not None:
-        scaled = [scaling.observations(o) for o in as_list(obs)]
-        fit_obs = scaled if isinstance(obs, list) else scaled[0]
-    model = (build_model(fit_settings, fit_obs) if plan is None
-             else plan.model(fit_settings, fit_obs))
-    posterior = build_posterior(fit_settings, fit_obs, model)
+    if posterior is None:
+        posterior = _fit_posterior(settings, obs, scaling, plan)
     groups = posterior.param_groups
     start = None
     if init is not None:
@@ -96,7 +93,7 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
         if scaling is not None:
             start = scaling.reparameterisation(groups).to_unconstrained(start)
     if search is not None and start is None:
-        result = search(fit_settings, posterior)
+        result = search(settings if scaling is None else scaling.settings(settings), posterior)
     else:
         result = find_map(posterior, seed=settings.map.seed, num_starts=1, init=start,
                           evidence=settings.map.evidence, warn=False,
@@ -104,6 +101,19 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
     if scaling is not None:
         result = scaling.map_result(result, groups, obs)
     return result, posterior
+
+
+def _fit_posterior(settings: Any, obs: Any, scaling: Any, plan: Any) -> Any:
+    """The posterior of ``settings`` on ``obs`` in the fit's coordinates (standardised when
+    ``scaling`` is given)."""
+    fit_settings = settings if scaling is None else scaling.settings(settings)
+    fit_obs = obs
+    if scaling is not None:
+        scaled = [scaling.observations(o) for o in as_list(obs)]
+        fit_obs = scaled if isinstance(obs, list) else scaled[0]
+    model = (build_model(fit_settings, fit_obs) if plan is None
+             else plan.model(fit_settings, fit_obs))
+    return build_posterior(fit_settings, fit_obs, model)
 
 
 def _shifts(names: list[str], groups: list[str], base: Any, other: Any,

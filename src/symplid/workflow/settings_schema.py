@@ -129,11 +129,12 @@ class ModelSettings:
         doc="Tao's binding ω (``\"tao\"``, ``\"tao4\"``); 0: ω = 1/dt.",
     )
     dt: float | str = setting(
-        0.25, minimum=0.0, strict=True, words=("auto",),
+        "auto", minimum=0.0, strict=True, words=("auto",),
         doc=(
             "Learning step: each observation gap is split into ⌈gap/dt⌉ equal substeps; "
-            "``\"auto\"``: the largest step whose halving moves no dynamics parameter by more "
-            "than 0.1 posterior sds at the MAP, at most the data's smallest gap."
+            "``\"auto\"`` (the default): the fit chooses the largest step whose halving moves "
+            "no dynamics parameter by more than 0.1 posterior sds at the MAP, at most the "
+            "data's smallest gap (a few warm-started MAP refits)."
         ),
     )
     process_noise_per: str = setting(

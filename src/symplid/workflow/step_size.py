@@ -47,6 +47,7 @@ __all__ = [
     "MAX_HALVINGS",
     "MAX_JUMP",
     "THRESHOLD_SD",
+    "UNSEARCHED_STEP",
     "StepChoice",
     "choose_step",
     "map_at_step",
@@ -70,15 +71,22 @@ MAX_JUMP = 3
 MAX_FIRST_TRIES = 3
 """How many steps (each half the last) the first, whole MAP search is tried at."""
 
+UNSEARCHED_STEP = 0.25
+"""The step of a family whose MAP is too costly to refit (a neural one): the library's fixed
+step before ``"auto"`` became the default, at most the data's smallest gap, unchecked."""
+
 
 @dataclass
 class StepChoice:
     """The outcome of :func:`choose_step`: the settings at the chosen step, the MAP there (in
-    the data's units, to start the fit from) and the record saved with the run."""
+    the data's units, to start the fit from), the record saved with the run and the posterior
+    at the chosen step in the fit's coordinates (the fit runs on it: the programs the search
+    compiled at that step, its objective and Hessian, are not compiled again)."""
 
     settings: Any
     theta: np.ndarray | None
     record: dict[str, Any] = field(default_factory=dict)
+    posterior: Any = None
 
 
 def smallest_gap(obs: Any, t0: float | str = "first") -> float:
@@ -99,18 +107,19 @@ def smallest_gap(obs: Any, t0: float | str = "first") -> float:
 
 def map_at_step(settings: Any, obs: Any, dt: float, init: np.ndarray | None = None,
                 hessian: bool = False, search: Callable | None = None,
-                plan: Any = None) -> tuple[Any, Any]:
+                plan: Any = None, posterior: Any = None) -> tuple[Any, Any]:
     """(MAP in the data's units, posterior) of ``settings`` at learning step ``dt``: from
     ``init`` (θ in the data's units, one start: a warm start from the MAP at another step),
     or, without ``init``, by ``search(settings, posterior)`` (the fit's whole search). The
-    Laplace covariance only with ``hessian`` (or from ``search``); a warm start's evidence is
-    Laplace's (the search reads the sds only: no quadrature). ``plan``: the fit's
-    :class:`~symplid.workflow.plan.ModelPlan`, whose U or H every refit reuses."""
-    at = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=float(dt)))
-    if init is not None:
-        at = dataclasses.replace(at, map=dataclasses.replace(at.map, evidence="laplace"))
+    Laplace covariance only with ``hessian`` (or from ``search``); the evidence is always
+    Laplace's (the search reads the sds only: no quadrature, which the fit computes once, at
+    the chosen step). ``plan``: the fit's
+    :class:`~symplid.workflow.plan.ModelPlan`, whose U or H every refit reuses. ``posterior``:
+    the one an earlier call at this ``dt`` returned (its compiled programs are reused)."""
+    at = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=float(dt)),
+                             map=dataclasses.replace(settings.map, evidence="laplace"))
     return refit_map(at, obs, init, compute_hessian=hessian,
-                     search=search if init is None else None, plan=plan)
+                     search=search if init is None else None, plan=plan, posterior=posterior)
 
 
 def _sds(result: Any) -> np.ndarray:
@@ -155,25 +164,36 @@ class _Search:
     candidates: list[tuple[float, float, bool]] = field(default_factory=list)
     refits: int = 0
     plan: Any = None
+    posteriors: dict[float, Any] = field(default_factory=dict)
+
+    def refit(self, dt: float, init: np.ndarray, hessian: bool = False) -> Any:
+        """The MAP at ``dt`` from ``init`` (data units), on the posterior kept for ``dt``.
+
+        A refit without the Hessian that failed is judged again with it, from where it
+        stopped: a line search that can gain nothing more at the optimum (the objective's
+        rounding-level roughness) is convergence when the Newton decrement says so, as for
+        the fit's own MAP (:func:`~symplid.inference.map._search.judge_with_hessian`)."""
+        result, self.posteriors[dt] = map_at_step(self.settings, self.obs, dt, init,
+                                                  hessian=hessian, plan=self.plan,
+                                                  posterior=self.posteriors.get(dt))
+        if getattr(result, "failure", "") and not hessian:
+            result, _ = map_at_step(self.settings, self.obs, dt, result.theta, hessian=True,
+                                    plan=self.plan, posterior=self.posteriors[dt])
+        _found(result, dt)
+        self.refits += 1
+        self.maps[dt] = np.asarray(result.theta, dtype=float)
+        return result
 
     def theta_at(self, dt: float) -> np.ndarray:
         """The MAP at ``dt``, refitted from the MAP found at the nearest step if not known."""
         if dt not in self.maps:
             nearest = min(self.maps, key=lambda s: abs(math.log(s / dt)))
-            result, _ = map_at_step(self.settings, self.obs, dt, self.maps[nearest],
-                                    plan=self.plan)
-            _found(result, dt)
-            self.refits += 1
-            self.maps[dt] = np.asarray(result.theta, dtype=float)
+            self.refit(dt, self.maps[nearest])
         return self.maps[dt]
 
     def laplace_at(self, dt: float) -> None:
         """The Laplace sds at ``dt`` (one refit from its MAP, with the Hessian)."""
-        result, _ = map_at_step(self.settings, self.obs, dt, self.theta_at(dt), hessian=True,
-                                plan=self.plan)
-        _found(result, dt)
-        self.refits += 1
-        self.maps[dt] = np.asarray(result.theta, dtype=float)
+        result = self.refit(dt, self.theta_at(dt), hessian=True)
         self.sds, self.sds_dt = _sds(result), dt
 
     def check(self, dt: float) -> dict[str, float]:
@@ -247,12 +267,14 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     base = {"smallest_gap": gap, "integrator": settings.model.integrator, "order": order,
             "threshold_sd": THRESHOLD_SD}
     if model_family(settings.model).neural:
-        return _unsearched(settings, gap, base, "a neural family's MAP is its whole Adam + "
-                           "L-BFGS fit: the step is the data's smallest gap, unchecked")
+        return _unsearched(settings, min(gap, UNSEARCHED_STEP), base,
+                           "a neural family's MAP is its whole Adam + L-BFGS fit, too costly to "
+                           f"refit: the step is min(the data's smallest gap, "
+                           f"{UNSEARCHED_STEP:g}), unchecked; give model.dt to choose it")
     dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
                     order, _sds(first), dt, {dt: np.asarray(first.theta, dtype=float)},
-                    plan=plan)
+                    plan=plan, posteriors={dt: posterior})
     if status is not None:
         status(f'model.dt = "auto": halving the step until no parameter moves by more than '
                f"{THRESHOLD_SD:g} posterior sds...")
@@ -277,12 +299,12 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
               "passed": passed, "tried": tried, "refits": state.refits + tries,
               "seconds": time.perf_counter() - start}
     chosen = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=dt))
-    return StepChoice(chosen, state.theta_at(dt), record)
+    return StepChoice(chosen, state.theta_at(dt), record, state.posteriors.get(dt))
 
 
-def _unsearched(settings: Any, gap: float, base: dict[str, Any], why: str) -> StepChoice:
-    chosen = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=gap))
-    record = {**base, "dt": gap, "shifts": {}, "largest_shift_sd": None, "passed": False,
+def _unsearched(settings: Any, dt: float, base: dict[str, Any], why: str) -> StepChoice:
+    chosen = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=dt))
+    record = {**base, "dt": dt, "shifts": {}, "largest_shift_sd": None, "passed": False,
               "not_searched": why, "tried": "", "refits": 0, "seconds": 0.0}
     return StepChoice(chosen, None, record)
 
