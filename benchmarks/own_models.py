@@ -140,7 +140,9 @@ def child_fit(child: str, src: Path, data: Path, config: Path, out: Path, cache:
               extra: list[str], cores: list[int] | None) -> tuple[dict, dict]:
     """Run the script ``child`` (a fit) on the tree ``src`` in its own process, pinned to
     ``cores``; returns the clock it prints on its ``BENCH`` line and the run's summary."""
-    env = dict(os.environ, PYTHONPATH=str(src), SYMPLID_CACHE_DIR=str(cache))
+    # the tree's src first; what the caller put on the path (a package of its own) after it
+    path = os.pathsep.join(filter(None, (str(src), os.environ.get("PYTHONPATH"))))
+    env = dict(os.environ, PYTHONPATH=path, SYMPLID_CACHE_DIR=str(cache))
     proc = subprocess.run([sys.executable, "-c", child, str(data), str(config), str(out),
                            *extra], env=env, capture_output=True, text=True,
                           preexec_fn=None if cores is None else

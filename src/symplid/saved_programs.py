@@ -17,8 +17,10 @@ milliseconds and finds its compiled code in the persistent cache.
   versions of JAX, jaxlib and the libraries that shape a trace, the platform and the JAX
   settings read while tracing (64-bit floats, matmul precision, the random number
   generator);
-* the function's name and module and the **identity** its caller gives: what the program
-  closes over. The workflow gives a posterior the identity of its run
+* the **name** its caller gives (which program: ``"map-hessian"``; a JAX transformation
+  keeps the name and module of the function it transforms, so the name tells them apart),
+  the function's module and qualified name, and the **identity** its caller gives: what
+  the program closes over. The workflow gives a posterior the identity of its run
   (:func:`mark`: the full settings, a user's expression among them, and a digest of the
   data's values), and each program adds its own static settings (the search space's bounds,
   the sampler's settings, the chunk's length); a program without an identity is never saved;
