@@ -11,11 +11,13 @@ same shape: the noise drawn with another seed).
 
 Reported per system, tree and cache: the phases (``parse``: the settings checked against the
 data, the model's U or H built; ``compile``: JAX's tracing, lowering and XLA compilation,
-summed over the whole fit, whichever phase asked for it; ``map``, ``refits`` (the dt/2 and
-process-noise sensitivity refits), ``sampling`` and ``report`` (predictions and figures),
-from the run's ``summary.json`` and the child's clock), the whole wall time, the smallest
-bulk ESS per second of sampling, and the time to the target (R-hat ≤ 1.01 and ESS ≥ 400:
-the whole wall time when the fit reached it, else "not reached"). Compile seconds overlap
+summed over the whole fit, whichever phase asked for it, and its three parts (``XLA``:
+XLA's compilation, or with a warm cache looking the program up and loading it); ``map``,
+``refits`` (the dt/2 and process-noise sensitivity refits), ``sampling`` and ``report``
+(predictions and figures), from the run's ``summary.json`` and the child's clock), the
+whole wall time, the smallest bulk ESS per second of sampling, and the time to the target
+(R-hat ≤ 1.01 and ESS ≥ 400: the whole wall time when the fit reached it, else "not
+reached"). Compile seconds overlap
 the phases that compile; they are not added to them. The machine may be shared: the load
 average is printed, compare the trees' ratios, not the seconds.
 
@@ -113,10 +115,13 @@ CHILD = r"""
 import json, sys, time
 import jax
 from jax import monitoring
-compile_s = [0.0]
+compile_s = {"trace": 0.0, "lower": 0.0, "xla": 0.0}
+EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace",
+          "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+          "/jax/core/compile/backend_compile_duration": "xla"}
 def on_duration(name, secs, **_):
-    if name.startswith("/jax/core/compile/"):
-        compile_s[0] += secs
+    if name in EVENTS:
+        compile_s[EVENTS[name]] += secs
 monitoring.register_event_duration_secs_listener(on_duration)
 from symplid.cli import main
 from symplid.io import read_trajectories
@@ -132,7 +137,7 @@ fitted = time.perf_counter()
 main(["report", out, "--no-progress"], standalone_mode=False)
 done = time.perf_counter()
 print("BENCH " + json.dumps({"parse": parse, "fit": fitted - start, "report": done - fitted,
-                             "compile": compile_s[0]}))
+                             "compile": sum(compile_s.values()), **compile_s}))
 """
 
 
@@ -162,7 +167,8 @@ def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra
     ess, rhat = summary.get("ess_min", float("nan")), summary.get("rhat_max", float("nan"))
     sampling = t.get("sampler_s", float("nan"))
     reached = bool(rhat <= 1.01 and ess >= 400)
-    return {"parse": clock["parse"], "compile": clock["compile"], "map": t.get("map_s"),
+    return {"parse": clock["parse"], "compile": clock["compile"], "trace": clock["trace"],
+            "lower": clock["lower"], "xla": clock["xla"], "map": t.get("map_s"),
             "refits": t.get("diagnostics_s", 0.0), "sampling": sampling,
             "report": clock["report"], "wall": wall, "ess_per_s": ess / sampling,
             "target": wall if reached else None, "rhat": rhat, "ess": ess}
@@ -208,13 +214,14 @@ def main() -> None:
     _print_table(rows)
 
 
-HEADER = ("| system | tree | cache | parse | compile | MAP | refits | sampling | report | wall "
-          "| ESS/s | to target |")
+HEADER = ("| system | tree | cache | parse | compile (trace + lower + XLA) | MAP | refits "
+          "| sampling | report | wall | ESS/s | to target |")
 
 
 def _row(system: str, tree: str, cache: str, r: dict) -> str:
     target = "not reached" if r["target"] is None else f"{r['target']:.1f}"
-    return (f"| {system} | {tree} | {cache} | {r['parse']:.2f} | {r['compile']:.1f} | "
+    return (f"| {system} | {tree} | {cache} | {r['parse']:.2f} | {r['compile']:.1f} "
+            f"({r['trace']:.1f} + {r['lower']:.1f} + {r['xla']:.1f}) | "
             f"{r['map']:.1f} | {r['refits']:.1f} | {r['sampling']:.1f} | {r['report']:.1f} | "
             f"{r['wall']:.1f} | {r['ess_per_s']:.1f} | {target} |")
 
