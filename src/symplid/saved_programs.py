@@ -161,12 +161,20 @@ def _settings() -> tuple[Any, ...]:
 
 
 def signature(args: tuple, kwargs: dict) -> tuple[Any, ...]:
-    """The structure and the abstract values (shape, dtype, weak type) of a call's arguments."""
+    """The structure and the abstract values (shape, dtype, weak type) of a call's arguments:
+    ``(treedef, ((shape, dtype, weak), ...))``, a Python scalar as its type's name (JAX takes
+    it as weakly typed). A few microseconds: it is computed at every call."""
     import jax
 
     leaves, tree = jax.tree.flatten((args, kwargs))
-    typeof = getattr(jax, "typeof", None) or jax.core.get_aval  # before JAX 0.6: get_aval
-    return (str(tree), tuple(str(typeof(leaf)) for leaf in leaves))
+    return (tree, tuple(map(_abstract, leaves)))
+
+
+def _abstract(leaf: Any) -> tuple[Any, ...]:
+    shape = getattr(leaf, "shape", None)
+    if shape is None:
+        return (type(leaf).__name__,)
+    return (tuple(shape), leaf.dtype, bool(getattr(leaf, "weak_type", False)))
 
 
 def program_key(fn: Callable, name: str, identity: Hashable, sig: tuple[Any, ...],
@@ -174,7 +182,9 @@ def program_key(fn: Callable, name: str, identity: Hashable, sig: tuple[Any, ...
     """The key of the program of ``fn`` (given ``name``, closing over ``identity``) for
     arguments of signature ``sig`` (:func:`signature`), lowered with compiler ``options``."""
     where = (getattr(fn, "__module__", None), getattr(fn, "__qualname__", None))
-    return digest(_environment(), _settings(), name, where, identity, sig, repr(options))
+    tree, leaves = sig
+    return digest(_environment(), _settings(), name, where, identity, str(tree), leaves,
+                  repr(options))
 
 
 # ----------------------------------------------------------------------------- the folder
@@ -215,14 +225,15 @@ class _SavedJit:
         self._last: tuple[tuple[Any, ...], Callable] | None = None
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        folder_ = folder() if self._identity is not None else None
-        if folder_ is None:
+        if self._identity is None:
             return self._plain(*args, **kwargs)
         sig = signature(args, kwargs)
         if self._last is None or self._last[0] != sig:
             program = self._programs.get(sig)
             if program is None:
-                program = self._programs[sig] = self._resolve(folder_, sig, args, kwargs)
+                where = folder()  # asked once per signature: a program keeps its choice
+                program = self._programs[sig] = (
+                    self._plain if where is None else self._resolve(where, sig, args, kwargs))
             self._last = (sig, program)
         return self._last[1](*args, **kwargs)
 
