@@ -3,8 +3,9 @@
 Workload: ``symplid fit DATA --config FILE --out RUN --no-progress`` for each system: the three
 examples of ``examples/user_models/`` (Kepler, Lotka–Volterra, a pendulum; data by its
 ``simulate_data.py``) and an elastic pendulum (two parameters k and L, 30 observed positions,
-simulated here by SciPy's DOP853). Each tree (this checkout's ``src``, and ``--baseline SRC``:
-another checkout's ``src`` folder) runs each fit in its own child process on the same two
+simulated here by SciPy's DOP853). Each tree (this checkout's ``src``, and each ``--baseline
+SRC``: another checkout's ``src`` folder, named by the folder above it; the option may be
+given more than once) runs each fit in its own child process on the same two
 cores, the trees taking turns: first **cold** (an empty compilation cache of its own), then
 **warm** (the same cache again), then **new data** (the same cache, another data set of the
 same shape: the noise drawn with another seed).
@@ -21,7 +22,7 @@ reached"). Compile seconds overlap
 the phases that compile; they are not added to them. The machine may be shared: the load
 average is printed, compare the trees' ratios, not the seconds.
 
-Run: ``python benchmarks/own_models.py [--baseline OLD/src] [--systems pendulum kepler]
+Run: ``python benchmarks/own_models.py [--baseline OLD/src ...] [--systems pendulum kepler]
 [--iterations N --burn-in M] [--states cold "new data"]`` (the examples' own budgets without
 ``--iterations``).
 """
@@ -182,7 +183,8 @@ def two_cores() -> list[int] | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--baseline", type=Path, help="another checkout's src folder")
+    parser.add_argument("--baseline", type=Path, action="append", default=[],
+                        help="another checkout's src folder (again for more than one)")
     parser.add_argument("--systems", nargs="+", choices=SYSTEMS, default=list(SYSTEMS))
     parser.add_argument("--iterations", type=int, help="iterations per chain (with --burn-in)")
     parser.add_argument("--burn-in", type=int)
@@ -192,8 +194,8 @@ def main() -> None:
     extra = [] if args.iterations is None else ["--iterations", str(args.iterations)]
     extra += [] if args.burn_in is None else ["--burn-in", str(args.burn_in)]
     trees = {"this tree": SRC}
-    if args.baseline is not None:
-        trees = {"baseline": args.baseline.resolve(), **trees}
+    baselines = {_tree_name(path, len(args.baseline)): path.resolve() for path in args.baseline}
+    trees = {**baselines, **trees}
     cores = two_cores()
     print(f"load average before: {os.getloadavg()[0]:.2f}; cores {cores}")
     rows = []
@@ -233,11 +235,19 @@ def _print_table(rows: list[tuple[str, str, str, dict]]) -> None:
     for row in rows:
         print(_row(*row))
     by = {(s, t, c): r for s, t, c, r in rows}
+    baselines = sorted({t for _, t, _, _ in rows if t != "this tree"})
     for system, tree, cache, r in rows:
-        base = by.get((system, "baseline", cache))
-        if tree == "this tree" and base is not None:
-            print(f"{system} ({cache}): wall this/baseline {r['wall'] / base['wall']:.2f}, "
-                  f"compile {r['compile'] / max(base['compile'], 1e-9):.2f}")
+        for name in baselines if tree == "this tree" else ():
+            base = by.get((system, name, cache))
+            if base is not None:
+                print(f"{system} ({cache}): wall this/{name} {r['wall'] / base['wall']:.2f}, "
+                      f"compile {r['compile'] / max(base['compile'], 1e-9):.2f}")
+
+
+def _tree_name(src: Path, count: int) -> str:
+    """``baseline`` for the one baseline, else the name of the checkout (the folder above
+    its ``src``)."""
+    return "baseline" if count == 1 else src.resolve().parent.name
 
 
 if __name__ == "__main__":
