@@ -114,6 +114,21 @@ def test_another_name_identity_shape_dtype_options_or_source_is_another_key(monk
     assert len({base, *others.values()}) == len(others) + 1, others
 
 
+def test_a_python_scalar_and_a_weak_array_are_one_program(folder):
+    """JAX traces ``f(0)`` and ``f(jnp.asarray(0))`` once: they are one saved program, and a
+    strongly typed int32 another."""
+    def step(x, count):
+        return x + count
+
+    program = saved_jit(step, "step", ("test",))
+    x = jnp.ones(2)
+    assert np.array_equal(program(x, 2), program(x, jnp.asarray(2)))
+    assert len(list(folder.glob("*.exported"))) == 1
+    assert signature((x, 2), {}) == signature((x, jnp.asarray(2)), {})
+    assert signature((x, 2), {}) != signature((x, jnp.asarray(2, jnp.int32)), {})
+    assert signature((x, 2.0), {}) != signature((x, 2), {})
+
+
 def test_a_changed_closure_under_another_identity_is_not_reused(folder):
     """What the caller's identity stands for: the same function of another closure constant,
     under its own identity, runs its own program, never the first one's."""

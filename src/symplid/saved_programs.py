@@ -161,9 +161,10 @@ def _settings() -> tuple[Any, ...]:
 
 
 def signature(args: tuple, kwargs: dict) -> tuple[Any, ...]:
-    """The structure and the abstract values (shape, dtype, weak type) of a call's arguments:
-    ``(treedef, ((shape, dtype, weak), ...))``, a Python scalar as its type's name (JAX takes
-    it as weakly typed). A few microseconds: it is computed at every call."""
+    """The structure and the abstract values of a call's arguments as JAX sees them:
+    ``(treedef, ((shape, dtype, weak), ...))``; a Python scalar is the weakly typed scalar
+    JAX makes of it, so ``f(0)`` and ``f(jnp.asarray(0))`` have one signature and one program,
+    as they have one trace. A few microseconds: it is computed at every call."""
     import jax
 
     leaves, tree = jax.tree.flatten((args, kwargs))
@@ -172,8 +173,12 @@ def signature(args: tuple, kwargs: dict) -> tuple[Any, ...]:
 
 def _abstract(leaf: Any) -> tuple[Any, ...]:
     shape = getattr(leaf, "shape", None)
-    if shape is None:
-        return (type(leaf).__name__,)
+    if shape is None:  # a Python scalar: weakly typed, but for a bool
+        import jax
+        import numpy as np
+
+        dtype = jax.dtypes.canonicalize_dtype(np.asarray(leaf).dtype)
+        return ((), dtype, not isinstance(leaf, bool))
     return (tuple(shape), leaf.dtype, bool(getattr(leaf, "weak_type", False)))
 
 
@@ -258,7 +263,16 @@ class _SavedJit:
                 _write(refused, b"")
                 return self._plain
             _write(path, blob)
-        return self._jit(exported.call)
+        return self._jit(_named(exported.call, self._name))
+
+
+def _named(call: Callable, name: str) -> Callable:
+    """``call`` under ``name`` (a program's name in JAX's logs and profiles; "call" else)."""
+    def program(*args: Any, **kwargs: Any) -> Any:
+        return call(*args, **kwargs)
+
+    program.__name__ = program.__qualname__ = name.replace("-", "_")
+    return program
 
 
 def _read(path: Path) -> Any:
