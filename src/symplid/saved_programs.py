@@ -242,10 +242,12 @@ class _SavedJit:
             self._last = (sig, program)
         return self._last[1](*args, **kwargs)
 
-    def _jit(self, fn: Callable) -> Callable:
+    def _jit(self, fn: Callable, **options: Any) -> Callable:
         import jax
 
-        return jax.jit(fn, compiler_options=self._options) if self._options else jax.jit(fn)
+        if self._options:
+            options["compiler_options"] = self._options
+        return jax.jit(fn, **options)
 
     def _resolve(self, where: Path, sig: tuple[Any, ...], args: tuple, kwargs: dict) -> Callable:
         """The saved program of this signature: read back, else exported and written; the
@@ -263,7 +265,43 @@ class _SavedJit:
                 _write(refused, b"")
                 return self._plain
             _write(path, blob)
-        return self._jit(_named(exported.call, self._name))
+            # run what later processes will read back: the program read from its bytes (no
+            # source locations), which the compilation cache then knows under their key
+            exported = _deserialized(blob)
+            if exported is None:
+                return self._plain
+        return _on_one_device(self._jit, _named(exported.call, self._name))
+
+
+def _on_one_device(jit: Callable, call: Callable) -> Callable:
+    """``call`` jitted with every argument placed on the default device.
+
+    Lowering an exported call writes its arguments' placement into the program: arrays a
+    computation left on the device and arrays made in Python would otherwise give two
+    programs (the sampler's first chunk and the next), the second compiled again because the
+    compilation cache does not know it. The arguments are passed flat (keyword ones too), so
+    that one placement covers them all."""
+    import jax
+
+    device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+
+    def flat(tree: Any, *leaves: Any) -> Any:
+        args, kwargs = jax.tree.unflatten(tree, leaves)
+        return call(*args, **kwargs)
+
+    flat.__name__ = flat.__qualname__ = call.__name__  # the program's name in JAX's logs
+
+    programs: dict[Any, Callable] = {}
+
+    def run(*args: Any, **kwargs: Any) -> Any:
+        leaves, tree = jax.tree.flatten((args, kwargs))
+        program = programs.get(tree)
+        if program is None:
+            program = programs[tree] = jit(functools.partial(flat, tree),
+                                           in_shardings=device)
+        return program(*leaves)
+
+    return run
 
 
 def _named(call: Callable, name: str) -> Callable:
@@ -277,12 +315,17 @@ def _named(call: Callable, name: str) -> Callable:
 
 def _read(path: Path) -> Any:
     """The exported program saved at ``path``, or None (absent, unreadable, corrupt)."""
-    from jax import export
-
     try:
         blob = path.read_bytes()
     except OSError:
         return None
+    return _deserialized(blob)
+
+
+def _deserialized(blob: bytes) -> Any:
+    """The exported program of ``blob``, or None when it does not read back."""
+    from jax import export
+
     try:
         return export.deserialize(bytearray(blob))
     except Exception:  # a truncated or corrupt file: ignored, written again
