@@ -3,23 +3,26 @@
 Workload: ``symplid fit DATA --config FILE --out RUN --no-progress`` for each system: the three
 examples of ``examples/user_models/`` (Kepler, Lotka–Volterra, a pendulum; data by its
 ``simulate_data.py``) and an elastic pendulum (two parameters k and L, 30 observed positions,
-simulated here by SciPy's DOP853). Each tree (this checkout's ``src``, and ``--baseline SRC``:
-another checkout's ``src`` folder) runs each fit in its own child process on the same two
+simulated here by SciPy's DOP853). Each tree (this checkout's ``src``, and each ``--baseline
+SRC``: another checkout's ``src`` folder, named by the folder above it; the option may be
+given more than once) runs each fit in its own child process on the same two
 cores, the trees taking turns: first **cold** (an empty compilation cache of its own), then
 **warm** (the same cache again), then **new data** (the same cache, another data set of the
 same shape: the noise drawn with another seed).
 
 Reported per system, tree and cache: the phases (``parse``: the settings checked against the
 data, the model's U or H built; ``compile``: JAX's tracing, lowering and XLA compilation,
-summed over the whole fit, whichever phase asked for it; ``map``, ``refits`` (the dt/2 and
-process-noise sensitivity refits), ``sampling`` and ``report`` (predictions and figures),
-from the run's ``summary.json`` and the child's clock), the whole wall time, the smallest
-bulk ESS per second of sampling, and the time to the target (R-hat ≤ 1.01 and ESS ≥ 400:
-the whole wall time when the fit reached it, else "not reached"). Compile seconds overlap
+summed over the whole fit, whichever phase asked for it, and its three parts (``XLA``:
+XLA's compilation, or with a warm cache looking the program up and loading it); ``map``,
+``refits`` (the dt/2 and process-noise sensitivity refits), ``sampling`` and ``report``
+(predictions and figures), from the run's ``summary.json`` and the child's clock), the
+whole wall time, the smallest bulk ESS per second of sampling, and the time to the target
+(R-hat ≤ 1.01 and ESS ≥ 400: the whole wall time when the fit reached it, else "not
+reached"). Compile seconds overlap
 the phases that compile; they are not added to them. The machine may be shared: the load
 average is printed, compare the trees' ratios, not the seconds.
 
-Run: ``python benchmarks/own_models.py [--baseline OLD/src] [--systems pendulum kepler]
+Run: ``python benchmarks/own_models.py [--baseline OLD/src ...] [--systems pendulum kepler]
 [--iterations N --burn-in M] [--states cold "new data"]`` (the examples' own budgets without
 ``--iterations``).
 """
@@ -113,10 +116,13 @@ CHILD = r"""
 import json, sys, time
 import jax
 from jax import monitoring
-compile_s = [0.0]
+compile_s = {"trace": 0.0, "lower": 0.0, "xla": 0.0}
+EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace",
+          "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+          "/jax/core/compile/backend_compile_duration": "xla"}
 def on_duration(name, secs, **_):
-    if name.startswith("/jax/core/compile/"):
-        compile_s[0] += secs
+    if name in EVENTS:
+        compile_s[EVENTS[name]] += secs
 monitoring.register_event_duration_secs_listener(on_duration)
 from symplid.cli import main
 from symplid.io import read_trajectories
@@ -132,7 +138,7 @@ fitted = time.perf_counter()
 main(["report", out, "--no-progress"], standalone_mode=False)
 done = time.perf_counter()
 print("BENCH " + json.dumps({"parse": parse, "fit": fitted - start, "report": done - fitted,
-                             "compile": compile_s[0]}))
+                             "compile": sum(compile_s.values()), **compile_s}))
 """
 
 
@@ -140,7 +146,9 @@ def child_fit(child: str, src: Path, data: Path, config: Path, out: Path, cache:
               extra: list[str], cores: list[int] | None) -> tuple[dict, dict]:
     """Run the script ``child`` (a fit) on the tree ``src`` in its own process, pinned to
     ``cores``; returns the clock it prints on its ``BENCH`` line and the run's summary."""
-    env = dict(os.environ, PYTHONPATH=str(src), SYMPLID_CACHE_DIR=str(cache))
+    # the tree's src first; what the caller put on the path (a package of its own) after it
+    path = os.pathsep.join(filter(None, (str(src), os.environ.get("PYTHONPATH"))))
+    env = dict(os.environ, PYTHONPATH=path, SYMPLID_CACHE_DIR=str(cache))
     proc = subprocess.run([sys.executable, "-c", child, str(data), str(config), str(out),
                            *extra], env=env, capture_output=True, text=True,
                           preexec_fn=None if cores is None else
@@ -160,7 +168,8 @@ def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra
     ess, rhat = summary.get("ess_min", float("nan")), summary.get("rhat_max", float("nan"))
     sampling = t.get("sampler_s", float("nan"))
     reached = bool(rhat <= 1.01 and ess >= 400)
-    return {"parse": clock["parse"], "compile": clock["compile"], "map": t.get("map_s"),
+    return {"parse": clock["parse"], "compile": clock["compile"], "trace": clock["trace"],
+            "lower": clock["lower"], "xla": clock["xla"], "map": t.get("map_s"),
             "refits": t.get("diagnostics_s", 0.0), "sampling": sampling,
             "report": clock["report"], "wall": wall, "ess_per_s": ess / sampling,
             "target": wall if reached else None, "rhat": rhat, "ess": ess}
@@ -174,7 +183,8 @@ def two_cores() -> list[int] | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--baseline", type=Path, help="another checkout's src folder")
+    parser.add_argument("--baseline", type=Path, action="append", default=[],
+                        help="another checkout's src folder (again for more than one)")
     parser.add_argument("--systems", nargs="+", choices=SYSTEMS, default=list(SYSTEMS))
     parser.add_argument("--iterations", type=int, help="iterations per chain (with --burn-in)")
     parser.add_argument("--burn-in", type=int)
@@ -184,8 +194,8 @@ def main() -> None:
     extra = [] if args.iterations is None else ["--iterations", str(args.iterations)]
     extra += [] if args.burn_in is None else ["--burn-in", str(args.burn_in)]
     trees = {"this tree": SRC}
-    if args.baseline is not None:
-        trees = {"baseline": args.baseline.resolve(), **trees}
+    baselines = {_tree_name(path, len(args.baseline)): path.resolve() for path in args.baseline}
+    trees = {**baselines, **trees}
     cores = two_cores()
     print(f"load average before: {os.getloadavg()[0]:.2f}; cores {cores}")
     rows = []
@@ -206,13 +216,14 @@ def main() -> None:
     _print_table(rows)
 
 
-HEADER = ("| system | tree | cache | parse | compile | MAP | refits | sampling | report | wall "
-          "| ESS/s | to target |")
+HEADER = ("| system | tree | cache | parse | compile (trace + lower + XLA) | MAP | refits "
+          "| sampling | report | wall | ESS/s | to target |")
 
 
 def _row(system: str, tree: str, cache: str, r: dict) -> str:
     target = "not reached" if r["target"] is None else f"{r['target']:.1f}"
-    return (f"| {system} | {tree} | {cache} | {r['parse']:.2f} | {r['compile']:.1f} | "
+    return (f"| {system} | {tree} | {cache} | {r['parse']:.2f} | {r['compile']:.1f} "
+            f"({r['trace']:.1f} + {r['lower']:.1f} + {r['xla']:.1f}) | "
             f"{r['map']:.1f} | {r['refits']:.1f} | {r['sampling']:.1f} | {r['report']:.1f} | "
             f"{r['wall']:.1f} | {r['ess_per_s']:.1f} | {target} |")
 
@@ -224,11 +235,19 @@ def _print_table(rows: list[tuple[str, str, str, dict]]) -> None:
     for row in rows:
         print(_row(*row))
     by = {(s, t, c): r for s, t, c, r in rows}
+    baselines = sorted({t for _, t, _, _ in rows if t != "this tree"})
     for system, tree, cache, r in rows:
-        base = by.get((system, "baseline", cache))
-        if tree == "this tree" and base is not None:
-            print(f"{system} ({cache}): wall this/baseline {r['wall'] / base['wall']:.2f}, "
-                  f"compile {r['compile'] / max(base['compile'], 1e-9):.2f}")
+        for name in baselines if tree == "this tree" else ():
+            base = by.get((system, name, cache))
+            if base is not None:
+                print(f"{system} ({cache}): wall this/{name} {r['wall'] / base['wall']:.2f}, "
+                      f"compile {r['compile'] / max(base['compile'], 1e-9):.2f}")
+
+
+def _tree_name(src: Path, count: int) -> str:
+    """``baseline`` for the one baseline, else the name of the checkout (the folder above
+    its ``src``)."""
+    return "baseline" if count == 1 else src.resolve().parent.name
 
 
 if __name__ == "__main__":

@@ -33,6 +33,10 @@ def pytest_configure(config):
     # program compiled in one test is not compiled again by a subprocess (and the tests
     # leave the user's own cache alone).
     os.environ["SYMPLID_CACHE_DIR"] = folder
+    # Saved programs (symplid.saved_programs) are off: tests replace functions that a traced
+    # program calls (to count calls, to inject a failure), which a program read back from
+    # an earlier test would not call. tests/test_saved_programs.py turns them on itself.
+    os.environ["SYMPLID_SAVED_PROGRAMS"] = "off"
 
     # The suite is a top-level user, like the command line: the sweep specs its tests build
     # may name the studies' experiments ("paper", the default, and "baselines").

@@ -33,6 +33,7 @@ LAYERS = {
     "kernel_region": 0,
     "runtime": 0,
     "stopping": 0,
+    "saved_programs": 0,
     "dynamics": 1,
     "filters": 2,
     "model": 3,

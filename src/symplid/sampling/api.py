@@ -63,6 +63,7 @@ from symplid.sampling.budget import kept_after_burn_in
 from symplid.sampling.options import RunOptions, Targets
 from symplid.sampling.run import ChainRun, run_chains
 from symplid.sampling.starts import chain_starts
+from symplid.saved_programs import identity_of, mark
 
 __all__ = [
     "InterruptedInBurnIn",
@@ -272,9 +273,21 @@ def built_kernel(posterior: Any, spec: Any, method: str, kernel_settings: Any,
     num_warmup = burn_in if spec.adapts_during_burn_in else 0
     kernel: SamplerKernel = cached_or_built(
         posterior, ("sampler", method, kernel_settings, num_warmup),
-        lambda: spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
+        lambda: _marked(spec.build(posterior, kernel_settings, num_warmup, batch_logdensity),
+                        posterior, method, kernel_settings, num_warmup),
     )
     return batch_logdensity, kernel
+
+
+def _marked(kernel: SamplerKernel, posterior: Any, *static: Any) -> SamplerKernel:
+    """``kernel`` with its step and record given the identity of what they close over (the
+    posterior's and the sampler's settings), so that the chunk's program is saved
+    (:mod:`symplid.saved_programs`); a posterior without one leaves them unmarked."""
+    identity = identity_of(posterior)
+    if identity is not None:
+        mark(kernel.step, ("step", identity, *map(repr, static)))
+        mark(kernel.record, ("record", identity, *map(repr, static)))
+    return kernel
 
 
 # ----------------------------------------------------------------------------- checks

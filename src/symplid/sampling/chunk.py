@@ -23,6 +23,7 @@ from jax import lax
 
 from symplid.compiled import cached_or_built
 from symplid.inference.samplers.registry import DataStep
+from symplid.saved_programs import identity_of, saved_jit
 
 __all__ = ["DataStep", "RecordFn", "StepFn", "chunk_runner"]
 
@@ -93,7 +94,10 @@ def _compile_chunk(step: StepFn, record: RecordFn, chunk_len: int, batched: bool
                                             (first, states, room))
         return states, records
 
-    return functools.partial(jax.jit(chunk), data=data)
+    # saved for later processes when the step and record say what they close over
+    identities = (identity_of(step), identity_of(record))
+    identity = None if None in identities else (*identities, chunk_len, batched)
+    return functools.partial(saved_jit(chunk, "sampler-chunk", identity), data=data)
 
 
 def chunk_runner(step: StepFn, record: RecordFn, chunk_len: int, chain_method: str,

@@ -18,12 +18,13 @@ from symplid.model.data import Observations
 from symplid.model.posterior import Posterior
 from symplid.model.statespace import HamiltonianModel
 from symplid.model.variance_prior import process_variance_prior
+from symplid.saved_programs import mark
 from symplid.workflow.auto import resolve_noise
 from symplid.workflow.driven import build_force
 from symplid.workflow.model_builder import build_model_family
 from symplid.workflow.settings_schema import Settings, prior_spec
 
-__all__ = ["build_model", "build_posterior"]
+__all__ = ["build_model", "build_posterior", "program_identity"]
 
 
 def build_model(settings: Settings, obs: Observations | list[Observations],
@@ -77,7 +78,7 @@ def build_posterior(settings: Settings, obs: Observations | list[Observations],
     spec = prior_spec(settings)  # the groups' priors, and a user model's own
     if settings.priors.process_var == "log-uniform":  # scaled to these data
         spec = dataclasses.replace(spec, process_var=process_variance_prior(obs))
-    return Posterior(
+    posterior = Posterior(
         model,
         obs,
         prior=spec,
@@ -86,3 +87,19 @@ def build_posterior(settings: Settings, obs: Observations | list[Observations],
         t0=None if init.at_first_observation else init.t0,  # None: at the first observation
         learn_initial_state=learned,  # its prior is the "initial_state" group above
     )
+    return mark(posterior, program_identity(settings, obs))
+
+
+def program_identity(settings: Settings,
+                     obs: Observations | list[Observations]) -> tuple | None:
+    """What the compiled programs of the posterior of ``settings`` on ``obs`` close over,
+    for the key of a saved program (:mod:`symplid.saved_programs`): the whole settings (a
+    user's expression among them) and the data's values. None (never saved) for a model
+    that reads a Python file (``file:PATH:NAME``: its code is not in the settings) and for a
+    driven model (its inputs come from files)."""
+    m = settings.model
+    if m.force or any(str(text).startswith("file:")
+                      for text in (m.potential, m.hamiltonian, m.kinetic)):
+        return None
+    data = tuple((o.times, o.values, o.mask) for o in as_list(obs))
+    return ("posterior", repr(settings), data)

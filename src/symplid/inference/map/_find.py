@@ -104,6 +104,7 @@ from symplid.inference.map._starts import (
     warn_optima,
 )
 from symplid.model.params import ParameterSpace
+from symplid.saved_programs import identity_of, saved_jit
 from symplid.stopping import first_call_waits
 
 Array = jax.Array
@@ -127,11 +128,16 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
         def with_data(_, theta):
             return log_density(theta)
 
+    # what the programs close over, for their saved copies (symplid.saved_programs)
+    identity = identity_of(posterior)
+
     def build_value_and_grad() -> Callable:
         def negative_u(u: Array, data: Any) -> Array:
             return -with_data(data, space.to_theta(u))
 
-        vg = jax.jit(jax.value_and_grad(negative_u))
+        bounds = (space.log, space.log_box, space.lower, space.upper, space.floor)
+        vg = saved_jit(jax.value_and_grad(negative_u), "map-value-and-grad",
+                       None if identity is None else (identity, bounds))
         # the first call compiles: a stop asked for meanwhile is obeyed (symplid.stopping)
         return first_call_waits(lambda u: vg(u, data))
 
@@ -140,7 +146,7 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
         "value_and_grad": cached_or_built(posterior, key, build_value_and_grad),
         "hessian": cached_or_built(
             posterior, "map-hessian",
-            lambda: first_call_waits(hessian_function(with_data, data)),
+            lambda: first_call_waits(hessian_function(with_data, data, identity)),
         ),
     }
 

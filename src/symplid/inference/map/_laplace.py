@@ -39,13 +39,14 @@ uses this module's Gaussian integral for the other parameters) and keeps this va
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 
 from symplid.inference.map._space import SearchSpace
+from symplid.saved_programs import saved_jit
 
 _LOG_2PI = math.log(2.0 * math.pi)
 EIGEN_FLOOR = 1e-12
@@ -161,7 +162,9 @@ class LowOptimisationJit:
 
     The Hessian is evaluated once per search, so its compile time is all that matters: with
     optimisation level 0 it compiles in about half the time (same numbers to ~1e-12). Falls
-    back to a plain ``jax.jit`` if the backend rejects the options.
+    back to a plain ``jax.jit`` if the backend rejects the options. With an ``identity`` (what
+    ``fn`` closes over), its program is saved for later processes
+    (:func:`symplid.saved_programs.saved_jit`).
     """
 
     OPTIONS: dict[str, Any] = {  # noqa: RUF012
@@ -169,14 +172,16 @@ class LowOptimisationJit:
         "xla_llvm_disable_expensive_passes": True,
     }
 
-    def __init__(self, fn: Callable) -> None:
+    def __init__(self, fn: Callable, identity: Hashable | None = None,
+                 name: str = "low-optimisation") -> None:
         self._fn = fn
         self._jitted: Callable | None = None
+        self._identity, self._name = identity, name
 
     def __call__(self, *args: Any) -> Any:
         if self._jitted is None:
             try:
-                jitted = jax.jit(self._fn, compiler_options=self.OPTIONS)
+                jitted = saved_jit(self._fn, self._name, self._identity, self.OPTIONS)
                 out = jitted(*args)
             except Exception:  # an unknown option on another backend: compile normally
                 jitted = jax.jit(self._fn)
@@ -186,9 +191,12 @@ class LowOptimisationJit:
         return self._jitted(*args)
 
 
-def hessian_function(log_density_with: Callable[[Any, Any], Any], data: Any) -> Callable:
-    """``θ ↦ ∇²(−log π)(θ)``, compiled with low optimisation (:class:`LowOptimisationJit`)."""
-    hessian = LowOptimisationJit(jax.hessian(lambda t, data: -log_density_with(data, t)))
+def hessian_function(log_density_with: Callable[[Any, Any], Any], data: Any,
+                     identity: Hashable | None = None) -> Callable:
+    """``θ ↦ ∇²(−log π)(θ)``, compiled with low optimisation (:class:`LowOptimisationJit`);
+    ``identity``: what ``log_density_with`` closes over, for its saved program."""
+    hessian = LowOptimisationJit(jax.hessian(lambda t, data: -log_density_with(data, t)),
+                                 identity, "map-hessian")
     return lambda t: hessian(t, data)
 
 
