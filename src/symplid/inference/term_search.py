@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 from scipy.special import gammaln, logsumexp
 
-from symplid.inference.map import find_map
+from symplid.inference.map import default_start, find_map, homotopy_start
 from symplid.model.masked import MaskedPosterior
 
 SIZE_PRIORS = ("beta-binomial", "uniform")
@@ -76,6 +76,8 @@ class SubsetFit:
     success: bool
     seconds: float
     note: str = ""  # why a fit failed
+    evidence_method: str = ""  # MapResult.evidence_method of log_evidence
+    screening_log_evidence: float = math.nan  # the search's evidence, where refined
 
     @property
     def size(self) -> int:
@@ -173,9 +175,10 @@ def log_size_prior(size: int, m: int, size_prior: str) -> float:
 class _Fitter:
     """Fits subsets on one :class:`MaskedPosterior`, each once."""
 
-    def __init__(self, view: MaskedPosterior, seed: int, num_starts: int,
+    def __init__(self, view: MaskedPosterior, seed: int, num_starts: int, evidence: str,
                  on_fit: Callable[[SubsetFit], None] | None) -> None:
         self.view, self.seed, self.num_starts, self.on_fit = view, seed, num_starts, on_fit
+        self.evidence = evidence
         self.fits: dict[tuple[bool, ...], SubsetFit] = {}
 
     def add(self, fit: SubsetFit) -> SubsetFit:
@@ -186,19 +189,53 @@ class _Fitter:
 
     def fit(self, included: tuple[bool, ...], start: np.ndarray) -> SubsetFit:
         """The subset's MAP and evidence from ``start`` (its excluded coefficients set to
-        zero). A search that fails from there is run again with two more starts, from where
-        it ended or, where the warm start cannot be evaluated (the motion escapes without the
-        term), from the default start."""
+        zero) and from ``start`` with the variances raised (module docstring). A search that
+        fails from there is run again with two more starts, from where it ended or, where
+        the warm start cannot be evaluated (the motion escapes without the term), from the
+        default start."""
         if included in self.fits:
             return self.fits[included]
         t0 = time.perf_counter()
         self.view.select(included)
-        init = self.view.embed(start)
+        init = self._higher(self.view.embed(start))
         fit = self._attempt(included, init, self.num_starts)
         if not fit.success:
             again = fit.theta if math.isfinite(fit.log_posterior) else None
             fit = self._attempt(included, again, self.num_starts + 2)
         return self.add(dataclasses.replace(fit, seconds=time.perf_counter() - t0))
+
+    def _higher(self, warm: np.ndarray) -> np.ndarray:
+        """The higher of the MAPs reached from ``warm`` and from ``warm`` with the variances
+        of the default start (no Hessian); ``warm`` itself when neither can be evaluated."""
+        ends = []
+        for init in (warm, homotopy_start(self.view, warm, default_start(self.view))):
+            try:
+                with np.errstate(over="ignore"):
+                    ends.append(find_map(self.view, seed=self.seed, num_starts=1, init=init,
+                                         compute_hessian=False, warn=False))
+            except ValueError:  # not finite at that start
+                continue
+        finite = [r for r in ends if math.isfinite(r.log_posterior)]
+        return np.asarray(max(finite, key=lambda r: r.log_posterior).theta) if finite else warm
+
+    def refine(self, fit: SubsetFit, evidence: str) -> SubsetFit:
+        """``fit`` with its evidence recomputed by ``evidence`` (the final ranking); the
+        screening value is kept in :attr:`SubsetFit.screening_log_evidence`."""
+        t0 = time.perf_counter()
+        self.view.select(fit.included)
+        try:
+            with np.errstate(over="ignore"):
+                result = find_map(self.view, seed=self.seed, num_starts=1, init=fit.theta,
+                                  evidence=evidence, warn=False)
+        except ValueError:
+            return fit
+        new = _from_result(fit.included, self.view.embed(result.theta), result,
+                           fit.seconds + time.perf_counter() - t0)
+        if not new.success:
+            return fit
+        new = dataclasses.replace(new, screening_log_evidence=fit.log_evidence)
+        self.fits[fit.included] = new
+        return new
 
     def _attempt(self, included: tuple[bool, ...], init: np.ndarray | None,
                  num_starts: int) -> SubsetFit:
@@ -208,7 +245,7 @@ class _Fitter:
             # which marks the fit failed; the overflow itself is no news.
             with np.errstate(over="ignore"):
                 result = find_map(self.view, seed=self.seed, num_starts=num_starts,
-                                  init=init, warn=False)
+                                  init=init, evidence=self.evidence, warn=False)
         except ValueError as err:  # not finite at the start
             return SubsetFit(included, -math.inf, -math.inf, self.view.embed(
                 np.zeros(self.view.num_params) if init is None else init), None, False, 0.0,
@@ -222,7 +259,8 @@ def _from_result(included: tuple[bool, ...], theta: np.ndarray, result: Any,
     ok = bool(result.success) and math.isfinite(evidence)
     return SubsetFit(included, evidence if ok else -math.inf, float(result.log_posterior),
                      np.asarray(theta, dtype=float), result.covariance, ok, seconds,
-                     "" if ok else (result.failure or "no finite evidence"))
+                     "" if ok else (result.failure or "no finite evidence"),
+                     evidence_method=str(result.evidence_method))
 
 
 def search_terms(
@@ -236,6 +274,9 @@ def search_terms(
     size_prior: str = "beta-binomial",
     max_fits: int | None = None,
     on_fit: Callable[[SubsetFit], None] | None = None,
+    evidence: str = "log-laplace",
+    final_evidence: str | None = "quadrature",
+    refine_within: float = 6.0,
 ) -> TermSearch:
     """The stepwise search of the module docstring over the coefficients at ``terms``.
 
@@ -260,6 +301,12 @@ def search_terms(
         Stop after this many fits (None: until the search converges).
     on_fit
         Called with each :class:`SubsetFit` as it is made (progress).
+    evidence
+        The evidence of the search (a ``find_map`` evidence; "The evidence" in the module
+        docstring).
+    final_evidence, refine_within
+        The evidence of the final ranking, recomputed for every visited subset whose score
+        is within ``refine_within`` nats of the best (None: keep the search's).
     """
     t0 = time.perf_counter()
     log_size_prior(0, 1, size_prior)  # checks the choice
@@ -269,10 +316,11 @@ def search_terms(
     if len(names) != len(terms):
         raise ValueError(f"term_names: expected {len(terms)} names, got {len(names)}")
     view = MaskedPosterior(posterior, terms)
-    fitter = _Fitter(view, seed, subset_starts, on_fit)
+    fitter = _Fitter(view, seed, subset_starts, evidence, on_fit)
     full = (True,) * len(terms)
     start = time.perf_counter()
-    result = find_map(posterior, seed=seed, num_starts=num_starts, warn=False)
+    result = find_map(posterior, seed=seed, num_starts=num_starts, evidence=evidence,
+                      warn=False)
     current = fitter.add(_from_result(full, np.asarray(result.theta), result,
                                       time.perf_counter() - start))
     path, stopped = ["start"], "converged"
@@ -301,14 +349,34 @@ def search_terms(
                     break  # after a move, try removals first again
         if not moved:
             break
+    num_searched = len(fitter.fits)
+    refined = _refine(fitter, score, final_evidence, refine_within)
     fits = tuple(fitter.fits.values())
     return TermSearch(
         term_names=names, terms=terms, param_names=tuple(posterior.param_names), fits=fits,
         size_prior=size_prior, path=tuple(path), seconds=time.perf_counter() - t0,
         stopped=stopped,
         details={"full_library_map_seconds": fits[0].seconds, "num_starts": int(num_starts),
-                 "subset_starts": int(subset_starts)},
+                 "subset_starts": int(subset_starts), "evidence": evidence,
+                 "final_evidence": final_evidence, "search_fits": num_searched,
+                 "refined": refined},
     )
+
+
+def _refine(fitter: _Fitter, score: Callable[[SubsetFit], float], evidence: str | None,
+            within: float) -> int:
+    """Recompute by ``evidence`` the evidence of every fit within ``within`` nats of the best
+    score ("The evidence" in the module docstring); the number recomputed."""
+    if evidence is None or evidence == fitter.evidence:
+        return 0
+    scores = {key: score(f) for key, f in fitter.fits.items()}
+    top = max(scores.values())
+    if not math.isfinite(top):
+        return 0
+    chosen = [key for key, value in scores.items() if value >= top - within]
+    for key in chosen:
+        fitter.refine(fitter.fits[key], evidence)
+    return len(chosen)
 
 
 def _flip(included: tuple[bool, ...], j: int) -> tuple[bool, ...]:

@@ -62,7 +62,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -75,6 +75,9 @@ from symplid.inference.map._laplace import laplace_covariance, repaired_eigenval
 from symplid.inference.map._space import SearchSpace
 from symplid.model.params import POSITIVE_GROUPS
 from symplid.stopping import check as check_stop
+
+EVIDENCE_RULES = ("quadrature", "log-laplace")
+"""Choices of :func:`quadrature_evidence`'s ``rule`` (module docstring, steps 4–6)."""
 
 Warm = tuple[np.ndarray, np.ndarray | None]
 """A warm start: u at a neighbouring node's inner maximum and the Hessian there (or None)."""
@@ -224,13 +227,14 @@ class _Profile:
         return (log_mass + float(np.sum(s)) if np.isfinite(log_mass) else -math.inf), (u, full)
 
 
-def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(u at the mode of log π + Σ s over (c, s), covariance of s there): step 3."""
+def _joint_mode(profile: _Profile, starts: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(u at the mode of log π + Σ s over (c, s), axes A with A Aᵀ the covariance of s
+    there): step 3. L-BFGS-B runs from each of ``starts`` (u) and the highest end is kept."""
     space, var, vg = profile.space, profile.var, profile.vg
     bounds = list(space.bounds())
     for i in var:
         bounds[i] = (None, None)
-    penalty = 1e10 + 1e3 * abs(float(vg(jnp.asarray(u_map))[0]))
+    penalty = 1e10 + 1e3 * abs(float(vg(jnp.asarray(starts[0]))[0]))
 
     def fun(u: np.ndarray) -> tuple[float, np.ndarray]:
         check_stop()
@@ -241,9 +245,9 @@ def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.nd
         grad[var] -= 1.0
         return value - float(np.sum(u[var])), grad
 
-    res = scipy.optimize.minimize(fun, u_map, jac=True, method="L-BFGS-B", bounds=bounds,
-                                  options=profile.options)
-    u = np.asarray(res.x, dtype=float)
+    ends = [scipy.optimize.minimize(fun, u0, jac=True, method="L-BFGS-B", bounds=bounds,
+                                    options=profile.options) for u0 in starts]
+    u = np.asarray(min(ends, key=lambda r: float(r.fun)).x, dtype=float)
     theta = np.asarray(space.to_theta(jnp.asarray(u)), dtype=float)
     # ∇²_u(−log π) = D H_θ D + diag(∂(−log π)/∂u on the log coordinates), D = ∂θ/∂u.
     h_theta = np.asarray(profile.hessian(jnp.asarray(theta)), dtype=float)
@@ -337,6 +341,9 @@ def quadrature_evidence(
     names: tuple[str, ...],
     theta_map: np.ndarray,
     settings: EvidenceSettings | None = None,
+    *,
+    other_starts: Sequence[np.ndarray] = (),
+    rule: str = "quadrature",
 ) -> EvidenceResult | None:
     """log p(Y) with the variances integrated on their log scale (module docstring).
 
@@ -350,30 +357,43 @@ def quadrature_evidence(
         The search space of θ and the group and name of each entry.
     theta_map
         The MAP (the starting point of the joint mode and of the first fit).
+    other_starts
+        Further starting points (θ) of the joint mode (step 3), e.g. the MAP with the
+        variances raised: the highest mode found is integrated.
+    rule
+        ``"quadrature"`` (steps 4–5) or ``"log-laplace"`` (step 6: the centre node only).
 
     Returns
     -------
     EvidenceResult or None
         None when θ has no variance parameter (the Laplace evidence is then the answer).
     """
+    if rule not in EVIDENCE_RULES:
+        raise ValueError(f"rule must be one of {', '.join(EVIDENCE_RULES)}, got {rule!r}")
     settings = EvidenceSettings() if settings is None else settings
     t0 = time.perf_counter()
     var = variance_indices(tuple(groups), space)
     if var.size == 0:
         return None
     profile = _Profile(value_and_grad, hessian, space, var, settings)
-    u_centre, axes = _joint_mode(profile, space.to_u(theta_map))
+    starts = [space.to_u(theta_map)] + [space.to_u(np.asarray(t, dtype=float))
+                                        for t in other_starts]
+    u_centre, axes = _joint_mode(profile, starts)
     grid = _Grid(profile, u_centre, axes, float(settings.step))
     m = var.size
-    grid.g((0,) * m)
-    if m <= settings.max_grid_dims:
+    centre = grid.g((0,) * m)
+    log_det = float(np.linalg.slogdet(axes)[1])
+    error = math.nan
+    if rule == "log-laplace":
+        method = "log-laplace"
+        value = centre + log_det + 0.5 * m * math.log(2.0 * math.pi)
+    elif m <= settings.max_grid_dims:
         method = "quadrature"
         value, error = _integrate(grid, tuple(range(m)), settings)
-        value += float(np.linalg.slogdet(axes)[1])
+        value += log_det
     else:
         method = "axis-quadrature"
-        centre = grid.g((0,) * m)
-        value, error = centre + float(np.linalg.slogdet(axes)[1]), 0.0
+        value, error = centre + log_det, 0.0
         for j in range(m):
             line, line_error = _integrate(grid, (j,), settings)
             value += line - centre
@@ -383,6 +403,7 @@ def quadrature_evidence(
         "variances": [names[i] for i in var],
         "log_variance_centre": u_centre[var].tolist(),
         "log_variance_sd": np.sqrt(np.sum(axes**2, axis=1)).tolist(),
+        "theta_centre": np.asarray(space.to_theta(jnp.asarray(u_centre)), dtype=float).tolist(),
         "step": grid.step,
         "nodes": len(grid.values),
         "inner_fits": profile.num_fits,
@@ -392,4 +413,5 @@ def quadrature_evidence(
     return EvidenceResult(float(value), method, tuple(names[i] for i in var), details)
 
 
-__all__ = ["EvidenceResult", "EvidenceSettings", "quadrature_evidence", "variance_indices"]
+__all__ = ["EVIDENCE_RULES", "EvidenceResult", "EvidenceSettings", "quadrature_evidence",
+           "variance_indices"]
