@@ -17,7 +17,9 @@ neighbours. :func:`search_terms` therefore runs a **stepwise search**:
 
 1. fit the whole library (the MAP search from its data start, ``num_starts`` starts);
 2. **backward**: fit every subset with one term of the current subset removed, each started
-   from the current MAP with that coefficient at zero; move to the best if its evidence is
+   from the current MAP with that coefficient at zero and from the same point with the
+   variances of the default start (the higher MAP is kept: the variances can have two modes,
+   :mod:`symplid.inference.map._evidence` step 3); move to the best if its evidence is
    higher than the current one's, and repeat;
 3. **forward**: when no removal helps, fit every subset with one more term (the coefficient
    starting at zero); move to the best if it is higher and return to 2;
@@ -30,6 +32,21 @@ m + (m−1) + … + (k+1) backward fits from m terms to k, plus m − k forward 
 the paper's 9-term library and its 4 true terms. Each fit reuses the same compiled programs
 (:class:`~symplid.model.masked.MaskedPosterior`), so after the first only the optimiser's
 and the quadrature's evaluations are paid.
+
+The evidence
+------------
+The search compares ~40 subsets and asks of most of them only whether they are far behind
+the best. It scores each by the **log-Laplace** evidence (``evidence="log-laplace"``:
+Gaussian in the coefficients and the log-variances at their joint mode; one Hessian, no
+quadrature grid), then recomputes by the quadrature over the log-variances
+(``final_evidence="quadrature"``, :mod:`symplid.inference.map._evidence`) the evidence of
+every visited subset within ``refine_within`` (6) nats of the best score. On the paper's
+Hénon–Heiles data the log-Laplace evidence was 0.85–1.0 nats below the quadrature on the
+best subsets, the same within 0.15 nats for any two of them, at a fraction of the cost
+(the evidence of a subset in 0.5 s instead of 3–8 s on an idle core). Subsets left unrefined keep their log-Laplace
+value: at least 6 nats behind, their weight stays below about e⁻⁵ whatever the ~1 nat
+difference. :attr:`SubsetFit.screening_log_evidence` keeps the search's value of a
+refined subset.
 
 Inclusion probabilities
 -----------------------

@@ -27,10 +27,17 @@ The rule
    ``g(s) = log ∫ exp(log π(c, v(s))) dc + Σ s_j`` is the Gaussian integral over c from the
    Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for any entry
    of c on a bound. No new program is compiled.
-3. **Centre and axes.** The joint mode of log π + Σ s over (c, s) (L-BFGS-B from the MAP) is
-   the centre s̄; the marginal covariance Σ_s of s from the Hessian in (c, s) there gives
-   the axes: s = s̄ + h·A·k with A Aᵀ = Σ_s, k an integer vector, h the step (one marginal
-   standard deviation by default).
+3. **Centre and axes.** The joint mode of log π + Σ s over (c, s) is the centre s̄: L-BFGS-B
+   from the MAP and from the MAP with the variances of the default start (a process variance
+   as large as the data's; ``find_map`` passes it as ``other_starts``), the higher end kept.
+   The variances can have two modes, and the MAP may sit in the lighter one: on the paper's
+   Hénon–Heiles data with the cubic library started away from the data's initial state, a
+   subset's MAP sat at a process variance of 5e-6 with the observation variance five times
+   the truth, 18 nats of log π below the mode at a process variance of 4e-3; from the MAP
+   alone the joint mode stayed there for some subsets and not for others, so their
+   evidences were 26–40 nats apart for no reason in the data. The marginal covariance Σ_s
+   of s from the Hessian in (c, s) at the centre gives the axes: s = s̄ + h·A·k with
+   A Aᵀ = Σ_s, k an integer vector, h the step (one marginal standard deviation by default).
 4. **Quadrature** (at most ``max_grid_dims`` = 2 variances, the isotropic model): the
    trapezoid rule on that lattice, log p(Y) = logsumexp g + m log h + log|det A|, over the
    nodes reached from the centre by unit steps along the axes, a node being expanded while g
@@ -52,6 +59,18 @@ The rule
    axis's skewness. About 10 fits per axis. ``method`` says which rule was used. On the
    oscillator of ``tests/test_map_evidence.py`` (forced to this rule with two variances) it was
    0.15 nats from the product grid, where the Laplace evidence was 0.7–1.3 nats off.
+
+6. **Log-Laplace** (``rule="log-laplace"``, ``find_map(evidence="log-laplace")``): the centre
+   node alone, ``g(s̄) + (m/2) log 2π + log|det A|``: the Laplace approximation in (c, s),
+   what steps 4–5 give for a Gaussian g. It costs the joint mode, one Hessian and one
+   profile fit instead of 100–200 (step 4). It is the screening evidence of the term search
+   (:mod:`symplid.inference.term_search`), which asks of each of ~40 subsets only whether it
+   is far behind the best. Measured against the brute-force evidence of the oscillator of
+   ``tests/test_map_evidence.py``: 0.16 nats (interior) and 0.27 nats (process variance on
+   its floor) low, where the Laplace evidence in θ is 0.71 and 1.34 nats off; on the
+   Hénon–Heiles subsets 0.13–0.34 nats below the quadrature with process noise in the data's
+   mode and 0.85–1.0 nats below it with the process variance near zero, the same within
+   0.15 nats for the subsets a search compares.
 
 A new variance group (e.g. further noise parameters) is integrated as soon as its name is in
 :data:`~symplid.model.params.POSITIVE_GROUPS`: the variances are found by group, not position.
