@@ -49,6 +49,7 @@ import numpy as np
 from symplid import runtime
 
 runtime.limit_threads()
+runtime.enable_compilation_cache()  # as the command line does: a seed reuses the programs
 
 import symplid  # noqa: E402
 from symplid.workflow.discover import discover  # noqa: E402
