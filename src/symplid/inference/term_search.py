@@ -45,8 +45,8 @@ Hénon–Heiles data the log-Laplace evidence was 0.85–1.0 nats below the quad
 best subsets, the same within 0.15 nats for any two of them, at a fraction of the cost
 (the evidence of a subset in 0.5 s instead of 3–8 s on an idle core). Subsets left
 unrefined keep their log-Laplace value: at least 6 nats behind, their weight stays below
-about e⁻⁵ whatever the ~1 nat difference. :attr:`SubsetFit.screening_log_evidence` keeps the search's value of a
-refined subset.
+about e⁻⁵ whatever the ~1 nat difference. :attr:`SubsetFit.screening_log_evidence` keeps
+the search's value of a refined subset.
 
 Inclusion probabilities
 -----------------------
