@@ -166,10 +166,12 @@ class _Profile:
         self.num_fits += 1
         if self.free.size == 0:
             return self.log_density(np.asarray(self.space.to_theta(jnp.asarray(u)))), u, None
-        found = self._newton(u, warm[1]) if self.newton_ok else None
+        # the joint mode's Hessian, passed for the centre node, is this point's own
+        fresh = warm[1] is not None and np.array_equal(u, warm[0])
+        found = self._newton(u, warm[1], fresh) if self.newton_ok else None
         return found if found is not None else (*self._lbfgs(u), None)
 
-    def _newton(self, u: np.ndarray, start_hessian: np.ndarray | None
+    def _newton(self, u: np.ndarray, start_hessian: np.ndarray | None, fresh: bool = False
                 ) -> tuple[float, np.ndarray, np.ndarray] | None:
         """Newton's method with the (repaired) Hessian and a backtracking line search, for
         unbounded c. The steps start with the Hessian of the neighbouring node (a chord
@@ -178,7 +180,7 @@ class _Profile:
         L-BFGS-B runs)."""
         free, u = self.free, u.copy()
         value, grad = (np.asarray(x, dtype=float) for x in self.vg(jnp.asarray(u)))
-        full, fresh = start_hessian, False
+        full = start_hessian
         for _ in range(self.max_newton):
             if full is None:
                 full = np.asarray(self.hessian(self.space.to_theta(jnp.asarray(u))), dtype=float)
@@ -246,9 +248,11 @@ class _Profile:
         return (log_mass + float(np.sum(s)) if np.isfinite(log_mass) else -math.inf), (u, full)
 
 
-def _joint_mode(profile: _Profile, starts: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def _joint_mode(profile: _Profile, starts: list[np.ndarray]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(u at the mode of log π + Σ s over (c, s), axes A with A Aᵀ the covariance of s
-    there): step 3. L-BFGS-B runs from each of ``starts`` (u) and the highest end is kept."""
+    there, ∇²_θ(−log π) there): step 3. L-BFGS-B runs from each of ``starts`` (u) and the
+    highest end is kept."""
     space, var, vg = profile.space, profile.var, profile.vg
     bounds = list(space.bounds())
     for i in var:
@@ -281,7 +285,7 @@ def _joint_mode(profile: _Profile, starts: list[np.ndarray]) -> tuple[np.ndarray
     if not np.all(np.isfinite(lam)):
         lam, vecs = np.ones(var.size), np.eye(var.size)
     lam = np.clip(lam, 1e-6, 25.0)  # a log-variance sd between 1e-3 and 5
-    return u, vecs * np.sqrt(lam)
+    return u, vecs * np.sqrt(lam), h_theta
 
 
 class _Grid:
@@ -289,11 +293,11 @@ class _Grid:
     that reached it."""
 
     def __init__(self, profile: _Profile, u_centre: np.ndarray, axes: np.ndarray,
-                 step: float) -> None:
+                 step: float, hessian: np.ndarray | None = None) -> None:
         self.profile, self.axes, self.step = profile, axes, step
         self.centre = u_centre[profile.var].copy()
         self.values: dict[tuple[int, ...], tuple[float, Warm]] = {}
-        self.root: Warm = (u_centre, None)
+        self.root: Warm = (u_centre, hessian)
 
     def g(self, key: tuple[int, ...], warm: Warm | None = None) -> float:
         if key not in self.values:
@@ -397,8 +401,9 @@ def quadrature_evidence(
     profile = _Profile(value_and_grad, hessian, space, var, settings)
     starts = [space.to_u(theta_map)] + [space.to_u(np.asarray(t, dtype=float))
                                         for t in other_starts]
-    u_centre, axes = _joint_mode(profile, starts)
-    grid = _Grid(profile, u_centre, axes, float(settings.step))
+    u_centre, axes, h_centre = _joint_mode(profile, starts)
+    finite = h_centre if np.all(np.isfinite(h_centre)) else None
+    grid = _Grid(profile, u_centre, axes, float(settings.step), finite)
     m = var.size
     centre = grid.g((0,) * m)
     log_det = float(np.linalg.slogdet(axes)[1])
