@@ -45,12 +45,13 @@ Gaussian in the coefficients and the log-variances at their joint mode; one Hess
 quadrature grid), then recomputes by the quadrature over the log-variances
 (``final_evidence="quadrature"``, :mod:`symplid.inference.map._evidence`) the evidence of
 every visited subset within ``refine_within`` (6) nats of the best score. On the paper's
-Hénon–Heiles data the log-Laplace evidence was 0.85–1.0 nats below the quadrature on the
-best subsets, the same within 0.15 nats for any two of them, at a fraction of the cost
-(the evidence of a subset in 0.5 s instead of 3–8 s on an idle core). Subsets left
-unrefined keep their log-Laplace value: at least 6 nats behind, their weight stays below
-about e⁻⁵ whatever the ~1 nat difference. :attr:`SubsetFit.screening_log_evidence` keeps
-the search's value of a refined subset.
+Hénon–Heiles data (seed 0; the process variance on its floor, its log-scale posterior
+skewed) the log-Laplace evidence of the true subset and three of its neighbours was
+0.85–1.7 nats below the quadrature, at about a tenth of the cost (2.5–6 s instead of
+35–63 s each, on a shared machine). Subsets left unrefined keep their log-Laplace value:
+at least 6 nats behind, their weight stays below about e⁻⁴ even if the quadrature would
+put them two nats higher. :attr:`SubsetFit.screening_log_evidence` keeps the search's
+value of a refined subset.
 
 Inclusion probabilities
 -----------------------

@@ -67,10 +67,10 @@ The rule
    (:mod:`symplid.inference.term_search`), which asks of each of ~40 subsets only whether it
    is far behind the best. Measured against the brute-force evidence of the oscillator of
    ``tests/test_map_evidence.py``: 0.16 nats (interior) and 0.27 nats (process variance on
-   its floor) low, where the Laplace evidence in θ is 0.71 and 1.34 nats off; on the
-   Hénon–Heiles subsets 0.13–0.34 nats below the quadrature with process noise in the data's
-   mode and 0.85–1.0 nats below it with the process variance near zero, the same within
-   0.15 nats for the subsets a search compares.
+   its floor) low, where the Laplace evidence in θ is 0.71 and 1.34 nats off. On
+   Hénon–Heiles subsets: 0.13–0.34 nats below the quadrature where the data's mode has
+   process noise, 0.85–1.7 nats below it where the process variance is on its floor (the
+   Laplace evidence in θ there: 2.6–4.6 nats below).
 
 A new variance group (e.g. further noise parameters) is integrated as soon as its name is in
 :data:`~symplid.model.params.POSITIVE_GROUPS`: the variances are found by group, not position.
