@@ -214,6 +214,9 @@ def _summary(library: TermLibrary, search: TermSearch, table: pd.DataFrame,
         "path": list(search.path),
         "stopped": search.stopped,
         "num_fits": search.num_fits,
+        "evidence": search.details.get("evidence"),
+        "final_evidence": search.details.get("final_evidence"),
+        "refined": search.details.get("refined", 0),
         "log_probability_gap": search.log_evidence_gap,
         "seconds": seconds,
         "fit_folder": None if chosen_fit is None else "fit",
@@ -245,7 +248,9 @@ def report_text(found: Discovery) -> str:
         "| terms | log evidence | probability |", "|---|---|---|",
         *[f"| {r.terms} | {r.log_evidence:.2f} | {r.probability:.3g} |"
           for r in top.itertuples()], "",
-        f"Search: {s.num_fits} fits (MAP, Hessian, evidence each) in {s.seconds:.0f} s; "
+        f"Search: {s.num_fits} fits (MAP, Hessian, {s.details.get('evidence', '')} evidence "
+        f"each; {s.details.get('refined', 0)} re-ranked by "
+        f"{s.details.get('final_evidence') or 'none'}) in {s.seconds:.0f} s; "
         f"path {' → '.join(s.path)}; {s.stopped}; prior over subsets: {s.size_prior}.", "",
     ]
     if found.fit is not None:

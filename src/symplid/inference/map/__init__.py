@@ -52,6 +52,7 @@ from symplid.inference.map._result import (
     StartResult,
 )
 from symplid.inference.map._space import SearchSpace
+from symplid.inference.map._starts import homotopy_start
 
 _LAZY = {"NeuralMapResult", "find_map_neural", "neural_posterior"}
 
@@ -81,6 +82,7 @@ __all__ = [
     "find_map",
     "find_map_neural",
     "half_normal_start",
+    "homotopy_start",
     "laplace_covariance",
     "neural_posterior",
     "quadrature_evidence",

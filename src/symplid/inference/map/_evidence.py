@@ -27,10 +27,17 @@ The rule
    ``g(s) = log ∫ exp(log π(c, v(s))) dc + Σ s_j`` is the Gaussian integral over c from the
    Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for any entry
    of c on a bound. No new program is compiled.
-3. **Centre and axes.** The joint mode of log π + Σ s over (c, s) (L-BFGS-B from the MAP) is
-   the centre s̄; the marginal covariance Σ_s of s from the Hessian in (c, s) there gives
-   the axes: s = s̄ + h·A·k with A Aᵀ = Σ_s, k an integer vector, h the step (one marginal
-   standard deviation by default).
+3. **Centre and axes.** The joint mode of log π + Σ s over (c, s) is the centre s̄: L-BFGS-B
+   from the MAP and from the MAP with the variances of the default start (a process variance
+   as large as the data's; ``find_map`` passes it as ``other_starts``), the higher end kept.
+   The variances can have two modes, and the MAP may sit in the lighter one: on the paper's
+   Hénon–Heiles data with the cubic library started away from the data's initial state, a
+   subset's MAP sat at a process variance of 5e-6 with the observation variance five times
+   the truth, 18 nats of log π below the mode at a process variance of 4e-3; from the MAP
+   alone the joint mode stayed there for some subsets and not for others, so their
+   evidences were 26–40 nats apart for no reason in the data. The marginal covariance Σ_s
+   of s from the Hessian in (c, s) at the centre gives the axes: s = s̄ + h·A·k with
+   A Aᵀ = Σ_s, k an integer vector, h the step (one marginal standard deviation by default).
 4. **Quadrature** (at most ``max_grid_dims`` = 2 variances, the isotropic model): the
    trapezoid rule on that lattice, log p(Y) = logsumexp g + m log h + log|det A|, over the
    nodes reached from the centre by unit steps along the axes, a node being expanded while g
@@ -53,6 +60,18 @@ The rule
    oscillator of ``tests/test_map_evidence.py`` (forced to this rule with two variances) it was
    0.15 nats from the product grid, where the Laplace evidence was 0.7–1.3 nats off.
 
+6. **Log-Laplace** (``rule="log-laplace"``, ``find_map(evidence="log-laplace")``): the centre
+   node alone, ``g(s̄) + (m/2) log 2π + log|det A|``: the Laplace approximation in (c, s),
+   what steps 4–5 give for a Gaussian g. It costs the joint mode, one Hessian and one
+   profile fit instead of 100–200 (step 4). It is the screening evidence of the term search
+   (:mod:`symplid.inference.term_search`), which asks of each of ~40 subsets only whether it
+   is far behind the best. Measured against the brute-force evidence of the oscillator of
+   ``tests/test_map_evidence.py``: 0.16 nats (interior) and 0.27 nats (process variance on
+   its floor) low, where the Laplace evidence in θ is 0.71 and 1.34 nats off. On
+   Hénon–Heiles subsets: 0.13–0.34 nats below the quadrature where the data's mode has
+   process noise, 0.85–1.7 nats below it where the process variance is on its floor (the
+   Laplace evidence in θ there: 2.6–4.6 nats below).
+
 A new variance group (e.g. further noise parameters) is integrated as soon as its name is in
 :data:`~symplid.model.params.POSITIVE_GROUPS`: the variances are found by group, not position.
 """
@@ -62,7 +81,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -75,6 +94,9 @@ from symplid.inference.map._laplace import laplace_covariance, repaired_eigenval
 from symplid.inference.map._space import SearchSpace
 from symplid.model.params import POSITIVE_GROUPS
 from symplid.stopping import check as check_stop
+
+EVIDENCE_RULES = ("quadrature", "log-laplace")
+"""Choices of :func:`quadrature_evidence`'s ``rule`` (module docstring, steps 4–6)."""
 
 Warm = tuple[np.ndarray, np.ndarray | None]
 """A warm start: u at a neighbouring node's inner maximum and the Hessian there (or None)."""
@@ -144,10 +166,12 @@ class _Profile:
         self.num_fits += 1
         if self.free.size == 0:
             return self.log_density(np.asarray(self.space.to_theta(jnp.asarray(u)))), u, None
-        found = self._newton(u, warm[1]) if self.newton_ok else None
+        # the joint mode's Hessian, passed for the centre node, is this point's own
+        fresh = warm[1] is not None and np.array_equal(u, warm[0])
+        found = self._newton(u, warm[1], fresh) if self.newton_ok else None
         return found if found is not None else (*self._lbfgs(u), None)
 
-    def _newton(self, u: np.ndarray, start_hessian: np.ndarray | None
+    def _newton(self, u: np.ndarray, start_hessian: np.ndarray | None, fresh: bool = False
                 ) -> tuple[float, np.ndarray, np.ndarray] | None:
         """Newton's method with the (repaired) Hessian and a backtracking line search, for
         unbounded c. The steps start with the Hessian of the neighbouring node (a chord
@@ -156,7 +180,7 @@ class _Profile:
         L-BFGS-B runs)."""
         free, u = self.free, u.copy()
         value, grad = (np.asarray(x, dtype=float) for x in self.vg(jnp.asarray(u)))
-        full, fresh = start_hessian, False
+        full = start_hessian
         for _ in range(self.max_newton):
             if full is None:
                 full = np.asarray(self.hessian(self.space.to_theta(jnp.asarray(u))), dtype=float)
@@ -224,13 +248,16 @@ class _Profile:
         return (log_mass + float(np.sum(s)) if np.isfinite(log_mass) else -math.inf), (u, full)
 
 
-def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(u at the mode of log π + Σ s over (c, s), covariance of s there): step 3."""
+def _joint_mode(profile: _Profile, starts: list[np.ndarray]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u at the mode of log π + Σ s over (c, s), axes A with A Aᵀ the covariance of s
+    there, ∇²_θ(−log π) there): step 3. L-BFGS-B runs from each of ``starts`` (u) and the
+    highest end is kept."""
     space, var, vg = profile.space, profile.var, profile.vg
     bounds = list(space.bounds())
     for i in var:
         bounds[i] = (None, None)
-    penalty = 1e10 + 1e3 * abs(float(vg(jnp.asarray(u_map))[0]))
+    penalty = 1e10 + 1e3 * abs(float(vg(jnp.asarray(starts[0]))[0]))
 
     def fun(u: np.ndarray) -> tuple[float, np.ndarray]:
         check_stop()
@@ -241,9 +268,9 @@ def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.nd
         grad[var] -= 1.0
         return value - float(np.sum(u[var])), grad
 
-    res = scipy.optimize.minimize(fun, u_map, jac=True, method="L-BFGS-B", bounds=bounds,
-                                  options=profile.options)
-    u = np.asarray(res.x, dtype=float)
+    ends = [scipy.optimize.minimize(fun, u0, jac=True, method="L-BFGS-B", bounds=bounds,
+                                    options=profile.options) for u0 in starts]
+    u = np.asarray(min(ends, key=lambda r: float(r.fun)).x, dtype=float)
     theta = np.asarray(space.to_theta(jnp.asarray(u)), dtype=float)
     # ∇²_u(−log π) = D H_θ D + diag(∂(−log π)/∂u on the log coordinates), D = ∂θ/∂u.
     h_theta = np.asarray(profile.hessian(jnp.asarray(theta)), dtype=float)
@@ -258,7 +285,7 @@ def _joint_mode(profile: _Profile, u_map: np.ndarray) -> tuple[np.ndarray, np.nd
     if not np.all(np.isfinite(lam)):
         lam, vecs = np.ones(var.size), np.eye(var.size)
     lam = np.clip(lam, 1e-6, 25.0)  # a log-variance sd between 1e-3 and 5
-    return u, vecs * np.sqrt(lam)
+    return u, vecs * np.sqrt(lam), h_theta
 
 
 class _Grid:
@@ -266,11 +293,11 @@ class _Grid:
     that reached it."""
 
     def __init__(self, profile: _Profile, u_centre: np.ndarray, axes: np.ndarray,
-                 step: float) -> None:
+                 step: float, hessian: np.ndarray | None = None) -> None:
         self.profile, self.axes, self.step = profile, axes, step
         self.centre = u_centre[profile.var].copy()
         self.values: dict[tuple[int, ...], tuple[float, Warm]] = {}
-        self.root: Warm = (u_centre, None)
+        self.root: Warm = (u_centre, hessian)
 
     def g(self, key: tuple[int, ...], warm: Warm | None = None) -> float:
         if key not in self.values:
@@ -337,6 +364,9 @@ def quadrature_evidence(
     names: tuple[str, ...],
     theta_map: np.ndarray,
     settings: EvidenceSettings | None = None,
+    *,
+    other_starts: Sequence[np.ndarray] = (),
+    rule: str = "quadrature",
 ) -> EvidenceResult | None:
     """log p(Y) with the variances integrated on their log scale (module docstring).
 
@@ -350,30 +380,44 @@ def quadrature_evidence(
         The search space of θ and the group and name of each entry.
     theta_map
         The MAP (the starting point of the joint mode and of the first fit).
+    other_starts
+        Further starting points (θ) of the joint mode (step 3), e.g. the MAP with the
+        variances raised: the highest mode found is integrated.
+    rule
+        ``"quadrature"`` (steps 4–5) or ``"log-laplace"`` (step 6: the centre node only).
 
     Returns
     -------
     EvidenceResult or None
         None when θ has no variance parameter (the Laplace evidence is then the answer).
     """
+    if rule not in EVIDENCE_RULES:
+        raise ValueError(f"rule must be one of {', '.join(EVIDENCE_RULES)}, got {rule!r}")
     settings = EvidenceSettings() if settings is None else settings
     t0 = time.perf_counter()
     var = variance_indices(tuple(groups), space)
     if var.size == 0:
         return None
     profile = _Profile(value_and_grad, hessian, space, var, settings)
-    u_centre, axes = _joint_mode(profile, space.to_u(theta_map))
-    grid = _Grid(profile, u_centre, axes, float(settings.step))
+    starts = [space.to_u(theta_map)] + [space.to_u(np.asarray(t, dtype=float))
+                                        for t in other_starts]
+    u_centre, axes, h_centre = _joint_mode(profile, starts)
+    finite = h_centre if np.all(np.isfinite(h_centre)) else None
+    grid = _Grid(profile, u_centre, axes, float(settings.step), finite)
     m = var.size
-    grid.g((0,) * m)
-    if m <= settings.max_grid_dims:
+    centre = grid.g((0,) * m)
+    log_det = float(np.linalg.slogdet(axes)[1])
+    error = math.nan
+    if rule == "log-laplace":
+        method = "log-laplace"
+        value = centre + log_det + 0.5 * m * math.log(2.0 * math.pi)
+    elif m <= settings.max_grid_dims:
         method = "quadrature"
         value, error = _integrate(grid, tuple(range(m)), settings)
-        value += float(np.linalg.slogdet(axes)[1])
+        value += log_det
     else:
         method = "axis-quadrature"
-        centre = grid.g((0,) * m)
-        value, error = centre + float(np.linalg.slogdet(axes)[1]), 0.0
+        value, error = centre + log_det, 0.0
         for j in range(m):
             line, line_error = _integrate(grid, (j,), settings)
             value += line - centre
@@ -383,6 +427,7 @@ def quadrature_evidence(
         "variances": [names[i] for i in var],
         "log_variance_centre": u_centre[var].tolist(),
         "log_variance_sd": np.sqrt(np.sum(axes**2, axis=1)).tolist(),
+        "theta_centre": np.asarray(space.to_theta(jnp.asarray(u_centre)), dtype=float).tolist(),
         "step": grid.step,
         "nodes": len(grid.values),
         "inner_fits": profile.num_fits,
@@ -392,4 +437,5 @@ def quadrature_evidence(
     return EvidenceResult(float(value), method, tuple(names[i] for i in var), details)
 
 
-__all__ = ["EvidenceResult", "EvidenceSettings", "quadrature_evidence", "variance_indices"]
+__all__ = ["EVIDENCE_RULES", "EvidenceResult", "EvidenceSettings", "quadrature_evidence",
+           "variance_indices"]

@@ -108,7 +108,7 @@ from symplid.saved_programs import identity_of, saved_jit
 from symplid.stopping import first_call_waits
 
 Array = jax.Array
-EVIDENCE_METHODS = ("quadrature", "laplace")
+EVIDENCE_METHODS = ("quadrature", "laplace", "log-laplace")
 """Choices of ``find_map(evidence=...)``."""
 
 
@@ -196,7 +196,10 @@ def find_map(
     evidence
         ``"quadrature"`` (default): the variances integrated on their log scale, Gaussian
         in the other parameters (:mod:`symplid.inference.map._evidence`); ``"laplace"``: the
-        Laplace evidence only (no extra fits). Both are recorded when computed.
+        Laplace evidence only (no extra fits); ``"log-laplace"``: the Laplace approximation
+        in the coefficients and the log-variances at their joint mode (one fit, no grid; the
+        screening evidence of :mod:`symplid.inference.term_search`). The Laplace value is
+        always recorded.
     warn
         Warn (:class:`BoundWarning`) when the MAP is on a bound, and
         (:class:`MapConvergenceWarning`) when the search failed (``MapResult.failure``).
@@ -230,9 +233,10 @@ def find_map(
     failure = judge(best, tuple(results), hessians[k_best], space,
                     tuple(parameter_space.groups), model_free_noise(posterior),
                     given_start=init is not None, names=names)
+    raised = homotopy_start(posterior, best.theta, default_start(posterior))
     laplace, log_evidence, method, details = _evidence_at(
         best, hessians[k_best], failure, at_bounds, names, objective, u_best, fns,
-        parameter_space.groups, evidence if compute_hessian else "none", warn)
+        parameter_space.groups, evidence if compute_hessian else "none", warn, raised)
     optima = distinct_optima(results, laplace[1], space)
     if warn:
         _warn_outcome(best, failure, at_bounds, names, space, u_best)
@@ -277,29 +281,33 @@ def _searched(starts: list[np.ndarray], objective: Objective, options: dict[str,
 def _evidence_at(best: StartResult, hessian: np.ndarray | None, failure: str,
                  at_bounds: tuple[str, ...], names: tuple[str, ...], objective: Objective,
                  u_best: np.ndarray, fns: dict[str, Callable], groups: Any, evidence: str,
-                 warn: bool) -> tuple[tuple[Any, Any, bool, float], float, str, dict[str, Any]]:
+                 warn: bool, raised: np.ndarray
+                 ) -> tuple[tuple[Any, Any, bool, float], float, str, dict[str, Any]]:
     """((Hessian, covariance, repaired?, Laplace log evidence), log evidence, its method,
     details) at the best point; ``evidence`` "none" when no Hessian was computed. No
-    evidence at a point that is not an optimum (NaN)."""
+    evidence at a point that is not an optimum (NaN). ``raised`` (the best point with the
+    variances of the default start) is a second start of the evidence's joint mode."""
     if evidence == "none" or hessian is None:
         return (None, None, False, math.nan), math.nan, "none", {}
     bound_idx = [names.index(n) for n in at_bounds]
     laplace = (hessian, *_laplace(hessian, best, bound_idx, objective, u_best, warn))
     if not is_optimum(failure):
         laplace = (*laplace[:3], math.nan)
-    if evidence == "quadrature" and np.isfinite(best.log_posterior) and is_optimum(failure):
+    if evidence != "laplace" and np.isfinite(best.log_posterior) and is_optimum(failure):
         return laplace, *_quadrature(fns, objective.space, groups, names, best.theta,
-                                     laplace[3])
+                                     laplace[3], evidence, raised)
     return laplace, laplace[3], "laplace", {}
 
 
 def _quadrature(fns: dict[str, Callable], space: SearchSpace, groups: tuple[str, ...],
                 names: tuple[str, ...], theta: np.ndarray,
-                laplace: float) -> tuple[float, str, dict[str, Any]]:
-    """(log evidence, method, details) by :func:`~.evidence.quadrature_evidence`; the Laplace
-    value when θ has no variance to integrate or the quadrature fails."""
+                laplace: float, rule: str, raised: np.ndarray
+                ) -> tuple[float, str, dict[str, Any]]:
+    """(log evidence, method, details) by :func:`~.evidence.quadrature_evidence` (``rule``
+    "quadrature" or "log-laplace"); the Laplace value when θ has no variance to integrate or
+    the quadrature fails."""
     found = quadrature_evidence(fns["value_and_grad"], fns["hessian"], space, groups, names,
-                                theta, EvidenceSettings())
+                                theta, EvidenceSettings(), other_starts=[raised], rule=rule)
     if found is None or not np.isfinite(found.log_evidence):
         return laplace, "laplace", {}
     return found.log_evidence, found.method, found.details
