@@ -29,7 +29,7 @@ SOURCES = [  # the slowest to compile first (setuptools sorts them by name; the 
 HEADERS = ["csrc/ukf_kernel.h", "csrc/ukf_kernel_impl.h", "csrc/ukf_adjoint.h",
            "csrc/ukf_basis.h"]
 # Installed as package data (symplid/csrc) beside the built-in kernel's sources: a user
-# model's unit is compiled from them on first use (symplid/model/user_kernel.py).
+# model's unit is compiled from them on first use (symplid/model/_user_kernel.py).
 USER_SOURCES = ["csrc/ukf_adjoint_update.h", "csrc/ukf_user.h", "csrc/ukf_user_math.h"]
 
 

@@ -2,7 +2,7 @@
 
 For each data size n (observations evenly spread over 100 s, so more points are denser) and
 each data seed (σ = 0.05, full state), fits the cubic polynomial potential by every baseline
-objective of :mod:`symplid.inference.baselines` (one integrator step per gap, as their authors
+objective of :mod:`symplid.inference._baselines` (one integrator step per gap, as their authors
 use them; plus least squares through leapfrog with the UKF's ⌈gap/0.25⌉ substeps) and by the
 MAP of the UKF posterior with leapfrog and with RK2 (known initial state, the paper's priors).
 Prints a markdown table of the median relative error of the learned H at the true initial
@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 
 import symplid
-from symplid.inference import baselines
+from symplid.inference import _baselines as baselines
 
 
 def _methods() -> dict[str, dict]:

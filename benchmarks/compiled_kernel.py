@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import symplid
-from symplid.model import kernel as compiled_kernel
+from symplid.model import _kernel as compiled_kernel
 
 
 def loop_runner(step: Callable[[jax.Array], jax.Array], thetas: jax.Array
@@ -246,7 +246,7 @@ def map_times(repeats: int = 2) -> None:
     import warnings
 
     from symplid.inference.map import find_map
-    from symplid.model.posterior import Posterior
+    from symplid.model._posterior import Posterior
 
     system = symplid.get_system("henon-heiles")
     data = symplid.simulate(system, seed=0)

@@ -7,7 +7,7 @@ that ties in the ranks matter. Timed, taking turns, ``--repeats`` times each (mi
 reported):
 
 * ``az.summary(idata, kind="diagnostics")`` (ArviZ's own; it also computes the MCSE);
-* the previous :func:`~symplid.inference.diagnostics.convergence_table` (kept below: ArviZ's
+* the previous :func:`~symplid.inference._diagnostics.convergence_table` (kept below: ArviZ's
   ``_ess`` per statistic, a stable sort per rank normalisation);
 * the current one.
 
@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "src"))
 
-from symplid.inference.diagnostics import (
+from symplid.inference._diagnostics import (
     convergence_table,
     import_arviz,
     quiet_arviz,

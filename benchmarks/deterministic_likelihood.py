@@ -3,7 +3,7 @@
 Workload (seed paper, Section IV): Hénon–Heiles, cubic potential (9 coefficients), leapfrog at
 dt = 0.25, 20 full-state observations 5 s apart: 20 gaps × 20 substeps. The UKF pushes
 2n + 1 = 9 sigma points through every substep and adds Σ; the deterministic likelihood
-(``process_noise_per="none"``, :mod:`symplid.model.deterministic`) pushes one path and sums
+(``process_noise_per="none"``, :mod:`symplid.model._deterministic`) pushes one path and sums
 Gaussian log densities.
 
 Rows: each likelihood's value, and its value with the gradient (``jax.value_and_grad``, what

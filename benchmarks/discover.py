@@ -11,7 +11,7 @@ same library of terms, and each returns a set of terms with coefficients:
 * ``pendulum``: U = 1 − cos q from q = 2.5 rad, recorded by SciPy's DOP853 (rtol = atol =
   1e-12), 40 observations 0.5 s apart, sd 0.02, the library q², q⁴, q⁶, cos q.
 
-**symplid**: :func:`symplid.workflow.discover.discover` (leapfrog, dt 0.25 — 0.1 for the
+**symplid**: :func:`symplid.workflow._discover.discover` (leapfrog, dt 0.25 — 0.1 for the
 pendulum —, known x0, isotropic observation noise, Laplace(0, 10) coefficients, beta-binomial
 prior over subsets); its set is the most probable subset, its coefficients that subset's MAP.
 
@@ -52,8 +52,8 @@ runtime.limit_threads()
 runtime.enable_compilation_cache()  # as the command line does: a seed reuses the programs
 
 import symplid  # noqa: E402
-from symplid.workflow.discover import discover  # noqa: E402
-from symplid.workflow.settings import Settings, merge_overrides  # noqa: E402
+from symplid.workflow._discover import discover  # noqa: E402
+from symplid.workflow._settings import Settings, merge_overrides  # noqa: E402
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ Gaussian log density of the same dimension, alone (the whole chunk is then one k
 with a one-element LAPACK call added (a custom call: the chunk runs operation by operation).
 
 Each ``linalg`` choice (``unrolled`` inline, ``lapack``, ``fused``: one kernel per stretch
-between log-density calls, :func:`symplid.kernel_region.one_kernel`) runs in this one process,
+between log-density calls, :func:`symplid._kernel_region.one_kernel`) runs in this one process,
 pinned to one core, one chain stage by stage and four vectorised chains with paired stages;
 µs of CPU time per iteration, the best of ``--repeats``. The machine may be shared: read the
 ratios.

@@ -57,9 +57,9 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float:
 # ---------------------------------------------------------------------------- symplid
 def fit_symplid(sim, train, draws: int, seed: int):
     """θ_Ψ draws (or the MAP) of the example's model on the training record."""
-    from symplid.io.inputfiles import read_driven_csv
-    from symplid.workflow.fit import build_model, build_posterior, find_map_for
-    from symplid.workflow.settings import load_settings, resolve_for_data
+    from symplid.io._inputfiles import read_driven_csv
+    from symplid.workflow._fit import build_model, build_posterior, find_map_for
+    from symplid.workflow._settings import load_settings, resolve_for_data
 
     path = Path(f"/tmp/symplid_driven_{seed}_{len(train[0])}.csv")
     sim.write(path, *train)
@@ -82,8 +82,8 @@ def fit_symplid(sim, train, draws: int, seed: int):
 
 
 def simulate_symplid(model, params, t_obs, t_in, u) -> np.ndarray:
-    from symplid.inference.driven import forced_paths
-    from symplid.model.inputs import SampledInputs
+    from symplid.inference._driven import forced_paths
+    from symplid.model._inputs import SampledInputs
 
     signal = SampledInputs(t_in, u, ("u1",), "cubic")
     x0 = np.zeros((params.shape[0], 2))

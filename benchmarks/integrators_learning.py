@@ -48,9 +48,9 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 import symplid  # noqa: E402
+from symplid.inference._predict import predict_trajectory, prediction_horizon, time_grid  # noqa: E402
 from symplid.inference.map import find_map  # noqa: E402
-from symplid.inference.predict import predict_trajectory, prediction_horizon, time_grid  # noqa: E402
-from symplid.model.posterior import Posterior  # noqa: E402
+from symplid.model._posterior import Posterior  # noqa: E402
 
 INTEGRATOR_NAMES = ("leapfrog", "yoshida4", "rk2-midpoint")
 DTS = (0.25, 0.5, 1.0)

@@ -42,9 +42,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import symplid  # noqa: E402
-from symplid.dynamics.hamiltonians import SeparableHamiltonian  # noqa: E402
-from symplid.dynamics.integrators import get_integrator, make_dynamics  # noqa: E402
-from symplid.dynamics.trajectory import propagate  # noqa: E402
+from symplid.dynamics._hamiltonians import SeparableHamiltonian  # noqa: E402
+from symplid.dynamics._integrators import get_integrator, make_dynamics  # noqa: E402
+from symplid.dynamics._trajectory import propagate  # noqa: E402
 
 METHODS = ("leapfrog", "tao", "tao4", "implicit-midpoint", "gauss4", "rk4")
 

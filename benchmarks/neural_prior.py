@@ -35,8 +35,8 @@ import numpy as np
 
 import symplid  # noqa: F401  (float64)
 from symplid.inference.map._neural import _diagonal_hessian as diagonal_hessian
-from symplid.model.prior_spec import log_density_sum
-from symplid.model.priors import Normal
+from symplid.model._prior_spec import log_density_sum
+from symplid.model._priors import Normal
 
 NUM_WEIGHTS = 336  # MLPPotential(dim=2, width=16, depth=2)
 REPEATS = 3

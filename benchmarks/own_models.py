@@ -126,7 +126,7 @@ def on_duration(name, secs, **_):
 monitoring.register_event_duration_secs_listener(on_duration)
 from symplid.cli import main
 from symplid.io import read_trajectories
-from symplid.workflow.settings import load_settings, resolve_for_data
+from symplid.workflow._settings import load_settings, resolve_for_data
 data, config, out, extra = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
 start = time.perf_counter()
 resolve_for_data(load_settings(config), read_trajectories([data]), config)

@@ -10,7 +10,7 @@ same data:
 
 * ``half-normal``: Σ ~ HalfNormal(1), the paper's prior (and ``symplid reproduce``'s);
 * ``log-uniform``: Σ ~ LogUniform(b·1e-8, b), b the data's variance scale
-  (:func:`symplid.model.variance_prior.data_variance_scale`).
+  (:func:`symplid.model._variance_prior.data_variance_scale`).
 
 Each coefficient's Laplace interval MAP ± 1.96·sd and DRAM's central 95 % interval cover the
 truth or not; the table gives the coverage over the seeds with its Wilson 95 % interval, the
@@ -41,14 +41,14 @@ from symplid import runtime
 
 runtime.limit_threads()
 
-from symplid.dynamics.systems import get_system  # noqa: E402
+from symplid.dynamics._systems import get_system  # noqa: E402
 from symplid.inference.map import find_map  # noqa: E402
-from symplid.model.priors import LogUniform  # noqa: E402
-from symplid.model.simulate import simulate  # noqa: E402
-from symplid.model.variance_prior import data_variance_scale  # noqa: E402
+from symplid.model._priors import LogUniform  # noqa: E402
+from symplid.model._simulate import simulate  # noqa: E402
+from symplid.model._variance_prior import data_variance_scale  # noqa: E402
 from symplid.sampling import RunOptions, draws_array, sample  # noqa: E402
-from symplid.workflow.fit import build_model, build_posterior  # noqa: E402
-from symplid.workflow.settings import Settings, merge_overrides  # noqa: E402
+from symplid.workflow._fit import build_model, build_posterior  # noqa: E402
+from symplid.workflow._settings import Settings, merge_overrides  # noqa: E402
 
 Z95 = 1.959963984540054
 

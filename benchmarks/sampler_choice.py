@@ -115,8 +115,8 @@ import json, sys, time
 import jax
 import numpy as np
 from symplid.cli import main
-from symplid.workflow.results import RunFolder
-from symplid.workflow.run_tools import _load
+from symplid.workflow._results import RunFolder
+from symplid.workflow._run_tools import _load
 data, config, out, extra = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
 start = time.perf_counter()
 main(["fit", data, "--config", config, "--out", out, "--no-progress", "--no-report", *extra],

@@ -44,7 +44,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import symplid  # noqa: E402
-from symplid.inference.diagnostics import import_arviz  # noqa: E402
+from symplid.inference._diagnostics import import_arviz  # noqa: E402
 from symplid.inference.samplers import dram  # noqa: E402
 from symplid.sampling import RunOptions, run_chains, sample  # noqa: E402
 
@@ -56,12 +56,12 @@ TARGET_ITERATIONS_PER_SECOND = 50_000  # issue #10
 
 def build_posterior() -> tuple[Any, Any, str]:
     """The paper's leapfrog posterior and its MAP; falls back to an inline posterior (the
-    model's log-likelihood plus the paper's priors) if ``symplid.model.posterior`` is absent."""
+    model's log-likelihood plus the paper's priors) if ``symplid.model._posterior`` is absent."""
     system = symplid.get_system("henon-heiles")
     data = symplid.simulate(system, seed=0)
     model = symplid.HamiltonianModel(system.potential, integrator="leapfrog", dt=0.25)
     try:
-        from symplid.model.posterior import Posterior
+        from symplid.model._posterior import Posterior
     except ImportError:
         posterior, source = _InlinePosterior(model, data, system.initial_state), "inline"
     else:

@@ -6,7 +6,7 @@ sd 0.05, dt = 0.25), seeds 1, 3, 7 and 8 by default: the same data and settings 
 study's cells (rebuilt from each cell's JSON in ``--cells``, so nothing is re-simulated
 differently). For each seed:
 
-* the MAP, by the fit's own path (:func:`symplid.workflow.fit.find_map_for`);
+* the MAP, by the fit's own path (:func:`symplid.workflow._fit.find_map_for`);
 * NUTS (BlackJAX, Stan's window adaptation) from the MAP, ``--chains`` chains of ``--warmup``
   warm-up and ``--draws`` kept iterations, started within ``--init-spread`` (0.5) Laplace sds
   of the MAP (the deterministic likelihood of this chaotic record has secondary modes, into
@@ -54,13 +54,13 @@ import arviz as az  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from symplid.model.params import ParameterSpace  # noqa: E402
+from symplid.model._params import ParameterSpace  # noqa: E402
 from symplid.sampling import RunOptions, draws_array, sample  # noqa: E402
-from symplid.studies.paper import EXPERIMENT, cell_data, cell_data_noise  # noqa: E402
-from symplid.studies.paper_calibration import true_values  # noqa: E402
-from symplid.workflow.building import build_model, build_posterior  # noqa: E402
-from symplid.workflow.fit import find_map_for  # noqa: E402
-from symplid.workflow.sweep import cell_settings  # noqa: E402
+from symplid.studies._paper import EXPERIMENT, cell_data, cell_data_noise  # noqa: E402
+from symplid.studies._paper_calibration import true_values  # noqa: E402
+from symplid.workflow._building import build_model, build_posterior  # noqa: E402
+from symplid.workflow._fit import find_map_for  # noqa: E402
+from symplid.workflow._sweep import cell_settings  # noqa: E402
 
 VARIANT = {"model.process_noise_per": "none", "integrator": "yoshida4"}
 

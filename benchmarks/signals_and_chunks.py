@@ -98,9 +98,9 @@ def overhead(repeats: int, iterations: int) -> None:
     import dataclasses
 
     import symplid
-    from symplid.io.chunks import ChunkWriter
-    from symplid.workflow.fit import build_model, build_posterior, find_map_for, sample_for
-    from symplid.workflow.settings import Settings, resolve_for_data
+    from symplid.io._chunks import ChunkWriter
+    from symplid.workflow._fit import build_model, build_posterior, find_map_for, sample_for
+    from symplid.workflow._settings import Settings, resolve_for_data
 
     hh = symplid.get_system("henon-heiles")
     obs = symplid.simulate(hh, seed=0)

@@ -7,7 +7,7 @@ order and in this process:
 
 * **fixed**: the fit's MAP (``find_map_for``: its starts, the Laplace covariance) at the
   data's gap, the step a fixed ``dt ≥ gap`` gives (one leapfrog step per gap);
-* **auto**: :func:`symplid.workflow.step_size.choose_step`, then the fit's polish at the
+* **auto**: :func:`symplid.workflow._step_size.choose_step`, then the fit's polish at the
   chosen step (one start from the search's MAP, the Laplace covariance);
 
 with the CPU seconds of each (``time.process_time``: the wall clock means little on a shared
@@ -25,10 +25,10 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import symplid
-from symplid.workflow.building import build_model, build_posterior
-from symplid.workflow.fit import find_map_for
-from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
-from symplid.workflow.step_size import choose_step
+from symplid.workflow._building import build_model, build_posterior
+from symplid.workflow._fit import find_map_for
+from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
+from symplid.workflow._step_size import choose_step
 
 
 def pendulum(speed: float, seed: int = 0) -> tuple[symplid.Observations, float]:

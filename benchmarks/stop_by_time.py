@@ -43,8 +43,8 @@ import sys, time
 from symplid.io import read_observations
 from symplid.inference.map import find_map
 from symplid.sampling import sample
-from symplid.workflow.fit import build_model, build_posterior
-from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
+from symplid.workflow._fit import build_model, build_posterior
+from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
 obs = read_observations(sys.argv[1])
 s = merge_overrides(Settings(), {"model.order": 2, "model.dt": 0.25,
                                  "initial_state.x0": [1.0, 0.0]}, source="b")

@@ -45,9 +45,9 @@ import numpy as np
 
 import symplid
 from compiled_kernel import loop_runner
-from symplid.dynamics.user_models import build_user_model
-from symplid.model import kernel as compiled_kernel
-from symplid.model import user_kernel
+from symplid.dynamics._user_models import build_user_model
+from symplid.model import _kernel as compiled_kernel
+from symplid.model import _user_kernel as user_kernel
 
 USER_MODELS = {
     "Kepler (sqrt)": ("-GM/sqrt(q1^2 + q2^2)", ("GM",), (1.0,), (1.0, 0.0, 0.0, 1.0)),

@@ -51,8 +51,8 @@ def child(size: int) -> dict:
     import resource
 
     import symplid
-    from symplid.workflow.building import build_model, build_posterior
-    from symplid.workflow.settings import resolve_for_data, settings_from_dict
+    from symplid.workflow._building import build_model, build_posterior
+    from symplid.workflow._settings import resolve_for_data, settings_from_dict
 
     t = np.arange(1.0, 21.0)
     values = np.column_stack([np.cos(t), 0.5 * np.sin(t), -np.sin(t), 0.5 * np.cos(t)])

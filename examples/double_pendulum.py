@@ -37,7 +37,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import symplid
-from symplid.model import kernel
+from symplid.model import _kernel as kernel
 from symplid.plotting import save_figure
 from symplid.predict import predict_trajectory
 

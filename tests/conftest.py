@@ -33,7 +33,7 @@ def pytest_configure(config):
     # program compiled in one test is not compiled again by a subprocess (and the tests
     # leave the user's own cache alone).
     os.environ["SYMPLID_CACHE_DIR"] = folder
-    # Saved programs (symplid.saved_programs) are off: tests replace functions that a traced
+    # Saved programs (symplid._saved_programs) are off: tests replace functions that a traced
     # program calls (to count calls, to inject a failure), which a program read back from
     # an earlier test would not call. tests/test_saved_programs.py turns them on itself.
     os.environ["SYMPLID_SAVED_PROGRAMS"] = "off"

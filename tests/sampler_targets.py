@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.inference.diagnostics import import_arviz
+from symplid.inference._diagnostics import import_arviz
 
 az = import_arviz()
 

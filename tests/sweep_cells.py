@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 import symplid
-from symplid.studies.paper import cell_data
+from symplid.studies._paper import cell_data
 
 CALLS_ENV = "SYMPLID_TEST_CALLS"
 FAIL_ENV = "SYMPLID_TEST_FAIL"

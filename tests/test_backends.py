@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.filters.backends import LikelihoodBackend
-from symplid.model import likelihood
-from symplid.model.backends import LIKELIHOOD_BACKENDS, select_backend
+from symplid.filters._backends import LikelihoodBackend
+from symplid.model import _likelihood as likelihood
+from symplid.model._backends import LIKELIHOOD_BACKENDS, select_backend
 
 
 @pytest.fixture

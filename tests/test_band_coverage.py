@@ -4,7 +4,7 @@ Reference: the true path, over 50 replications of two systems (a harmonic oscill
 pendulum, positions only, initial state learned). Each replication's posterior is the
 Laplace approximation at its exact MAP, computed here by JAX from the posterior's own log
 density (one compiled program for all replications: the data enter as an argument), so the
-test exercises the band (:func:`symplid.workflow.run_figures.trajectory_paths`) and not the
+test exercises the band (:func:`symplid.workflow._run_figures.trajectory_paths`) and not the
 MAP search. The 95 % band must cover the true path at least 90 % of the time over the data
 window (measured: 92–93 %); a band whose paths all start at one point, the draws' mean
 initial state (zero width at t0), covers 69–70 % and fails.
@@ -22,11 +22,11 @@ import pytest
 import scipy.optimize
 
 import symplid
-from symplid.dynamics.potentials import FunctionPotential
-from symplid.inference.predict import predict_trajectory
-from symplid.model.data import Observations
-from symplid.model.simulate import true_trajectory
-from symplid.workflow.run_figures import trajectory_paths
+from symplid.dynamics._potentials import FunctionPotential
+from symplid.inference._predict import predict_trajectory
+from symplid.model._data import Observations
+from symplid.model._simulate import true_trajectory
+from symplid.workflow._run_figures import trajectory_paths
 
 REPLICATIONS = 50
 DRAWS = 200

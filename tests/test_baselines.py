@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.integrators import INTEGRATORS
-from symplid.inference import baselines
-from symplid.model.simulate import true_trajectory
+from symplid.dynamics._integrators import INTEGRATORS
+from symplid.inference import _baselines as baselines
+from symplid.model._simulate import true_trajectory
 
 ORDERS = {"hnn": 1, "euler": 1, "leapfrog": 2, "rk4": 4}
 
@@ -108,7 +108,7 @@ def test_registry_and_new_objective(hh, exact):
 
 def test_mlp_potential_fits_through_the_same_interface():
     """Any potential with the Potential interface: a tiny MLP on a harmonic oscillator."""
-    from symplid.dynamics.neural import MLPPotential
+    from symplid.dynamics._neural import MLPPotential
 
     sho = symplid.get_system("harmonic")
     times = 0.1 * np.arange(1, 101)

@@ -11,22 +11,22 @@ from click.testing import CliRunner
 
 import symplid
 from symplid.cli import main
-from symplid.inference import baselines
-from symplid.studies.baselines_report import (
+from symplid.inference import _baselines as baselines
+from symplid.studies._baselines_report import (
     deciding_numbers,
     format_report,
     medians,
     plot_error_vs_size,
 )
-from symplid.studies.baselines_study import (
+from symplid.studies._baselines_study import (
     METHODS,
     _energy,
     baselines_spec,
     cell_data,
     run_cell,
 )
-from symplid.workflow.experiment import EXPERIMENTS
-from symplid.workflow.sweep import SweepError, resolve_cell
+from symplid.workflow._experiment import EXPERIMENTS
+from symplid.workflow._sweep import SweepError, resolve_cell
 
 TINY = {"num_obs": 12, "t_span": 30.0, "budget": "quick", "t_end": 30.0}
 

@@ -16,12 +16,12 @@ from click.testing import CliRunner
 
 from sampler_targets import Gaussian2D, TwoModes
 from symplid.cli import main
-from symplid.inference.diagnostics import import_arviz
+from symplid.inference._diagnostics import import_arviz
 from symplid.sampling import RunOptions, Targets, draws_array, sample
-from symplid.sampling.budget import BudgetMonitor, draw_statistics
-from symplid.sampling.resume import checkpoint_arrays, resume_sampling
-from symplid.sampling.run import SamplingInterrupted
-from symplid.workflow.results import RunFolder
+from symplid.sampling._budget import BudgetMonitor, draw_statistics
+from symplid.sampling._resume import checkpoint_arrays, resume_sampling
+from symplid.sampling._run import SamplingInterrupted
+from symplid.workflow._results import RunFolder
 
 az = import_arviz()
 QUIET = RunOptions(progress=False, chunk_size=500)
@@ -162,7 +162,7 @@ def test_fit_with_a_tiny_cap_says_the_cap_ended_it(data_csv, tmp_path):
 
 
 def test_fit_resume_of_a_run_without_a_budget(data_csv, tmp_path, monkeypatch):
-    import symplid.workflow.fit as fit_module
+    import symplid.workflow._fit as fit_module
 
     whole, out = tmp_path / "whole", tmp_path / "run"
     assert run("fit", data_csv, "--out", whole, *FIT).exit_code == 0

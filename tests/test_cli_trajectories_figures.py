@@ -19,16 +19,16 @@ import pytest
 from click.testing import CliRunner
 
 from symplid.cli import main
-from symplid.dynamics.potentials import Polynomial
-from symplid.inference.measures import potential_slices
+from symplid.dynamics._potentials import Polynomial
+from symplid.inference._measures import potential_slices
 from symplid.io import read_trajectories
-from symplid.model.posterior import Posterior
+from symplid.model._posterior import Posterior
 from symplid.plotting import plot_pair, plot_predictive, plot_process_noise, plot_traces
-from symplid.plotting.paper import first_exit, plot_hamiltonians
-from symplid.plotting.style import Curves
-from symplid.workflow.fit import build_model, build_posterior
-from symplid.workflow.results import RunFolder
-from symplid.workflow.settings import load_settings
+from symplid.plotting._paper import first_exit, plot_hamiltonians
+from symplid.plotting._style import Curves
+from symplid.workflow._fit import build_model, build_posterior
+from symplid.workflow._results import RunFolder
+from symplid.workflow._settings import load_settings
 
 #: Known initial states, one per trajectory (K·2d numbers): A from (1, 0), B from (0, 0.8).
 SHORT = ["--order", "2", "--x0", "1,0,0,0.8", "--chains", "1", "--no-progress", "--set",
@@ -226,8 +226,8 @@ def test_one_initial_state_for_all_or_a_wrong_count(two_trajectories, two_runs, 
 
 
 def test_the_truth_of_a_named_system_by_the_models_coefficient_names(two_trajectories):
-    from symplid.workflow.run_figures import truth_values
-    from symplid.workflow.settings import Settings, merge_overrides
+    from symplid.workflow._run_figures import truth_values
+    from symplid.workflow._settings import Settings, merge_overrides
 
     data = read_trajectories([two_trajectories["A"]])
     settings = merge_overrides(Settings(), {"plots.truth": "harmonic", "model.order": 3,

@@ -1,4 +1,4 @@
-"""Model comparison by the Laplace evidence (symplid.workflow.compare).
+"""Model comparison by the Laplace evidence (symplid.workflow._compare).
 
 The end-to-end check: on the quartic double well U = −½q² + ¼q⁴ (30 full-state observations,
 noise sd 0.05), the evidence over polynomial orders 2..5 must pick the true order 4. Orders 2
@@ -16,7 +16,7 @@ import pytest
 
 import symplid
 from symplid.io import positions_only
-from symplid.workflow.compare import (
+from symplid.workflow._compare import (
     COLUMNS,
     compare_models,
     comparison_table,
@@ -24,7 +24,7 @@ from symplid.workflow.compare import (
     parse_integrators,
     parse_orders,
 )
-from symplid.workflow.settings import Settings, merge_overrides
+from symplid.workflow._settings import Settings, merge_overrides
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -200,7 +200,7 @@ def test_table_ranks_nan_evidence_last():
             self.log_evidence, self.log_posterior = ev, 0.0
             self.theta, self.at_bounds, self.success = np.array([1.0, 2.0, 3.0]), (), True
 
-    from symplid.workflow.compare import CandidateFit
+    from symplid.workflow._compare import CandidateFit
 
     fits = [
         CandidateFit(o, "leapfrog", None, _Posterior(), _Map(ev), -1.0, 0.1)
@@ -223,7 +223,7 @@ def test_table_ranks_nan_evidence_last():
 def test_bound_flag_and_coefficient_columns():
     """A variance on its floor is flagged "on a bound" only when the evidence did not
     integrate it; coefficient columns are the union of the candidates' names."""
-    from symplid.workflow.compare import CandidateFit
+    from symplid.workflow._compare import CandidateFit
 
     class _Posterior:
         def __init__(self, names):

@@ -1,4 +1,4 @@
-"""Compiled programs live on their owner (``symplid.compiled``), not in module-level caches."""
+"""Compiled programs live on their owner (``symplid._compiled``), not in module-level caches."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import weakref
 import numpy as np
 
 import symplid
-from symplid.compiled import cached, clear, jit_for
-from symplid.model.simulate import true_trajectory
+from symplid._compiled import cached, clear, jit_for
+from symplid.model._simulate import true_trajectory
 
 
 class Owner:

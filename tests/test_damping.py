@@ -21,31 +21,31 @@ from click.testing import CliRunner
 
 import symplid
 from symplid.cli import main
-from symplid.dynamics.damping import (
+from symplid.dynamics._damping import (
     bind_dynamics,
     damped_dynamics,
     is_damped,
     with_damping,
 )
-from symplid.dynamics.integrators import (
+from symplid.dynamics._integrators import (
     Integrator,
     get_integrator,
     leapfrog_step,
     make_dynamics,
 )
-from symplid.dynamics.systems import damped_pendulum
-from symplid.dynamics.trajectory import solve
-from symplid.inference.forecast import forecast_with_noise
-from symplid.inference.predict import forecast_from_filter, predict_trajectory
-from symplid.model import kernel
-from symplid.model.prior_spec import PriorSpec
-from symplid.model.simulate import simulate
-from symplid.studies.paper import ApproachResult, analyse_approach, cell_data, truth_path
-from symplid.workflow.compare import comparison_table, fit_candidates
-from symplid.workflow.scaling import Scaling
-from symplid.workflow.settings import settings_from_dict, settings_to_dict
-from symplid.workflow.sweep import cell_settings, sweep_spec_from_dict
-from symplid.workflow.validate import SettingsError
+from symplid.dynamics._systems import damped_pendulum
+from symplid.dynamics._trajectory import solve
+from symplid.inference._forecast import forecast_with_noise
+from symplid.inference._predict import forecast_from_filter, predict_trajectory
+from symplid.model import _kernel as kernel
+from symplid.model._prior_spec import PriorSpec
+from symplid.model._simulate import simulate
+from symplid.studies._paper import ApproachResult, analyse_approach, cell_data, truth_path
+from symplid.workflow._compare import comparison_table, fit_candidates
+from symplid.workflow._scaling import Scaling
+from symplid.workflow._settings import settings_from_dict, settings_to_dict
+from symplid.workflow._sweep import cell_settings, sweep_spec_from_dict
+from symplid.workflow._validate import SettingsError
 
 HH = symplid.get_system("henon-heiles")
 
@@ -290,8 +290,8 @@ def test_forecast_from_the_filter_of_a_damped_model_continues_the_damped_flow():
 def test_damping_needs_a_separable_h_and_a_scheme():
     """A non-separable H(q, p; θ) has no −γM⁻¹p; Tao's and the implicit midpoint's steps have
     no scheme to damp. Each is a one-line error, from the model and from the settings."""
-    from symplid.dynamics.hamiltonians import PolynomialHamiltonian
-    from symplid.workflow.settings import resolve_for_data
+    from symplid.dynamics._hamiltonians import PolynomialHamiltonian
+    from symplid.workflow._settings import resolve_for_data
 
     with pytest.raises(ValueError, match="needs a separable H"):
         symplid.HamiltonianModel(PolynomialHamiltonian(1, 2), integrator="rk4", damping=True)

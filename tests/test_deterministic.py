@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.model.posterior import Posterior
+from symplid.model._posterior import Posterior
 
 TIMES = np.array([0.7, 1.5, 2.0, 3.1, 3.6, 4.5, 6.0, 7.25])
 
@@ -197,7 +197,7 @@ def test_spread_initial_state_is_refused(hh, hh_data):
 
 
 def test_compiled_kernel_declines_and_names_the_reason(hh):
-    from symplid.model.kernel import unsupported_reason
+    from symplid.model._kernel import unsupported_reason
 
     model = _det_model(hh, dt=0.25)
     assert "no process noise" in unsupported_reason(model)

@@ -1,6 +1,6 @@
 """The fit's convergence columns (R-hat, bulk and tail ESS) equal ArviZ's ``summary``.
 
-:func:`symplid.inference.diagnostics.convergence_table` reimplements the rank normalisation
+:func:`symplid.inference._diagnostics.convergence_table` reimplements the rank normalisation
 (and R-hat) for speed; ArviZ's own ``az.summary`` is the independent reference. The draws
 are autocorrelated AR(1) chains with repeated values (as a Metropolis chain's rejections
 make), so that ties in the ranks matter, one chain shifted so that R-hat is far from 1, a
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from symplid.inference.diagnostics import convergence_table, import_arviz, quiet_arviz, summary
+from symplid.inference._diagnostics import convergence_table, import_arviz, quiet_arviz, summary
 
 az = import_arviz()
 COLUMNS = ["ess_bulk", "ess_tail", "r_hat"]

@@ -22,13 +22,13 @@ from scipy.integrate import solve_ivp
 
 import symplid
 from symplid.cli import main
+from symplid.inference._term_search import SubsetFit, TermSearch, log_size_prior
 from symplid.inference.map import find_map
-from symplid.inference.term_search import SubsetFit, TermSearch, log_size_prior
 from symplid.io import write_observations
-from symplid.workflow.discover import discover
-from symplid.workflow.fit import build_model, build_posterior
-from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
-from symplid.workflow.term_library import LibraryError, parse_terms, term_library
+from symplid.workflow._discover import discover
+from symplid.workflow._fit import build_model, build_posterior
+from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
+from symplid.workflow._term_library import LibraryError, parse_terms, term_library
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -99,7 +99,7 @@ def well():
 def test_masked_subset_has_the_evidence_of_its_own_model(well):
     """{q1^2, q1^4} of the quartic library: the masked library (compiled polynomial) and a
     user model of the two terms alone (JAX tier) give the same MAP and evidence."""
-    from symplid.model.masked import MaskedPosterior
+    from symplid.model._masked import MaskedPosterior
 
     system, data, settings = well
     library = term_library(settings, 1, order=4)
@@ -127,8 +127,8 @@ def test_masked_subset_has_the_evidence_of_its_own_model(well):
 def test_search_screens_by_log_laplace_and_ranks_by_quadrature(well):
     """Every fit is scored by the log-Laplace evidence; those within ``refine_within`` of the
     best get the quadrature's, which is what ``find_map`` gives that subset by itself."""
-    from symplid.inference.term_search import search_terms
-    from symplid.model.masked import MaskedPosterior
+    from symplid.inference._term_search import search_terms
+    from symplid.model._masked import MaskedPosterior
 
     _, data, settings = well
     library = term_library(settings, 1, order=4)

@@ -165,7 +165,7 @@ def test_write_bytes_survives_a_default_sigxfsz():
     still an exception."""
     code = (
         "import resource, signal, sys, tempfile\n"
-        "from symplid.io.files import StorageError, write_bytes\n"
+        "from symplid.io._files import StorageError, write_bytes\n"
         "signal.signal(signal.SIGXFSZ, signal.SIG_DFL)\n"
         "resource.setrlimit(resource.RLIMIT_FSIZE, (1000, resource.RLIM_INFINITY))\n"
         "folder = tempfile.mkdtemp()\n"

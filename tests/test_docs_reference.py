@@ -21,8 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "docs" / "_ext"))
 
 import tomllib
 
-from symplid.workflow.settings import settings_from_dict, settings_to_dict
-from symplid.workflow.settings_schema import Settings
+from symplid.workflow._settings import settings_from_dict, settings_to_dict
+from symplid.workflow._settings_schema import Settings
 
 
 def _rows() -> list[tuple[str, str, str]]:

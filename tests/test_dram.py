@@ -12,7 +12,8 @@ from scipy import stats
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana, GammaVariance, Gaussian2D, MapResult, moment_z_scores
-from symplid.inference.samplers import dram, dram_stages
+from symplid.inference.samplers import _dram_stages as dram_stages
+from symplid.inference.samplers import dram
 from symplid.sampling import RunOptions, draws_array, run_chains, sample
 
 # ----------------------------------------------------------------------------------------
@@ -254,7 +255,7 @@ def test_short_dram_run_on_the_papers_posterior(hh, hh_model, hh_data, hh_theta)
     """Hénon–Heiles, leapfrog at dt = 0.25 (the paper's posterior): a short DRAM run from
     near the truth with a rough diagonal proposal adapts to a finite, positive-definite
     covariance, accepts at a sane rate and keeps every draw inside the support."""
-    from symplid.model.posterior import Posterior
+    from symplid.model._posterior import Posterior
 
     posterior = Posterior(hh_model, hh_data, x0=hh.initial_state)
     # Rough scales: about the Laplace standard deviations at the MAP (coefficients ~0.02,
@@ -306,7 +307,7 @@ def test_unrolled_linear_algebra_equals_lapack(dim):
         dram_stages._log_q1(lapack, start, end), -0.5 * jnp.sum(white**2), rtol=1e-12
     )
     z = jnp.asarray(rng.normal(size=dim))
-    from symplid.filters.linalg import matmul
+    from symplid.filters._linalg import matmul
 
     np.testing.assert_allclose(matmul(lapack, z), lapack @ z, rtol=1e-12, atol=1e-15 * scale)
 

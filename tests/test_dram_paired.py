@@ -16,9 +16,9 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import Banana
-from symplid.inference.samplers.dram import DRAMSettings
-from symplid.inference.samplers.registry import resolve_dram
-from symplid.model import kernel as compiled_kernel
+from symplid.inference.samplers._dram import DRAMSettings
+from symplid.inference.samplers._registry import resolve_dram
+from symplid.model import _kernel as compiled_kernel
 from symplid.sampling import RunOptions, draws_array, sample
 
 STATS = ("stage1_accepted", "stage2_attempted", "stage2_accepted", "accepted")
@@ -101,7 +101,7 @@ def test_papers_posterior_on_the_kernel_pairs_and_keeps_the_chain(hh, hh_model, 
     paired stages and the fused regions (recorded in the run's settings), and their chain is the
     stage-by-stage, unrolled one to rounding: the kernel's batch of eight gives each θ the
     numbers it gives it alone."""
-    from symplid.model.posterior import Posterior
+    from symplid.model._posterior import Posterior
 
     posterior = Posterior(hh_model, hh_data, x0=hh.initial_state)
     assert hh_model.likelihood_backend == "compiled"

@@ -22,9 +22,9 @@ import pytest
 from click.testing import CliRunner
 
 from symplid.cli import main
-from symplid.io.chunks import read_chunks
+from symplid.io._chunks import read_chunks
 from symplid.sampling import draws_array
-from symplid.workflow.results import RunFolder, RunFolderError
+from symplid.workflow._results import RunFolder, RunFolderError
 
 FIT = ["--order", "2", "--x0", "1,0", "--iterations", "6000", "--burn-in", "1000", "--chains",
        "2", "--no-progress", "--no-report", "--set", "map.num_starts=1", "--set",
@@ -110,7 +110,7 @@ def test_a_truncated_last_chunk_is_named_once_and_made_again(data_csv, whole_run
 
 
 def test_chunks_out_of_line_stop_the_reading_with_one_note(tmp_path):
-    from symplid.io.chunks import ChunkWriter
+    from symplid.io._chunks import ChunkWriter
 
     states = {"x": np.arange(4.0).reshape(2, 2)}
     writer = ChunkWriter(tmp_path)

@@ -15,15 +15,15 @@ from scipy.linalg import expm
 
 from symplid import HamiltonianModel, Observations
 from symplid.cli import main
-from symplid.dynamics.forced import with_force
-from symplid.dynamics.forcing import user_force
-from symplid.dynamics.user_models import build_user_model
-from symplid.io.inputfiles import read_driven_csv
-from symplid.model.data import DataError
-from symplid.model.inputs import AnalyticInputs, SampledInputs, node_table
-from symplid.model.signals import SIGNALS
-from symplid.workflow.fit import build_model, build_posterior, find_map_for
-from symplid.workflow.settings import resolve_for_data, settings_from_dict
+from symplid.dynamics._forced import with_force
+from symplid.dynamics._forcing import user_force
+from symplid.dynamics._user_models import build_user_model
+from symplid.io._inputfiles import read_driven_csv
+from symplid.model._data import DataError
+from symplid.model._inputs import AnalyticInputs, SampledInputs, node_table
+from symplid.model._signals import SIGNALS
+from symplid.workflow._fit import build_model, build_posterior, find_map_for
+from symplid.workflow._settings import resolve_for_data, settings_from_dict
 
 
 # ---------------------------------------------------------------------------- inputs
@@ -216,7 +216,7 @@ def test_the_command_line_refuses_missing_inputs_in_one_line(tmp_path):
 def test_the_power_balance_matches_an_independent_energy_budget():
     """ΔH and the input's and the friction's work over each gap against DOP853 with the
     works integrated as two more state components."""
-    from symplid.inference.driven import power_balance
+    from symplid.inference._driven import power_balance
 
     k, b, c = 1.7, 0.8, 0.3
     signal = SIGNALS["multisine"](seed=3, duration=20.0)
@@ -245,8 +245,8 @@ def test_the_power_balance_matches_an_independent_energy_budget():
 def test_without_process_noise_the_driven_likelihood_follows_one_path():
     """process_noise_per='none': the Gaussian terms around the forced path, which the
     forced path solver gives independently of the likelihood's loop."""
-    from symplid.dynamics.forced import bind_forced, forced_solve_gaps
-    from symplid.model.inputs import node_table
+    from symplid.dynamics._forced import bind_forced, forced_solve_gaps
+    from symplid.model._inputs import node_table
 
     signal = AnalyticInputs({"u1": "sin(0.7*t)"})
     times = np.linspace(0.5, 5.0, 10)
@@ -272,7 +272,7 @@ def test_without_process_noise_the_driven_likelihood_follows_one_path():
 
 def test_simulate_writes_a_driven_record_that_dop853_reproduces(tmp_path):
     from symplid import get_system
-    from symplid.io.inputfiles import read_driven_csv
+    from symplid.io._inputfiles import read_driven_csv
 
     out = tmp_path / "sim.csv"
     result = CliRunner().invoke(main, ["simulate", "double-well", "--out", str(out), "--force",
@@ -296,7 +296,7 @@ def test_simulate_writes_a_driven_record_that_dop853_reproduces(tmp_path):
 
 
 def test_inputs_from_settings_and_a_run_folder_round_trip(tmp_path):
-    from symplid.workflow.driven import read_driven, read_run_inputs, write_run_inputs
+    from symplid.workflow._driven import read_driven, read_run_inputs, write_run_inputs
 
     data = tmp_path / "d.csv"
     data.write_text("t,q1\n1,0.5\n2,0.4\n")

@@ -18,8 +18,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import symplid
-from symplid.workflow.fit import fit
-from symplid.workflow.settings import Settings, merge_overrides
+from symplid.workflow._fit import fit
+from symplid.workflow._settings import Settings, merge_overrides
 
 K_SLOW = 2.0
 #: A short sampler and no checks beyond the step's own: the step search is what is tested.
@@ -104,8 +104,8 @@ def test_the_elastic_pendulum_from_the_defaults_holds_k_and_l():
 def test_a_neural_family_keeps_the_former_step_unchecked(hh_data):
     """A network's MAP is too costly to refit: "auto" gives it min(smallest gap, 0.25) and
     says that it is unchecked (no fit is made to choose it)."""
-    from symplid.workflow.settings import resolve_for_data
-    from symplid.workflow.step_size import UNSEARCHED_STEP, choose_step, step_line
+    from symplid.workflow._settings import resolve_for_data
+    from symplid.workflow._step_size import UNSEARCHED_STEP, choose_step, step_line
 
     settings = merge_overrides(Settings(), {
         "model.potential": "mlp", "model.width": 4, "model.depth": 1, "sampler.method": "nuts",
@@ -124,9 +124,9 @@ def test_the_double_pendulum_map_from_the_defaults_is_near_the_truth():
     """The built-in double pendulum (angles only, 40 every 0.25 s, Tao's method, known
     initial state), no dt given: the fit's MAP at the chosen step is within 3 Laplace sds of
     each true ratio (measured: 1.6–1.8 sds at the chosen dt = 1/64)."""
-    from symplid.workflow.fit import find_map_for
-    from symplid.workflow.plan import ModelPlan
-    from symplid.workflow.step_size import choose_step
+    from symplid.workflow._fit import find_map_for
+    from symplid.workflow._plan import ModelPlan
+    from symplid.workflow._step_size import choose_step
 
     system = symplid.get_system("double-pendulum")
     obs = symplid.simulate(system, seed=3)

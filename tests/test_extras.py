@@ -26,8 +26,8 @@ for name in {blocked!r}:
     sys.modules[name] = None                      # as if not installed
 import symplid
 from symplid.cli import main                      # every command's module
-from symplid.studies.paper import PaperConfig, reproduce   # what `symplid reproduce` imports
-import symplid.studies, symplid.workflow.sweep, symplid.workflow.fit
+from symplid.studies._paper import PaperConfig, reproduce   # what `symplid reproduce` imports
+import symplid.studies, symplid.workflow._sweep, symplid.workflow._fit
 loaded = sorted(m for m, v in sys.modules.items()
                 if v is not None and m.split(".")[0] in {blocked!r})
 print("loaded:", loaded)

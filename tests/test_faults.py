@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from symplid.io.chunks import read_chunks
+from symplid.io._chunks import read_chunks
 from symplid.sampling import draws_array
-from symplid.workflow.results import RunFolder
+from symplid.workflow._results import RunFolder
 
 FIT = ["--order", "2", "--x0", "1,0", "--chains", "2", "--no-progress", "--no-report",
        "--set", "map.num_starts=1", "--set", "map.sensitivity=false",
@@ -173,8 +173,8 @@ def test_compare_refuses_one_model_twice(data_csv, tmp_path, same_file):
 
 
 def test_compare_settings_refuses_a_label_or_a_model_twice():
-    from symplid.workflow.compare_candidates import check_distinct
-    from symplid.workflow.settings import Settings, merge_overrides
+    from symplid.workflow._compare_candidates import check_distinct
+    from symplid.workflow._settings import Settings, merge_overrides
 
     two = merge_overrides(Settings(), {"model.order": 2}, source="test")
     three = merge_overrides(Settings(), {"model.order": 3}, source="test")
@@ -254,10 +254,11 @@ def test_a_stop_inside_a_chunk_keeps_its_iterations_and_resumes_to_the_same_draw
     import itertools
 
     from sampler_targets import Gaussian2D
-    from symplid.sampling import RunOptions, pacing, sample
-    from symplid.sampling import run as runner
-    from symplid.sampling.resume import checkpoint_arrays, resume_sampling
-    from symplid.sampling.run import SamplingInterrupted
+    from symplid.sampling import RunOptions, sample
+    from symplid.sampling import _pacing as pacing
+    from symplid.sampling import _run as runner
+    from symplid.sampling._resume import checkpoint_arrays, resume_sampling
+    from symplid.sampling._run import SamplingInterrupted
 
     target = Gaussian2D()
     budget = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 40,

@@ -1,4 +1,4 @@
-"""The sensitivity checks a fit runs after its MAP (symplid.workflow.sensitivity, fit.py).
+"""The sensitivity checks a fit runs after its MAP (symplid.workflow._sensitivity, fit.py).
 
 A default ``symplid fit`` saves them in ``diagnostics.json``, prints them and shows them in
 ``report.md`` without recomputing; their numbers are checked against MAP searches made
@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import symplid.workflow.fit as fit_module
-import symplid.workflow.sensitivity as sensitivity
+import symplid.workflow._fit as fit_module
+import symplid.workflow._sensitivity as sensitivity
+from symplid._stopping import StopRequested
 from symplid.cli import main
-from symplid.stopping import StopRequested
-from symplid.workflow.building import build_model, build_posterior
-from symplid.workflow.fit import find_map_for, fit
-from symplid.workflow.results import RunFolder
-from symplid.workflow.settings import Settings, merge_overrides
+from symplid.workflow._building import build_model, build_posterior
+from symplid.workflow._fit import find_map_for, fit
+from symplid.workflow._results import RunFolder
+from symplid.workflow._settings import Settings, merge_overrides
 
 TINY = ["--iterations", "600", "--burn-in", "300", "--chains", "2", "--no-progress"]
 TINY += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
@@ -122,8 +122,8 @@ def test_sensitivity_false_skips_them(tmp_path, harmonic_csv, monkeypatch):
 
 
 def test_the_papers_settings_and_cells_skip_them():
-    from symplid.studies.paper import EXPERIMENT, PaperConfig, paper_settings
-    from symplid.workflow.sweep_spec import cell_settings
+    from symplid.studies._paper import EXPERIMENT, PaperConfig, paper_settings
+    from symplid.workflow._sweep_spec import cell_settings
 
     assert Settings().map.sensitivity  # a user's fit: on
     for approach in ("leapfrog", "rk2"):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from jax import monitoring
 
-from symplid.model.params import ParameterProperties, ParameterSpace
+from symplid.model._params import ParameterProperties, ParameterSpace
 
 BOUNDS = [(0.0, np.inf), (-1.0, 2.0), (-np.inf, np.inf), (-np.inf, 3.0)]
 
@@ -75,7 +75,7 @@ def test_a_space_pickles_without_its_programs():
 
 def test_prefetch_imports_arviz_in_a_thread():
     code = ("import sys, threading\n"
-            "from symplid.inference.diagnostics import import_arviz, prefetch_arviz\n"
+            "from symplid.inference._diagnostics import import_arviz, prefetch_arviz\n"
             "assert 'arviz' not in sys.modules\n"
             "prefetch_arviz()\n"
             "[t.join() for t in threading.enumerate() if t.name == 'symplid-import-arviz']\n"

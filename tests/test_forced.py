@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from symplid.dynamics.forced import bind_forced, forced_solve_gaps, with_force
-from symplid.dynamics.forcing import user_force
-from symplid.dynamics.integrators import INTEGRATORS, make_dynamics
-from symplid.dynamics.user_models import UserModelError, build_user_model
+from symplid.dynamics._forced import bind_forced, forced_solve_gaps, with_force
+from symplid.dynamics._forcing import user_force
+from symplid.dynamics._integrators import INTEGRATORS, make_dynamics
+from symplid.dynamics._user_models import UserModelError, build_user_model
 
 
 def _signal(t):

@@ -16,10 +16,10 @@ from click.testing import CliRunner
 from scipy.stats import norm
 
 from symplid.cli import main
-from symplid.dynamics.potentials import Polynomial
-from symplid.inference.forecast import forecast_with_noise
-from symplid.model.statespace import HamiltonianModel
-from symplid.workflow.results import RunFolder
+from symplid.dynamics._potentials import Polynomial
+from symplid.inference._forecast import forecast_with_noise
+from symplid.model._statespace import HamiltonianModel
+from symplid.workflow._results import RunFolder
 
 TINY = ["--iterations", "600", "--burn-in", "300", "--chains", "2", "--no-progress"]
 TINY += ["--dt", "0.25"]  # a fixed step: the step search is test_step_size.py's
@@ -112,8 +112,8 @@ def test_predict_from_end(holdout_run):
 
 
 def test_holdout_split_errors(tmp_path):
-    from symplid.model.data import Observations
-    from symplid.workflow.forecasting import split_holdout
+    from symplid.model._data import Observations
+    from symplid.workflow._forecasting import split_holdout
 
     obs = Observations(np.arange(1.0, 11.0), np.zeros((10, 2)), ("q1", "p1"))
     train, test = split_holdout(obs, fraction=0.3)

@@ -11,9 +11,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import symplid
-from symplid.dynamics.integrators import INTEGRATORS, get_integrator, make_dynamics
-from symplid.dynamics.trajectory import integrate, propagate, solve, solve_gaps, substeps
-from symplid.inference.predict import predict_trajectory
+from symplid.dynamics._integrators import INTEGRATORS, get_integrator, make_dynamics
+from symplid.dynamics._trajectory import integrate, propagate, solve, solve_gaps, substeps
+from symplid.inference._predict import predict_trajectory
 
 OMEGA = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.eye(2), np.zeros((2, 2))]])
 NON_SYMPLECTIC = [name for name, integ in INTEGRATORS.items() if not integ.symplectic]
@@ -285,8 +285,8 @@ def test_schemes_check_their_shape_and_declared_order():
     """A method given as data is checked when it is made: the registered ones pass Butcher's and
     the composition's conditions of their declared order; a weight or tableau entry off by a
     typo, or a declared order the method lacks, is a ValueError (not a silently worse method)."""
-    from symplid.dynamics.integrators import runge_kutta_integrator, symplectic_integrator
-    from symplid.dynamics.schemes import ButcherTableau, Composition
+    from symplid.dynamics._integrators import runge_kutta_integrator, symplectic_integrator
+    from symplid.dynamics._schemes import ButcherTableau, Composition
 
     rk4 = get_integrator("rk4").scheme
     assert isinstance(rk4, ButcherTableau)

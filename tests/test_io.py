@@ -222,7 +222,7 @@ def test_npz_refuses_pickles_and_garbage(tmp_path):
 def test_file_feeds_the_likelihood_like_the_original(tmp_path, hh, small_data, small_theta):
     """Irregular times and a missing value, through a positions-only file and the settings
     that read its layout, give the same log-likelihood as the in-memory observations."""
-    from symplid.workflow.settings import resolve_for_data, settings_from_dict
+    from symplid.workflow._settings import resolve_for_data, settings_from_dict
 
     q_only = positions_only(small_data)
     back = read_observations(write_observations(q_only, tmp_path / "q.csv"))

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.integrators import symplectic_integrator
-from symplid.dynamics.potentials import FunctionPotential, Polynomial
-from symplid.model import kernel as compiled_kernel
+from symplid.dynamics._integrators import symplectic_integrator
+from symplid.dynamics._potentials import FunctionPotential, Polynomial
+from symplid.model import _kernel as compiled_kernel
 
 pytestmark = pytest.mark.skipif(
     not compiled_kernel.available(),

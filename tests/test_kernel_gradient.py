@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.potentials import Polynomial
-from symplid.model import kernel as compiled_kernel
+from symplid.dynamics._potentials import Polynomial
+from symplid.model import _kernel as compiled_kernel
 
 pytestmark = pytest.mark.skipif(
     not compiled_kernel.available(),
@@ -208,7 +208,7 @@ def test_the_general_propagation_gives_the_same_gradient():
     code = (
         "import json, sys; sys.path.insert(0, sys.argv[1])\n"
         "import test_kernel_gradient as t\n"
-        "from symplid.model import kernel\n"
+        "from symplid.model import _kernel as kernel\n"
         "print(json.dumps({'isa': kernel.instruction_set(), 'grads': t.compiled_gradients()}))\n"
     )
     env = dict(os.environ, SYMPLID_KERNEL_ISA="baseline", JAX_ENABLE_X64="1")

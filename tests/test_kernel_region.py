@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import symplid  # noqa: F401  (float64, XLA flags)
-from symplid.filters import linalg
-from symplid.kernel_region import one_kernel
+from symplid._kernel_region import one_kernel
+from symplid.filters import _linalg as linalg
 
 
 def _update(chol_input, delta, scale):

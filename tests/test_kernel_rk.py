@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.potentials import Polynomial
-from symplid.model import kernel as compiled_kernel
+from symplid.dynamics._potentials import Polynomial
+from symplid.model import _kernel as compiled_kernel
 
 pytestmark = pytest.mark.skipif(
     not compiled_kernel.available(),

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.potentials import Polynomial
-from symplid.model import kernel as compiled_kernel
+from symplid.dynamics._potentials import Polynomial
+from symplid.model import _kernel as compiled_kernel
 
 pytestmark = pytest.mark.skipif(
     not compiled_kernel.available(),
@@ -77,7 +77,7 @@ def _in_subprocess(isa: str) -> dict:
     code = (
         "import json, sys; sys.path.insert(0, sys.argv[1])\n"
         "import test_kernel_variants as t\n"
-        "from symplid.model import kernel\n"
+        "from symplid.model import _kernel as kernel\n"
         "print(json.dumps({'isa': kernel.instruction_set(),"
         " 'values': [t.values(c) for c in t.CASES]}))\n"
     )
@@ -115,7 +115,7 @@ def test_unknown_or_wider_request_is_ignored():
     """An unknown name never selects a variant the processor cannot run (the native one)."""
     result = subprocess.run(
         [sys.executable, "-c",
-         "from symplid.model import kernel; print(kernel.instruction_set())"],
+         "from symplid.model import _kernel as kernel; print(kernel.instruction_set())"],
         env=dict(os.environ, SYMPLID_KERNEL_ISA="avx1024"),
         capture_output=True, text=True, timeout=300,
     )

@@ -10,7 +10,7 @@ A module can also reach another by name, without an ``import`` statement:
 constant of the source that names a symplid module (with or without ``:function``) counts as
 a reference to it and is held to the same layer order; the top-level package (its lazy
 table) and the command line are the top and may name anything. The explicit wiring of the
-registries (``symplid.registry``) is checked here too: no loading by name, every built-in
+registries (``symplid._registry``) is checked here too: no loading by name, every built-in
 entry registered in its registry's own module, no ``replace=True`` and no import kept only
 for its side effect.
 """
@@ -27,13 +27,13 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 #: Layer of each top-level part of the package, bottom (0) to top.
 LAYERS = {
-    "registry": 0,
-    "compiled": 0,
+    "_registry": 0,
+    "_compiled": 0,
     "_jsonfloat": 0,
-    "kernel_region": 0,
+    "_kernel_region": 0,
     "runtime": 0,
-    "stopping": 0,
-    "saved_programs": 0,
+    "_stopping": 0,
+    "_saved_programs": 0,
     "dynamics": 1,
     "filters": 2,
     "model": 3,
@@ -157,9 +157,9 @@ def test_no_module_names_a_higher_layer(module):
 def test_the_by_name_scan_sees_the_references_it_must():
     """The scan is not blind: the top-level lazy table and a study's cell function (by
     ``"module:function"`` in its tests' specs, and by import) are found."""
-    assert "symplid.dynamics.integrators" in NAMED["symplid"]
+    assert "symplid.dynamics._integrators" in NAMED["symplid"]
     assert "symplid.sampling" in NAMED["symplid"]
-    assert BY_NAME.fullmatch("symplid.studies.paper_cells:run_cell")
+    assert BY_NAME.fullmatch("symplid.studies._paper_cells:run_cell")
     assert not BY_NAME.fullmatch("see symplid.studies.register_studies()")
 
 
@@ -167,7 +167,7 @@ def test_only_the_command_line_and_the_top_use_the_studies():
     users = sorted(m for m, targets in GRAPH.items() if _layer(m) < LAYERS["studies"]
                    and any(_layer(t) == LAYERS["studies"] for t in targets))
     assert not users, f"the core reaches symplid.studies from {users}"
-    assert any(t.startswith("symplid.studies") for t in GRAPH["symplid.cli.study_commands"])
+    assert any(t.startswith("symplid.studies") for t in GRAPH["symplid.cli._study_commands"])
 
 
 def test_only_the_command_line_imports_click():
@@ -182,7 +182,7 @@ def test_only_the_command_line_imports_click():
     )
     assert not users, f"click imported outside symplid.cli: {sorted(set(users))}"
     assert any(isinstance(node, ast.Import) and node.names[0].name == "click"
-               for node in ast.walk(TREES["symplid.cli.errors"]))
+               for node in ast.walk(TREES["symplid.cli._errors"]))
 
 
 def test_no_import_cycles():
@@ -242,7 +242,7 @@ REGISTRIES = _registries()
 def test_every_registry_is_found():
     assert {"INTEGRATORS", "LIKELIHOOD_BACKENDS", "EXPERIMENTS", "SAMPLERS",
             "PRIOR_FAMILIES", "SYSTEMS"} <= set(REGISTRIES)
-    assert REGISTRIES["LIKELIHOOD_BACKENDS"] == "symplid.model.backends"
+    assert REGISTRIES["LIKELIHOOD_BACKENDS"] == "symplid.model._backends"
 
 
 def test_no_registry_loads_anything_by_name():
@@ -286,7 +286,7 @@ def test_the_core_registers_no_experiment_and_loads_no_study():
 
     core = sorted(m for m in MODULES if 0 < _layer(m) < LAYERS["studies"])
     code = (f"import importlib, sys\nfor m in {core!r}:\n    importlib.import_module(m)\n"
-            "from symplid.workflow.experiment import EXPERIMENTS\n"
+            "from symplid.workflow._experiment import EXPERIMENTS\n"
             "print(len(EXPERIMENTS), sorted(m for m in sys.modules if "
             "m.startswith('symplid.studies')))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -1,4 +1,4 @@
-"""θ's layout (model/layout.py) and its one reparameterisation (model/params.py).
+"""θ's layout (model/_layout.py) and its one reparameterisation (model/_params.py).
 
 The expected names below are written out by hand from the documented layout rules (module
 docstrings of ``statespace`` and ``layout``), not read from the code; the reparameterisation's
@@ -16,12 +16,12 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from symplid import HamiltonianModel, Observations, Polynomial, Posterior
-from symplid.dynamics.user_models import UserPotential
+from symplid.dynamics._user_models import UserPotential
 from symplid.inference.map._space import SearchSpace
-from symplid.inference.samplers.registry import LogVariances
-from symplid.model.layout import Block, ParameterLayout
-from symplid.model.params import ParameterProperties, ParameterSpace, Reparameterisation
-from symplid.model.priors import HalfNormal, Laplace, Normal, Uniform
+from symplid.inference.samplers._registry import LogVariances
+from symplid.model._layout import Block, ParameterLayout
+from symplid.model._params import ParameterProperties, ParameterSpace, Reparameterisation
+from symplid.model._priors import HalfNormal, Laplace, Normal, Uniform
 
 QUAD = Polynomial(1, 2)  # c[q1], c[q1^2]
 COEFFS = ("c[q1]", "c[q1^2]")

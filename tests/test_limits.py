@@ -18,8 +18,8 @@ from click.testing import CliRunner
 from sampler_targets import Gaussian2D
 from symplid.cli import main
 from symplid.sampling import RunOptions, sample
-from symplid.workflow import settings_data
-from symplid.workflow.settings import Settings, SettingsError, merge_overrides
+from symplid.workflow import _settings_data as settings_data
+from symplid.workflow._settings import Settings, SettingsError, merge_overrides
 
 
 def run(*args):

@@ -17,9 +17,9 @@ from scipy import integrate
 import symplid
 from reference_filters import numpy_leapfrog, numpy_substeps, polynomial_gradient
 from symplid.inference.map import BoundWarning, MapResult, default_start, find_map
-from symplid.model.posterior import Posterior
-from symplid.model.prior_spec import PriorSpec
-from symplid.model.priors import Uniform
+from symplid.model._posterior import Posterior
+from symplid.model._prior_spec import PriorSpec
+from symplid.model._priors import Uniform
 
 
 # ----------------------------------------------------------------------------- posterior-likes

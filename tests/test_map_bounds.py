@@ -19,7 +19,7 @@ from symplid.inference.map import find_map
 from symplid.inference.map._result import StartResult
 from symplid.inference.map._search import Objective, active_bounds, judge_with_hessian
 from symplid.inference.map._space import SearchSpace
-from symplid.model.params import ParameterSpace
+from symplid.model._params import ParameterSpace
 
 
 class InflatedRegression:

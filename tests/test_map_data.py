@@ -19,16 +19,16 @@ from click.testing import CliRunner
 
 import symplid
 from symplid.cli import main
-from symplid.dynamics.potentials import FunctionPotential
+from symplid.dynamics._potentials import FunctionPotential
 from symplid.inference.map import _checks as map_checks
 from symplid.inference.map._data_start import data_start, difference_variance, position_rows
 from symplid.inference.map._result import MapConvergenceWarning, StartResult
 from symplid.inference.map._space import SearchSpace
 from symplid.inference.map._starts import default_start
-from symplid.model.data import Observations
-from symplid.model.params import ParameterSpace
-from symplid.model.priors import HalfNormal, Laplace, Normal
-from symplid.model.simulate import true_trajectory
+from symplid.model._data import Observations
+from symplid.model._params import ParameterSpace
+from symplid.model._priors import HalfNormal, Laplace, Normal
+from symplid.model._simulate import true_trajectory
 
 GM_DAYS = 2.959122e-4  # AU³/day², the Sun
 GM_YEARS = GM_DAYS * 365.25**2  # AU³/yr²
@@ -223,7 +223,7 @@ def test_judge_names_each_way_a_point_is_not_a_map():
 def test_fit_stops_before_sampling_when_the_map_fails(tmp_path: Path, monkeypatch):
     """symplid fit with a MAP search that cannot converge (one iteration): one line on
     stderr, exit code 2, no draws and a folder marked failed."""
-    from symplid.workflow import fit as fit_module
+    from symplid.workflow import _fit as fit_module
 
     runner = CliRunner()
     data = tmp_path / "h.csv"

@@ -15,11 +15,11 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from symplid.inference.map import find_map
-from symplid.model.data import Observations
-from symplid.workflow.building import build_posterior
-from symplid.workflow.fit import find_map_for
-from symplid.workflow.plan import ModelPlan
-from symplid.workflow.settings import settings_from_dict
+from symplid.model._data import Observations
+from symplid.workflow._building import build_posterior
+from symplid.workflow._fit import find_map_for
+from symplid.workflow._plan import ModelPlan
+from symplid.workflow._settings import settings_from_dict
 
 
 class _Quadratic:

@@ -25,7 +25,7 @@ from symplid.inference.map._evidence import EvidenceSettings, quadrature_evidenc
 from symplid.inference.map._find import _compiled
 from symplid.inference.map._result import MapResult, MultipleOptimaWarning
 from symplid.inference.map._space import SearchSpace
-from symplid.model.params import ParameterSpace
+from symplid.model._params import ParameterSpace
 
 X0 = np.array([1.0, 0.0])
 DT = 0.25

@@ -15,7 +15,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import symplid
-from symplid.dynamics.user_models import UserPotential
+from symplid.dynamics._user_models import UserPotential
 from symplid.inference.map import _checks as map_checks
 from symplid.inference.map._data_start import data_start
 from symplid.inference.map._noise import (
@@ -26,9 +26,9 @@ from symplid.inference.map._noise import (
 from symplid.inference.map._result import StartResult
 from symplid.inference.map._space import SearchSpace
 from symplid.inference.map._starts import default_start
-from symplid.model.data import Observations
-from symplid.model.params import ParameterSpace
-from symplid.model.priors import HalfNormal
+from symplid.model._data import Observations
+from symplid.model._params import ParameterSpace
+from symplid.model._priors import HalfNormal
 
 GM = 2.959122082855911e-4  # AU³/day²
 NOISE = 1e-3  # AU
@@ -208,8 +208,8 @@ def test_a_declared_start_reaches_the_filter_map_without_process_noise(monkeypat
     """model.process_noise_per = "none": the filter's MAP (whose end starts the deterministic
     search) starts at the declared GM, and so would the deterministic search itself."""
     from symplid.inference.map import _homotopy
-    from symplid.workflow import fit as fit_module
-    from symplid.workflow.settings import settings_from_dict
+    from symplid.workflow import _fit as fit_module
+    from symplid.workflow._settings import settings_from_dict
 
     seen = []
 
@@ -247,8 +247,8 @@ def test_clumped_orbit_map_converges_from_defaults():
     """The command line's path (settings → model → MAP) on the clumped, long-gapped orbit,
     positions only, x0 learned, dt 2 days: converged, GM within 3 Laplace sds of the truth
     (before: every start ended at GM = 1e-14 and "did not converge (best start: ABNORMAL: )")."""
-    from symplid.workflow.fit import build_model, build_posterior, find_map_for
-    from symplid.workflow.settings import resolve_for_data, settings_from_dict
+    from symplid.workflow._fit import build_model, build_posterior, find_map_for
+    from symplid.workflow._settings import resolve_for_data, settings_from_dict
 
     t, y, _ = clumped_orbit(0)
     obs = Observations(t, y, names=("q1", "q2", "q3"))

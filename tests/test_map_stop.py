@@ -1,4 +1,4 @@
-"""A stop asked for while the MAP's programs compile is obeyed at once (``symplid.stopping``).
+"""A stop asked for while the MAP's programs compile is obeyed at once (``symplid._stopping``).
 
 XLA compiles in one C call that no signal can cut short; the MAP's first evaluation runs in a
 worker thread (``first_call_waits``), so a stop requested meanwhile raises ``StopRequested``
@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from symplid import stopping
+from symplid import _stopping as stopping
 from symplid.inference.map import find_map
 
 

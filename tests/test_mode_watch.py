@@ -1,4 +1,4 @@
-"""The MAP searched again where the chains climb above it (``symplid.workflow.mode_watch``).
+"""The MAP searched again where the chains climb above it (``symplid.workflow._mode_watch``).
 
 The runner's best visited point is checked against the draws it returns (burn-in 0, every
 iteration kept: the same maximum of log π, at the same θ); the watch against a Gaussian
@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from sampler_targets import Gaussian2D, MapResult
-from symplid.model.data import Observations
+from symplid.model._data import Observations
 from symplid.sampling import RunOptions, sample
-from symplid.workflow import fit as fit_module
-from symplid.workflow.mode_watch import MODE_MARGIN, HigherModeFound, mode_watch
-from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
+from symplid.workflow import _fit as fit_module
+from symplid.workflow._mode_watch import MODE_MARGIN, HigherModeFound, mode_watch
+from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
 
 QUIET = RunOptions(progress=False, chunk_size=500)
 

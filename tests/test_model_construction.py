@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.damping import is_damped, with_damping
-from symplid.dynamics.hamiltonians import DoublePendulum, is_hamiltonian
-from symplid.dynamics.integrators import get_integrator, separable_only_error
-from symplid.dynamics.nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, with_binding
-from symplid.dynamics.potentials import has_kinetic, mass_matrix
-from symplid.dynamics.separable import SeparablePotential
+from symplid.dynamics._damping import is_damped, with_damping
+from symplid.dynamics._hamiltonians import DoublePendulum, is_hamiltonian
+from symplid.dynamics._integrators import get_integrator, separable_only_error
+from symplid.dynamics._nonseparable import DEFAULT_BINDING_STEPS, TaoIntegrator, with_binding
+from symplid.dynamics._potentials import has_kinetic, mass_matrix
+from symplid.dynamics._separable import SeparablePotential
 from symplid.filters import unscented_weights
-from symplid.filters.noise import get_observation_noise
-from symplid.model import programs
-from symplid.model.backends import check_backend_name
-from symplid.model.construction import ModelFields, normalise_fields
+from symplid.filters._noise import get_observation_noise
+from symplid.model import _programs as programs
+from symplid.model._backends import check_backend_name
+from symplid.model._construction import ModelFields, normalise_fields
 
 POLY = symplid.Polynomial(dim=2, order=3)
 PENDULUM = DoublePendulum()

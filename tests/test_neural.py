@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.integrators import get_integrator, make_dynamics
-from symplid.dynamics.neural import MLPPotential
-from symplid.dynamics.trajectory import propagate
+from symplid.dynamics._integrators import get_integrator, make_dynamics
+from symplid.dynamics._neural import MLPPotential
+from symplid.dynamics._trajectory import propagate
 from symplid.inference.map._neural import find_map_neural, ggn_precision, neural_posterior
 
 

@@ -11,13 +11,13 @@ from click.testing import CliRunner
 
 import symplid
 from symplid.cli import main
-from symplid.dynamics.families import POTENTIAL_FAMILIES
-from symplid.dynamics.neural import MLPPotential
+from symplid.dynamics._families import POTENTIAL_FAMILIES
+from symplid.dynamics._neural import MLPPotential
 from symplid.io import write_observations
-from symplid.model.priors import Laplace, Normal
-from symplid.workflow.fit import build_model, build_posterior, find_map_for
-from symplid.workflow.model_builder import build_model_family, model_family
-from symplid.workflow.settings import (
+from symplid.model._priors import Laplace, Normal
+from symplid.workflow._fit import build_model, build_posterior, find_map_for
+from symplid.workflow._model_builder import build_model_family, model_family
+from symplid.workflow._settings import (
     Settings,
     SettingsError,
     merge_overrides,
@@ -164,7 +164,7 @@ def mlp_h():
 def test_mlp_hamiltonian_gradients_are_those_of_its_value(mlp_h):
     import jax
 
-    from symplid.dynamics.hamiltonians import is_hamiltonian
+    from symplid.dynamics._hamiltonians import is_hamiltonian
 
     assert is_hamiltonian(mlp_h) and mlp_h.num_params == 6 * 4 + 6 + 6
     assert len(set(mlp_h.param_names)) == mlp_h.num_params
@@ -190,8 +190,8 @@ def test_mlp_hamiltonian_gradients_are_those_of_its_value(mlp_h):
 def test_mlp_hamiltonian_model_likelihood_and_symplectic_propagator(mlp_h, hh_data):
     import jax
 
-    from symplid.dynamics.integrators import make_dynamics
-    from symplid.dynamics.trajectory import propagate
+    from symplid.dynamics._integrators import make_dynamics
+    from symplid.dynamics._trajectory import propagate
 
     model = symplid.HamiltonianModel(mlp_h, integrator="implicit-midpoint", dt=0.5)
     assert model.likelihood_backend == "jax"

@@ -14,9 +14,9 @@ import pytest
 from scipy.stats import multivariate_normal
 
 import symplid
-from symplid.filters.noise import OBSERVATION_NOISE
-from symplid.inference.forecast import forecast_with_noise
-from symplid.model.kernel import unsupported_reason
+from symplid.filters._noise import OBSERVATION_NOISE
+from symplid.inference._forecast import forecast_with_noise
+from symplid.model._kernel import unsupported_reason
 
 # A 1-D harmonic oscillator U = ½q²: leapfrog is a linear map, so the UKF's prediction is
 # exact and the predicted state is Gaussian.
@@ -221,8 +221,8 @@ def test_forecast_bands_use_the_noise_model():
 
 
 def test_a_registered_noise_model_is_a_setting_and_a_model():
-    from symplid.filters.noise import ObservationNoise
-    from symplid.workflow.settings import Settings, SettingsError, merge_overrides
+    from symplid.filters._noise import ObservationNoise
+    from symplid.workflow._settings import Settings, SettingsError, merge_overrides
 
     entry = ObservationNoise("proportional", False, True, "a toy entry")
     OBSERVATION_NOISE.register("proportional", entry)
@@ -260,7 +260,7 @@ def test_map_recovers_the_relative_variance():
 @pytest.mark.parametrize("observation", ["full", "positions"])
 def test_settings_count_the_variances_the_model_lays_out(observation):
     """The settings' check of θ's size (before any model exists) agrees with the model."""
-    from symplid.workflow.auto import num_noise_variances
+    from symplid.workflow._auto import num_noise_variances
 
     for name in OBSERVATION_NOISE:
         for noise in ("isotropic", "diagonal", "per-kind"):

@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.hamiltonians import (
+from symplid.dynamics._hamiltonians import (
     DoublePendulum,
     FunctionHamiltonian,
     PolynomialHamiltonian,
     PositionDependentMass,
     SeparableHamiltonian,
 )
-from symplid.dynamics.integrators import GeneralDynamics, get_integrator, make_dynamics
-from symplid.dynamics.nonseparable import tao_extended_step
-from symplid.dynamics.trajectory import propagate, solve
-from symplid.model import kernel
+from symplid.dynamics._integrators import GeneralDynamics, get_integrator, make_dynamics
+from symplid.dynamics._nonseparable import tao_extended_step
+from symplid.dynamics._trajectory import propagate, solve
+from symplid.model import _kernel as kernel
 
 # A non-separable H in one degree of freedom: a mass that grows with |q| and a q·p coupling.
 H1 = FunctionHamiltonian(
@@ -332,8 +332,8 @@ def test_prediction_of_the_learned_pendulum_uses_a_non_separable_integrator(
 
 # ----------------------------------------------------------------------------- settings, CLI
 def test_settings_name_the_hamiltonian_and_its_integrators(pendulum_data):
-    from symplid.workflow.fit import build_model
-    from symplid.workflow.settings import SettingsError, resolve_for_data, settings_from_dict
+    from symplid.workflow._fit import build_model
+    from symplid.workflow._settings import SettingsError, resolve_for_data, settings_from_dict
 
     base = {"initial_state": {"x0": [1.0, 0.5, 0.0, 0.0]}}
     good = settings_from_dict({
@@ -362,8 +362,8 @@ def test_settings_name_the_hamiltonian_and_its_integrators(pendulum_data):
 
 
 def test_sweep_cells_carry_the_same_keys():
-    from symplid.studies.paper import cell_data
-    from symplid.workflow.sweep_spec import cell_settings, sweep_spec_from_dict
+    from symplid.studies._paper import cell_data
+    from symplid.workflow._sweep_spec import cell_settings, sweep_spec_from_dict
 
     spec = sweep_spec_from_dict({
         "base": {"system": "double-pendulum", "model.hamiltonian": "double-pendulum",

@@ -124,7 +124,7 @@ def test_settings_are_validated(kwargs, message):
 
 def test_pushed_forward_covariance_is_capped_near_a_bound():
     """A MAP variance at 1e-8 with Laplace sd 0.7 would get a log-scale variance of 5e15."""
-    from symplid.model.params import MAX_UNCONSTRAINED_VARIANCE, pushforward_covariance
+    from symplid.model._params import MAX_UNCONSTRAINED_VARIANCE, pushforward_covariance
 
     target = GammaVariance()
     cov = np.array([[1.0, 0.3], [0.3, 0.5]])

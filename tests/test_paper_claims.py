@@ -17,23 +17,23 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from symplid.studies.claims_readme import (
+from symplid.studies._claims_readme import (
     BEGIN,
     END,
     FORMATTERS,
     readme_block,
     update_readme,
 )
-from symplid.studies.claims_stats import (
+from symplid.studies._claims_stats import (
     bootstrap_median,
     rank_uniformity,
     thin_evenly,
     truth_rank,
     wilson_interval,
 )
-from symplid.studies.paper_calibration import cell_calibration, evaluate_calibration
-from symplid.studies.paper_claims import RATIO_THRESHOLD, evaluate_claims, verdict
-from symplid.studies.paper_study import (
+from symplid.studies._paper_calibration import cell_calibration, evaluate_calibration
+from symplid.studies._paper_claims import RATIO_THRESHOLD, evaluate_claims, verdict
+from symplid.studies._paper_study import (
     PAPER_SETTING,
     VARIANTS,
     estimate_cost,
@@ -41,8 +41,8 @@ from symplid.studies.paper_study import (
     parse_budget,
     select_variants,
 )
-from symplid.studies.paper_study_report import calibration_answer, format_claims_report
-from symplid.workflow.sweep_results import _flatten
+from symplid.studies._paper_study_report import calibration_answer, format_claims_report
+from symplid.workflow._sweep_results import _flatten
 
 Z = 1.959963984540054
 
@@ -403,8 +403,8 @@ def test_dram_chunk_takes_the_data_as_an_argument():
 
     from symplid.inference.samplers import dram
     from symplid.sampling import RunOptions
-    from symplid.sampling.chunk import DataStep, _compile_chunk
-    from symplid.sampling.run import run_chains
+    from symplid.sampling._chunk import DataStep, _compile_chunk
+    from symplid.sampling._run import run_chains
 
     settings = dram.DRAMSettings()
 

@@ -13,17 +13,17 @@ import json
 import pandas as pd
 import pytest
 
-from symplid.studies.claims_readme import (
+from symplid.studies._claims_readme import (
     CALIBRATION_BEGIN,
     CALIBRATION_END,
     calibration_block,
     readme_block,
     update_readme,
 )
-from symplid.studies.claims_stats import rank_uniformity, wilson_interval
-from symplid.studies.paper_claims import NOT_APPLICABLE, evaluate_claims
-from symplid.studies.paper_study import PAPER_SETTING, VARIANTS, Variant, paper_claims_spec
-from symplid.studies.paper_study_report import calibration_answer, format_claims_report
+from symplid.studies._claims_stats import rank_uniformity, wilson_interval
+from symplid.studies._paper_claims import NOT_APPLICABLE, evaluate_claims
+from symplid.studies._paper_study import PAPER_SETTING, VARIANTS, Variant, paper_claims_spec
+from symplid.studies._paper_study_report import calibration_answer, format_claims_report
 
 LF, RK, Y4 = "leapfrog", "rk2-midpoint", "yoshida4"
 Z95 = 1.959963984540054
@@ -201,7 +201,7 @@ def test_calibration_block_counts_by_hand(claims_json, tmp_path):
 def test_shift_and_spread_of_the_truth_in_posterior_sds():
     """z = (midpoint − truth) / (width / 3.92): intervals [0, 3.92], [0, 3.92], [1, 4.92]
     (sd 1) around truths 1.96, 0.96, 0.96 give z = 0, 1, 2: mean 1, spread 1."""
-    from symplid.studies.paper_calibration import evaluate_calibration
+    from symplid.studies._paper_calibration import evaluate_calibration
 
     z95 = Z95
     rows = pd.DataFrame({

@@ -11,12 +11,12 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from symplid.inference.map._space import SearchSpace
-from symplid.model.params import (
+from symplid.model._params import (
     MAX_UNCONSTRAINED_VARIANCE,
     ParameterProperties,
     ParameterSpace,
 )
-from symplid.model.priors import HalfNormal, Laplace, Normal, Uniform
+from symplid.model._priors import HalfNormal, Laplace, Normal, Uniform
 
 
 @pytest.fixture(scope="module")

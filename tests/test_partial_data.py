@@ -18,9 +18,9 @@ import pytest
 import symplid
 from symplid.inference.map import find_map
 from symplid.io import positions_only, read_observations
-from symplid.model.posterior import Posterior
-from symplid.workflow.fit import fit
-from symplid.workflow.settings import load_settings
+from symplid.model._posterior import Posterior
+from symplid.workflow._fit import fit
+from symplid.workflow._settings import load_settings
 
 Z_MAX = 4.0
 

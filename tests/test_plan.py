@@ -14,18 +14,18 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from symplid.dynamics import user_models
-from symplid.model.data import Observations
-from symplid.workflow.building import build_model
-from symplid.workflow.plan import ModelPlan
-from symplid.workflow.settings import (
+from symplid.dynamics import _user_models as user_models
+from symplid.model._data import Observations
+from symplid.workflow._building import build_model
+from symplid.workflow._plan import ModelPlan
+from symplid.workflow._settings import (
     dump_settings,
     load_settings,
     merge_overrides,
     resolve_for_data,
     settings_from_dict,
 )
-from symplid.workflow.validate import SettingsError
+from symplid.workflow._validate import SettingsError
 
 PENDULUM = {
     "model": {"potential": "k*(1 - cos(q1))", "dt": 0.1,

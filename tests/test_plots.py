@@ -11,7 +11,7 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
 
 import symplid
-from symplid.inference.predict import PosteriorPredictive
+from symplid.inference._predict import PosteriorPredictive
 from symplid.plotting import (
     COLORS,
     Curves,

@@ -19,10 +19,10 @@ from scipy import integrate, stats
 
 import symplid
 from reference_filters import kalman_loglik, numpy_leapfrog, numpy_substeps, polynomial_gradient
-from symplid.model.data import DataError
-from symplid.model.posterior import UNOBSERVED_SCALE_FACTOR, Posterior
-from symplid.model.prior_spec import PriorSpec
-from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal, Uniform
+from symplid.model._data import DataError
+from symplid.model._posterior import UNOBSERVED_SCALE_FACTOR, Posterior
+from symplid.model._prior_spec import PriorSpec
+from symplid.model._priors import HalfNormal, Laplace, LogNormal, Normal, Uniform
 
 JITTER = 1e-12  # the model's default, added to every predicted covariance
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.potentials import monomial_exponents
+from symplid.dynamics._potentials import monomial_exponents
 
 
 def test_basis_order_d2_l3_matches_design():

@@ -1,4 +1,4 @@
-"""Tests of symplid.inference.predict against independent references.
+"""Tests of symplid.inference._predict against independent references.
 
 References: the simulator's own fine integration (``true_trajectory``), ``numpy.quantile`` on
 paths integrated one at a time, closed-form harmonic-oscillator solutions, and the analytic
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.inference.predict import (
+from symplid.inference._predict import (
     forecast_from_filter,
     hamiltonian_along,
     posterior_predictive,

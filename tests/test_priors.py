@@ -11,8 +11,8 @@ import pytest
 from scipy import stats
 
 import symplid  # noqa: F401  (float64)
-from symplid.model.prior_spec import PriorSpec, log_density_sum
-from symplid.model.priors import (
+from symplid.model._prior_spec import PriorSpec, log_density_sum
+from symplid.model._priors import (
     HalfNormal,
     Laplace,
     LogNormal,
@@ -105,7 +105,7 @@ def test_text_and_settings_forms():
 def test_log_uniform_bounded_is_the_narrower_log_uniform():
     """A log-uniform cut to [c, d] inside its range and renormalised is log-uniform on [c, d]:
     the truncation's CDF and quantile checked against scipy's law of the narrower range."""
-    from symplid.model.truncated import Truncated
+    from symplid.model._truncated import Truncated
 
     cut = Truncated(LogUniform(1e-8, 1.0), 1e-4, 1e-2)
     ref = stats.loguniform(1e-4, 1e-2)

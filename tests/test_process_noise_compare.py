@@ -15,8 +15,8 @@ from click.testing import CliRunner
 import symplid
 from reference_filters import numpy_leapfrog, polynomial_gradient
 from symplid.cli import main
-from symplid.workflow.compare import compare_models
-from symplid.workflow.settings import Settings, merge_overrides
+from symplid.workflow._compare import compare_models
+from symplid.workflow._settings import Settings, merge_overrides
 
 TIMES = np.arange(1.0, 31.0)
 

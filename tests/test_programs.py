@@ -12,11 +12,11 @@ import jax
 import numpy as np
 import pytest
 
-from symplid.dynamics.potentials import Polynomial
-from symplid.model.data import Observations
-from symplid.model.posterior import Posterior
-from symplid.model.priors import Laplace, Normal
-from symplid.model.statespace import HamiltonianModel
+from symplid.dynamics._potentials import Polynomial
+from symplid.model._data import Observations
+from symplid.model._posterior import Posterior
+from symplid.model._priors import Laplace, Normal
+from symplid.model._statespace import HamiltonianModel
 
 
 def _data(seed: int, n: int = 12) -> Observations:
@@ -71,7 +71,7 @@ def test_a_known_initial_state_keeps_its_data_as_before():
 def test_a_model_at_another_dt_with_as_many_substeps_runs_the_same_program():
     """dt reaches the filter through the substeps of each gap (arguments) and their most
     (the loop): dt = 0.3 splits the gaps of 0.5 in two like dt = 0.25, dt = 0.2 in three."""
-    from symplid.model.programs import compiled
+    from symplid.model._programs import compiled
 
     potential = Polynomial(1, 2)
     obs = _data(0)

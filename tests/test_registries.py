@@ -23,14 +23,14 @@ from scipy import stats
 
 import symplid
 from symplid.cli import main
-from symplid.dynamics.integrators import INTEGRATORS, Dynamics, Integrator
-from symplid.inference.diagnostics import import_arviz
+from symplid.dynamics._integrators import INTEGRATORS, Dynamics, Integrator
+from symplid.inference._diagnostics import import_arviz
 from symplid.inference.samplers import SAMPLERS, SamplerKernel, SamplerSpec
 from symplid.io import read_observations
-from symplid.model.priors import PRIOR_FAMILIES, Prior
-from symplid.model.statespace import HamiltonianModel
-from symplid.workflow.fit import build_model, build_posterior
-from symplid.workflow.results import RunFolder, read_json
+from symplid.model._priors import PRIOR_FAMILIES, Prior
+from symplid.model._statespace import HamiltonianModel
+from symplid.workflow._fit import build_model, build_posterior
+from symplid.workflow._results import RunFolder, read_json
 
 
 def symplectic_euler(dynamics: Dynamics, q, p, dt):

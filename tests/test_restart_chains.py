@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 
 from sampler_targets import Gaussian2D, TwoModes, moment_z_scores
-from symplid.io.chunks import ChunkWriter, read_chunks
+from symplid.io._chunks import ChunkWriter, read_chunks
 from symplid.sampling import InterruptedInBurnIn, RunOptions, draws_array, sample
-from symplid.sampling.restart import burn_in_window, restart_threshold
-from symplid.sampling.resume import (
+from symplid.sampling._restart import burn_in_window, restart_threshold
+from symplid.sampling._resume import (
     checkpoint_arrays,
     inference_data,
     resume_sampling,
 )
-from symplid.sampling.run import SamplingInterrupted, StuckChainsRestarted
+from symplid.sampling._run import SamplingInterrupted, StuckChainsRestarted
 
 # burn_in 90 is not on the chunk grid of 40: the chunk that crosses it is cut there.
 SMALL = {"num_draws": 150, "num_chains": 4, "seed": 3, "burn_in": 90}
@@ -169,7 +169,7 @@ def test_a_restart_survives_the_chunk_files(tmp_path):
 def test_a_stop_inside_the_cut_chunk_takes_the_decision_again(monkeypatch):
     """Ctrl-C while the second half of the chunk in which the burn-in ends runs: the run stops
     at the chunk's start, the decision undone, and resumes to the uninterrupted run."""
-    from symplid.sampling import run as run_module
+    from symplid.sampling import _run as run_module
 
     target = TwoModes(gap=60.0)
     init, starts = target.map_result(), _starts((3,))
@@ -219,9 +219,9 @@ def test_a_fit_reports_its_restarted_chains():
     """``summary.json``'s count, the fit's line and the report's paragraph."""
     from types import SimpleNamespace
 
-    from symplid.workflow.fit_command import fit_result_line
-    from symplid.workflow.fit_files import fit_summary
-    from symplid.workflow.run_tools import _restart_lines
+    from symplid.workflow._fit_command import fit_result_line
+    from symplid.workflow._fit_files import fit_summary
+    from symplid.workflow._run_tools import _restart_lines
 
     target = TwoModes(gap=60.0)
     with pytest.warns(StuckChainsRestarted):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from symplid import DataError, Observations
-from symplid.workflow.results import (
+from symplid.workflow._results import (
     RunFolder,
     RunFolderError,
     format_summary,
@@ -22,7 +22,7 @@ from symplid.workflow.results import (
     to_jsonable,
     write_json,
 )
-from symplid.workflow.settings import Settings, resolve_for_data, settings_from_dict
+from symplid.workflow._settings import Settings, resolve_for_data, settings_from_dict
 
 matplotlib.use("Agg")
 

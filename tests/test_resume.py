@@ -16,9 +16,9 @@ from click.testing import CliRunner
 from sampler_targets import Gaussian2D
 from symplid.cli import main
 from symplid.sampling import InterruptedInBurnIn, RunOptions, draws_array, sample
-from symplid.sampling.resume import checkpoint_arrays, resume_sampling
-from symplid.sampling.run import SamplingInterrupted
-from symplid.workflow.results import RunFolder
+from symplid.sampling._resume import checkpoint_arrays, resume_sampling
+from symplid.sampling._run import SamplingInterrupted
+from symplid.workflow._results import RunFolder
 
 BUDGET = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 90}
 RUNNER = {"chunk_size": 40, "progress": False}
@@ -100,7 +100,7 @@ def run(*args):
 def _chunks_of_100(monkeypatch, stop_at: int | None = None):
     """workflow.fit's sampler (in chunks of 100 iterations: TINY) stopped (Ctrl-C) after
     ``stop_at``."""
-    import symplid.workflow.fit as fit_module
+    import symplid.workflow._fit as fit_module
 
     extra = {}
     if stop_at is not None:

@@ -22,8 +22,8 @@ from click.testing import CliRunner
 
 from csv_data import harmonic, write_csv
 from symplid.cli import main
-from symplid.workflow.interrupts import deferred_interrupts, supervised
-from symplid.workflow.results import RunFolder
+from symplid.workflow._interrupts import deferred_interrupts, supervised
+from symplid.workflow._results import RunFolder
 
 TINY = ["--iterations", "400", "--burn-in", "200", "--chains", "2", "--no-progress",
         "--no-report", "--set", "sampler.chunk_size=100"]
@@ -82,8 +82,8 @@ def test_a_failed_predict_leaves_the_run_finished(copy_of, args, words):
 
 
 def test_a_crash_or_ctrl_c_during_predict_leaves_the_run_finished(copy_of, monkeypatch):
-    import symplid.workflow.run_figures as figures
-    import symplid.workflow.run_tools as tools
+    import symplid.workflow._run_figures as figures
+    import symplid.workflow._run_tools as tools
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
@@ -128,7 +128,7 @@ def test_report_has_a_convergence_table(copy_of):
 def _interrupt_sampler(monkeypatch, action):
     """Make the sampler of workflow.fit call ``action`` after 300 of its 400 iterations
     (chunks of 100: burn-in is over, 100 draws per chain are kept)."""
-    import symplid.workflow.fit as fit_module
+    import symplid.workflow._fit as fit_module
 
     def callback(report):
         if report.iterations_done == 300:
@@ -184,7 +184,7 @@ def test_a_second_ctrl_c_while_saving_loses_nothing(tmp_path, monkeypatch):
 
 
 def test_signal_helpers():
-    from symplid import stopping
+    from symplid import _stopping as stopping
 
     before = signal.getsignal(signal.SIGINT)  # SIG_IGN when the suite runs as a background job
     with deferred_interrupts() as held:
@@ -217,7 +217,7 @@ def test_single_row_and_empty_column_are_refused(tmp_path):
 
 def test_too_many_parameters_warn(tmp_path):
     from symplid.io import read_observations
-    from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
+    from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
 
     t = np.arange(1, 9.0)
     obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
@@ -243,7 +243,7 @@ def test_out_below_a_file_and_usage_errors_are_one_line(tmp_path):
 
 # ----------------------------------------------------------------------------- t0 = "first"
 def test_t0_first_from_settings_and_cli(tmp_path):
-    from symplid.workflow.settings import Settings, merge_overrides, settings_from_dict
+    from symplid.workflow._settings import Settings, merge_overrides, settings_from_dict
 
     assert settings_from_dict({"initial_state": {"t0": "first"}}).initial_state.t0 == "first"
     with pytest.raises(ValueError, match='must be a number or \'first\''):
@@ -264,7 +264,7 @@ def test_t0_first_from_settings_and_cli(tmp_path):
 
 def test_learned_state_long_before_the_data_warns(tmp_path):
     from symplid.io import read_observations
-    from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
+    from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
 
     t = np.arange(5.0, 10.0, 0.5)
     obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))

@@ -44,7 +44,7 @@ def one_line(result, *words, code=2):
 
 def _fit(data_csv: Path, out: Path, stop_at: int | None = None):
     """A fit in chunks of 100 iterations, stopped (Ctrl-C) after ``stop_at`` of them."""
-    import symplid.workflow.fit as fit_module
+    import symplid.workflow._fit as fit_module
 
     def stop(report):
         if report.iterations_done == stop_at:
@@ -165,7 +165,7 @@ def test_a_resumed_run_has_the_file_formats_of_a_fresh_one(interrupted, finished
 
 
 def test_read_with_names_the_file_and_the_remedy(tmp_path):
-    from symplid.io.files import RunFolderError, read_with
+    from symplid.io._files import RunFolderError, read_with
 
     path = tmp_path / "x.npz"
     path.write_bytes(os.urandom(64))
@@ -178,7 +178,7 @@ def test_read_with_names_the_file_and_the_remedy(tmp_path):
 def test_an_earlier_run_of_another_kind_is_overwritten_by_its_identity_file(tmp_path):
     """``symplid reproduce`` into its own earlier folder: the folder holds ``config.json``
     (no ``settings.toml``); named as the identity it is a run to overwrite, else refused."""
-    from symplid.workflow.results import RunFolder, RunFolderError
+    from symplid.workflow._results import RunFolder, RunFolderError
 
     earlier = tmp_path / "paper"
     earlier.mkdir()

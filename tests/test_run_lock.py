@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from symplid.io.files import FolderLock, FolderLockedError
+from symplid.io._files import FolderLock, FolderLockedError
 
 FIT = ["--order", "2", "--x0", "1,0", "--burn-in", "200", "--chains", "2", "--no-progress",
        "--no-report", "--set", "map.num_starts=1", "--overwrite"]

@@ -121,7 +121,7 @@ def test_worker_environment_keeps_the_users_xla_flags(monkeypatch):
 
 
 def test_importing_the_paper_experiment_starts_no_jax_backend_and_no_matplotlib():
-    code = ("import symplid.studies.paper, symplid.workflow.fit, sys; "
+    code = ("import symplid.studies._paper, symplid.workflow._fit, sys; "
             "from symplid.runtime import backend_started; "
             "assert 'jax' in sys.modules; "
             "print(backend_started(), 'matplotlib' in sys.modules)")

@@ -13,7 +13,7 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import GammaVariance, Gaussian2D, MapResult
-from symplid.inference.diagnostics import ConvergenceWarning, import_arviz, summary
+from symplid.inference._diagnostics import ConvergenceWarning, import_arviz, summary
 from symplid.inference.samplers import dram
 from symplid.sampling import (
     RunOptions,

@@ -12,7 +12,7 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from sampler_targets import MapResult
-from symplid.inference.diagnostics import import_arviz
+from symplid.inference._diagnostics import import_arviz
 from symplid.inference.samplers import SAMPLERS, SamplerKernel, SamplerSpec
 from symplid.sampling import RunOptions, draws_array, sample
 

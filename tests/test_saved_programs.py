@@ -1,4 +1,4 @@
-"""Saved programs (:mod:`symplid.saved_programs`): read back bit for bit, never reused for
+"""Saved programs (:mod:`symplid._saved_programs`): read back bit for bit, never reused for
 another program, a damaged file ignored, and a fit with them equal to a fit without.
 
 A program read back must compute exactly what the program that was saved computes, and what
@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from symplid import saved_programs
-from symplid.saved_programs import program_key, saved_jit, signature
+from symplid import _saved_programs as saved_programs
+from symplid._saved_programs import program_key, saved_jit, signature
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("flatbuffers") is None,
                                 reason="saving programs needs flatbuffers")
@@ -192,7 +192,7 @@ def test_the_environment_switch_turns_saving_off(monkeypatch, tmp_path):
 # ----------------------------------------------------------------------------- a whole fit
 def _pendulum(tmp_path):
     from symplid.io import read_trajectories
-    from symplid.workflow.settings import load_settings, settings_from_dict, settings_to_dict
+    from symplid.workflow._settings import load_settings, settings_from_dict, settings_to_dict
 
     spec = importlib.util.spec_from_file_location("simulate_data",
                                                   EXAMPLES / "simulate_data.py")
@@ -208,7 +208,7 @@ def _pendulum(tmp_path):
 
 
 def _fit(obs, settings):
-    from symplid.workflow.fit import fit
+    from symplid.workflow._fit import fit
 
     outcome = fit(obs, settings, progress=False)
     posterior = outcome.idata.posterior
@@ -233,7 +233,7 @@ def test_a_fit_with_saved_programs_is_bit_identical_to_one_without(folder, monke
         assert a.tobytes() == b.tobytes() == c.tobytes()
     # another data set of the same shape is another identity: its own programs
     changed = dataclasses.replace(obs, values=obs.values + 1e-3)
-    from symplid.workflow.building import program_identity
+    from symplid.workflow._building import program_identity
 
     def identity(*args):
         return saved_programs.digest(program_identity(*args))

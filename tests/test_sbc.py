@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import symplid  # noqa: F401  (float64)
-from symplid.model.simulate import true_trajectory
-from symplid.studies.claims_stats import RANK_DRAWS, rank_uniformity, truth_rank
-from symplid.studies.sbc import PRIORS, THIN_DRAWS, X0, draw_truth, sbc_spec, simulate_model
-from symplid.studies.sbc_report import ESS_MIN, ecdf_band, ecdf_inside
+from symplid.model._simulate import true_trajectory
+from symplid.studies._claims_stats import RANK_DRAWS, rank_uniformity, truth_rank
+from symplid.studies._sbc import PRIORS, THIN_DRAWS, X0, draw_truth, sbc_spec, simulate_model
+from symplid.studies._sbc_report import ESS_MIN, ecdf_band, ecdf_inside
 
 
 def _conjugate_ranks(n: int, seed: int, shift: float = 0.0, scale: float = 1.0) -> np.ndarray:
@@ -63,7 +63,7 @@ def test_truth_is_drawn_from_the_fit_prior():
     """Each parameter of θ̃ over replications follows its prior (KS against scipy.stats)."""
     from scipy import stats
 
-    from symplid.model.priors import LogNormal, LogUniform, Normal
+    from symplid.model._priors import LogNormal, LogUniform, Normal
 
     def reference(prior):
         if isinstance(prior, Normal):
@@ -87,7 +87,7 @@ def test_simulator_without_noise_is_the_models_path():
     cell = {"seed": 4, "num_obs": 30, "obs_interval": 1.0, "dt": 0.1}
     truth = {"c[q1]": 0.01, "c[q1^2]": 0.5, "c[q1^3]": -0.02, "c[q1^4]": 0.1, "obs_var": 0.0}
     obs = simulate_model(truth, cell)
-    from symplid.dynamics.potentials import Polynomial
+    from symplid.dynamics._potentials import Polynomial
 
     # one potential object: its propagator is compiled once, not once per gap below
     quartic = Polynomial(1, 4)
@@ -113,10 +113,10 @@ def test_simulator_is_the_fits_propagator():
 
     import jax.numpy as jnp
 
-    from symplid.model.posterior import Posterior
-    from symplid.model.prior_spec import PriorSpec
-    from symplid.studies.sbc import _param_names, _settings
-    from symplid.workflow.fit import build_model
+    from symplid.model._posterior import Posterior
+    from symplid.model._prior_spec import PriorSpec
+    from symplid.studies._sbc import _param_names, _settings
+    from symplid.workflow._fit import build_model
 
     cell = {"seed": 3, "likelihood": "none", "sampler": "dram", "num_obs": 20,
             "obs_interval": 1.0, "dt": 0.1, "budget": "quick"}

@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.workflow.compare import fit_candidates
-from symplid.workflow.scaling import (
+from symplid.workflow._compare import fit_candidates
+from symplid.workflow._scaling import (
     Scaling,
     position_scale,
     resolve_standardise,
     scaling_for,
 )
-from symplid.workflow.settings import Settings, SettingsError, merge_overrides, resolve_for_data
+from symplid.workflow._settings import Settings, SettingsError, merge_overrides, resolve_for_data
 
 SCALE = 1000.0
 
@@ -131,8 +131,8 @@ def test_auto_rule_and_errors(well):
 def test_fit_writes_the_run_in_the_data_units(well, tmp_path):
     """symplid fit on data × 1000: one line says it standardises, and the MAP, the draws and
     the run folder are in the data's units (U = −½q² + ¼q⁴ becomes −½q² + ¼·10⁻⁶ q⁴)."""
-    from symplid.workflow.fit import fit
-    from symplid.workflow.results import RunFolder
+    from symplid.workflow._fit import fit
+    from symplid.workflow._results import RunFolder
 
     system, _, big = well
     s = merge_overrides(Settings(), {

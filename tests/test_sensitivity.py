@@ -1,4 +1,4 @@
-"""The report's sensitivity checks (symplid.workflow.sensitivity).
+"""The report's sensitivity checks (symplid.workflow._sensitivity).
 
 The step-size check on the paper's Hénon–Heiles data (20 full-state observations 5 s apart):
 leapfrog's bias of the cubic couplings grows like dt² (about −0.21·dt² for c[q1²q2]); at
@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.workflow.sensitivity import (
+from symplid.workflow._sensitivity import (
     THRESHOLD_SD,
     process_noise_check,
     refit_map,
     sensitivity_lines,
     step_size_check,
 )
-from symplid.workflow.settings import Settings, merge_overrides
+from symplid.workflow._settings import Settings, merge_overrides
 
 
 @pytest.fixture(scope="module")

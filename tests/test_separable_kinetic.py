@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from symplid.dynamics.integrators import get_integrator, make_dynamics
-from symplid.dynamics.potentials import FunctionPotential, hamiltonian
-from symplid.dynamics.separable import SeparablePotential
-from symplid.dynamics.user_models import build_user_model
+from symplid.dynamics._integrators import get_integrator, make_dynamics
+from symplid.dynamics._potentials import FunctionPotential, hamiltonian
+from symplid.dynamics._separable import SeparablePotential
+from symplid.dynamics._user_models import build_user_model
 
 # A non-quadratic T: ∂T/∂p = sinh(p)/a, a relativistic-like kinetic term, in a pendulum well.
 U_FN = lambda q, c: 1.0 - jnp.cos(q[0])  # noqa: E731

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.model.priors import HalfNormal, Laplace, Normal, Uniform
-from symplid.workflow.settings import (
+from symplid.model._priors import HalfNormal, Laplace, Normal, Uniform
+from symplid.workflow._settings import (
     Settings,
     SettingsError,
     dump_settings,
@@ -80,10 +80,10 @@ def test_defaults_are_the_papers_numbers():
 
 def test_paper_settings_fix_the_auto_defaults(hh_data):
     """The paper's experiment (reproduce, its sweeps) does not depend on the "auto" rules."""
-    from symplid.studies.paper import PaperConfig, paper_settings
-    from symplid.studies.paper_cells import known_initial_state
-    from symplid.workflow.settings import resolve_for_data
-    from symplid.workflow.sweep_spec import cell_settings, sweep_spec_from_dict
+    from symplid.studies._paper import PaperConfig, paper_settings
+    from symplid.studies._paper_cells import known_initial_state
+    from symplid.workflow._settings import resolve_for_data
+    from symplid.workflow._sweep_spec import cell_settings, sweep_spec_from_dict
 
     for approach in ("leapfrog", "rk2"):
         m = resolve_for_data(paper_settings(PaperConfig(), approach), hh_data).model
@@ -444,7 +444,7 @@ def test_written_settings_use_the_new_key(tmp_path):
         (
             {"priors": {"coefficients": {"prior": "cauchy"}}},
             "priors.coefficients.prior",
-            symplid.model.priors.PRIOR_FAMILIES,
+            symplid.model._priors.PRIOR_FAMILIES,
         ),
     ],
 )
@@ -460,7 +460,7 @@ def test_unknown_names_list_the_registry(data, key, registry):
 
 def test_a_registered_prior_family_is_a_setting():
     """A family registered from outside (here, this test) is read, written and used."""
-    from symplid.model.priors import PRIOR_FAMILIES
+    from symplid.model._priors import PRIOR_FAMILIES
 
     @dataclasses.dataclass(frozen=True)
     class Wide(Normal):
@@ -480,9 +480,9 @@ def test_process_var_prior_setting_scales_a_log_uniform_to_the_data():
     """``priors.process_var = "log-uniform"``: Σ's prior is LogUniform(b·1e-8, b), b the mean
     sample variance of the data's components (computed here with NumPy); Γ keeps the
     variances' prior; the default keeps the paper's half-normal for both."""
-    from symplid.model.priors import LogUniform
-    from symplid.model.simulate import simulate
-    from symplid.workflow.fit import build_model, build_posterior
+    from symplid.model._priors import LogUniform
+    from symplid.model._simulate import simulate
+    from symplid.workflow._fit import build_model, build_posterior
 
     obs = simulate("harmonic", noise_std=0.05, seed=2)
     b = float(np.mean(np.var(obs.values, axis=0, ddof=1)))

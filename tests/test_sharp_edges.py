@@ -12,14 +12,14 @@ import pytest
 
 from csv_data import harmonic, write_csv
 from symplid.io import read_observations
-from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
+from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
 
 
 # ----------------------------------------------------------------------------- t0 at the data
 def test_learned_initial_state_with_data_from_t0_just_works(tmp_path):
     """The defaults (t0 = 0) with data whose first time is 0: the state sits at the first
     observation, and the posterior's density is finite there."""
-    from symplid.workflow.building import build_model, build_posterior
+    from symplid.workflow._building import build_model, build_posterior
 
     t = np.arange(0.0, 12.0)
     obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
@@ -50,7 +50,7 @@ NONSEPARABLE = "0.5*(1 + a*q1^2)*p1^2 + 0.5*q1^2"
 
 
 def _resolved(tmp_path, overrides):
-    from symplid.workflow.settings import settings_from_dict
+    from symplid.workflow._settings import settings_from_dict
 
     t = np.arange(0.0, 12.0)
     obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
@@ -71,8 +71,8 @@ def test_step_advice_names_only_what_the_model_accepts(tmp_path, overrides, advi
     """The step-size warning's advice, and the model built with the integrator it names."""
     import dataclasses
 
-    from symplid.workflow.building import build_model
-    from symplid.workflow.sensitivity import sensitivity_lines, sensitivity_summary, step_advice
+    from symplid.workflow._building import build_model
+    from symplid.workflow._sensitivity import sensitivity_lines, sensitivity_summary, step_advice
 
     settings, obs = _resolved(tmp_path, overrides)
     assert step_advice(settings, obs) == advice
@@ -99,7 +99,7 @@ def test_step_advice_names_only_what_the_model_accepts(tmp_path, overrides, advi
 
 # ----------------------------------------------------------------------------- expressions
 def _refusal(text: str, names=("k",), dim: int = 1, kind: str = "potential", **kwargs) -> str:
-    from symplid.dynamics.user_models import UserModelError, build_user_model
+    from symplid.dynamics._user_models import UserModelError, build_user_model
 
     with pytest.raises(UserModelError) as info:
         build_user_model(text, kind, dim, list(names), **kwargs)
@@ -131,15 +131,15 @@ def test_expression_errors_name_the_real_cause(text, words):
 def test_a_greek_parameter_name_is_still_a_name():
     import jax.numpy as jnp
 
-    from symplid.dynamics.user_models import build_user_model
+    from symplid.dynamics._user_models import build_user_model
 
     pot = build_user_model("\u03b1*q1^2", "potential", 1, ["\u03b1"])
     assert float(pot.value(jnp.array([0.5]), jnp.array([2.0]))) == pytest.approx(0.5)
 
 
 def test_a_lookalike_parameter_name_is_refused():
-    from symplid.workflow.settings import settings_from_dict
-    from symplid.workflow.validate import SettingsError
+    from symplid.workflow._settings import settings_from_dict
+    from symplid.workflow._validate import SettingsError
 
     with pytest.raises(SettingsError, match="read as 'k'"):
         settings_from_dict({"model": {"potential": "k*q1^2", "parameters": {
@@ -161,8 +161,8 @@ def test_a_huge_expression_is_refused_in_one_short_line():
 
 
 def test_the_size_limit_is_a_setting(tmp_path):
-    from symplid.workflow.settings import settings_from_dict
-    from symplid.workflow.validate import SettingsError
+    from symplid.workflow._settings import settings_from_dict
+    from symplid.workflow._validate import SettingsError
 
     t = np.arange(0.0, 12.0)
     obs = read_observations(write_csv(tmp_path / "h.csv", t, harmonic(t)))
@@ -194,8 +194,8 @@ def test_common_subexpressions_keep_value_and_gradient(text, kind, dim, names):
     import jax.numpy as jnp
     import sympy
 
-    from symplid.dynamics.hamiltonians import is_hamiltonian
-    from symplid.dynamics.user_models import build_user_model, parse_expression
+    from symplid.dynamics._hamiltonians import is_hamiltonian
+    from symplid.dynamics._user_models import build_user_model, parse_expression
 
     model = build_user_model(text, kind, dim, list(names))
     expr = parse_expression(text, list(names), require_all=True).expr
@@ -257,8 +257,8 @@ def test_every_prior_table_takes_prior(tmp_path):
     its keys, or text), is written that way, and reads back equal."""
     import tomllib
 
-    from symplid.model.priors import HalfNormal, Laplace, Normal
-    from symplid.workflow.settings import dump_settings, load_settings, settings_from_dict
+    from symplid.model._priors import HalfNormal, Laplace, Normal
+    from symplid.workflow._settings import dump_settings, load_settings, settings_from_dict
 
     table = {"prior": "half-normal", "scale": 0.5}
     s = settings_from_dict({
@@ -276,10 +276,10 @@ def test_every_prior_table_takes_prior(tmp_path):
 
 
 def test_the_old_family_key_is_read_with_one_deprecation_line(tmp_path):
-    from symplid.model.priors import HalfNormal, Normal
-    from symplid.workflow.commandline import _merged_file
-    from symplid.workflow.settings import settings_from_dict
-    from symplid.workflow.validate import SettingsError
+    from symplid.model._priors import HalfNormal, Normal
+    from symplid.workflow._commandline import _merged_file
+    from symplid.workflow._settings import settings_from_dict
+    from symplid.workflow._validate import SettingsError
 
     with pytest.warns(FutureWarning, match=r"priors\.variances\.family is deprecated; use "
                                            r"priors\.variances\.prior"):
@@ -303,8 +303,8 @@ def test_the_old_family_key_is_read_with_one_deprecation_line(tmp_path):
 
 # ----------------------------------------------------------------------------- the report
 def test_model_description_says_what_was_written():
-    from symplid.workflow.model_builder import model_description
-    from symplid.workflow.settings import settings_from_dict
+    from symplid.workflow._model_builder import model_description
+    from symplid.workflow._settings import settings_from_dict
 
     def described(model):
         return model_description(settings_from_dict({"model": model,
@@ -362,9 +362,9 @@ def test_a_run_written_with_family_keys_reads_without_a_warning(tmp_path):
     deprecation line when report or predict read it."""
     import warnings
 
-    from symplid.model.priors import HalfNormal
-    from symplid.workflow.results import RunFolder
-    from symplid.workflow.settings import dump_settings
+    from symplid.model._priors import HalfNormal
+    from symplid.workflow._results import RunFolder
+    from symplid.workflow._settings import dump_settings
 
     run = tmp_path / "run"
     run.mkdir()

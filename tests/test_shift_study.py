@@ -22,12 +22,12 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from symplid.inference.map import find_map
-from symplid.model.data import Observations
-from symplid.model.posterior import Posterior
-from symplid.studies.shift_fits import ConditionalMode, stack_data
-from symplid.studies.shift_report import dt2_fit
-from symplid.workflow.fit import build_model
-from symplid.workflow.settings import Settings, merge_overrides
+from symplid.model._data import Observations
+from symplid.model._posterior import Posterior
+from symplid.studies._shift_fits import ConditionalMode, stack_data
+from symplid.studies._shift_report import dt2_fit
+from symplid.workflow._fit import build_model
+from symplid.workflow._settings import Settings, merge_overrides
 
 CELLS = Path(__file__).resolve().parents[1] / "docs" / "studies" / "paper-claims"
 

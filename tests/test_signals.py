@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from symplid.io.chunks import read_chunks
+from symplid.io._chunks import read_chunks
 from symplid.sampling import draws_array
-from symplid.workflow.results import RunFolder
+from symplid.workflow._results import RunFolder
 
 FIT = ["--order", "2", "--x0", "1,0", "--burn-in", "100", "--chains", "2", "--no-progress",
        "--no-report", "--set", "sampler.chunk_size=500", "--iterations", "2000000"]
@@ -126,8 +126,8 @@ def test_a_second_ctrl_c_while_stopping_keeps_the_draws(data_csv, tmp_path):
 
 # ----------------------------------------------------------------------------- the mechanism
 def test_a_signal_under_supervision_only_requests_a_stop():
-    from symplid import stopping
-    from symplid.workflow.interrupts import supervised
+    from symplid import _stopping as stopping
+    from symplid.workflow._interrupts import supervised
 
     before = signal.getsignal(signal.SIGTERM)
     with supervised():
@@ -142,7 +142,7 @@ def test_a_signal_under_supervision_only_requests_a_stop():
 
 _LONG_C_CALL = """
 import time, numpy as np
-from symplid.workflow.interrupts import supervised
+from symplid.workflow._interrupts import supervised
 a = np.random.default_rng(0).random((1500, 1500))
 t = time.perf_counter()
 np.linalg.svd(a)
@@ -179,7 +179,7 @@ def test_the_third_signal_of_a_kind_ends_the_process_at_once_in_one_line():
 
 def test_the_sampler_stops_before_the_next_chunk_with_the_draws_of_the_whole_run():
     from sampler_targets import Gaussian2D
-    from symplid import stopping
+    from symplid import _stopping as stopping
     from symplid.sampling import RunOptions, sample
 
     target = Gaussian2D()

@@ -1,4 +1,4 @@
-"""The learning step chosen from the data (``model.dt = "auto"``, symplid.workflow.step_size).
+"""The learning step chosen from the data (``model.dt = "auto"``, symplid.workflow._step_size).
 
 Two pendulums U = k(1 − cos q), the second 100 times faster (k·10⁴, gaps / 100), positions
 only, no process noise and a known initial state at rest: the second problem is the first in
@@ -16,10 +16,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import symplid
-from symplid.workflow.building import build_model
-from symplid.workflow.fit import find_map_for
-from symplid.workflow.settings import Settings, merge_overrides, resolve_for_data
-from symplid.workflow.step_size import (
+from symplid.workflow._building import build_model
+from symplid.workflow._fit import find_map_for
+from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
+from symplid.workflow._step_size import (
     THRESHOLD_SD,
     _halvings,
     choose_step,
@@ -27,7 +27,7 @@ from symplid.workflow.step_size import (
     smallest_gap,
     step_lines,
 )
-from symplid.workflow.validate import SettingsError
+from symplid.workflow._validate import SettingsError
 
 K_SLOW = 2.0
 
@@ -162,7 +162,7 @@ def test_fit_with_dt_auto_records_the_step_everywhere(tmp_path):
 def test_compare_shares_one_chosen_step(chosen):
     """``compare`` with dt = "auto" chooses the step once (the settings' own model) and every
     candidate uses it: here the same step as the search on its own."""
-    from symplid.workflow.compare import fit_candidates
+    from symplid.workflow._compare import fit_candidates
 
     obs, settings, choice = chosen[1.0]
     fits = fit_candidates(obs, settings, integrators=["leapfrog", "yoshida4"], progress=False)

@@ -24,15 +24,15 @@ import pytest
 
 import sweep_cells
 import symplid
-from symplid.studies.paper import CELL_KEYS, cell_data
-from symplid.studies.paper_study import (
+from symplid.studies._paper import CELL_KEYS, cell_data
+from symplid.studies._paper_study import (
     evaluate_claims,
     paper_claims_spec,
     run_paper_claims,
     select_variants,
 )
-from symplid.workflow.results import read_json
-from symplid.workflow.sweep import (
+from symplid.workflow._results import read_json
+from symplid.workflow._sweep import (
     SweepError,
     cell_settings,
     load_results,
@@ -224,8 +224,8 @@ _STOPPED_SWEEP = """
 import signal, sys
 signal.signal(signal.SIGINT, signal.default_int_handler)  # not ignored in a background job
 sys.path.insert(0, {tests!r})
-from symplid.studies.paper import EXPERIMENT
-from symplid.workflow.sweep import run_sweep
+from symplid.studies._paper import EXPERIMENT
+from symplid.workflow._sweep import run_sweep
 
 if __name__ == "__main__":
     spec = {{"base": {{"num_iterations": 20, "burn_in": 10}},
@@ -450,7 +450,7 @@ PAPER_METRICS = (
 
 def _has_run_cell() -> bool:
     try:
-        from symplid.studies import paper
+        from symplid.studies import _paper as paper
     except ImportError:
         return False
     return callable(getattr(paper, "run_cell", None))
@@ -458,7 +458,7 @@ def _has_run_cell() -> bool:
 
 @pytest.mark.slow
 @pytest.mark.skipif(
-    not _has_run_cell(), reason="symplid.studies.paper.run_cell not written yet"
+    not _has_run_cell(), reason="symplid.studies._paper.run_cell not written yet"
 )
 def test_paper_run_cell_on_a_two_cell_sweep(tmp_path):
     """The real cell function (quick budget): seed 0, leapfrog and RK2, on 2 local workers."""
@@ -496,8 +496,8 @@ def test_old_num_samples_key_is_read_with_a_future_warning():
 
 
 def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tmp_path):
-    from symplid.workflow.experiment import EXPERIMENTS, Experiment
-    from symplid.workflow.validate import Spec
+    from symplid.workflow._experiment import EXPERIMENTS, Experiment
+    from symplid.workflow._validate import Spec
 
     keys = {
         "seed": Spec(int, 0, "data seed", minimum=0, setting="seed"),
@@ -532,7 +532,8 @@ def test_an_experiment_registered_here_runs_through_run_sweep(shared_cluster, tm
 def test_the_sweep_is_given_its_experiment_and_checks_the_name_the_spec_gives(tmp_path):
     """A spec that names another experiment than the one given is refused before any cell
     runs; one that names none takes the given experiment's keys (here the baselines')."""
-    from symplid.studies import baselines_study, paper
+    from symplid.studies import _baselines_study as baselines_study
+    from symplid.studies import _paper as paper
 
     with pytest.raises(SweepError, match="is 'paper', but the sweep was given the experiment "
                                          "'baselines'"):
@@ -549,9 +550,13 @@ def test_the_sweep_is_given_its_experiment_and_checks_the_name_the_spec_gives(tm
 
 
 def test_register_studies_lists_each_study_once_and_is_idempotent():
-    from symplid.registry import Registry
-    from symplid.studies import STUDIES, baselines_study, paper, register_studies, sbc, shift
-    from symplid.workflow.sweep import get_experiment
+    from symplid._registry import Registry
+    from symplid.studies import STUDIES, register_studies
+    from symplid.studies import _baselines_study as baselines_study
+    from symplid.studies import _paper as paper
+    from symplid.studies import _sbc as sbc
+    from symplid.studies import _shift as shift
+    from symplid.workflow._sweep import get_experiment
 
     assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT,
                        shift.EXPERIMENT)

@@ -23,10 +23,10 @@ import numpy as np
 import pytest
 
 import symplid
-from symplid.dynamics.user_models import build_user_model
-from symplid.model import kernel as compiled_kernel
-from symplid.model import user_kernel
-from symplid.model.user_force import UnsupportedExpression, canonical_text, force_code
+from symplid.dynamics._user_models import build_user_model
+from symplid.model import _kernel as compiled_kernel
+from symplid.model import _user_kernel as user_kernel
+from symplid.model._user_force import UnsupportedExpression, canonical_text, force_code
 
 TIMES = np.array([0.7, 1.5, 2.0, 3.1, 3.6])  # gaps of 3, 4, 2, 5 and 2 substeps at dt = 0.25
 TOL = 1e-10
@@ -184,8 +184,8 @@ def test_two_processes_compile_a_unit_once(tmp_path):
     fake.write_text(_FAKE_COMPILER.format(python=sys.executable, log=str(log)))
     fake.chmod(0o755)
     script = textwrap.dedent("""
-        from symplid.dynamics.user_models import build_user_model
-        from symplid.model import user_force, user_kernel
+        from symplid.dynamics._user_models import build_user_model
+        from symplid.model import _user_force as user_force, _user_kernel as user_kernel
         pot = build_user_model("k*(1-cos(q1))", "potential", 1, ("k",))
         code = user_force.force_code(pot.expression, 1, ("k",))
         print(user_kernel._build(code, "baseline"))

@@ -16,23 +16,23 @@ import numpy as np
 import pytest
 from scipy.integrate import quad, solve_ivp
 
-from symplid.dynamics.hamiltonians import is_hamiltonian
-from symplid.dynamics.separable import SeparablePotential
-from symplid.dynamics.user_models import UserModelError, build_user_model, is_user_model
-from symplid.model.data import Observations
-from symplid.model.priors import HalfNormal, Laplace, LogNormal, Normal
-from symplid.model.truncated import Truncated
-from symplid.workflow.fit import build_model, build_posterior, find_map_for
-from symplid.workflow.model_builder import build_model_family
-from symplid.workflow.settings import (
+from symplid.dynamics._hamiltonians import is_hamiltonian
+from symplid.dynamics._separable import SeparablePotential
+from symplid.dynamics._user_models import UserModelError, build_user_model, is_user_model
+from symplid.model._data import Observations
+from symplid.model._priors import HalfNormal, Laplace, LogNormal, Normal
+from symplid.model._truncated import Truncated
+from symplid.workflow._fit import build_model, build_posterior, find_map_for
+from symplid.workflow._model_builder import build_model_family
+from symplid.workflow._settings import (
     dump_settings,
     load_settings,
     merge_overrides,
     resolve_for_data,
     settings_from_dict,
 )
-from symplid.workflow.settings_schema import prior_spec
-from symplid.workflow.validate import SettingsError
+from symplid.workflow._settings_schema import prior_spec
+from symplid.workflow._validate import SettingsError
 
 KEPLER = "-GM/sqrt(q1^2 + q2^2)"
 LOTKA = "beta*exp(q1) - alpha*q1 + delta*exp(p1) - gamma*p1"
@@ -240,7 +240,7 @@ def test_kinetic_and_parameters_need_a_user_model():
 
 
 def test_a_sweep_cell_sets_a_user_model_by_dotted_keys():
-    from symplid.workflow.sweep_spec import cell_settings
+    from symplid.workflow._sweep_spec import cell_settings
 
     s = cell_settings({"model.potential": "k*(1 - cos(q1))",
                        "model.parameters.k": {"prior": "half-normal", "scale": 5.0},

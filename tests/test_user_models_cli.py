@@ -71,7 +71,7 @@ def test_kepler_orbit_recovers_gm_with_an_interval(workdir):
 
 @pytest.mark.slow
 def test_lotka_volterra_in_log_coordinates(workdir, monkeypatch):
-    from symplid.dynamics import user_models
+    from symplid.dynamics import _user_models as user_models
 
     parsed, parse = [], user_models.parse_expression
     monkeypatch.setattr(user_models, "parse_expression",

@@ -7,11 +7,11 @@ import pytest
 
 import symplid  # noqa: F401  (float64)
 from symplid.inference.map._homotopy import half_normal_start
-from symplid.model.data import Observations
-from symplid.model.prior_spec import PriorSpec
-from symplid.model.priors import LogUniform
-from symplid.model.simulate import simulate
-from symplid.model.variance_prior import data_variance_scale, process_variance_prior
+from symplid.model._data import Observations
+from symplid.model._prior_spec import PriorSpec
+from symplid.model._priors import LogUniform
+from symplid.model._simulate import simulate
+from symplid.model._variance_prior import data_variance_scale, process_variance_prior
 
 
 def test_scale_is_the_mean_component_variance_missing_values_skipped():
@@ -38,9 +38,9 @@ def test_prior_spans_eight_decades_below_the_scale_and_falls_back_on_flat_data()
 
 @pytest.mark.slow
 def test_half_normal_start_only_for_a_log_uniform_sigma_and_inside_its_support():
-    from symplid.dynamics.potentials import Polynomial
-    from symplid.model.posterior import Posterior
-    from symplid.model.statespace import HamiltonianModel
+    from symplid.dynamics._potentials import Polynomial
+    from symplid.model._posterior import Posterior
+    from symplid.model._statespace import HamiltonianModel
 
     obs = simulate("harmonic", noise_std=0.05, seed=1)
     model = HamiltonianModel(Polynomial(1, 2), integrator="leapfrog", dt=0.1)

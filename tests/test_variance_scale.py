@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from scipy.special import digamma
 
-from symplid.inference.diagnostics import import_arviz
-from symplid.inference.samplers.dram import DRAMSettings
+from symplid.inference._diagnostics import import_arviz
+from symplid.inference.samplers._dram import DRAMSettings
 from symplid.sampling import RunOptions, sample
-from symplid.sampling.api import draws_array
-from symplid.workflow.settings import Settings, merge_overrides
+from symplid.sampling._api import draws_array
+from symplid.workflow._settings import Settings, merge_overrides
 
 SHAPE, SCALE = 0.5, 1e-4
 

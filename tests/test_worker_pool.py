@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from symplid.workflow.worker_pool import WorkerPool, post
+from symplid.workflow._worker_pool import WorkerPool, post
 
 WAIT_S = 120.0
 
@@ -102,12 +102,12 @@ def test_one_worker_runs_the_jobs_here_with_the_same_messages(tmp_path):
 def test_fit_hands_over_the_draws_before_writing_them(tmp_path, standardise):
     """Before ``posterior.nc`` exists, with the MAP and the names; in the data's units also
     when the fit ran in standardised coordinates: the very draws then written."""
-    from symplid.dynamics.systems import get_system
-    from symplid.model.simulate import simulate
+    from symplid.dynamics._systems import get_system
+    from symplid.model._simulate import simulate
     from symplid.sampling import draws_array
-    from symplid.workflow.fit import fit
-    from symplid.workflow.results import RunFolder
-    from symplid.workflow.settings import Settings, merge_overrides
+    from symplid.workflow._fit import fit
+    from symplid.workflow._results import RunFolder
+    from symplid.workflow._settings import Settings, merge_overrides
 
     system = get_system("henon-heiles")
     obs = simulate(system, times=5.0 * np.arange(1, 11), noise_std=0.05, seed=1)

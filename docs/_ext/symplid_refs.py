@@ -6,7 +6,7 @@ reference shows the public surface only. With ``nitpicky = True`` each of those 
 warning. This handler resolves such a reference by importing what it names:
 
 * an object documented under another (public) path -> a link to that entry
-  (``symplid.model.posterior.Posterior`` -> ``symplid.Posterior``);
+  (``symplid.model._posterior.Posterior`` -> ``symplid.Posterior``);
 * an object that exists but is not documented -> its name as code, no link;
 * a name that does not exist -> left alone, so Sphinx reports it (a broken reference fails
   the build under ``-W``).
@@ -47,7 +47,7 @@ def _import(path: str) -> Any:
 
 def _candidates(target: str, module: str | None, cls: str | None, source: str) -> list[str]:
     """Where ``target`` may live: relative to the defining object of the docstring that names
-    it (read from the node's source, ``"...:docstring of symplid.model.posterior.Posterior"``),
+    it (read from the node's source, ``"...:docstring of symplid.model._posterior.Posterior"``),
     to the page's current module and class, under any symplid module (a leading dot), or as
     it is."""
     target = target.lstrip("~")

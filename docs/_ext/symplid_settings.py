@@ -1,8 +1,8 @@
 """The ``symplid-settings`` directive: the settings reference, generated from the schema.
 
-Every key of :class:`symplid.workflow.settings_schema.Settings` with its type, default,
+Every key of :class:`symplid.workflow._settings_schema.Settings` with its type, default,
 allowed values and meaning. The meaning is the ``doc`` of the key's
-:func:`~symplid.workflow.validate.setting` (or the attribute docstring written under the
+:func:`~symplid.workflow._validate.setting` (or the attribute docstring written under the
 field); choices that come from a registry are listed as the registry holds them at build time.
 Nothing here is typed by hand: a new key appears, a changed default changes the page.
 """
@@ -37,7 +37,7 @@ def _type(tp: Any) -> str:
 def _allowed(spec: Any) -> str:
     parts = []
     if spec is None:
-        from symplid.model.priors import PRIOR_FAMILIES
+        from symplid.model._priors import PRIOR_FAMILIES
 
         names = ", ".join(f'``"{n}"``' for n in PRIOR_FAMILIES.names())
         return (f"a table ``{{ prior = ..., <its parameters> }}`` (or "
@@ -59,7 +59,7 @@ def _cell(text: str) -> str:
 
 def settings_rst() -> list[str]:
     """A section per settings table, a row per key."""
-    from symplid.workflow import settings_schema as schema
+    from symplid.workflow import _settings_schema as schema
 
     attr_docs = ModuleAnalyzer.for_module(schema.__name__).find_attr_docs()
     lines: list[str] = []

@@ -6,7 +6,7 @@ forces one. A new backend is one registration of a :class:`LikelihoodBackend`: a
 function and the rule for when it applies.
 """
 
-from symplid.filters.backends import LikelihoodBackend
-from symplid.model.backends import LIKELIHOOD_BACKENDS
+from symplid.filters._backends import LikelihoodBackend
+from symplid.model._backends import LIKELIHOOD_BACKENDS
 
 __all__ = ["LIKELIHOOD_BACKENDS", "LikelihoodBackend"]

@@ -5,7 +5,7 @@ consecutive observations (forward Euler, RK4, leapfrog) treat the observed state
 :func:`fit` minimises one of :data:`OBJECTIVES` over a potential's coefficients.
 """
 
-from symplid.inference.baselines import (
+from symplid.inference._baselines import (
     OBJECTIVES,
     Objective,
     Pairs,

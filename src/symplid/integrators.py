@@ -9,7 +9,7 @@ first two carry their method as data (:attr:`Integrator.scheme`, a :class:`Compo
 :class:`ButcherTableau`), checked against the declared order when made.
 """
 
-from symplid.dynamics.integrators import (
+from symplid.dynamics._integrators import (
     INTEGRATORS,
     Dynamics,
     GeneralDynamics,
@@ -18,7 +18,7 @@ from symplid.dynamics.integrators import (
     runge_kutta_integrator,
     symplectic_integrator,
 )
-from symplid.dynamics.schemes import ButcherTableau, Composition
+from symplid.dynamics._schemes import ButcherTableau, Composition
 
 __all__ = [
     "INTEGRATORS",

@@ -6,6 +6,6 @@ filter's update then adds Γ, or Γ + diag(r ∘ E[h∘h]) from the step's momen
 one registration of an :class:`ObservationNoise`.
 """
 
-from symplid.filters.noise import OBSERVATION_NOISE, ObservationNoise, get_observation_noise
+from symplid.filters._noise import OBSERVATION_NOISE, ObservationNoise, get_observation_noise
 
 __all__ = ["OBSERVATION_NOISE", "ObservationNoise", "get_observation_noise"]

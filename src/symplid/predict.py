@@ -6,7 +6,7 @@ X_k = Ψ^k(X_0; θ_Ψ) (Section II-B.2): :func:`predict_trajectory` for one θ (
 :func:`forecast_from_filter` from the filtered state at the end of the data.
 """
 
-from symplid.inference.predict import (
+from symplid.inference._predict import (
     DEFAULT_STORED_POINTS,
     PosteriorPredictive,
     forecast_from_filter,

@@ -6,8 +6,8 @@ per parameter. The families are the registry :data:`PRIOR_FAMILIES` (the setting
 ``family`` names); a new family is a frozen dataclass subclass of :class:`Prior`, registered.
 """
 
-from symplid.model.prior_spec import PriorSpec
-from symplid.model.priors import (
+from symplid.model._prior_spec import PriorSpec
+from symplid.model._priors import (
     PRIOR_FAMILIES,
     HalfNormal,
     Laplace,

@@ -6,7 +6,7 @@ with other parameters (a longer FPU chain, another pendulum). A new system is on
 registration of a factory that returns a :class:`System`.
 """
 
-from symplid.dynamics.systems import (
+from symplid.dynamics._systems import (
     SYSTEMS,
     System,
     damped_pendulum,

@@ -1,14 +1,14 @@
 """Filters: the unscented Kalman filter and its log marginal likelihood (Theorem 1, eqs 10–12).
 
 Layer 2 of the package (above :mod:`symplid.dynamics`): small-matrix linear algebra
-(:mod:`~symplid.filters.linalg`), the unscented transform (:mod:`~symplid.filters.unscented`),
-the Gaussian update and the recursion (:mod:`~symplid.filters.update`), the observation-noise
-models (:mod:`~symplid.filters.noise`) and what a likelihood backend is
-(:mod:`~symplid.filters.backends`; their registry is :mod:`symplid.model.backends`).
+(:mod:`~symplid.filters._linalg`), the unscented transform (:mod:`~symplid.filters._unscented`),
+the Gaussian update and the recursion (:mod:`~symplid.filters._update`), the observation-noise
+models (:mod:`~symplid.filters._noise`) and what a likelihood backend is
+(:mod:`~symplid.filters._backends`; their registry is :mod:`symplid.model._backends`).
 """
 
-from symplid.filters.backends import LikelihoodBackend
-from symplid.filters.linalg import (
+from symplid.filters._backends import LikelihoodBackend
+from symplid.filters._linalg import (
     SMALL_DIM,
     cholesky,
     cholesky_columns,
@@ -16,7 +16,7 @@ from symplid.filters.linalg import (
     solve_lower,
     symmetrize,
 )
-from symplid.filters.unscented import (
+from symplid.filters._unscented import (
     ObservationMoments,
     UnscentedWeights,
     observation_moments_linear,
@@ -26,7 +26,7 @@ from symplid.filters.unscented import (
     unscented_weights,
     weighted_moments,
 )
-from symplid.filters.update import FilterResult, gaussian_update, run_filter
+from symplid.filters._update import FilterResult, gaussian_update, run_filter
 
 __all__ = [
     "SMALL_DIM",

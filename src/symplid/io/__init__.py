@@ -1,6 +1,6 @@
 """Input and output (layer 5): data files (CSV, NPZ) with located, one-line errors."""
 
-from symplid.io.datafiles import (
+from symplid.io._datafiles import (
     Layout,
     column_names,
     observation_kind,
@@ -9,7 +9,7 @@ from symplid.io.datafiles import (
     read_observations,
     write_observations,
 )
-from symplid.io.trajectories import (
+from symplid.io._trajectories import (
     as_list,
     num_trajectories,
     read_trajectories,

@@ -17,7 +17,7 @@ group) and Π e^{s_j} is the Jacobian of v ↦ s.
 The rule
 --------
 1. **Variance parameters** are the entries of θ whose group is a variance group
-   (:data:`~symplid.model.params.POSITIVE_GROUPS`) and that are bounded below only (so
+   (:data:`~symplid.model._params.POSITIVE_GROUPS`) and that are bounded below only (so
    searched on a log scale by the MAP); a variance with an upper bound too stays in c.
    The damping rate γ of a damped model is in that tuple too and is integrated the same way
    (positive, and on data with little friction piled against 0 like a process variance).
@@ -64,7 +64,7 @@ The rule
    node alone, ``g(s̄) + (m/2) log 2π + log|det A|``: the Laplace approximation in (c, s),
    what steps 4–5 give for a Gaussian g. It costs the joint mode, one Hessian and one
    profile fit instead of 100–200 (step 4). It is the screening evidence of the term search
-   (:mod:`symplid.inference.term_search`), which asks of each of ~40 subsets only whether it
+   (:mod:`symplid.inference._term_search`), which asks of each of ~40 subsets only whether it
    is far behind the best. Measured against the brute-force evidence of the oscillator of
    ``tests/test_map_evidence.py``: 0.16 nats (interior) and 0.27 nats (process variance on
    its floor) low, where the Laplace evidence in θ is 0.71 and 1.34 nats off. On
@@ -73,7 +73,7 @@ The rule
    Laplace evidence in θ there: 2.6–4.6 nats below).
 
 A new variance group (e.g. further noise parameters) is integrated as soon as its name is in
-:data:`~symplid.model.params.POSITIVE_GROUPS`: the variances are found by group, not position.
+:data:`~symplid.model._params.POSITIVE_GROUPS`: the variances are found by group, not position.
 """
 
 from __future__ import annotations
@@ -90,10 +90,10 @@ import numpy as np
 import scipy.optimize
 from scipy.special import logsumexp
 
+from symplid._stopping import check as check_stop
 from symplid.inference.map._laplace import laplace_covariance, repaired_eigenvalues, scan_from_bound
 from symplid.inference.map._space import SearchSpace
-from symplid.model.params import POSITIVE_GROUPS
-from symplid.stopping import check as check_stop
+from symplid.model._params import POSITIVE_GROUPS
 
 EVIDENCE_RULES = ("quadrature", "log-laplace")
 """Choices of :func:`quadrature_evidence`'s ``rule`` (module docstring, steps 4–6)."""
@@ -216,7 +216,7 @@ class _Profile:
         penalty = 1e10 + 1e3 * abs(float(self.vg(jnp.asarray(u))[0]))
 
         def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
-            check_stop()  # a safe point (symplid.stopping)
+            check_stop()  # a safe point (symplid._stopping)
             u[self.free] = x
             value, grad = self.vg(jnp.asarray(u))
             value, grad = float(value), np.asarray(grad, dtype=float)[self.free]

@@ -10,7 +10,7 @@ Search space
 Parameters bounded below only (the variances, bound 0) are searched as u = log(θ − a), with the
 bound u ≥ log(``positive_floor``) (default 1e-14, below the filter's 1e-12 jitter, where the
 likelihood no longer changes); parameters in a positive range 0 < a < b < ∞ (a log-uniform
-process variance, :mod:`symplid.model.variance_prior`) as u = log θ within [log a, log b]
+process variance, :mod:`symplid.model._variance_prior`) as u = log θ within [log a, log b]
 (:class:`~symplid.inference.map._space.SearchSpace`); every other parameter is searched as
 itself, with its bounds given to L-BFGS-B. The log scale lets one method handle coefficients of
 order one and variances of order 1e-7. The MAP is a property of the density over θ, so no
@@ -76,7 +76,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.compiled import cached_or_built
+from symplid._compiled import cached_or_built
+from symplid._saved_programs import identity_of, saved_jit
+from symplid._stopping import first_call_waits
 from symplid.inference.map._checks import failure_message, is_optimum, judge, model_free_noise
 from symplid.inference.map._data_start import data_start
 from symplid.inference.map._evidence import EvidenceSettings, quadrature_evidence
@@ -103,9 +105,7 @@ from symplid.inference.map._starts import (
     scaled_start,
     warn_optima,
 )
-from symplid.model.params import ParameterSpace
-from symplid.saved_programs import identity_of, saved_jit
-from symplid.stopping import first_call_waits
+from symplid.model._params import ParameterSpace
 
 Array = jax.Array
 EVIDENCE_METHODS = ("quadrature", "laplace", "log-laplace")
@@ -128,7 +128,7 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
         def with_data(_, theta):
             return log_density(theta)
 
-    # what the programs close over, for their saved copies (symplid.saved_programs)
+    # what the programs close over, for their saved copies (symplid._saved_programs)
     identity = identity_of(posterior)
 
     def build_value_and_grad() -> Callable:
@@ -138,7 +138,7 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
         bounds = (space.log, space.log_box, space.lower, space.upper, space.floor)
         vg = saved_jit(jax.value_and_grad(negative_u), "map-value-and-grad",
                        None if identity is None else (identity, bounds))
-        # the first call compiles: a stop asked for meanwhile is obeyed (symplid.stopping)
+        # the first call compiles: a stop asked for meanwhile is obeyed (symplid._stopping)
         return first_call_waits(lambda u: vg(u, data))
 
     key = ("map-search", space.log.tobytes(), space.lower.tobytes())
@@ -173,7 +173,7 @@ def find_map(
     Parameters
     ----------
     posterior
-        A :class:`~symplid.model.posterior.Posterior`, or any object with ``num_params``,
+        A :class:`~symplid.model._posterior.Posterior`, or any object with ``num_params``,
         ``param_names``, ``lower``, ``upper`` and a JAX ``log_density(theta)``.
     seed
         Seed of the perturbed starts (start k uses ``fold_in(key(seed), k)``).
@@ -198,7 +198,7 @@ def find_map(
         in the other parameters (:mod:`symplid.inference.map._evidence`); ``"laplace"``: the
         Laplace evidence only (no extra fits); ``"log-laplace"``: the Laplace approximation
         in the coefficients and the log-variances at their joint mode (one fit, no grid; the
-        screening evidence of :mod:`symplid.inference.term_search`). The Laplace value is
+        screening evidence of :mod:`symplid.inference._term_search`). The Laplace value is
         always recorded.
     warn
         Warn (:class:`BoundWarning`) when the MAP is on a bound, and
@@ -303,7 +303,7 @@ def _quadrature(fns: dict[str, Callable], space: SearchSpace, groups: tuple[str,
                 names: tuple[str, ...], theta: np.ndarray,
                 laplace: float, rule: str, raised: np.ndarray
                 ) -> tuple[float, str, dict[str, Any]]:
-    """(log evidence, method, details) by :func:`~.evidence.quadrature_evidence` (``rule``
+    """(log evidence, method, details) by :func:`~._evidence.quadrature_evidence` (``rule``
     "quadrature" or "log-laplace"); the Laplace value when θ has no variance to integrate or
     the quadrature fails."""
     found = quadrature_evidence(fns["value_and_grad"], fns["hessian"], space, groups, names,

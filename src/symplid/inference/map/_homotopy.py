@@ -1,7 +1,7 @@
 """Where the MAP search of a model without process noise starts: from the filter's MAP.
 
 The deterministic-trajectory likelihood (``process_noise_per="none"``,
-:mod:`symplid.model.deterministic`) compares the data with one integrated path. On a long
+:mod:`symplid.model._deterministic`) compares the data with one integrated path. On a long
 record of a nearly chaotic system that path depends so sharply on the coefficients that the
 likelihood is rugged far from the answer: started from zero coefficients, a quasi-Newton
 search stops in a local optimum (on the paper's Hénon–Heiles data, 20 observations over 100 s:
@@ -23,7 +23,7 @@ import numpy as np
 
 from symplid.inference.map._checks import removes_dynamics
 from symplid.inference.map._find import find_map
-from symplid.model.priors import HalfNormal, LogUniform
+from symplid.model._priors import HalfNormal, LogUniform
 
 __all__ = ["filter_start", "half_normal_start", "with_process_noise", "without_process_var"]
 
@@ -55,8 +55,8 @@ def filter_start(posterior: Any, seed: int = 0, num_starts: int = 4,
     Parameters
     ----------
     posterior
-        A :class:`~symplid.model.posterior.Posterior` (its model a
-        :class:`~symplid.model.statespace.HamiltonianModel`).
+        A :class:`~symplid.model._posterior.Posterior` (its model a
+        :class:`~symplid.model._statespace.HamiltonianModel`).
     seed, num_starts
         The filter's MAP search (:func:`~symplid.inference.map.find_map`).
     init
@@ -78,7 +78,7 @@ def half_normal_start(posterior: Any, seed: int = 0, num_starts: int = 4,
     """The first MAP start of a posterior whose process variance has a log-uniform prior:
     the MAP under the paper's HalfNormal(1) on Σ, Σ moved into the log-uniform's support.
 
-    The log-uniform prior (:mod:`symplid.model.variance_prior`) pulls Σ towards its lower
+    The log-uniform prior (:mod:`symplid.model._variance_prior`) pulls Σ towards its lower
     end, where the filter is nearly deterministic and the likelihood of a long chaotic record
     as rugged as without process noise: a search from the default start (Σ at the data's
     variance) lets Σ collapse before the coefficients are right and stops in a local optimum

@@ -45,8 +45,8 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+from symplid._saved_programs import saved_jit
 from symplid.inference.map._space import SearchSpace
-from symplid.saved_programs import saved_jit
 
 _LOG_2PI = math.log(2.0 * math.pi)
 EIGEN_FLOOR = 1e-12
@@ -164,7 +164,7 @@ class LowOptimisationJit:
     optimisation level 0 it compiles in about half the time (same numbers to ~1e-12). Falls
     back to a plain ``jax.jit`` if the backend rejects the options. With an ``identity`` (what
     ``fn`` closes over), its program is saved for later processes
-    (:func:`symplid.saved_programs.saved_jit`).
+    (:func:`symplid._saved_programs.saved_jit`).
     """
 
     OPTIONS: dict[str, Any] = {  # noqa: RUF012

@@ -2,12 +2,12 @@
 
 :func:`~symplid.inference.map.find_map` runs L-BFGS-B from several starts and takes the exact
 autodiff Hessian: right for a polynomial's nine coefficients, too costly for an MLP's thousand
-weights. Here, for the same :class:`~symplid.model.posterior.Posterior` (eq. 8: the prior times
+weights. Here, for the same :class:`~symplid.model._posterior.Posterior` (eq. 8: the prior times
 the UKF marginal likelihood of Theorem 1):
 
 **MAP** by Optax: Adam for ``adam_steps`` steps, then optionally ``optax.lbfgs`` (with its
 zoom line search) to polish. The search runs in the posterior's unconstrained space z
-(:meth:`~symplid.model.posterior.Posterior.to_unconstrained`: the variances by their logarithm,
+(:meth:`~symplid.model._posterior.Posterior.to_unconstrained`: the variances by their logarithm,
 the weights unchanged), so no step leaves the support. The weights' prior is the posterior's
 coefficient prior; :func:`neural_posterior` builds the usual Gaussian one, Normal(0, s).
 
@@ -48,12 +48,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from symplid.compiled import cached
+from symplid._compiled import cached
+from symplid._stopping import check as check_stop
 from symplid.inference.map._find import default_start
 from symplid.inference.map._result import MapResult, StartResult
-from symplid.model.posterior import Posterior
-from symplid.model.priors import Normal
-from symplid.stopping import check as check_stop
+from symplid.model._posterior import Posterior
+from symplid.model._priors import Normal
 
 Array = jax.Array
 
@@ -225,7 +225,7 @@ def _run_adam(optax: Any, posterior: Posterior, z: Array, steps: int, learning_r
     state = opt.init(z)
     best_z, best = z, np.inf
     for _ in range(steps):
-        check_stop()  # a safe point between steps (symplid.stopping)
+        check_stop()  # a safe point between steps (symplid._stopping)
         value, grad = value_and_grad(z)
         value = -float(value)
         if not np.isfinite(value):

@@ -16,10 +16,10 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
+from symplid._stopping import check as check_stop
 from symplid.inference.map._laplace import newton_decrement, newton_step
 from symplid.inference.map._result import StartResult
 from symplid.inference.map._space import SearchSpace
-from symplid.stopping import check as check_stop
 
 
 class Objective:
@@ -72,7 +72,7 @@ def run_start(theta0: np.ndarray, objective: Objective, options: dict[str, Any])
     bounds = space.bounds()
 
     def fun(u: np.ndarray) -> tuple[float, np.ndarray]:
-        check_stop()  # a safe point: a requested stop (symplid.stopping) ends the search here
+        check_stop()  # a safe point: a requested stop (symplid._stopping) ends the search here
         value, grad = value_and_grad(jnp.asarray(u))
         value = float(value)
         grad = np.asarray(grad, dtype=float)

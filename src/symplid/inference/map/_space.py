@@ -1,7 +1,7 @@
 """The MAP search's own space: θ ↔ u, where L-BFGS-B moves.
 
 The MAP is the only consumer of this space, so it lives with the MAP. It is one selection of
-θ's :class:`~symplid.model.params.Reparameterisation` (the entries bounded below only, searched
+θ's :class:`~symplid.model._params.Reparameterisation` (the entries bounded below only, searched
 as log(θ − a) with a floor) plus the log scale for positive ranges, which only the search uses.
 """
 
@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from symplid.model.params import ParameterSpace, Reparameterisation
+from symplid.model._params import ParameterSpace, Reparameterisation
 
 __all__ = ["BOX_MARGIN", "SearchSpace"]
 
@@ -31,7 +31,7 @@ class SearchSpace:
     the identity, within the bounds, for the others.
 
     Why log θ for a positive range: a log-uniform process variance spans eight decades
-    (:mod:`symplid.model.variance_prior`). Searched as itself, its gradient is of order 1/a
+    (:mod:`symplid.model._variance_prior`). Searched as itself, its gradient is of order 1/a
     (about 1e9) next to coefficients of order one: L-BFGS-B's curvature pairs are then
     dominated by that one coordinate and it stops on "relative reduction" with the other
     parameters still moving, and a bound tolerance in θ (1e-8) would call anything below 1e-8

@@ -8,14 +8,15 @@ rule, progress, resumption and :func:`symplid.sampling.sample`) drives any such 
 Adding a sampler is one registration in :data:`SAMPLERS`: a :class:`SamplerSpec` with the
 settings class and a ``build(posterior, settings, num_warmup, batch_logdensity)`` that returns
 a :class:`SamplerKernel` (``init_states``, ``step``, ``record``, ``final_attrs``); see
-:mod:`symplid.inference.samplers.registry`. ``sample``, the settings file, the command line
+:mod:`symplid.inference.samplers._registry`. ``sample``, the settings file, the command line
 and the sweeps then offer it by name.
 """
 
-from symplid.inference.samplers import dram, nuts
-from symplid.inference.samplers.dram import DRAMInfo, DRAMSettings, DRAMState
-from symplid.inference.samplers.nuts import NUTSSettings, NUTSState
-from symplid.inference.samplers.registry import SAMPLERS, DataStep, SamplerKernel, SamplerSpec
+from symplid.inference.samplers import _dram as dram
+from symplid.inference.samplers import _nuts as nuts
+from symplid.inference.samplers._dram import DRAMInfo, DRAMSettings, DRAMState
+from symplid.inference.samplers._nuts import NUTSSettings, NUTSState
+from symplid.inference.samplers._registry import SAMPLERS, DataStep, SamplerKernel, SamplerSpec
 
 __all__ = [
     "SAMPLERS",
