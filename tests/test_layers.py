@@ -30,6 +30,7 @@ LAYERS = {
     "_registry": 0,
     "_compiled": 0,
     "_jsonfloat": 0,
+    "_namespace": 0,  # the lazy tables of the public namespaces
     "_kernel_region": 0,
     "runtime": 0,
     "_stopping": 0,

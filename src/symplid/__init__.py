@@ -21,12 +21,11 @@ at once; otherwise ``JAX_ENABLE_X64`` is set, which JAX reads when it starts, so
 
 from __future__ import annotations
 
-import importlib
 import os
 import sys
-from typing import Any
 
 from symplid import runtime
+from symplid._namespace import lazy_attributes
 
 runtime.configure_xla()  # must run before JAX starts its backend
 
@@ -84,9 +83,10 @@ _PUBLIC = {
     "HamiltonianModel": "symplid.model._statespace",
 }
 #: The public namespaces (``symplid.priors``, ...): modules whose ``__all__`` is public too, under
-#: the namespace's path (``symplid.priors.Prior``). Most are thin modules beside this file that
-#: re-export names from the layers. The docs' API reference and ``tests/test_public_surface.py``
-#: read the whole surface from ``__all__`` below and these modules' ``__all__``.
+#: the namespace's path (``symplid.priors.Prior``). Most are thin modules beside this file, each
+#: a table like ``_PUBLIC`` of the names it shows from the layers (``symplid._namespace``). The
+#: docs' API reference and ``tests/test_public_surface.py`` read the whole surface from
+#: ``__all__`` below and these modules' ``__all__``.
 _NAMESPACES = (
     "backends",
     "baselines",
@@ -102,20 +102,9 @@ _NAMESPACES = (
 )
 
 
-def __getattr__(name: str) -> Any:
-    if name in _NAMESPACES:
-        value = importlib.import_module(f"symplid.{name}")
-    elif name in _PUBLIC:
-        value = getattr(importlib.import_module(_PUBLIC[name]), name)
-    else:
-        raise AttributeError(f"module 'symplid' has no attribute {name!r}")
-    globals()[name] = value  # later look-ups skip this function
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
-
+__getattr__, __dir__ = lazy_attributes(
+    globals(), _PUBLIC, {name: f"symplid.{name}" for name in _NAMESPACES}
+)
 
 __version__ = "0.1.0"
 

@@ -6,7 +6,13 @@ forces one. A new backend is one registration of a :class:`LikelihoodBackend`: a
 function and the rule for when it applies.
 """
 
-from symplid.filters._backends import LikelihoodBackend
-from symplid.model._backends import LIKELIHOOD_BACKENDS
+from symplid._namespace import lazy_attributes
 
-__all__ = ["LIKELIHOOD_BACKENDS", "LikelihoodBackend"]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "LIKELIHOOD_BACKENDS": "symplid.model._backends",
+    "LikelihoodBackend": "symplid.filters._backends",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC)
+
+__all__ = [*_PUBLIC]

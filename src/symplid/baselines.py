@@ -5,13 +5,17 @@ consecutive observations (forward Euler, RK4, leapfrog) treat the observed state
 :func:`fit` minimises one of :data:`OBJECTIVES` over a potential's coefficients.
 """
 
-from symplid.inference._baselines import (
-    OBJECTIVES,
-    Objective,
-    Pairs,
-    fit,
-    loss_function,
-    step_objective,
-)
+from symplid._namespace import lazy_attributes
 
-__all__ = ["OBJECTIVES", "Objective", "Pairs", "fit", "loss_function", "step_objective"]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "OBJECTIVES": "symplid.inference._baselines",
+    "Objective": "symplid.inference._baselines",
+    "Pairs": "symplid.inference._baselines",
+    "fit": "symplid.inference._baselines",
+    "loss_function": "symplid.inference._baselines",
+    "step_objective": "symplid.inference._baselines",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC)
+
+__all__ = [*_PUBLIC]

@@ -9,25 +9,20 @@ first two carry their method as data (:attr:`Integrator.scheme`, a :class:`Compo
 :class:`ButcherTableau`), checked against the declared order when made.
 """
 
-from symplid.dynamics._integrators import (
-    INTEGRATORS,
-    Dynamics,
-    GeneralDynamics,
-    Integrator,
-    get_integrator,
-    runge_kutta_integrator,
-    symplectic_integrator,
-)
-from symplid.dynamics._schemes import ButcherTableau, Composition
+from symplid._namespace import lazy_attributes
 
-__all__ = [
-    "INTEGRATORS",
-    "ButcherTableau",
-    "Composition",
-    "Dynamics",
-    "GeneralDynamics",
-    "Integrator",
-    "get_integrator",
-    "runge_kutta_integrator",
-    "symplectic_integrator",
-]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "INTEGRATORS": "symplid.dynamics._integrators",
+    "ButcherTableau": "symplid.dynamics._schemes",
+    "Composition": "symplid.dynamics._schemes",
+    "Dynamics": "symplid.dynamics._integrators",
+    "GeneralDynamics": "symplid.dynamics._integrators",
+    "Integrator": "symplid.dynamics._integrators",
+    "get_integrator": "symplid.dynamics._integrators",
+    "runge_kutta_integrator": "symplid.dynamics._integrators",
+    "symplectic_integrator": "symplid.dynamics._integrators",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC)
+
+__all__ = [*_PUBLIC]

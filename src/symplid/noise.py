@@ -6,6 +6,14 @@ filter's update then adds Γ, or Γ + diag(r ∘ E[h∘h]) from the step's momen
 one registration of an :class:`ObservationNoise`.
 """
 
-from symplid.filters._noise import OBSERVATION_NOISE, ObservationNoise, get_observation_noise
+from symplid._namespace import lazy_attributes
 
-__all__ = ["OBSERVATION_NOISE", "ObservationNoise", "get_observation_noise"]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "OBSERVATION_NOISE": "symplid.filters._noise",
+    "ObservationNoise": "symplid.filters._noise",
+    "get_observation_noise": "symplid.filters._noise",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC)
+
+__all__ = [*_PUBLIC]

@@ -6,24 +6,19 @@ X_k = Ψ^k(X_0; θ_Ψ) (Section II-B.2): :func:`predict_trajectory` for one θ (
 :func:`forecast_from_filter` from the filtered state at the end of the data.
 """
 
-from symplid.inference._predict import (
-    DEFAULT_STORED_POINTS,
-    PosteriorPredictive,
-    forecast_from_filter,
-    hamiltonian_along,
-    posterior_predictive,
-    predict_trajectory,
-    prediction_horizon,
-    time_grid,
-)
+from symplid._namespace import lazy_attributes
 
-__all__ = [
-    "DEFAULT_STORED_POINTS",
-    "PosteriorPredictive",
-    "forecast_from_filter",
-    "hamiltonian_along",
-    "posterior_predictive",
-    "predict_trajectory",
-    "prediction_horizon",
-    "time_grid",
-]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "DEFAULT_STORED_POINTS": "symplid.inference._predict",
+    "PosteriorPredictive": "symplid.inference._predict",
+    "forecast_from_filter": "symplid.inference._predict",
+    "hamiltonian_along": "symplid.inference._predict",
+    "posterior_predictive": "symplid.inference._predict",
+    "predict_trajectory": "symplid.inference._predict",
+    "prediction_horizon": "symplid.inference._predict",
+    "time_grid": "symplid.inference._predict",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC)
+
+__all__ = [*_PUBLIC]

@@ -6,30 +6,22 @@ per parameter. The families are the registry :data:`PRIOR_FAMILIES` (the setting
 ``family`` names); a new family is a frozen dataclass subclass of :class:`Prior`, registered.
 """
 
-from symplid.model._prior_spec import PriorSpec
-from symplid.model._priors import (
-    PRIOR_FAMILIES,
-    HalfNormal,
-    Laplace,
-    LogNormal,
-    Normal,
-    Prior,
-    Uniform,
-    as_prior,
-    parse_prior,
-    prior_from_dict,
-)
+from symplid._namespace import lazy_attributes
 
-__all__ = [
-    "PRIOR_FAMILIES",
-    "HalfNormal",
-    "Laplace",
-    "LogNormal",
-    "Normal",
-    "Prior",
-    "PriorSpec",
-    "Uniform",
-    "as_prior",
-    "parse_prior",
-    "prior_from_dict",
-]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "PRIOR_FAMILIES": "symplid.model._priors",
+    "HalfNormal": "symplid.model._priors",
+    "Laplace": "symplid.model._priors",
+    "LogNormal": "symplid.model._priors",
+    "Normal": "symplid.model._priors",
+    "Prior": "symplid.model._priors",
+    "PriorSpec": "symplid.model._prior_spec",
+    "Uniform": "symplid.model._priors",
+    "as_prior": "symplid.model._priors",
+    "parse_prior": "symplid.model._priors",
+    "prior_from_dict": "symplid.model._priors",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC)
+
+__all__ = [*_PUBLIC]

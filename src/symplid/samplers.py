@@ -9,50 +9,35 @@ registration of a :class:`SamplerSpec` whose ``build`` returns a :class:`Sampler
 :class:`Targets` (bulk and tail ESS, R-hat) or a cap.
 """
 
-from symplid.inference.samplers import (
-    SAMPLERS,
-    DRAMInfo,
-    DRAMSettings,
-    DRAMState,
-    NUTSSettings,
-    NUTSState,
-    SamplerKernel,
-    SamplerSpec,
-)
-from symplid.inference.samplers import dram as dram  # the old paths symplid.samplers.dram, .nuts
-from symplid.inference.samplers import nuts as nuts
-from symplid.sampling import (
-    ChainRun,
-    ChunkReport,
-    InterruptedInBurnIn,
-    RunOptions,
-    SamplerCheckpoint,
-    SamplingInterrupted,
-    Targets,
-    draws_array,
-    overdispersed_starts,
-    run_chains,
-    sample,
-)
+from symplid._namespace import lazy_attributes
 
-__all__ = [
-    "SAMPLERS",
-    "ChainRun",
-    "ChunkReport",
-    "DRAMInfo",
-    "DRAMSettings",
-    "DRAMState",
-    "InterruptedInBurnIn",
-    "NUTSSettings",
-    "NUTSState",
-    "RunOptions",
-    "SamplerCheckpoint",
-    "SamplerKernel",
-    "SamplerSpec",
-    "SamplingInterrupted",
-    "Targets",
-    "draws_array",
-    "overdispersed_starts",
-    "run_chains",
-    "sample",
-]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "SAMPLERS": "symplid.inference.samplers",
+    "ChainRun": "symplid.sampling",
+    "ChunkReport": "symplid.sampling",
+    "DRAMInfo": "symplid.inference.samplers",
+    "DRAMSettings": "symplid.inference.samplers",
+    "DRAMState": "symplid.inference.samplers",
+    "InterruptedInBurnIn": "symplid.sampling",
+    "NUTSSettings": "symplid.inference.samplers",
+    "NUTSState": "symplid.inference.samplers",
+    "RunOptions": "symplid.sampling",
+    "SamplerCheckpoint": "symplid.sampling",
+    "SamplerKernel": "symplid.inference.samplers",
+    "SamplerSpec": "symplid.inference.samplers",
+    "SamplingInterrupted": "symplid.sampling",
+    "Targets": "symplid.sampling",
+    "draws_array": "symplid.sampling",
+    "overdispersed_starts": "symplid.sampling",
+    "run_chains": "symplid.sampling",
+    "sample": "symplid.sampling",
+}
+#: Modules that were reachable here before (old paths; not in ``__all__``).
+_MODULES = {
+    "dram": "symplid.inference.samplers._dram",
+    "nuts": "symplid.inference.samplers._nuts",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC, _MODULES)
+
+__all__ = [*_PUBLIC]

@@ -6,26 +6,20 @@ with other parameters (a longer FPU chain, another pendulum). A new system is on
 registration of a factory that returns a :class:`System`.
 """
 
-from symplid.dynamics._systems import (
-    SYSTEMS,
-    System,
-    damped_pendulum,
-    double_pendulum,
-    double_well,
-    fpu_chain,
-    get_system,
-    harmonic,
-    henon_heiles,
-)
+from symplid._namespace import lazy_attributes
 
-__all__ = [
-    "SYSTEMS",
-    "System",
-    "damped_pendulum",
-    "double_pendulum",
-    "double_well",
-    "fpu_chain",
-    "get_system",
-    "harmonic",
-    "henon_heiles",
-]
+#: The public names: name -> the module that defines it, imported on first use.
+_PUBLIC = {
+    "SYSTEMS": "symplid.dynamics._systems",
+    "System": "symplid.dynamics._systems",
+    "damped_pendulum": "symplid.dynamics._systems",
+    "double_pendulum": "symplid.dynamics._systems",
+    "double_well": "symplid.dynamics._systems",
+    "fpu_chain": "symplid.dynamics._systems",
+    "get_system": "symplid.dynamics._systems",
+    "harmonic": "symplid.dynamics._systems",
+    "henon_heiles": "symplid.dynamics._systems",
+}
+__getattr__, __dir__ = lazy_attributes(globals(), _PUBLIC)
+
+__all__ = [*_PUBLIC]
