@@ -30,6 +30,7 @@ LAYERS = {
     "_registry": 0,
     "_compiled": 0,
     "_jsonfloat": 0,
+    "_moved": 0,  # the old paths of the private modules (an import hook)
     "_namespace": 0,  # the lazy tables of the public namespaces
     "_kernel_region": 0,
     "runtime": 0,

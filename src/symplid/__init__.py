@@ -24,10 +24,11 @@ from __future__ import annotations
 import os
 import sys
 
-from symplid import runtime
+from symplid import _moved, runtime
 from symplid._namespace import lazy_attributes
 
 runtime.configure_xla()  # must run before JAX starts its backend
+_moved.install()  # the old paths of the internal modules, for one version
 
 if "jax" in sys.modules:
     sys.modules["jax"].config.update("jax_enable_x64", True)
