@@ -34,6 +34,7 @@ from symplid.studies._paper_study import (
 from symplid.workflow._results import read_json
 from symplid.workflow._sweep import (
     SweepError,
+    _write_manifest,
     cell_settings,
     load_results,
     load_sweep_spec,
@@ -41,6 +42,8 @@ from symplid.workflow._sweep import (
     sweep_spec_from_dict,
     worker_environment,
 )
+from symplid.workflow._sweep_results import MANIFEST
+from symplid.workflow._sweep_tasks import same_cell_fn
 
 TESTS_DIR = Path(__file__).resolve().parent
 SMALL = {"base": {"num_iterations": 20, "burn_in": 10}}
@@ -180,6 +183,21 @@ def test_rerun_skips_finished_cells(four_cells):
 def test_another_cell_function_in_the_same_folder_is_refused(four_cells):
     with pytest.raises(SweepError, match="cell_fn 'sweep_cells:loglik_cell'"):
         run_sweep(four_cells.spec, four_cells.out, cell_fn="sweep_cells:flaky_cell")
+
+
+def test_a_folder_of_the_previous_version_names_the_same_cell_function(tmp_path):
+    """A manifest written before the modules became private names the study's cell function
+    by its old path: the same function, so the folder is resumed, not refused."""
+    old = "symplid.studies.paper:run_cell"
+    assert same_cell_fn(old, "symplid.studies._paper:run_cell")
+    assert not same_cell_fn(old, "symplid.studies._paper:cell_data")
+    assert not same_cell_fn("sweep_cells:loglik_cell", "sweep_cells:flaky_cell")
+    spec = sweep_spec_from_dict(_small_spec(), "<test>")
+    (tmp_path / MANIFEST).write_text(json.dumps({"cell_fn": old}), encoding="utf-8")
+    _write_manifest(tmp_path, spec, "symplid.studies._paper:run_cell")
+    assert read_json(tmp_path / MANIFEST)["cell_fn"] == "symplid.studies._paper:run_cell"
+    with pytest.raises(SweepError, match="not 'sweep_cells:loglik_cell'"):
+        _write_manifest(tmp_path, spec, "sweep_cells:loglik_cell")
 
 
 def test_failing_cell_is_recorded_and_retried(shared_cluster, tmp_path):

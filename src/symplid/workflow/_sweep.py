@@ -105,6 +105,7 @@ from symplid.workflow._sweep_tasks import (
     execute_cells,
     require_sweep_modules,
     resolve_cell_fn,
+    same_cell_fn,
     worker_environment,
 )
 
@@ -292,7 +293,8 @@ def _write_manifest(out: Path, spec: SweepSpec, fn_name: str) -> None:
             old = read_json(path)
         except Exception:
             old = {}
-        if isinstance(old, dict) and old.get("cell_fn") not in (None, fn_name):
+        previous = old.get("cell_fn") if isinstance(old, dict) else None
+        if previous is not None and not same_cell_fn(previous, fn_name):
             raise SweepError(
                 str(path),
                 None,

@@ -35,6 +35,7 @@ __all__ = [
     "execute_cells",
     "require_sweep_modules",
     "resolve_cell_fn",
+    "same_cell_fn",
     "worker_environment",
 ]
 
@@ -76,6 +77,17 @@ def resolve_cell_fn(cell_fn: str | Callable[[dict], Mapping[str, Any]]) -> Calla
     if not callable(fn):
         raise ValueError(f"cell_fn {cell_fn!r}: {module_name!r} has no function {attr!r}")
     return fn
+
+
+def same_cell_fn(a: str, b: str) -> bool:
+    """Whether two ``"module:function"`` names are one cell function: equal, or one names
+    its module by the path it had before the package's modules became private
+    (``symplid.studies.paper:run_cell`` for ``symplid.studies._paper:run_cell``), as a sweep
+    folder written by the previous version does."""
+    def public(name: str) -> str:
+        module, _, function = name.partition(":")
+        return ".".join(part.removeprefix("_") for part in module.split(".")) + ":" + function
+    return a == b or public(a) == public(b)
 
 
 def cell_fn_name(cell_fn: str | Callable) -> str:
