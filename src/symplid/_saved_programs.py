@@ -242,6 +242,11 @@ class _SavedJit:
             self._last = (sig, program)
         return self._last[1](*args, **kwargs)
 
+    def lower(self, *args: Any, **kwargs: Any) -> Any:
+        """The program lowered as ``jax.jit`` lowers it (saved or not, it is this program):
+        what a caller inspects, e.g. that data reach it as an argument, not as constants."""
+        return self._plain.lower(*args, **kwargs)
+
     def _jit(self, fn: Callable, **options: Any) -> Callable:
         import jax
 
