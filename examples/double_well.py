@@ -10,7 +10,7 @@ What it shows
    2..5 of U(q) ranked by the Laplace evidence. The true U = −½q² + ¼q⁴ needs the quartic
    term: orders 2 and 3 have one well and lose by tens of nats; order 5 fits as well as 4 but
    pays an Occam factor for its unneeded q⁵ coefficient.
-3. A fit of order 4 from the settings file (:func:`symplid.workflow._fit.fit`): MAP, Laplace sd and
+3. A fit of order 4 from the settings file (:func:`symplid.workflow.fit`): MAP, Laplace sd and
    a short DRAM run, with the **initial state learned** with θ (its prior centred on the
    first observation, which lacks p here).
 4. Figures: ``compare.png`` (log evidence by order), ``potential.png`` (learned U(q) with its
@@ -39,9 +39,7 @@ from symplid.io import read_observations
 from symplid.plotting import plot_predictive, save_figure
 from symplid.predict import posterior_predictive
 from symplid.samplers import draws_array
-from symplid.workflow._compare import compare_models, format_table
-from symplid.workflow._fit import fit
-from symplid.workflow._settings import load_settings
+from symplid.workflow import compare_models, fit, format_table, load_settings
 
 SETTINGS = """\
 # Settings shared by the comparison and the fit (every key not given takes its default).

@@ -230,18 +230,20 @@ def _shown_paths() -> set[str]:
 
 
 def _resolve(path: str) -> bool:
+    """Whether a shown path resolves as a user's import would: each part an attribute of the
+    last (a public namespace's name) or else a submodule of it, from the top down (so a
+    name a namespace exports wins over an old module path of the same spelling)."""
     parts = path.split(".")
-    for cut in range(len(parts), 0, -1):
-        try:
-            obj = importlib.import_module(".".join(parts[:cut]))
-        except ImportError:
-            continue
-        for attr in parts[cut:]:
-            if not hasattr(obj, attr):
-                return False
+    obj = importlib.import_module(parts[0])
+    for i, attr in enumerate(parts[1:], start=1):
+        if hasattr(obj, attr):
             obj = getattr(obj, attr)
-        return True
-    return False
+            continue
+        try:
+            obj = importlib.import_module(".".join(parts[:i + 1]))
+        except ImportError:
+            return False
+    return True
 
 
 def test_import_paths_shown_to_users_still_work():

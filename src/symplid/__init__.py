@@ -100,6 +100,7 @@ _NAMESPACES = (
     "runtime",
     "samplers",
     "systems",
+    "workflow",
 )
 
 
