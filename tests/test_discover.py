@@ -21,11 +21,12 @@ from click.testing import CliRunner
 from scipy.integrate import solve_ivp
 
 import symplid
+import symplid.workflow._discover as discover_module
 from symplid.cli import main
 from symplid.inference._term_search import SubsetFit, TermSearch, log_size_prior
 from symplid.inference.map import find_map
 from symplid.io import write_observations
-from symplid.workflow._discover import discover
+from symplid.workflow._discover import discover, library_step
 from symplid.workflow._fit import build_model, build_posterior
 from symplid.workflow._settings import Settings, merge_overrides, resolve_for_data
 from symplid.workflow._term_library import LibraryError, parse_terms, term_library
@@ -211,3 +212,28 @@ def test_cli_bad_terms_end_in_one_line(tmp_path, well):
         err = result.stderr.strip()
         assert err.count("\n") == 0 and err.startswith("symplid: error:"), err
         assert word in err
+
+
+def test_library_step_falls_back_to_the_fixed_step_when_the_search_fails(monkeypatch):
+    """A library whose step search fails (its unneeded coefficients at the Laplace prior's
+    kink) is searched at min(smallest gap, 0.25), with one warning; a search that succeeds
+    gives its own step."""
+    from symplid.inference.map import MapFailedError
+
+    settings = merge_overrides(Settings(), {"model.dt": "auto"})
+    for gap, expected in ((5.0, 0.25), (0.1, 0.1)):
+        obs = symplid.Observations(gap * np.arange(1.0, 9.0), np.zeros((8, 2)), ("q1", "p1"))
+
+        def failing(*args, **kwargs):
+            raise MapFailedError("the best point is not a maximum")
+
+        monkeypatch.setattr(discover_module, "choose_step", failing)
+        with pytest.warns(UserWarning, match="not a maximum.*unchecked"):
+            chosen = library_step(settings, obs)
+        assert chosen.model.dt == pytest.approx(expected)
+
+        class Chosen:
+            settings = merge_overrides(Settings(), {"model.dt": 0.0625})
+
+        monkeypatch.setattr(discover_module, "choose_step", lambda *a, **k: Chosen)
+        assert library_step(settings, obs).model.dt == 0.0625

@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,11 +43,11 @@ from symplid.model._data import Observations
 from symplid.workflow._compare import resolve_all
 from symplid.workflow._fit import build_model, build_posterior, find_map_for, fit
 from symplid.workflow._settings import Settings
-from symplid.workflow._step_size import choose_step
+from symplid.workflow._step_size import UNSEARCHED_STEP, choose_step, smallest_gap
 from symplid.workflow._term_library import TermLibrary, term_library
 
-__all__ = ["Discovery", "discover", "format_terms", "report_text", "subsets_table", "terms_table",
-           "write_discovery"]
+__all__ = ["Discovery", "discover", "format_terms", "library_step", "report_text", "subsets_table",
+           "terms_table", "write_discovery"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,29 @@ def _as_list(obs: Observations | Sequence[Observations]) -> list[Observations]:
     if not items or not all(isinstance(o, Observations) for o in items):
         raise TypeError("obs must be an Observations or a non-empty list of them")
     return items
+
+
+def library_step(settings: Settings, data: Any) -> Settings:
+    """``model.dt = "auto"`` for a term search: the step chosen on the whole library's model
+    (:func:`~symplid.workflow._step_size.choose_step`), which every subset then uses.
+
+    The whole library can be a posterior the step search cannot work on: its unneeded
+    coefficients sit at the kink of their Laplace prior at 0, where a refit's Hessian need
+    not be positive definite (the paper's Hénon–Heiles data and the 9-term cubic). The
+    search then says why in one warning, and every subset uses the library's fixed step
+    min(smallest gap, :data:`~symplid.workflow._step_size.UNSEARCHED_STEP`), unchecked: a
+    term search that ran before ``"auto"`` became the default runs as it did.
+    """
+    from symplid.inference.map import MapFailedError
+
+    try:
+        return choose_step(settings, data, search=find_map_for).settings
+    except MapFailedError as err:
+        dt = min(smallest_gap(data), UNSEARCHED_STEP)
+        warnings.warn(f"the step could not be chosen on the whole library ({err}); every "
+                      f"subset uses dt = {dt:g}, unchecked (give model.dt to choose it)",
+                      UserWarning, stacklevel=2)
+        return dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=dt))
 
 
 def discover(
@@ -121,7 +145,7 @@ def discover(
     resolved = resolve_all(library.settings, datasets, source)
     data = datasets[0] if len(datasets) == 1 else datasets
     if resolved.model.dt == "auto":  # one step for every subset: the whole library's
-        resolved = choose_step(resolved, data, search=find_map_for).settings
+        resolved = library_step(resolved, data)
     model = build_model(resolved, datasets[0])
     posterior = build_posterior(resolved, data, model)
     groups = set(posterior.param_groups[: library.size])
