@@ -43,7 +43,7 @@ from symplid.model._data import Observations
 from symplid.workflow._compare import resolve_all
 from symplid.workflow._fit import build_model, build_posterior, find_map_for, fit
 from symplid.workflow._settings import Settings
-from symplid.workflow._step_size import UNSEARCHED_STEP, choose_step, smallest_gap
+from symplid.workflow._step_size import choose_step, unchecked_step
 from symplid.workflow._term_library import TermLibrary, term_library
 
 __all__ = ["Discovery", "discover", "format_terms", "library_step", "report_text", "subsets_table",
@@ -93,11 +93,11 @@ def library_step(settings: Settings, data: Any) -> Settings:
     try:
         return choose_step(settings, data, search=find_map_for).settings
     except MapFailedError as err:
-        dt = min(smallest_gap(data), UNSEARCHED_STEP)
-        warnings.warn(f"the step could not be chosen on the whole library ({err}); every "
-                      f"subset uses dt = {dt:g}, unchecked (give model.dt to choose it)",
-                      UserWarning, stacklevel=2)
-        return dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=dt))
+        fixed = unchecked_step(settings, data, f"the step could not be chosen on the whole "
+                               f"library ({err})")
+        warnings.warn(f"{fixed.record['not_searched']}; every subset uses dt = "
+                      f"{fixed.record['dt']:g}", UserWarning, stacklevel=2)
+        return fixed.settings
 
 
 def discover(

@@ -55,6 +55,7 @@ __all__ = [
     "step_check",
     "step_line",
     "step_lines",
+    "unchecked_step",
 ]
 
 THRESHOLD_SD = 0.1
@@ -262,15 +263,12 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
         words), ``refits`` and ``seconds``.
     """
     start = time.perf_counter()
-    gap = smallest_gap(obs, settings.initial_state.t0)
-    order = int(get_integrator(settings.model.integrator).order)
-    base = {"smallest_gap": gap, "integrator": settings.model.integrator, "order": order,
-            "threshold_sd": THRESHOLD_SD}
     if model_family(settings.model).neural:
-        return _unsearched(settings, min(gap, UNSEARCHED_STEP), base,
-                           "a neural family's MAP is its whole Adam + L-BFGS fit, too costly to "
-                           f"refit: the step is min(the data's smallest gap, "
-                           f"{UNSEARCHED_STEP:g}), unchecked; give model.dt to choose it")
+        return unchecked_step(settings, obs, "a neural family's MAP is its whole Adam + L-BFGS "
+                              "fit, too costly to refit")
+    gap = smallest_gap(obs, settings.initial_state.t0)
+    base = _base(settings, gap)
+    order = base["order"]
     dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
                     order, _sds(first), dt, {dt: np.asarray(first.theta, dtype=float)},
@@ -302,10 +300,24 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     return StepChoice(chosen, state.theta_at(dt), record, state.posteriors.get(dt))
 
 
-def _unsearched(settings: Any, dt: float, base: dict[str, Any], why: str) -> StepChoice:
+def _base(settings: Any, gap: float) -> dict[str, Any]:
+    """The record's entries that do not depend on the search."""
+    return {"smallest_gap": gap, "integrator": settings.model.integrator,
+            "order": int(get_integrator(settings.model.integrator).order),
+            "threshold_sd": THRESHOLD_SD}
+
+
+def unchecked_step(settings: Any, obs: Any, why: str) -> StepChoice:
+    """The step of ``model.dt = "auto"`` where the search cannot run (``why``): min(the data's
+    smallest gap, :data:`UNSEARCHED_STEP`), unchecked; no MAP. Its line says why and that a
+    given ``model.dt`` is chosen instead."""
+    gap = smallest_gap(obs, settings.initial_state.t0)
+    dt = min(gap, UNSEARCHED_STEP)
     chosen = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=dt))
-    record = {**base, "dt": dt, "shifts": {}, "largest_shift_sd": None, "passed": False,
-              "not_searched": why, "tried": "", "refits": 0, "seconds": 0.0}
+    why = (f"{why}: the step is min(the data's smallest gap, {UNSEARCHED_STEP:g}), unchecked; "
+           "give model.dt to choose it")
+    record = {**_base(settings, gap), "dt": dt, "shifts": {}, "largest_shift_sd": None,
+              "passed": False, "not_searched": why, "tried": "", "refits": 0, "seconds": 0.0}
     return StepChoice(chosen, None, record)
 
 
