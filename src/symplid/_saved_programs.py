@@ -275,11 +275,12 @@ class _SavedJit:
             exported = _deserialized(blob)
             if exported is None:
                 return self._plain
-        return _on_one_device(self._jit, _named(exported.call, self._name))
+        return _on_one_device(self._jit, exported.call, self._name)
 
 
-def _on_one_device(jit: Callable, call: Callable) -> Callable:
-    """``call`` jitted with every argument placed on the default device.
+def _on_one_device(jit: Callable, call: Callable, name: str) -> Callable:
+    """``call`` jitted with every argument placed on the default device, under ``name`` (the
+    program's name in JAX's logs and profiles).
 
     Lowering an exported call writes its arguments' placement into the program: arrays a
     computation left on the device and arrays made in Python would otherwise give two
@@ -294,7 +295,7 @@ def _on_one_device(jit: Callable, call: Callable) -> Callable:
         args, kwargs = jax.tree.unflatten(tree, leaves)
         return call(*args, **kwargs)
 
-    flat.__name__ = flat.__qualname__ = call.__name__  # the program's name in JAX's logs
+    flat.__name__ = flat.__qualname__ = name.replace("-", "_")
 
     programs: dict[Any, Callable] = {}
 
@@ -307,15 +308,6 @@ def _on_one_device(jit: Callable, call: Callable) -> Callable:
         return program(*leaves)
 
     return run
-
-
-def _named(call: Callable, name: str) -> Callable:
-    """``call`` under ``name`` (a program's name in JAX's logs and profiles; "call" else)."""
-    def program(*args: Any, **kwargs: Any) -> Any:
-        return call(*args, **kwargs)
-
-    program.__name__ = program.__qualname__ = name.replace("-", "_")
-    return program
 
 
 def _read(path: Path) -> Any:
