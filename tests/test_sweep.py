@@ -573,17 +573,18 @@ def test_register_studies_lists_each_study_once_and_is_idempotent():
     from symplid.studies import _baselines_study as baselines_study
     from symplid.studies import _paper as paper
     from symplid.studies import _sbc as sbc
+    from symplid.studies import _sbc_defaults as sbc_defaults
     from symplid.studies import _shift as shift
     from symplid.workflow._sweep import get_experiment
 
     assert STUDIES == (paper.EXPERIMENT, baselines_study.EXPERIMENT, sbc.EXPERIMENT,
-                       shift.EXPERIMENT)
+                       sbc_defaults.EXPERIMENT, shift.EXPERIMENT)
     registry = Registry("experiment")
     with pytest.raises(SweepError, match="no experiment is registered"):
         get_experiment("paper", "s.toml", registry)
     register_studies(registry)
     register_studies(registry)  # again: nothing changes
-    assert registry.names() == ("paper", "baselines", "sbc", "shift")
+    assert registry.names() == ("paper", "baselines", "sbc", "sbc-defaults", "shift")
     assert registry["paper"] is paper.EXPERIMENT
     other = Registry("experiment")
     other.register("paper", baselines_study.EXPERIMENT)

@@ -140,6 +140,26 @@ def sbc_study(out, replications, likelihoods, budget, samplers, workers, report_
     click.echo(f"{out}: report.md, sbc.json, results.csv and figures/")
 
 
+@study.command("sbc-defaults")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Study folder (a rerun skips the finished replications).")
+@click.option("--replications", type=click.IntRange(min=1), default=100, show_default=True)
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local worker processes [default: one per core].")
+@click.option("--report-only", is_flag=True,
+              help="Write the report from the replications the folder holds; run nothing.")
+@no_progress_option
+@user_errors
+def sbc_defaults_study(out, replications, workers, report_only, no_progress) -> None:
+    """Simulation-based calibration of the defaults: a user's damped pendulum, fitted as
+    `symplid fit` fits it with nothing but its priors given."""
+    from symplid.studies._sbc_defaults import run_sbc_defaults
+
+    run_sbc_defaults(out, replications=replications, workers=workers,
+                     progress=not no_progress, report_only=report_only)
+    click.echo(f"{out}: report.md, sbc.json, results.csv and figures/")
+
+
 @study.command("shift")
 @shift_study_options
 def shift_study(**options) -> None:

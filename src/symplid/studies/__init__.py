@@ -14,6 +14,8 @@ figures) in its own module:
   squares;
 * ``"sbc"`` (:mod:`._sbc`, report :mod:`._sbc_report`): simulation-based calibration of MAP +
   DRAM on data simulated from the model itself;
+* ``"sbc-defaults"`` (:mod:`._sbc_defaults`, report :mod:`._sbc_report`): the same for a user's
+  model fitted with every default of ``symplid fit`` on data from the exact flow;
 * ``"shift"`` (:mod:`._shift`, fits :mod:`._shift_fits`, report :mod:`._shift_report`): the
   paper-claims posteriors' coefficient shift split into discretisation, noise draws, process
   noise and remainder, one (integrator, dt) row per cell.
@@ -31,11 +33,12 @@ from typing import Any
 from symplid._registry import Registry
 from symplid.workflow._experiment import EXPERIMENTS, Experiment
 
-__all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc", "shift"]
+__all__ = ["STUDIES", "baselines_study", "paper", "register_studies", "sbc", "sbc_defaults",
+           "shift"]
 
 #: The studies' modules, in the order ``symplid sweep`` lists them. They are imported when
 #: first used: a worker process that runs the paper's fits imports only what those need.
-_MODULES = ("paper", "baselines_study", "sbc", "shift")
+_MODULES = ("paper", "baselines_study", "sbc", "sbc_defaults", "shift")
 
 
 def __getattr__(name: str) -> Any:

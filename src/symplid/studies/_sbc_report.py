@@ -84,15 +84,26 @@ def rank_columns(table: Any) -> list[str]:
 
 def groups(table: Any) -> list[tuple[str, str, Any]]:
     """``(sampler, likelihood, rows)`` of the finished replications, by sampler then
-    likelihood (rows without a sampler column were DRAM's)."""
+    likelihood (rows without a sampler column were DRAM's, rows without a likelihood column
+    had the default process noise, once per gap)."""
     ok = table[table["status"] == "ok"] if "status" in table else table
-    samplers = ok["sampler"].fillna("dram") if "sampler" in ok else None
+    samplers = _column(ok, "sampler", "dram")
+    likelihoods = _column(ok, "likelihood", "gap")
     out = []
-    for sampler in (["dram"] if samplers is None else sorted(samplers.unique())):
-        rows = ok if samplers is None else ok[samplers == sampler]
-        out += [(sampler, v, rows[rows["likelihood"] == v])
-                for v in sorted(rows["likelihood"].unique())]
+    for sampler in sorted(samplers.unique()):
+        mine = samplers == sampler
+        out += [(sampler, v, ok[mine & (likelihoods == v)])
+                for v in sorted(likelihoods[mine].unique())]
     return out
+
+
+def _column(rows: Any, name: str, default: str) -> Any:
+    """``rows[name]`` with ``default`` where it is missing (the whole column, or a value)."""
+    import pandas as pd
+
+    if name not in rows:
+        return pd.Series(default, index=rows.index, dtype=object)
+    return rows[name].fillna(default)
 
 
 def converged_mask(table: Any) -> np.ndarray:
@@ -140,7 +151,20 @@ def sbc_summary(table: Any) -> dict[str, Any]:
             "not_converged": int((~good).sum()),
             "ess_below_rank_draws": int((good & (ess < RANK_DRAWS)).sum()),
             "wall_time_s_median": float(np.median(rows["wall_time_s"].to_numpy(dtype=float))),
-            "params": params}
+            **_budget_outcome(rows), "params": params}
+    return out
+
+
+def _budget_outcome(rows: Any) -> dict[str, Any]:
+    """What a run of the defaults records besides its ranks: how many replications reached
+    the sampler's targets (rather than its cap) and the learning steps chosen."""
+    out: dict[str, Any] = {}
+    if "reached_target" in rows:
+        out["reached_target"] = int(np.nansum(rows["reached_target"].to_numpy(dtype=float)))
+    if "dt" in rows:
+        dt = rows["dt"].to_numpy(dtype=float)
+        out["dt"] = {"min": float(np.min(dt)), "median": float(np.median(dt)),
+                     "max": float(np.max(dt))}
     return out
 
 
@@ -202,10 +226,11 @@ def _fmt(judged: dict[str, Any]) -> str:
             f"{'yes' if judged['ecdf_inside'] else 'NO'}")
 
 
-def format_report(summary: dict[str, Any], budget: dict[str, Any]) -> str:
+def format_report(summary: dict[str, Any], budget: dict[str, Any],
+                  title: str = "Simulation-based calibration") -> str:
     """The study's ``report.md``: per likelihood and parameter, the χ² p-value and whether the
     ECDF stays in its band, converged and non-converged replications apart."""
-    lines = ["# Simulation-based calibration", "",
+    lines = [f"# {title}", "",
              f"Budget per replication: {budget}. Ranks among {RANK_DRAWS} thinned draws "
              "(and, last columns, among the fewer draws of `rank_thin`); "
              f"converged: R-hat ≤ {RHAT_MAX} and ESS ≥ {ESS_MIN:g} in every parameter.", ""]
@@ -216,6 +241,7 @@ def format_report(summary: dict[str, Any], budget: dict[str, Any]) -> str:
                       f"{s['not_converged']} not (reported apart); "
                       f"{s['ess_below_rank_draws']} converged with ESS < {RANK_DRAWS}; "
                       f"median wall time {s['wall_time_s_median']:.1f} s.", "",
+                      *_outcome_lines(s),
                       "| parameter | n | χ² p | ECDF in band | n (not conv.) | χ² p | "
                       "ECDF in band | n (thinned) | χ² p | ECDF in band |",
                       "|---|---:|---:|---|---:|---:|---|---:|---:|---|"]
@@ -227,8 +253,19 @@ def format_report(summary: dict[str, Any], budget: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_sbc_report(out_dir: Any, table: Any = None, budget: dict[str, Any] | None = None
-                     ) -> dict[str, Any]:
+def _outcome_lines(s: dict[str, Any]) -> list[str]:
+    lines = []
+    if "reached_target" in s:
+        lines.append(f"{s['reached_target']} of {s['replications']} replications reached the "
+                     "sampler's targets (the rest stopped at its cap).")
+    if "dt" in s:
+        lines.append(f"Learning step chosen: {s['dt']['min']:.4g} to {s['dt']['max']:.4g} "
+                     f"(median {s['dt']['median']:.4g}).")
+    return [*lines, ""] if lines else []
+
+
+def write_sbc_report(out_dir: Any, table: Any = None, budget: dict[str, Any] | None = None,
+                     title: str = "Simulation-based calibration") -> dict[str, Any]:
     """``report.md``, ``sbc.json`` and ``figures/`` of a study folder from its finished
     replications (``table``: default, the folder's results)."""
     from symplid.workflow._results import write_json
@@ -240,6 +277,6 @@ def write_sbc_report(out_dir: Any, table: Any = None, budget: dict[str, Any] | N
     write_json({"budget": budget, "summary": summary}, out / "sbc.json")
     plot_ranks(table, out / "figures")
     tmp = out / ".report.md.tmp"
-    tmp.write_text(format_report(summary, budget or {}), encoding="utf-8")
+    tmp.write_text(format_report(summary, budget or {}, title), encoding="utf-8")
     os.replace(tmp, out / "report.md")
     return summary
