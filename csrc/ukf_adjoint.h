@@ -58,7 +58,7 @@ struct AdjointWorkspace {
 };
 
 // Whether adjoint_gradient carries these settings (a composition of leapfrog steps, Σ once
-// per gap); the caller (kernel.py) routes other models to the JAX tier's gradient.
+// per gap); the caller (symplid/model/_kernel.py) routes other models to the JAX tier's gradient.
 bool adjoint_supports(const Settings& s);
 
 // log L at the member's θ into *member.out and ∂ log L/∂θ (s.nparams entries) into grad,

@@ -324,7 +324,7 @@ struct RkTableau {
 // add<INIT>(x, coef, acc): acc (+)= ∂U/∂q(x) with value t = coef(t) (INIT: acc's values are
 // read, as a kick's momentum; only for kTabled forces), kScalarLane whether one θ's lone last
 // sigma point is advanced as a scalar (fast_advance). PolynomialForce is the fixed basis's
-// Horner program; a user's U(q; θ) supplies its own (the generated units of user_kernel.py).
+// Horner program; a user's U(q; θ) supplies its own (the units model/_user_kernel.py makes).
 template <int D_, int ORDER>
 struct PolynomialForce {
   using Basis = FixedBasis<D_, ORDER>;

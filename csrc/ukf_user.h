@@ -1,5 +1,5 @@
 // The rest of a user model's compiled unit, included at the end of the unit that the library
-// generates from the user's U(q; θ) (symplid/model/user_kernel.py). The generated part
+// generates from the user's U(q; θ) (symplid/model/_user_kernel.py). The generated part
 // defines the force policy (ukf_kernel_impl.h's PolynomialForce is the built-in one):
 //
 //   struct Force {

@@ -21,7 +21,7 @@ from symplid.dynamics._user_models import build_user_model
 from symplid.io._inputfiles import read_driven_csv
 from symplid.model._data import DataError
 from symplid.model._inputs import AnalyticInputs, SampledInputs, node_table
-from symplid.model._signals import SIGNALS
+from symplid.systems import SIGNALS
 from symplid.workflow._fit import build_model, build_posterior, find_map_for
 from symplid.workflow._settings import resolve_for_data, settings_from_dict
 

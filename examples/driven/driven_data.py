@@ -10,7 +10,7 @@ channel beside a slower sensor does.
   rest at t = 0, 200 positions 0.25 s apart;
 * ``pendulum``: θ̈ = −k sin θ − c θ̇ + b u(t), (k, c, b) = (2, 0.15, 0.8), likewise.
 
-The input is a multisine (``symplid.model._signals.multisine``: 8 tones over 0.05–0.5 Hz,
+The input is a multisine (``symplid.systems.multisine``: 8 tones over 0.05–0.5 Hz,
 random phases from ``--seed``, RMS 1), or a chirp or steps (``--input``). ``--free`` records
 the free decay instead (u = 0, from q = 1): the input gain b then has nothing to act on.
 
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from symplid.model._signals import SIGNALS
+from symplid.systems import SIGNALS
 
 TRUTH = {
     "duffing": {"k1": 1.0, "k3": 0.5, "c": 0.2, "b": 1.0},

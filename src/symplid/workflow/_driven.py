@@ -272,8 +272,8 @@ def power_balance_lines(settings: Any, model: Any, posterior: Any, theta_map: An
 
 # ---------------------------------------------------------------------------- simulate
 class _FunctionInputs(InputSignal):
-    """A signal from a function of t (a named excitation of :data:`~symplid.model._signals.
-    SIGNALS`), defined at every time."""
+    """A signal from a function of t (a named excitation of
+    :data:`~symplid.systems.SIGNALS`), defined at every time."""
 
     def __init__(self, fn: Any) -> None:
         self.names = ("u1",)
@@ -295,7 +295,7 @@ def simulate_driven(system: str, out: Path, force_text: str, signal: str, signal
     """``symplid simulate SYSTEM --force F --input NAME``: a driven record of a named system.
 
     The force (numbers, q, p, u1, t: no parameters) acts on the system's H; u1 is a named
-    signal of :data:`~symplid.model._signals.SIGNALS` (seeded) or a CSV ``t,u1``. The truth is
+    signal of :data:`~symplid.systems.SIGNALS` (seeded) or a CSV ``t,u1``. The truth is
     the forced yoshida4 (rk4 for a non-separable H) at step 1e-3 against the signal itself;
     the file holds t, the observed columns with noise at the observation times, and u1 on a
     grid ``dense`` times finer (rows with empty observed cells). Returns its one line.
