@@ -8,6 +8,8 @@ filter by far (the deterministic path cannot follow the perturbed states).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -62,6 +64,7 @@ def test_no_process_noise_in_the_data_is_not_taken_for_noise(double_well):
 
 @pytest.mark.slow
 def test_cli_compare_prefers_the_filter_when_the_states_are_perturbed(double_well, tmp_path):
+    """With the defaults' learning step ("auto", chosen for the grid's order-4 model)."""
     values = _with_process_noise(double_well, 0.05, seed=1)
     path = tmp_path / "noisy.csv"
     np.savetxt(path, np.column_stack([TIMES, values]), delimiter=",", header="t,q1,p1",
@@ -70,8 +73,7 @@ def test_cli_compare_prefers_the_filter_when_the_states_are_perturbed(double_wel
     x0 = ",".join(str(v) for v in double_well.initial_state)
     result = CliRunner().invoke(main, [
         "compare", str(path), "--orders", "4", "--process-noise", "--x0", x0, "--out", str(out),
-        "--set", "map.num_starts=1", "--set", "model.noise=isotropic", "--set", "model.dt=0.25",
-        "--no-progress"],
+        "--set", "map.num_starts=1", "--set", "model.noise=isotropic", "--no-progress"],
         catch_exceptions=False)
     assert result.exit_code == 0, result.output
     assert "best: order 4 with leapfrog; table" in result.output  # not "no process noise"
@@ -79,6 +81,37 @@ def test_cli_compare_prefers_the_filter_when_the_states_are_perturbed(double_wel
 
     table = pd.read_csv(out / "compare.csv")
     ev = dict(zip(table["process_noise"], table["log_evidence"], strict=True))
-    # measured: 35.1 against −41.4 nats (the path cannot follow the perturbed states)
-    assert ev["gap"] - ev["none"] > 20.0
+    # measured: 36.2 against −41.4 nats at the step "auto" chose for order 4 (0.125); the
+    # path cannot follow the perturbed states. A step chosen for the default order 3 (0.5)
+    # left the path's MAP unconverged and its evidence NaN.
+    assert np.isfinite(ev["none"]) and ev["gap"] - ev["none"] > 20.0
     assert "none" in (out / "compare.txt").read_text()
+
+
+def test_the_shared_step_is_chosen_for_the_most_demanding_candidate(double_well, monkeypatch):
+    """compare's one "auto" step is searched on the grid's highest order, its integrator of
+    lowest order, with damping and process noise when any candidate has them."""
+    import symplid.workflow._compare as compare
+
+    seen = []
+
+    class Chosen:
+        def __init__(self, settings):
+            self.settings = dataclasses.replace(
+                settings, model=dataclasses.replace(settings.model, dt=0.0625))
+
+    def choose(settings, obs, search):
+        seen.append(settings.model)
+        return Chosen(settings)
+
+    monkeypatch.setattr(compare, "choose_step", choose)
+    data = symplid.simulate(double_well, seed=0)
+    base = merge_overrides(Settings(), {"initial_state.x0": list(double_well.initial_state)})
+    step = compare._shared_step(base, [data], ([2, 4, 3], ["yoshida4", "leapfrog"],
+                                               [False, True], ["none", "gap"]))
+    (model,) = seen
+    assert (model.order, model.integrator, model.damping, model.process_noise_per) == (
+        4, "leapfrog", True, "gap")
+    assert step.model.dt == 0.0625 and step.model.order == base.model.order
+    compare._shared_step(base, [data], ([3], ["yoshida4"], [False], ["none"]))
+    assert (seen[-1].integrator, seen[-1].process_noise_per) == ("yoshida4", "none")

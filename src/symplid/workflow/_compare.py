@@ -17,13 +17,15 @@ is kept beside it (``log_evidence_laplace``): it is 1–2 nats too low whenever 
 posterior is skewed against zero, which with leapfrog happens to the process variance in
 nearly every fit, so it cannot rank candidates that differ in that respect.
 Everything else in the settings (priors, dt, noise model, initial state, MAP starts and seed)
-is the same for every candidate (``model.dt = "auto"`` is chosen once, for the settings' own
-model, by :func:`symplid.workflow._step_size.choose_step`, and shared, so that the evidences
-compare the models at one step) (with ``model.standardise`` on, every candidate is fitted in
-the same standardised coordinates and reported in the data's units, so the evidences stay
-comparable: :mod:`symplid.workflow._scaling`), so the priors must be proper: the evidence of
-a candidate depends on the width of its coefficients' prior, and it is this width that makes
-an unneeded coefficient cost about log(prior width / posterior width) nats.
+is the same for every candidate (``model.dt = "auto"`` is chosen once, for the grid's most
+demanding model — highest order, lowest-order integrator, with damping and process noise if
+any candidate has them — by :func:`symplid.workflow._step_size.choose_step`, and shared, so
+that the evidences compare the models at one step) (with ``model.standardise`` on, every
+candidate is fitted in the same standardised coordinates and reported in the data's units, so
+the evidences stay comparable: :mod:`symplid.workflow._scaling`), so the priors must be
+proper: the evidence of a candidate depends on the width of its coefficients' prior, and it is
+this width that makes an unneeded coefficient cost about log(prior width / posterior width)
+nats.
 
 The table's columns are listed in :mod:`symplid.workflow._compare_table`, which also
 writes it (``out/compare.csv`` and ``out/compare.txt``).
@@ -244,12 +246,12 @@ def fit_candidates(
         [settings.model.integrator] if integrators is None else parse_integrators(integrators)
     )
     base = resolve_all(settings, datasets, source)
-    if base.model.dt == "auto":  # one step for all: the settings' own model's
-        base = choose_step(base, datasets if len(datasets) > 1 else datasets[0],
-                           search=find_map_for).settings
     damping_list = [settings.model.damping] if dampings is None else _dampings(dampings)
     noise_list = ([settings.model.process_noise_per] if process_noises is None
                   else _process_noises(process_noises))
+    if base.model.dt == "auto":  # one step for all
+        base = _shared_step(base, datasets, (order_list, integrator_list, damping_list,
+                                             noise_list))
     grid = [(o, i, g, n) for n in noise_list for g in damping_list for i in integrator_list
             for o in order_list]
     fits: list[CandidateFit] = []
@@ -265,6 +267,24 @@ def fit_candidates(
     finally:
         bar.close()
     return fits
+
+
+def _shared_step(base: Settings, datasets: list[Observations],
+                 grid: tuple[list[int], list[str], list[bool], list[str]]) -> Settings:
+    """``base`` with ``model.dt = "auto"`` chosen once (:func:`choose_step`) for the grid's
+    most demanding candidate — its highest order, its integrator of lowest order, damped if
+    any candidate is, with process noise if any candidate has it (the filter's MAP is a
+    smooth search; the deterministic path's is not) — so that every candidate is compared
+    at a step fine enough for each."""
+    orders, integrators, dampings, noises = grid
+    model = dataclasses.replace(
+        base.model, order=max(orders), damping=any(dampings),
+        integrator=min(integrators, key=lambda name: get_integrator(name).order),
+        process_noise_per=next((n for n in noises if n != "none"), noises[0]))
+    chosen = choose_step(dataclasses.replace(base, model=model),
+                         datasets if len(datasets) > 1 else datasets[0], search=find_map_for)
+    return dataclasses.replace(base, model=dataclasses.replace(base.model,
+                                                               dt=chosen.settings.model.dt))
 
 
 def _fit_candidate(base: Settings, datasets: list[Observations],
