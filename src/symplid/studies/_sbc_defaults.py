@@ -215,5 +215,8 @@ def run_sbc_defaults(out_dir: Any, *, replications: int = 100, workers: int | No
     if not report_only:
         table = run_sweep(spec, out_dir, None, workers, progress=progress, figures=False,
                           experiment=EXPERIMENT)
-    return write_sbc_report(out_dir, table, budget={"name": "the defaults"},
+    sampler = settings_for(0).sampler
+    words = (f"the defaults, {sampler.method.upper()} with {sampler.num_chains} chains "
+             f"{sampler.budget_words()}")
+    return write_sbc_report(out_dir, table, budget={"name": "defaults", "words": words},
                             title="Simulation-based calibration of the defaults")
