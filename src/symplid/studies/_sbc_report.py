@@ -231,8 +231,9 @@ def format_report(summary: dict[str, Any], budget: dict[str, Any],
     """The study's ``report.md``: per likelihood and parameter, the χ² p-value and whether the
     ECDF stays in its band, converged and non-converged replications apart."""
     lines = [f"# {title}", "",
-             f"Budget per replication: {budget.get('words', budget)}. Ranks among {RANK_DRAWS} thinned draws "
-             "(and, last columns, among the fewer draws of `rank_thin`); "
+             f"Budget per replication: {budget.get('words', budget)}. Ranks among "
+             f"{RANK_DRAWS} thinned draws (and, last columns, among the fewer draws of "
+             "`rank_thin`); "
              f"converged: R-hat ≤ {RHAT_MAX} and ESS ≥ {ESS_MIN:g} in every parameter.", ""]
     for sampler, by_likelihood in summary.items():
         for likelihood, s in by_likelihood.items():
