@@ -603,4 +603,4 @@ def test_the_sweep_command_names_an_unknown_experiment_in_one_line(tmp_path):
     assert result.exit_code == 2, result.output
     assert result.stderr.strip().splitlines() == [
         f"symplid: error: {spec}: sweep.experiment is 'paperr': unknown experiment 'paperr' "
-        "(did you mean 'paper'?); choose one of paper, baselines, sbc, shift"]
+        "(did you mean 'paper'?); choose one of paper, baselines, sbc, sbc-defaults, shift"]
