@@ -6,7 +6,8 @@ test sets one), and reads every loaded OpenBLAS's thread count through the libra
 function (not through threadpoolctl, which the code under test uses):
 
 * inside the block every OpenBLAS runs one thread, after it the count it had (set to 2 first);
-  the decorator form does the same for the call;
+  the decorator form does the same for the call; of two blocks that overlap (the first to
+  enter leaving first, as in two threads), the limit holds until the last one leaves;
 * a count the user set in the environment is kept;
 * the process-wide limit reaches a library loaded before it (NumPy's) and one loaded after it
   (SciPy's linear algebra), and is kept when the user set a count.
@@ -54,7 +55,13 @@ with runtime.one_blas_thread():
     inside = counts()
 after = counts()
 called = runtime.one_blas_thread()(counts)()
-print(json.dumps([before, inside, after, called]))
+first, second = runtime.one_blas_thread(), runtime.one_blas_thread()
+first.__enter__()
+second.__enter__()  # blocks that overlap (as in two threads) share the limit
+first.__exit__(None, None, None)  # the first to enter leaves first
+still = counts()  # the second still holds it
+second.__exit__(None, None, None)
+print(json.dumps([before, inside, after, called, still, counts()]))
 """
 
 PROCESS = COUNTS + r"""
@@ -80,16 +87,17 @@ def _openblas_or_skip(counts: dict) -> None:
 
 
 def test_one_blas_thread_inside_the_block_and_the_count_restored_after():
-    before, inside, after, called = _child(BLOCK)
+    before, inside, after, called, still, last = _child(BLOCK)
     _openblas_or_skip(before)
     assert set(inside.values()) == {1} and set(called.values()) == {1}
-    assert after == before
+    assert set(still.values()) == {1}
+    assert after == before == last
 
 
 def test_one_blas_thread_keeps_a_count_the_user_set():
-    before, inside, after, called = _child(BLOCK, OPENBLAS_NUM_THREADS="2")
+    before, inside, after, called, still, last = _child(BLOCK, OPENBLAS_NUM_THREADS="2")
     _openblas_or_skip(before)
-    assert inside == before == after == called
+    assert inside == before == after == called == still == last
 
 
 def test_limit_blas_threads_reaches_libraries_loaded_before_and_after():
