@@ -104,4 +104,4 @@ def provisional(laplace: float, rule: str) -> Evidence:
     return laplace, "laplace", {"deferred": rule}
 
 
-__all__ = ["Evidence", "EvidenceCancelled", "PendingEvidence", "provisional"]
+__all__ = ["EvidenceCancelled", "PendingEvidence", "provisional"]
