@@ -24,7 +24,6 @@ from symplid.cli import main
 from symplid.workflow._building import build_model, build_posterior
 from symplid.workflow._fit import find_map_for, fit
 from symplid.workflow._results import RunFolder
-from symplid.workflow._scaling import scaling_for
 from symplid.workflow._settings import Settings, merge_overrides
 
 TINY = ["--iterations", "600", "--burn-in", "300", "--chains", "2", "--no-progress"]
@@ -107,30 +106,6 @@ def test_a_default_fit_saves_prints_and_reports_the_checks(default_run):
 
 def _raise(*args, **kwargs):
     raise RuntimeError("refit broken on purpose")
-
-
-@pytest.mark.slow
-def test_the_evidence_computed_beside_the_sampler_is_the_sequential_one(default_run):
-    """The fit computed its quadrature evidence in a background thread while the refits and
-    the sampler ran (inference/map/_pending); map.json and the process-noise check hold the
-    number of the sequential search on the same posterior, to the bit."""
-    out, _ = default_run
-    folder = RunFolder(out, "r")
-    saved = folder.read_map()
-    assert saved["evidence_method"] != "laplace" and "deferred" not in saved["evidence"]
-    settings, obs = folder.read_settings(), folder.read_data()
-    scaling = scaling_for(settings, obs)  # the fit's own coordinates, as fit() builds them
-    fit_settings = settings if scaling is None else scaling.settings(settings)
-    fit_obs = obs if scaling is None else scaling.observations(obs)
-    posterior = build_posterior(fit_settings, fit_obs, build_model(fit_settings, fit_obs))
-    sequential = find_map_for(settings, posterior)
-    assert sequential.pending is None
-    assert sequential.evidence_method == saved["evidence_method"]  # the axis rule here
-    if scaling is not None:
-        sequential = scaling.map_result(sequential, posterior.param_groups, obs)
-    assert float(saved["log_evidence"]) == sequential.log_evidence
-    checks = json.loads((out / RunFolder.DIAGNOSTICS).read_text())
-    assert checks["process_noise"]["log_evidence"] == sequential.log_evidence
 
 
 @pytest.mark.slow

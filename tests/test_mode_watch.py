@@ -72,8 +72,8 @@ def test_a_fit_whose_map_search_ends_low_searches_again(monkeypatch):
     real = fit_module.find_map_for
     calls: list[int] = []
 
-    def first_ends_low(settings, posterior, start=None, **options):
-        found = real(settings, posterior, start, **options)
+    def first_ends_low(settings, posterior, start=None):
+        found = real(settings, posterior, start)
         calls.append(1)
         if len(calls) > 1:
             return found

@@ -5,11 +5,9 @@ folder's rules (markers, modes) because the sweeps and the paper's study write t
 
 JSON conventions
 ----------------
-NumPy and JAX arrays become (nested) lists, NumPy scalars become numbers, tuples lists,
-dataclasses and NamedTuples objects (a dataclass field with ``metadata={"json": False}``, such
-as a computation still running, is left out). JSON has no NaN or infinity, so non-finite
-floats are written as the strings ``"nan"``, ``"inf"`` and ``"-inf"`` (not ``null``, which
-would lose which one it was);
+NumPy and JAX arrays become (nested) lists, NumPy scalars become numbers, tuples lists, dataclasses
+and NamedTuples objects. JSON has no NaN or infinity, so non-finite floats are written as the
+strings ``"nan"``, ``"inf"`` and ``"-inf"`` (not ``null``, which would lose which one it was);
 :func:`read_json` turns those strings back into floats. The files are strict JSON.
 
 netCDF attributes
@@ -70,7 +68,7 @@ def to_jsonable(obj: Any, where: str = "") -> Any:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {
             f.name: to_jsonable(getattr(obj, f.name), f"{where}.{f.name}")
-            for f in dataclasses.fields(obj) if f.metadata.get("json", True)
+            for f in dataclasses.fields(obj)
         }
     if isinstance(obj, tuple) and hasattr(obj, "_asdict"):  # NamedTuple
         return to_jsonable(obj._asdict(), where)

@@ -12,7 +12,6 @@ a function of plain inputs, so a notebook can run them one at a time:
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 import warnings
 from collections.abc import Callable
@@ -35,7 +34,6 @@ from symplid.inference.map import (
 from symplid.inference.samplers import SAMPLERS
 from symplid.io._chunks import remove_chunks
 from symplid.model._data import Observations
-from symplid.runtime import own_cores
 from symplid.sampling import InterruptedInBurnIn, RunOptions, Targets, sample
 from symplid.workflow._auto import auto_notes
 from symplid.workflow._building import build_model, build_posterior
@@ -50,7 +48,7 @@ from symplid.workflow._model_builder import model_family
 from symplid.workflow._plan import ModelPlan
 from symplid.workflow._results import RunFolder
 from symplid.workflow._scaling import scaling_for
-from symplid.workflow._sensitivity import sensitivity_checks, with_fit_evidence
+from symplid.workflow._sensitivity import sensitivity_checks
 from symplid.workflow._settings import Settings
 from symplid.workflow._settings_schema import SamplerSettings, map_start
 from symplid.workflow._step_size import StepChoice, choose_step, step_check, step_line
@@ -64,21 +62,17 @@ class SampledDraws:
     made ``InferenceData``, summarised and written (all in the data's units)."""
 
     map_result: Any
-    """The MAP; its evidence may still be the Laplace stand-in (``evidence["deferred"]``)."""
     draws: np.ndarray
     """The kept draws of θ, ``(chain, draw, param)``."""
     param_names: tuple[str, ...]
 
 
-def find_map_for(settings: Settings, posterior, start: np.ndarray | None = None,
-                 defer_evidence: bool = False) -> Any:
+def find_map_for(settings: Settings, posterior, start: np.ndarray | None = None) -> Any:
     """The MAP and its Laplace covariance, by the path the model's family calls for.
 
     ``start`` (θ in the posterior's coordinates), given, is the one start of a polynomial's
     search: the MAP found at the same settings already (``model.dt = "auto"``,
     :mod:`symplid.workflow._step_size`), only polished and given its Laplace covariance.
-    ``defer_evidence``: the quadrature evidence is left in ``MapResult.pending``
-    (``find_map(defer_evidence=True)``; not for a neural family, which has none).
 
     A polynomial (or any family with few coefficients): bounded quasi-Newton from
     ``settings.map.num_starts`` seeded starts and the exact Hessian (without process noise,
@@ -106,7 +100,7 @@ def find_map_for(settings: Settings, posterior, start: np.ndarray | None = None,
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             result = find_map(posterior, seed=m.seed, num_starts=num_starts,
-                              evidence=m.evidence, defer_evidence=defer_evidence,
+                              evidence=m.evidence,
                               init=start if start is not None else
                               declared if init is None else init)
         for w in caught if not result.failure else ():
@@ -206,11 +200,6 @@ def fit(
     at dt/2 and with the other process-noise model (:mod:`symplid.workflow._sensitivity`;
     ``FitOutcome.diagnostics``, ``diagnostics.json``); a refit that fails is recorded as not
     available, never raised;
-    Where the process may use a second core, the MAP's quadrature evidence is computed there
-    in a background thread while the refits and the sampler run, and waited for after
-    sampling (:mod:`symplid.inference.map._pending`: the same numbers;
-    ``timings["evidence_wait_s"]`` the wait); a run interrupted before keeps the Laplace
-    evidence.
     ``status`` receives a one-line message before the (silent) MAP search and compilation;
     ``on_sampled`` receives the MAP and the kept draws (:class:`SampledDraws`) as soon as the
     chains end, before the draws are made ``InferenceData``, summarised and written: a caller
@@ -265,38 +254,8 @@ def _fit(obs, plan, folder, progress, progress_label, progress_position, warn,
     else:
         model = plan.model(fit_settings, fit_obs)
         posterior = build_posterior(fit_settings, fit_obs, model)
-    map_fit = find_map_for(settings, posterior, _warm_start(step, scaling, posterior),
-                           defer_evidence=_second_core())
-    if getattr(map_fit, "pending", None) is not None:
-        map_fit.pending.start()  # beside the refits and the sampler, on the second core
+    map_fit = find_map_for(settings, posterior, _warm_start(step, scaling, posterior))
     groups, refound = posterior.param_groups, []
-    try:
-        map_fit, diagnostics, idata, checkpoint = _map_and_sample(
-            obs, plan, folder, settings, posterior, scaling, map_fit, groups, refound, start,
-            timings, progress, progress_label, progress_position, status, step, on_sampled)
-    except BaseException:
-        _cancel_evidence(map_fit)
-        raise
-    map_fit, map_result, diagnostics = _evidence_finished(
-        map_fit, scaling, groups, obs, folder, diagnostics, timings)
-    if scaling is not None:
-        idata = scaling.inference_data(idata, groups, obs)
-        model = plan.model(settings, obs)
-        posterior = build_posterior(settings, obs, model)
-    outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
-                         standardised_scale=None if scaling is None else scaling.scale,
-                         diagnostics=diagnostics, plan=plan,
-                         learning_step=None if step is None else step.record,
-                         map_refound=tuple(refound))
-    return save_run(folder, outcome, checkpoint, warn)
-
-
-def _map_and_sample(obs, plan, folder, settings, posterior, scaling, map_fit, groups, refound,
-                    start, timings, progress, progress_label, progress_position, status, step,
-                    on_sampled) -> tuple[Any, Any, Any, Any]:
-    """The sensitivity refits and the sampler from the MAP ``map_fit``, the MAP searched
-    again where the chains climb above it (:mod:`symplid.workflow._mode_watch`); returns the
-    MAP (its evidence possibly still pending), the checks, the draws and the checkpoint."""
     while True:  # the MAP searched again where the chains climb above it (.mode_watch)
         check_stop()  # a safe point between the phases (symplid._stopping)
         if getattr(map_fit, "failure", ""):  # stop before sampling (inference.map._checks)
@@ -322,7 +281,6 @@ def _map_and_sample(obs, plan, folder, settings, posterior, scaling, map_fit, gr
             break
         except HigherModeFound as found:
             start = time.perf_counter()  # the search again is the MAP's time
-            _cancel_evidence(map_fit)  # the evidence of the MAP left behind is not wanted
             map_fit = _search_again(settings, posterior, folder, found, status)
             refound.append(refound_record(found, map_fit.log_posterior))
         except InterruptedInBurnIn as stop:
@@ -330,39 +288,16 @@ def _map_and_sample(obs, plan, folder, settings, posterior, scaling, map_fit, gr
                 save_burn_in(folder, settings, stop)
             raise
     timings["sampler_s"] = time.perf_counter() - start - handing_over[0]
-    return map_fit, diagnostics, idata, checkpoint
-
-
-def _second_core() -> bool:
-    """Whether this process may run on two cores or more (a worker pinned to one is not:
-    there the evidence would only take turns with the sampler)."""
-    cores = own_cores()
-    return (len(cores) if cores is not None else os.cpu_count() or 1) >= 2
-
-
-def _cancel_evidence(map_fit: Any) -> None:
-    if getattr(map_fit, "pending", None) is not None:
-        map_fit.pending.cancel()
-
-
-def _evidence_finished(map_fit, scaling, groups, obs, folder, diagnostics, timings
-                       ) -> tuple[Any, Any, dict[str, Any] | None]:
-    """The MAP with its evidence once the background computation ends (waited for here;
-    ``timings["evidence_wait_s"]``), in the fit's and the data's units, ``map.json`` and the
-    process-noise check's record of it written again; unchanged when nothing was pending."""
-    pending = getattr(map_fit, "pending", None)
-    if pending is not None:
-        start = time.perf_counter()
-        map_fit = pending.finish(map_fit)
-        timings["evidence_wait_s"] = time.perf_counter() - start
-    map_result = map_fit if scaling is None else scaling.map_result(map_fit, groups, obs)
-    if pending is not None:
-        diagnostics = with_fit_evidence(diagnostics, map_result.log_evidence)
-        if folder is not None:
-            folder.write_map(map_result)
-            if diagnostics is not None:
-                folder.write_json(RunFolder.DIAGNOSTICS, diagnostics)
-    return map_fit, map_result, diagnostics
+    if scaling is not None:
+        idata = scaling.inference_data(idata, groups, obs)
+        model = plan.model(settings, obs)
+        posterior = build_posterior(settings, obs, model)
+    outcome = FitOutcome(settings, obs, model, posterior, map_result, idata, timings=timings,
+                         standardised_scale=None if scaling is None else scaling.scale,
+                         diagnostics=diagnostics, plan=plan,
+                         learning_step=None if step is None else step.record,
+                         map_refound=tuple(refound))
+    return save_run(folder, outcome, checkpoint, warn)
 
 
 def _search_again(settings: Settings, posterior, folder: RunFolder | None,

@@ -56,7 +56,6 @@ __all__ = [
     "sensitivity_summary",
     "step_advice",
     "step_size_check",
-    "with_fit_evidence",
 ]
 
 THRESHOLD_SD = 0.3
@@ -192,16 +191,6 @@ def process_noise_check(settings: Any, obs: Any, posterior: Any, map_result: Any
     return {"fitted": m.process_noise_per, "refit": other, "shifts": shifts,
             "flagged": _check(shifts), "log_evidence": float(map_result.log_evidence),
             "log_evidence_refit": float(alt_map.log_evidence)}
-
-
-def with_fit_evidence(checks: dict | None, log_evidence: float) -> dict | None:
-    """``checks`` with the fit's own log evidence in the process-noise check, for a fit whose
-    evidence ended after its checks were made (computed beside the sampler:
-    :mod:`symplid.inference.map._pending`); the refit's, its shifts and the rest as they were."""
-    noise = None if checks is None else checks.get("process_noise")
-    if not isinstance(noise, dict) or "log_evidence" not in noise:
-        return checks
-    return {**checks, "process_noise": {**noise, "log_evidence": float(log_evidence)}}
 
 
 def _refit_found(result: Any) -> None:

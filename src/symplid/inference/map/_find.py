@@ -87,7 +87,6 @@ from symplid.inference.map._laplace import (
     laplace_covariance,
     scan_from_bound,
 )
-from symplid.inference.map._pending import Evidence, PendingEvidence, provisional
 from symplid.inference.map._result import (
     BoundWarning,
     MapConvergenceWarning,
@@ -170,7 +169,6 @@ def find_map(
     compute_hessian: bool = True,
     evidence: str = "quadrature",
     warn: bool = True,
-    defer_evidence: bool = False,
 ) -> MapResult:
     """The maximum a posteriori point of ``posterior`` by L-BFGS-B from several starts.
 
@@ -207,12 +205,6 @@ def find_map(
     warn
         Warn (:class:`BoundWarning`) when the MAP is on a bound, and
         (:class:`MapConvergenceWarning`) when the search failed (``MapResult.failure``).
-    defer_evidence
-        Leave the quadrature (or log-Laplace) evidence to the caller: the result records the
-        Laplace evidence and carries the rest in ``MapResult.pending``, to start in a
-        background thread and finish later with the same numbers
-        (:mod:`symplid.inference.map._pending`). Nothing is deferred where the evidence is
-        the Laplace value anyway.
 
     Returns
     -------
@@ -244,10 +236,9 @@ def find_map(
                     tuple(parameter_space.groups), model_free_noise(posterior),
                     given_start=init is not None, names=names)
     raised = homotopy_start(posterior, best.theta, default_start(posterior))
-    laplace, (log_evidence, method, details), pending = _evidence_at(
+    laplace, log_evidence, method, details = _evidence_at(
         best, hessians[k_best], failure, at_bounds, names, objective, u_best, fns,
-        parameter_space.groups, evidence if compute_hessian else "none", warn, raised,
-        defer_evidence)
+        parameter_space.groups, evidence if compute_hessian else "none", warn, raised)
     optima = distinct_optima(results, laplace[1], space)
     if warn:
         _warn_outcome(best, failure, at_bounds, names, space, u_best)
@@ -264,7 +255,7 @@ def find_map(
         log_evidence=log_evidence, param_names=names, at_bounds=at_bounds, seed=int(seed),
         seconds=time.perf_counter() - t_begin, settings=settings,
         log_evidence_laplace=laplace[3], evidence_method=method, evidence=details,
-        optima=optima, failure=failure, pending=pending,
+        optima=optima, failure=failure,
     )
 
 
@@ -292,30 +283,22 @@ def _searched(starts: list[np.ndarray], objective: Objective, options: dict[str,
 def _evidence_at(best: StartResult, hessian: np.ndarray | None, failure: str,
                  at_bounds: tuple[str, ...], names: tuple[str, ...], objective: Objective,
                  u_best: np.ndarray, fns: dict[str, Callable], groups: Any, evidence: str,
-                 warn: bool, raised: np.ndarray, defer: bool = False
-                 ) -> tuple[tuple[Any, Any, bool, float], Evidence, PendingEvidence | None]:
-    """((Hessian, covariance, repaired?, Laplace log evidence), (log evidence, its method,
-    details), None) at the best point; ``evidence`` "none" when no Hessian was computed. No
+                 warn: bool, raised: np.ndarray
+                 ) -> tuple[tuple[Any, Any, bool, float], float, str, dict[str, Any]]:
+    """((Hessian, covariance, repaired?, Laplace log evidence), log evidence, its method,
+    details) at the best point; ``evidence`` "none" when no Hessian was computed. No
     evidence at a point that is not an optimum (NaN). ``raised`` (the best point with the
-    variances of the default start) is a second start of the evidence's joint mode. With
-    ``defer``, the quadrature is returned as a :class:`PendingEvidence` (third entry) and
-    the Laplace evidence stands in for it meanwhile."""
+    variances of the default start) is a second start of the evidence's joint mode."""
     if evidence == "none" or hessian is None:
-        return (None, None, False, math.nan), (math.nan, "none", {}), None
+        return (None, None, False, math.nan), math.nan, "none", {}
     bound_idx = [names.index(n) for n in at_bounds]
     laplace = (hessian, *_laplace(hessian, best, bound_idx, objective, u_best, warn))
     if not is_optimum(failure):
         laplace = (*laplace[:3], math.nan)
     if evidence != "laplace" and np.isfinite(best.log_posterior) and is_optimum(failure):
-        def compute(value_and_grad: Callable) -> Evidence:
-            return _quadrature({**fns, "value_and_grad": value_and_grad}, objective.space,
-                               groups, names, best.theta, laplace[3], evidence, raised)
-
-        if defer:
-            pending = PendingEvidence(compute, fns["value_and_grad"], evidence)
-            return laplace, provisional(laplace[3], evidence), pending
-        return laplace, compute(fns["value_and_grad"]), None
-    return laplace, (laplace[3], "laplace", {}), None
+        return laplace, *_quadrature(fns, objective.space, groups, names, best.theta,
+                                     laplace[3], evidence, raised)
+    return laplace, laplace[3], "laplace", {}
 
 
 def _quadrature(fns: dict[str, Callable], space: SearchSpace, groups: tuple[str, ...],

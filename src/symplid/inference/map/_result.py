@@ -132,10 +132,6 @@ class MapResult:
     failure
         Why the search failed ("" when it did not; :mod:`symplid.inference.map._checks`).
         Where the best point is no optimum, ``log_evidence`` is NaN.
-    pending
-        The evidence still to be computed (``find_map(defer_evidence=True)``: a
-        :class:`~symplid.inference.map._pending.PendingEvidence`, whose ``finish(result)``
-        gives the result with it), else None. Not written to JSON.
     """
 
     theta: np.ndarray
@@ -158,7 +154,6 @@ class MapResult:
     evidence: dict[str, Any] = field(default_factory=dict)
     optima: tuple[Optimum, ...] = ()
     failure: str = ""
-    pending: Any = field(default=None, compare=False, repr=False, metadata={"json": False})
 
     @property
     def optima_spread(self) -> float:
