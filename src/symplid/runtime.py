@@ -64,6 +64,7 @@ import contextlib
 import importlib
 import os
 import sys
+import threading
 import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -290,14 +291,32 @@ def blas_threads_chosen() -> bool:
 def one_blas_thread() -> Iterator[None]:
     """BLAS and LAPACK on one thread inside the block, as they were after it (module
     docstring, "BLAS on one thread"); nothing when :func:`blas_threads_chosen`. Also a
-    decorator: ``@one_blas_thread()``."""
+    decorator: ``@one_blas_thread()``.
+
+    The limit is the process's (the libraries keep one count), so blocks that overlap, in
+    one thread or several (MAP searches run from threads),
+    share it: the first to enter sets it, the last to leave restores the counts."""
     if blas_threads_chosen():
         yield
         return
     from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _BLAS_LOCK:
+        if not _BLAS_HELD:
+            _BLAS_HELD.append(threadpool_limits(limits=1, user_api="blas"))
+        else:
+            _BLAS_HELD.append(None)
+    try:
         yield
+    finally:
+        with _BLAS_LOCK:
+            held = _BLAS_HELD.pop()
+            if not _BLAS_HELD:  # the last block to leave: the outermost limiter is popped last
+                held.restore_original_limits()
+
+
+_BLAS_LOCK = threading.Lock()
+_BLAS_HELD: list = []  # the limiter of the outermost block, then None per nested block
 
 
 def limit_blas_threads() -> None:
