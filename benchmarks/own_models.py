@@ -16,11 +16,12 @@ summed over the whole fit, whichever phase asked for it, and its three parts (``
 XLA's compilation, or with a warm cache looking the program up and loading it); ``map``,
 ``refits`` (the dt/2 and process-noise sensitivity refits), ``sampling`` and ``report``
 (predictions and figures), from the run's ``summary.json`` and the child's clock), the
-whole wall time, the smallest bulk ESS per second of sampling, and the time to the target
-(R-hat ≤ 1.01 and ESS ≥ 400: the whole wall time when the fit reached it, else "not
-reached"). Compile seconds overlap
-the phases that compile; they are not added to them. The machine may be shared: the load
-average is printed, compare the trees' ratios, not the seconds.
+whole wall time, the child's CPU seconds (user + system: the steadier figure on a shared
+machine) and the load average when it ended, the smallest bulk ESS per second of
+sampling, and the time to the target (R-hat ≤ 1.01 and ESS ≥ 400: the whole wall time when
+the fit reached it, else "not reached"). Compile seconds overlap the phases that compile;
+they are not added to them. The machine may be shared: the load average is printed,
+compare the trees' ratios, not the seconds.
 
 Run: ``python benchmarks/own_models.py [--baseline OLD/src ...] [--systems pendulum kepler]
 [--iterations N --burn-in M] [--states cold "new data"]`` (the examples' own budgets without
@@ -33,6 +34,7 @@ import argparse
 import importlib.util
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -126,7 +128,10 @@ def on_duration(name, secs, **_):
 monitoring.register_event_duration_secs_listener(on_duration)
 from symplid.cli import main
 from symplid.io import read_trajectories
-from symplid.workflow._settings import load_settings, resolve_for_data
+try:
+    from symplid.workflow._settings import load_settings, resolve_for_data
+except ImportError:  # a tree from before the modules were private
+    from symplid.workflow.settings import load_settings, resolve_for_data
 data, config, out, extra = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
 start = time.perf_counter()
 resolve_for_data(load_settings(config), read_trajectories([data]), config)
@@ -149,15 +154,19 @@ def child_fit(child: str, src: Path, data: Path, config: Path, out: Path, cache:
     # the tree's src first; what the caller put on the path (a package of its own) after it
     path = os.pathsep.join(filter(None, (str(src), os.environ.get("PYTHONPATH"))))
     env = dict(os.environ, PYTHONPATH=path, SYMPLID_CACHE_DIR=str(cache))
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run([sys.executable, "-c", child, str(data), str(config), str(out),
                            *extra], env=env, capture_output=True, text=True,
                           preexec_fn=None if cores is None else
                           (lambda: os.sched_setaffinity(0, set(cores))), check=False)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     line = next((x for x in proc.stdout.splitlines() if x.startswith("BENCH ")), None)
     if proc.returncode != 0 or line is None:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         raise SystemExit(f"the fit failed with {src}: {' | '.join(tail)}")
-    return json.loads(line[6:]), json.loads((out / "summary.json").read_text())
+    cpu = (after.ru_utime + after.ru_stime) - (used.ru_utime + used.ru_stime)
+    return ({**json.loads(line[6:]), "cpu": cpu},
+            json.loads((out / "summary.json").read_text()))
 
 
 def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra: list[str],
@@ -171,7 +180,8 @@ def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra
     return {"parse": clock["parse"], "compile": clock["compile"], "trace": clock["trace"],
             "lower": clock["lower"], "xla": clock["xla"], "map": t.get("map_s"),
             "refits": t.get("diagnostics_s", 0.0), "sampling": sampling,
-            "report": clock["report"], "wall": wall, "ess_per_s": ess / sampling,
+            "report": clock["report"], "wall": wall, "cpu": clock["cpu"],
+            "load": os.getloadavg()[0], "ess_per_s": ess / sampling,
             "target": wall if reached else None, "rhat": rhat, "ess": ess}
 
 
@@ -217,7 +227,7 @@ def main() -> None:
 
 
 HEADER = ("| system | tree | cache | parse | compile (trace + lower + XLA) | MAP | refits "
-          "| sampling | report | wall | ESS/s | to target |")
+          "| sampling | report | wall | CPU s | load | ESS/s | to target |")
 
 
 def _row(system: str, tree: str, cache: str, r: dict) -> str:
@@ -225,13 +235,14 @@ def _row(system: str, tree: str, cache: str, r: dict) -> str:
     return (f"| {system} | {tree} | {cache} | {r['parse']:.2f} | {r['compile']:.1f} "
             f"({r['trace']:.1f} + {r['lower']:.1f} + {r['xla']:.1f}) | "
             f"{r['map']:.1f} | {r['refits']:.1f} | {r['sampling']:.1f} | {r['report']:.1f} | "
-            f"{r['wall']:.1f} | {r['ess_per_s']:.1f} | {target} |")
+            f"{r['wall']:.1f} | {r['cpu']:.1f} | {r['load']:.1f} | {r['ess_per_s']:.1f} | "
+            f"{target} |")
 
 
 def _print_table(rows: list[tuple[str, str, str, dict]]) -> None:
     print("\nseconds (compile overlaps the phases that compile)\n")
     print(HEADER)
-    print("|---" * 12 + "|")
+    print("|---" * 14 + "|")
     for row in rows:
         print(_row(*row))
     by = {(s, t, c): r for s, t, c, r in rows}
@@ -241,6 +252,7 @@ def _print_table(rows: list[tuple[str, str, str, dict]]) -> None:
             base = by.get((system, name, cache))
             if base is not None:
                 print(f"{system} ({cache}): wall this/{name} {r['wall'] / base['wall']:.2f}, "
+                      f"CPU {r['cpu'] / base['cpu']:.2f}, "
                       f"compile {r['compile'] / max(base['compile'], 1e-9):.2f}")
 
 

@@ -43,6 +43,17 @@ initializer that binds worker *i* to core *i* mod the cores this process may use
 has no flag for the size of its intra-op pool: it is the number of cores the process may
 run on, so pinning (before the backend starts) is what makes it one.
 
+**BLAS on one thread.** The MAP search (L-BFGS-B), its Hessians' eigendecompositions and the
+evidence's inner searches call LAPACK on matrices of a few rows, thousands of times a fit.
+OpenBLAS hands each call to its thread pool, and when the other core is busy the caller waits
+for that thread's time slice: measured on two shared cores (load 8), a 7-parameter L-BFGS-B
+search took 60–400 ms with OpenBLAS's two threads against 0.5 ms on one, and a warm fit of an
+elastic pendulum spent 28 of its 77 s inside L-BFGS-B's own arithmetic. Nothing in a fit gains
+from BLAS threads (its large arithmetic is XLA's, with its own pool), and the numbers do not
+change: :func:`one_blas_thread` is the block (it decorates ``find_map`` and
+``quadrature_evidence``), :func:`limit_blas_threads` the whole process (the command line).
+Both leave a count the user set (``THREAD_VARIABLES``) as it is.
+
 **Optional dependencies.** What only the sweeps need (Dask, pyarrow) is the ``sweeps`` extra;
 :func:`require_extra` is the one check, which names the command that installs it.
 """
@@ -53,6 +64,7 @@ import contextlib
 import importlib
 import os
 import sys
+import threading
 import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -60,12 +72,15 @@ from pathlib import Path
 __all__ = [
     "MissingExtraError",
     "XlaFlagsWarning",
+    "blas_threads_chosen",
     "configure_xla",
     "cores_for_a_while",
     "default_cache_dir",
     "enable_compilation_cache",
+    "limit_blas_threads",
     "limit_threads",
     "merge_xla_flags",
+    "one_blas_thread",
     "one_line_warnings",
     "own_cores",
     "pin_worker",
@@ -264,6 +279,57 @@ def configure_xla() -> str | None:
 #: Thread-count variables of the numerical libraries below NumPy and SciPy.
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                     "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+def blas_threads_chosen() -> bool:
+    """Whether a thread count of the numerical libraries is set in the environment (one of
+    ``THREAD_VARIABLES``): then symplid keeps it."""
+    return any(os.environ.get(name, "").strip() for name in THREAD_VARIABLES)
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """BLAS and LAPACK on one thread inside the block, as they were after it (module
+    docstring, "BLAS on one thread"); nothing when :func:`blas_threads_chosen`. Also a
+    decorator: ``@one_blas_thread()``.
+
+    The limit is the process's (the libraries keep one count), so blocks that overlap, in
+    one thread or several (MAP searches run from threads),
+    share it: the first to enter sets it, the last to leave restores the counts."""
+    if blas_threads_chosen():
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    with _BLAS_LOCK:
+        if not _BLAS_HELD:
+            _BLAS_HELD.append(threadpool_limits(limits=1, user_api="blas"))
+        else:
+            _BLAS_HELD.append(None)
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            held = _BLAS_HELD.pop()
+            if not _BLAS_HELD:  # the last block to leave: the outermost limiter is popped last
+                held.restore_original_limits()
+
+
+_BLAS_LOCK = threading.Lock()
+_BLAS_HELD: list = []  # the limiter of the outermost block, then None per nested block
+
+
+def limit_blas_threads() -> None:
+    """BLAS, LAPACK and OpenMP on one thread for the rest of this process (the command line):
+    the libraries loaded already by :mod:`threadpoolctl`, those loaded later by
+    ``THREAD_VARIABLES`` (also inherited by child processes). Nothing when
+    :func:`blas_threads_chosen`."""
+    if blas_threads_chosen():
+        return
+    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")  # not restored: for the process's lifetime
 
 
 def single_thread_environment(xla_flags: str | None = None) -> dict[str, str]:

@@ -35,6 +35,7 @@ def main() -> None:
 
     runtime.enable_compilation_cache()
     runtime.one_line_warnings()
+    runtime.limit_blas_threads()  # small LAPACK calls, thousands a fit: no thread pool
 
 
 for _command in (reproduce, simulate, fit, predict, report, compare, discover, sweep, study):

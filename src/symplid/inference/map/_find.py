@@ -106,6 +106,7 @@ from symplid.inference.map._starts import (
     warn_optima,
 )
 from symplid.model._params import ParameterSpace
+from symplid.runtime import one_blas_thread
 
 Array = jax.Array
 EVIDENCE_METHODS = ("quadrature", "laplace", "log-laplace")
@@ -152,6 +153,7 @@ def _compiled(posterior: Any, space: SearchSpace) -> dict[str, Callable]:
 
 
 # ----------------------------------------------------------------------------- the search
+@one_blas_thread()  # LAPACK on a few rows, thousands of times
 def find_map(
     posterior: Any,
     seed: int = 0,
