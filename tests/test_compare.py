@@ -273,3 +273,31 @@ def test_compare_models_checks_its_inputs(double_well, settings):
         compare_models([data, positions], learned, orders="4", progress=False)
     with pytest.raises(TypeError, match=r"obs\[1\] must be a symplid.Observations"):
         compare_models([data, "x"], settings, orders="4", progress=False)
+
+
+def test_a_non_separable_user_h_is_compared_with_the_integrator_its_fit_uses():
+    """A user's non-separable H with the default leapfrog is fitted with Tao's method; compare
+    without --integrators takes the same (it used to build the candidate with leapfrog and
+    stop with a traceback). Data: SciPy DOP853 of H = ½p²(1 + a q²) + ½k q²."""
+    from scipy.integrate import solve_ivp
+
+    from symplid.model._data import Observations
+    from symplid.workflow._settings import settings_from_dict
+
+    a, k = 0.5, 2.0
+    times = 0.5 * np.arange(1, 31)
+    flow = solve_ivp(lambda _t, x: [x[1] * (1 + a * x[0] ** 2), -(a * x[0] * x[1] ** 2 + k * x[0])],
+                     (0.0, times[-1]), [1.0, 0.0], t_eval=times, rtol=1e-11, atol=1e-12)
+    noise = 0.02 * np.random.default_rng(0).standard_normal((times.size, 2))
+    obs = Observations(times=times, values=flow.y.T + noise, names=("q1", "p1"))
+    settings = settings_from_dict({
+        "model": {"hamiltonian": "0.5*p1^2*(1 + a*q1^2) + 0.5*k*q1^2", "dt": 0.1,
+                  "parameters": {"a": {"prior": "half-normal", "scale": 2},
+                                 "k": {"prior": "half-normal", "scale": 5}}},
+        "initial_state": {"x0": [1.0, 0.0]}, "map": {"num_starts": 1}})
+    assert settings.model.integrator == "leapfrog"
+    table = compare_models(obs, settings, progress=False)
+    assert list(table["integrator"]) == ["tao"]
+    assert bool(table.loc[0, "converged"]) and np.isfinite(table.loc[0, "log_evidence"])
+    assert table.loc[0, "a"] == pytest.approx(a, rel=0.05)  # measured 0.508
+    assert table.loc[0, "k"] == pytest.approx(k, rel=0.05)  # measured 1.989

@@ -242,10 +242,11 @@ def fit_candidates(
 
     datasets = _as_list(obs)
     order_list = [settings.model.order] if orders is None else parse_orders(orders)
-    integrator_list = (
-        [settings.model.integrator] if integrators is None else parse_integrators(integrators)
-    )
     base = resolve_all(settings, datasets, source)
+    # the settings' integrator as the data resolved it (a non-separable H: Tao's method)
+    integrator_list = (
+        [base.model.integrator] if integrators is None else parse_integrators(integrators)
+    )
     damping_list = [settings.model.damping] if dampings is None else _dampings(dampings)
     noise_list = ([settings.model.process_noise_per] if process_noises is None
                   else _process_noises(process_noises))
