@@ -64,6 +64,7 @@ __all__ = [
     "X0",
     "draw_truth",
     "fit_replication",
+    "rank_metrics",
     "run_cell",
     "run_sbc_study",
     "sbc_spec",
@@ -193,8 +194,19 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
     truth = draw_truth(int(cell["seed"]), str(cell["likelihood"]))
     obs = simulate_model(truth, cell)
     posterior, draws, table = fit_replication(cell, obs)
+    metrics = rank_metrics(posterior.param_names, draws, truth, table)
+    metrics["wall_time_s"] = time.perf_counter() - start
+    return metrics
+
+
+def rank_metrics(names: Any, draws: np.ndarray, truth: Mapping[str, float],
+                 table: Any) -> dict[str, Any]:
+    """A replication's flat metrics: per parameter of θ (``names``, the last axis of
+    ``draws``), the rank of its truth among :data:`~symplid.studies._claims_stats.RANK_DRAWS`
+    and :data:`THIN_DRAWS` thinned draws, the truth, R-hat and the smaller of bulk and tail
+    ESS (from the diagnostics ``table``); and the largest R-hat and smallest ESS of all."""
     metrics: dict[str, Any] = {"rank_draws": RANK_DRAWS, "thin_draws": THIN_DRAWS}
-    for i, name in enumerate(posterior.param_names):
+    for i, name in enumerate(names):
         metrics[f"sbc.{name}.rank"] = truth_rank(draws[..., i], truth[name], RANK_DRAWS)
         metrics[f"sbc.{name}.rank_thin"] = truth_rank(draws[..., i], truth[name], THIN_DRAWS)
         metrics[f"sbc.{name}.truth"] = truth[name]
@@ -203,7 +215,6 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
                                                table.loc[name, "ess_tail"]))
     metrics["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy(dtype=float)))
     metrics["ess_min"] = float(np.nanmin(table[["ess_bulk", "ess_tail"]].to_numpy(dtype=float)))
-    metrics["wall_time_s"] = time.perf_counter() - start
     return metrics
 
 

@@ -50,8 +50,7 @@ import numpy as np
 from symplid.inference._diagnostics import summary as diagnostics_summary
 from symplid.model._data import Observations
 from symplid.sampling import draws_array
-from symplid.studies._claims_stats import RANK_DRAWS, truth_rank
-from symplid.studies._sbc import THIN_DRAWS
+from symplid.studies._sbc import rank_metrics
 from symplid.workflow._experiment import Experiment
 from symplid.workflow._settings import Settings, settings_from_dict
 from symplid.workflow._settings_schema import prior_spec
@@ -158,20 +157,10 @@ def run_cell(cell: dict[str, Any]) -> dict[str, Any]:
         warnings.simplefilter("ignore")  # a replication's warnings are its metrics
         outcome = fit(obs, settings_for(seed), progress=False)
         table = diagnostics_summary(outcome.idata, show=False, warn=False)
-    draws = draws_array(outcome.idata)
     names = list(outcome.posterior.param_names)
     if sorted(names) != sorted(truth):
         raise RuntimeError(f"θ is {names}, the study draws {sorted(truth)}")
-    metrics: dict[str, Any] = {"rank_draws": RANK_DRAWS, "thin_draws": THIN_DRAWS}
-    for i, name in enumerate(names):
-        metrics[f"sbc.{name}.rank"] = truth_rank(draws[..., i], truth[name], RANK_DRAWS)
-        metrics[f"sbc.{name}.rank_thin"] = truth_rank(draws[..., i], truth[name], THIN_DRAWS)
-        metrics[f"sbc.{name}.truth"] = truth[name]
-        metrics[f"sbc.{name}.rhat"] = float(table.loc[name, "r_hat"])
-        metrics[f"sbc.{name}.ess"] = float(min(table.loc[name, "ess_bulk"],
-                                               table.loc[name, "ess_tail"]))
-    metrics["rhat_max"] = float(np.nanmax(table["r_hat"].to_numpy(dtype=float)))
-    metrics["ess_min"] = float(np.nanmin(table[["ess_bulk", "ess_tail"]].to_numpy(dtype=float)))
+    metrics = rank_metrics(names, draws_array(outcome.idata), truth, table)
     metrics["dt"] = float(outcome.settings.model.dt)
     metrics["reached_target"] = float(outcome.idata.attrs.get("stopped_by") == "target")
     metrics["iterations"] = float(outcome.idata.attrs.get("iterations", math.nan))
