@@ -23,6 +23,7 @@ from symplid.workflow._step_size import (
     THRESHOLD_SD,
     _halvings,
     choose_step,
+    first_candidate,
     map_at_step,
     smallest_gap,
     step_lines,
@@ -57,6 +58,36 @@ def test_smallest_gap_over_trajectories_and_from_t0():
     assert smallest_gap(a) == pytest.approx(0.25)
     assert smallest_gap([a, b]) == pytest.approx(0.1)
     assert smallest_gap(a, t0=0.45) == pytest.approx(0.05)  # t0 → first observation
+
+
+def test_first_candidate_is_the_smallest_gap_unless_one_close_pair_sets_it():
+    regular = symplid.Observations(0.25 * np.arange(1, 9), np.zeros((8, 1)), ("q1",))
+    assert first_candidate(regular) == smallest_gap(regular) == pytest.approx(0.25)
+    # one pair 0.005 apart among gaps of 0.5: a quarter of the median gap, not the pair's
+    times = np.sort(np.r_[0.5 * np.arange(1, 21), 3.005])
+    irregular = symplid.Observations(times, np.zeros((times.size, 1)), ("q1",))
+    assert smallest_gap(irregular) == pytest.approx(0.005)
+    assert first_candidate(irregular) == pytest.approx(0.5 / 4)
+
+
+def test_a_close_pair_of_times_does_not_set_the_step_of_every_gap():
+    """The slow pendulum's record with one extra observation 0.002 after another: the search
+    starts at a quarter of the median gap and its step passes the check (the pair's own gap
+    would have meant 125 substeps per gap)."""
+    obs = _pendulum(1.0)
+    times = np.sort(np.r_[obs.times, obs.times[9] + 0.002])
+    k = K_SLOW
+    sol = solve_ivp(lambda _t, x: [x[1], -k * np.sin(x[0])], (0.0, times[-1]), [1.0, 0.0],
+                    t_eval=times, method="DOP853", rtol=1e-11, atol=1e-13)
+    q = sol.y[0] + 0.05 * np.random.default_rng(0).standard_normal(times.size)
+    close = symplid.Observations(times, q[:, None], ("q1",))
+    choice = choose_step(_settings(1.0, close), close, search=find_map_for)
+    record = choice.record
+    assert record["smallest_gap"] == pytest.approx(0.002)
+    assert record["first_candidate"] == pytest.approx(0.25 / 4)
+    assert record["passed"] and record["dt"] <= record["first_candidate"]
+    assert record["dt"] > 10 * record["smallest_gap"]
+    assert abs(choice.theta[0] - K_SLOW) < 0.1
 
 
 def test_halvings_follow_the_integrators_order():

@@ -5,10 +5,15 @@ order p moves it by about C·dt^p. A fit at a given dt cannot see this bias; hal
 shows it (Richardson): θ̂(dt) − θ̂(dt/2) ≈ C·dt^p·(1 − 2^−p). The search chooses **the largest
 step whose halving moves no dynamics parameter** (:data:`~symplid.workflow._sensitivity.
 DYNAMICS_GROUPS`) **by more than** :data:`THRESHOLD_SD` **posterior sds at the MAP**, never
-above the data's smallest gap:
+above the first candidate:
 
-1. the first candidate is the data's smallest gap (:func:`smallest_gap`; a step above it
-   would be cut to the gap anyway, ⌈gap/dt⌉ = 1); its MAP is the fit's whole search
+1. the first candidate (:func:`first_candidate`) is the data's smallest gap (a step above it
+   would be cut to the gap anyway, ⌈gap/dt⌉ = 1) — or, on irregular times, a quarter of the
+   median gap where that is larger (:data:`MEDIAN_FRACTION`), so that one close pair of
+   observations does not set the step of every gap (measured: a pair 0.0045 apart among
+   gaps of median 0.48 put 600 substeps into the longest gap, where the check passes at
+   0.12); the gaps shorter than the step are integrated in one step of their own length,
+   and the halving check below decides as for any candidate. Its MAP is the fit's whole search
    (``map.num_starts`` starts and the Laplace sds). If that search fails, the step is halved
    and searched again (up to :data:`MAX_FIRST_TRIES` times);
 2. the MAP at dt/2 is found from the MAP at dt (one warm start, no Hessian) and each
@@ -46,10 +51,12 @@ __all__ = [
     "MAX_FIRST_TRIES",
     "MAX_HALVINGS",
     "MAX_JUMP",
+    "MEDIAN_FRACTION",
     "THRESHOLD_SD",
     "UNSEARCHED_STEP",
     "StepChoice",
     "choose_step",
+    "first_candidate",
     "map_at_step",
     "smallest_gap",
     "step_check",
@@ -63,8 +70,11 @@ THRESHOLD_SD = 0.1
 may cause."""
 
 MAX_HALVINGS = 8
-"""The chosen step is at least the smallest gap / 2^MAX_HALVINGS; a search that reaches it
+"""The chosen step is at least the first candidate / 2^MAX_HALVINGS; a search that reaches it
 keeps it and says that the check did not pass."""
+
+MEDIAN_FRACTION = 4
+"""On irregular times the first candidate is at least the median gap over this."""
 
 MAX_JUMP = 3
 """The most halvings the order's prediction may skip at once."""
@@ -90,9 +100,9 @@ class StepChoice:
     posterior: Any = None
 
 
-def smallest_gap(obs: Any, t0: float | str = "first") -> float:
-    """The smallest positive time between consecutive observations (and between ``t0`` and
-    the first, for a numeric ``t0``) over every trajectory: the largest useful step."""
+def _gaps(obs: Any, t0: float | str) -> np.ndarray:
+    """The positive times between consecutive observations (and between ``t0`` and the
+    first, for a numeric ``t0``) over every trajectory."""
     gaps = []
     for o in as_list(obs):
         times = np.asarray(o.times, dtype=float)
@@ -103,7 +113,20 @@ def smallest_gap(obs: Any, t0: float | str = "first") -> float:
     positive = np.concatenate(gaps)
     if positive.size == 0:
         raise ValueError("the data have no two distinct observation times to choose dt from")
-    return float(np.min(positive))
+    return positive
+
+
+def smallest_gap(obs: Any, t0: float | str = "first") -> float:
+    """The smallest positive time between consecutive observations (and between ``t0`` and
+    the first, for a numeric ``t0``) over every trajectory."""
+    return float(np.min(_gaps(obs, t0)))
+
+
+def first_candidate(obs: Any, t0: float | str = "first") -> float:
+    """The search's first (and largest) step: the smallest gap, or the median gap over
+    :data:`MEDIAN_FRACTION` where that is larger (irregular times; module docstring)."""
+    gaps = _gaps(obs, t0)
+    return float(max(np.min(gaps), np.median(gaps) / MEDIAN_FRACTION))
 
 
 def map_at_step(settings: Any, obs: Any, dt: float, init: np.ndarray | None = None,
@@ -217,7 +240,7 @@ def _found(result: Any, dt: float) -> None:
 def _first_search(settings: Any, obs: Any, gap: float, search: Callable | None,
                   status: Callable[[str], None] | None,
                   plan: Any = None) -> tuple[float, Any, Any, int]:
-    """The fit's whole MAP search at the smallest gap, at half of it if it fails, ...: (dt,
+    """The fit's whole MAP search at the first candidate, at half of it if it fails, ...: (dt,
     MAP in the data's units, posterior, tries). Raises the last failure's MapFailedError."""
     from symplid.inference.map import MapFailedError, failure_message
 
@@ -257,8 +280,9 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     -------
     StepChoice
         The settings with the chosen ``model.dt``, the MAP there and the record:
-        ``dt``, ``smallest_gap``, ``integrator``, ``order``, ``threshold_sd``, ``shifts``
-        (each dynamics parameter's move when the chosen step is halved, in its Laplace sds),
+        ``dt``, ``smallest_gap``, ``first_candidate``, ``integrator``, ``order``,
+        ``threshold_sd``, ``shifts`` (each dynamics parameter's move when the chosen step is
+        halved, in its Laplace sds),
         ``largest_shift_sd``, ``passed``, ``tried`` (each step tried and its largest move, in
         words), ``refits`` and ``seconds``.
     """
@@ -266,8 +290,9 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     if model_family(settings.model).neural:
         return unchecked_step(settings, obs, "a neural family's MAP is its whole Adam + L-BFGS "
                               "fit, too costly to refit")
-    gap = smallest_gap(obs, settings.initial_state.t0)
-    base = _base(settings, gap)
+    gap = first_candidate(obs, settings.initial_state.t0)
+    base = {**_base(settings, smallest_gap(obs, settings.initial_state.t0)),
+            "first_candidate": gap}
     order = base["order"]
     dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
