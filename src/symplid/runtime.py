@@ -294,8 +294,8 @@ def one_blas_thread() -> Iterator[None]:
     decorator: ``@one_blas_thread()``.
 
     The limit is the process's (the libraries keep one count), so blocks that overlap, in
-    one thread or several (MAP searches run from threads),
-    share it: the first to enter sets it, the last to leave restores the counts."""
+    one thread or several (MAP searches run from threads), share it: the first to enter sets
+    it, the last to leave restores the counts."""
     if blas_threads_chosen():
         yield
         return

@@ -12,7 +12,7 @@ above the first candidate:
    median gap where that is larger (:data:`MEDIAN_FRACTION`), so that one close pair of
    observations does not set the step of every gap (measured: a pair 0.0045 apart among
    gaps of median 0.48 put 600 substeps into the longest gap, where the check passes at
-   0.12); the gaps shorter than the step are integrated in one step of their own length,
+   0.15); the gaps shorter than the step are integrated in one step of their own length,
    and the halving check below decides as for any candidate. Its MAP is the fit's whole search
    (``map.num_starts`` starts and the Laplace sds). If that search fails, the step is halved
    and searched again (up to :data:`MAX_FIRST_TRIES` times);
