@@ -28,6 +28,7 @@ __all__ = [
     "quiet_option",
     "rk2_variants",
     "sampler_registry",
+    "sbc_defaults_study_options",
     "sbc_study_options",
     "sets_option",
     "shift_study_options",
@@ -140,22 +141,18 @@ def baselines_study_options(fn: Any) -> Any:
     return fn
 
 
-def sbc_study_options(fn: Any) -> Any:
-    """The options of ``symplid study sbc``, and its user errors as one line
+def _replication_options(fn: Any, *own: Any) -> Any:
+    """An SBC study's options (``--out``, ``--replications``, then ``own``, then
+    ``--workers``, ``--report-only``, ``--no-progress``), and its user errors as one line
     (:func:`~symplid.cli._errors.user_errors`)."""
     options = [
         click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
                      help="Study folder (a rerun skips the finished replications)."),
         click.option("--replications", type=click.IntRange(min=1), default=100,
                      show_default=True),
-        click.option("--likelihoods", default="gap,none", show_default=True,
-                     help="gap (process noise once per gap), none (deterministic), or both."),
-        click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
-                     show_default=True, help="Sampler budget per replication."),
-        click.option("--samplers", default="dram", show_default=True,
-                     help="dram, nuts, or both (dram,nuts): each runs every replication from "
-                     "the MAP."),
-        click.option("--workers", type=click.IntRange(min=1), default=None),
+        *own,
+        click.option("--workers", type=click.IntRange(min=1), default=None,
+                     help="Local worker processes [default: one per core]."),
         click.option("--report-only", is_flag=True,
                      help="Run nothing: report the replications OUT holds."),
         no_progress_option,
@@ -164,6 +161,26 @@ def sbc_study_options(fn: Any) -> Any:
     for option in reversed(options):
         fn = option(fn)
     return fn
+
+
+def sbc_study_options(fn: Any) -> Any:
+    """The options of ``symplid study sbc``."""
+    return _replication_options(
+        fn,
+        click.option("--likelihoods", default="gap,none", show_default=True,
+                     help="gap (process noise once per gap), none (deterministic), or both."),
+        click.option("--budget", type=click.Choice(["full", "quick"]), default="full",
+                     show_default=True, help="Sampler budget per replication."),
+        click.option("--samplers", default="dram", show_default=True,
+                     help="dram, nuts, or both (dram,nuts): each runs every replication from "
+                     "the MAP."),
+    )
+
+
+def sbc_defaults_study_options(fn: Any) -> Any:
+    """The options of ``symplid study sbc-defaults`` (nothing to choose but the
+    replications: the fits take every default)."""
+    return _replication_options(fn)
 
 
 def shift_study_options(fn: Any) -> Any:

@@ -16,6 +16,7 @@ from symplid.cli._errors import user_errors
 from symplid.cli._options import (
     baselines_study_options,
     no_progress_option,
+    sbc_defaults_study_options,
     sbc_study_options,
     shift_study_options,
 )
@@ -141,15 +142,7 @@ def sbc_study(out, replications, likelihoods, budget, samplers, workers, report_
 
 
 @study.command("sbc-defaults")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Study folder (a rerun skips the finished replications).")
-@click.option("--replications", type=click.IntRange(min=1), default=100, show_default=True)
-@click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Local worker processes [default: one per core].")
-@click.option("--report-only", is_flag=True,
-              help="Write the report from the replications the folder holds; run nothing.")
-@no_progress_option
-@user_errors
+@sbc_defaults_study_options
 def sbc_defaults_study(out, replications, workers, report_only, no_progress) -> None:
     """Simulation-based calibration of the defaults: a user's damped pendulum, fitted as
     `symplid fit` fits it with nothing but its priors given."""
