@@ -302,21 +302,20 @@ def one_blas_thread() -> Iterator[None]:
     from threadpoolctl import threadpool_limits
 
     with _BLAS_LOCK:
-        if not _BLAS_HELD:
-            _BLAS_HELD.append(threadpool_limits(limits=1, user_api="blas"))
-        else:
-            _BLAS_HELD.append(None)
+        if _BLAS["depth"] == 0:
+            _BLAS["limiter"] = threadpool_limits(limits=1, user_api="blas")
+        _BLAS["depth"] += 1
     try:
         yield
     finally:
         with _BLAS_LOCK:
-            held = _BLAS_HELD.pop()
-            if not _BLAS_HELD:  # the last block to leave: the outermost limiter is popped last
-                held.restore_original_limits()
+            _BLAS["depth"] -= 1
+            if _BLAS["depth"] == 0:  # the last block to leave restores the counts
+                _BLAS.pop("limiter").restore_original_limits()
 
 
 _BLAS_LOCK = threading.Lock()
-_BLAS_HELD: list = []  # the limiter of the outermost block, then None per nested block
+_BLAS: dict = {"depth": 0}  # the blocks inside, and the first one's limiter while any is
 
 
 def limit_blas_threads() -> None:
