@@ -50,8 +50,9 @@ for that thread's time slice: measured on two shared cores (load 8), a 7-paramet
 search took 60–400 ms with OpenBLAS's two threads against 0.5 ms on one, and a warm fit of an
 elastic pendulum spent 28 of its 77 s inside L-BFGS-B's own arithmetic. Nothing in a fit gains
 from BLAS threads (its large arithmetic is XLA's, with its own pool), and the numbers do not
-change: :func:`one_blas_thread` is the block (it decorates ``find_map`` and
-``quadrature_evidence``), :func:`limit_blas_threads` the whole process (the command line).
+change: :func:`one_blas_thread` is the block (it decorates ``find_map``, whose evidence's
+inner searches run inside it), :func:`limit_blas_threads` the whole process (the command
+line).
 Both leave a count the user set (``THREAD_VARIABLES``) as it is.
 
 **Optional dependencies.** What only the sweeps need (Dask, pyarrow) is the ``sweeps`` extra;

@@ -94,7 +94,6 @@ from symplid._stopping import check as check_stop
 from symplid.inference.map._laplace import laplace_covariance, repaired_eigenvalues, scan_from_bound
 from symplid.inference.map._space import SearchSpace
 from symplid.model._params import POSITIVE_GROUPS
-from symplid.runtime import one_blas_thread
 
 EVIDENCE_RULES = ("quadrature", "log-laplace")
 """Choices of :func:`quadrature_evidence`'s ``rule`` (module docstring, steps 4–6)."""
@@ -357,7 +356,6 @@ def _integrate(grid: _Grid, dims: tuple[int, ...], settings: EvidenceSettings) -
     return value, 2.0 * (0.5 * coarse_error) ** 4
 
 
-@one_blas_thread()  # LAPACK on a few rows, thousands of times
 def quadrature_evidence(
     value_and_grad: Callable,
     hessian: Callable,
