@@ -235,7 +235,9 @@ def find_map(
     failure = judge(best, tuple(results), hessians[k_best], space,
                     tuple(parameter_space.groups), model_free_noise(posterior),
                     given_start=init is not None, names=names)
-    raised = homotopy_start(posterior, best.theta, default_start(posterior))
+    # the joint mode's second start, for an evidence beyond the Laplace one
+    raised = (homotopy_start(posterior, best.theta, default_start(posterior))
+              if compute_hessian and evidence != "laplace" else None)
     laplace, log_evidence, method, details = _evidence_at(
         best, hessians[k_best], failure, at_bounds, names, objective, u_best, fns,
         parameter_space.groups, evidence if compute_hessian else "none", warn, raised)
@@ -283,7 +285,7 @@ def _searched(starts: list[np.ndarray], objective: Objective, options: dict[str,
 def _evidence_at(best: StartResult, hessian: np.ndarray | None, failure: str,
                  at_bounds: tuple[str, ...], names: tuple[str, ...], objective: Objective,
                  u_best: np.ndarray, fns: dict[str, Callable], groups: Any, evidence: str,
-                 warn: bool, raised: np.ndarray
+                 warn: bool, raised: np.ndarray | None
                  ) -> tuple[tuple[Any, Any, bool, float], float, str, dict[str, Any]]:
     """((Hessian, covariance, repaired?, Laplace log evidence), log evidence, its method,
     details) at the best point; ``evidence`` "none" when no Hessian was computed. No
