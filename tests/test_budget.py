@@ -18,7 +18,12 @@ from sampler_targets import Gaussian2D, TwoModes
 from symplid.cli import main
 from symplid.inference._diagnostics import import_arviz
 from symplid.sampling import RunOptions, Targets, draws_array, sample
-from symplid.sampling._budget import BudgetMonitor, draw_statistics
+from symplid.sampling._budget import (
+    SHORTFALL,
+    BudgetMonitor,
+    TargetsOutOfReach,
+    draw_statistics,
+)
 from symplid.sampling._resume import checkpoint_arrays, resume_sampling
 from symplid.sampling._run import SamplingInterrupted
 from symplid.workflow._results import RunFolder
@@ -106,6 +111,55 @@ def test_the_checks_come_on_a_geometric_grid():
     assert not monitor.due(9999, False) and monitor.due(10_000, False)
 
 
+def _ar1(rho: float, chains: int, n: int, seed: int) -> np.ndarray:
+    """``chains`` stationary AR(1) chains of ``n`` draws and two parameters, coefficient rho."""
+    rng = np.random.default_rng(seed)
+    e = rng.normal(size=(chains, n, 2))
+    x = np.empty_like(e)
+    x[:, 0] = e[:, 0] / np.sqrt(1 - rho**2)
+    for i in range(1, n):
+        x[:, i] = rho * x[:, i - 1] + e[:, i]
+    return x
+
+
+@pytest.mark.parametrize("rho", [0.98, 0.995])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_projection_is_the_iterations_an_ar1_chain_needs(rho, seed):
+    # An AR(1) chain's ESS per draw is (1 − ρ)/(1 + ρ) (its integrated autocorrelation time),
+    # so four chains reach an ESS of 400 after 400 (1 + ρ) / (4 (1 − ρ)) draws each.
+    monitor = BudgetMonitor(Targets(), burn_in=1000, thin=1, num_chains=4)
+    monitor.check(_ar1(rho, 4, 6000, seed), 7000)
+    exact = 1000 + 400 * (1 + rho) / (4 * (1 - rho))
+    assert 0.75 < monitor.projected_iterations() / exact < 1.4
+
+
+def test_the_cap_is_said_to_come_first_once_from_the_second_check():
+    slow = _ar1(0.995, 4, 6000, 0)  # needs about 41,000 iterations per chain
+    short = BudgetMonitor(Targets(max_iterations=15_000), burn_in=1000, thin=1, num_chains=4)
+    short.check(slow[:, :4000], 5000)
+    assert short.projected_iterations() > SHORTFALL * 15_000
+    assert short.out_of_reach() is None  # one check: too early to say
+    short.check(slow, 7000)
+    line = short.out_of_reach()
+    assert line is not None and "beyond its cap of 15,000" in line
+    assert short.out_of_reach() is None  # said once
+    roomy = BudgetMonitor(Targets(max_iterations=100_000), burn_in=1000, thin=1, num_chains=4)
+    for done in (5000, 7000):
+        roomy.check(slow[:, : done - 1000], done)
+    assert roomy.projected_iterations() < SHORTFALL * 100_000 and roomy.out_of_reach() is None
+
+
+def test_a_run_that_cannot_reach_its_targets_says_so_before_its_cap():
+    target = Gaussian2D()
+    targets = Targets(ess_bulk=1e6, max_iterations=8000)
+    with pytest.warns(TargetsOutOfReach, match="beyond its cap of 8,000"):
+        idata = sample(target, "dram", num_chains=2, seed=0, init=target.map_result(),
+                       options=dataclasses.replace(QUIET, targets=targets))
+    record = json.loads(idata.attrs["budget"])
+    assert idata.attrs["stopped_by"] == "iterations"
+    assert record["projected_iterations"] > SHORTFALL * 8000
+
+
 @pytest.mark.parametrize("method", ["dram", "nuts"])
 def test_a_resumed_run_without_a_budget_equals_the_uninterrupted_one(method, tmp_path):
     target = Gaussian2D()
@@ -158,6 +212,7 @@ def test_fit_with_a_tiny_cap_says_the_cap_ended_it(data_csv, tmp_path):
                  "--set", "sampler.target_ess=100000")
     assert result.exit_code == 0, result.output
     assert "cap reached (iterations) after 3,000 iterations" in result.output
+    assert "at the rate seen they need about" in result.output
     assert json.loads((out / "summary.json").read_text())["stopped_by"] == "iterations"
 
 

@@ -69,6 +69,7 @@ _PUBLIC = {
     "find_map": "symplid.inference.map",
     "discover": "symplid.workflow._discover",
     "sample": "symplid.sampling",
+    "TargetsOutOfReach": "symplid.sampling",
     "DataError": "symplid.model._data",
     "Observations": "symplid.model._data",
     "AnalyticInputs": "symplid.model._inputs",

@@ -17,7 +17,7 @@ from symplid.sampling._api import (
     draws_array,
     sample,
 )
-from symplid.sampling._budget import STOPPED_BY
+from symplid.sampling._budget import STOPPED_BY, TargetsOutOfReach
 from symplid.sampling._options import RunOptions, Targets
 from symplid.sampling._run import ChainRun, ChunkReport, SamplingInterrupted, run_chains
 from symplid.sampling._starts import overdispersed_starts
@@ -31,6 +31,7 @@ __all__ = [
     "SamplerCheckpoint",
     "SamplingInterrupted",
     "Targets",
+    "TargetsOutOfReach",
     "draws_array",
     "overdispersed_starts",
     "run_chains",

@@ -25,6 +25,16 @@ its seed and settings, and a run interrupted and resumed (:mod:`~._resume`) chec
 where the uninterrupted one does: what the rule has decided so far travels in the
 checkpoint (:meth:`BudgetMonitor.arrays`). Only the wall-time cap depends on the machine; it
 is obeyed once the first burn-in is over and some draws are kept.
+
+When the cap will come first. ESS grows in proportion to the draws kept, so each check
+projects the iterations per chain the targets need at the rate seen so far: the burn-in plus
+the iterations kept times the largest ratio of an ESS target to its ESS
+(:meth:`BudgetMonitor.projected_iterations`). From the second check on, when that projection
+exceeds the cap by ``SHORTFALL`` (2×), the runner says so once (:class:`TargetsOutOfReach`)
+and goes on to the cap: its draws still count, and the user can stop the run and keep them.
+The run's record keeps the last projection, which the fit's summary reports when the cap ends
+the run. (An early estimate of ESS is noisy; the factor 2 and the second check keep a run
+that is merely slow from being told it will fail.)
 """
 
 from __future__ import annotations
@@ -41,11 +51,20 @@ from symplid.inference._convergence import (
 )
 from symplid.sampling._options import Targets
 
-__all__ = ["STOPPED_BY", "BudgetMonitor", "draw_statistics", "kept_after_burn_in"]
+__all__ = ["SHORTFALL", "STOPPED_BY", "BudgetMonitor", "TargetsOutOfReach", "draw_statistics",
+           "kept_after_burn_in"]
 
 #: What ended a run (``attrs["stopped_by"]``): the targets, a cap, a fixed budget, a stop.
 STOPPED_BY = ("target", "iterations", "wall time", "fixed budget", "interrupted")
 _PREFIX = "budget_"
+#: How far beyond the cap the projected iterations must be for the runner to say, before the
+#: cap, that the targets are out of reach (module docstring).
+SHORTFALL = 2.0
+
+
+class TargetsOutOfReach(UserWarning):
+    """Warning: at the rate seen so far, a run without a fixed budget will reach its cap on
+    the iterations long before its targets (:mod:`~symplid.sampling._budget`)."""
 
 
 def draw_statistics(theta: np.ndarray) -> tuple[float, float, float]:
@@ -84,6 +103,8 @@ class BudgetMonitor:
         self.seconds_before = 0.0
         self.stats: tuple[float, float, float] = (np.nan, np.nan, np.nan)
         self.stopped_by = ""
+        self.warned = False
+        self.stats_kept = 0  # the iterations per chain the statistics were computed on
         arrays = arrays or {}
         if f"{_PREFIX}burn_in" in arrays:
             self.burn_in = int(np.asarray(arrays[f"{_PREFIX}burn_in"]))
@@ -109,6 +130,7 @@ class BudgetMonitor:
         chains disagree (module docstring); at the last check (``final``) the statistics
         recorded are then those of the draws after the extended burn-in, the run's draws."""
         self.stats = draw_statistics(self._after_burn_in(theta))
+        self.stats_kept = int(done) - self.burn_in
         self.last_check, self.checks = int(done), self.checks + 1
         bulk, tail, rhat = self.stats
         t = self.targets
@@ -122,7 +144,36 @@ class BudgetMonitor:
                 self.burn_in = half
                 if final:
                     self.stats = draw_statistics(self._after_burn_in(theta))
+                    self.stats_kept = int(done) - self.burn_in
         return False
+
+    def projected_iterations(self) -> float:
+        """The iterations per chain the ESS targets need at the rate of the last check
+        (module docstring): the burn-in (extended, if it was) plus the iterations the ESS was
+        computed on times the largest ratio of target to ESS; NaN before a check or without a
+        finite ESS."""
+        bulk, tail, _ = self.stats
+        kept = self.stats_kept
+        if not (np.isfinite(bulk) and np.isfinite(tail) and bulk > 0 and tail > 0 and kept > 0):
+            return np.nan
+        t = self.targets
+        return self.burn_in + kept * max(t.ess_bulk / bulk, t.ess_tail / tail, 1.0)
+
+    def out_of_reach(self) -> str | None:
+        """Once, from the second check on: the line that says the cap will come long before
+        the targets (:class:`TargetsOutOfReach`), or None."""
+        projected, cap = self.projected_iterations(), self.targets.max_iterations
+        if self.warned or self.checks < 2 or not projected > SHORTFALL * cap:
+            return None
+        self.warned = True
+        bulk, tail, _ = self.stats
+        need = int(float(f"{projected:.2g}"))  # two figures: an estimate
+        return (f"at the rate of its first {self.last_check:,} iterations per chain (min "
+                f"ESS {min(bulk, tail):.0f}), the sampler's targets need about {need:,} "
+                f"iterations per chain, beyond its cap of {cap:,}: the run will stop at the cap "
+                "before them. It goes on (its draws are kept if you stop it); a sampler that "
+                "mixes better here (sampler.method) or a larger sampler.max_iterations would "
+                "reach them")
 
     def has_draws(self, done: int) -> bool:
         """Whether the run has kept enough draws after ``done`` iterations to be checked (a
@@ -151,6 +202,7 @@ class BudgetMonitor:
         return {"stopped_by": self.stopped_by, "burn_in": self.burn_in,
                 "first_burn_in": self.first_burn_in, "checks": self.checks,
                 "ess_bulk_min": bulk, "ess_tail_min": tail, "rhat_max": rhat,
+                "projected_iterations": self.projected_iterations(),
                 "targets": self.targets.as_dict()}
 
 

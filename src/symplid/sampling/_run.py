@@ -39,7 +39,7 @@ import numpy as np
 
 from symplid._stopping import requested as stop_requested
 from symplid._stopping import waiting
-from symplid.sampling._budget import BudgetMonitor
+from symplid.sampling._budget import BudgetMonitor, TargetsOutOfReach
 from symplid.sampling._chunk import DataStep, RecordFn, StepFn, chunk_runner
 from symplid.sampling._options import RunOptions, Targets
 from symplid.sampling._pacing import Pacer
@@ -348,6 +348,8 @@ class _Loop:
             theta = np.concatenate(before + parts, axis=1)
             if self.budget.check(theta, self.done, final):
                 return True
+            if not final and (line := self.budget.out_of_reach()) is not None:
+                warnings.warn(line, TargetsOutOfReach, stacklevel=5)
         return self.out_of_time
 
     def _advance(self, states: Any,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -186,7 +187,8 @@ def _budget_summary(idata) -> dict[str, Any]:
     """What ended the sampling (``stopped_by``: ``"target"``, the cap ``"iterations"`` or
     ``"wall time"``, ``"fixed budget"``, ``"interrupted"``), the iterations per chain and,
     for a budget set by the answer, its targets and burn-in
-    (:mod:`~symplid.sampling._budget`)."""
+    (:mod:`~symplid.sampling._budget`), and when a cap ended it, the iterations per chain the
+    targets would have needed at the rate seen (``projected_iterations``)."""
     attrs = idata.attrs
     out: dict[str, Any] = {"stopped_by": str(attrs.get("stopped_by", "fixed budget")),
                            "iterations": int(attrs.get("iterations", 0))}
@@ -194,4 +196,8 @@ def _budget_summary(idata) -> dict[str, Any]:
         record = json.loads(attrs["budget"])
         out["burn_in"] = int(record["burn_in"])
         out["targets"] = {k: record["targets"][k] for k in ("ess_bulk", "ess_tail", "rhat")}
+        projected = record.get("projected_iterations")
+        if out["stopped_by"] in ("iterations", "wall time") and projected is not None \
+                and math.isfinite(projected):
+            out["projected_iterations"] = float(projected)
     return out
