@@ -19,7 +19,9 @@ XLA's compilation, or with a warm cache looking the program up and loading it); 
 whole wall time, the child's CPU seconds (user + system: the steadier figure on a shared
 machine) and the load average when it ended, the smallest bulk ESS per second of
 sampling, and the time to the target (R-hat ≤ 1.01 and ESS ≥ 400: the whole wall time when
-the fit reached it, else "not reached"). Compile seconds overlap the phases that compile;
+the fit reached it, else "not reached"). Beside each baseline, the ratio of the wall times
+and an estimate of the baseline's wall time at this tree's ESS (:func:`at_same_ess`), with
+the ratio at the same ESS. Compile seconds overlap the phases that compile;
 they are not added to them. The machine may be shared: the load average is printed,
 compare the trees' ratios, not the seconds.
 
@@ -174,7 +176,9 @@ def run_child(src: Path, data: Path, config: Path, out: Path, cache: Path, extra
     clock, summary = child_fit(CHILD, src, data, config, out, cache, extra, cores)
     t = summary.get("timings", {})
     wall = clock["parse"] + clock["fit"] + clock["report"]
-    ess, rhat = summary.get("ess_min", float("nan")), summary.get("rhat_max", float("nan"))
+    ess = min(summary.get("ess_min", float("nan")),
+              summary.get("ess_tail_min", summary.get("ess_min", float("nan"))))
+    rhat = summary.get("rhat_max", float("nan"))
     sampling = t.get("sampler_s", float("nan"))
     reached = bool(rhat <= 1.01 and ess >= 400)
     return {"parse": clock["parse"], "compile": clock["compile"], "trace": clock["trace"],
@@ -251,9 +255,22 @@ def _print_table(rows: list[tuple[str, str, str, dict]]) -> None:
         for name in baselines if tree == "this tree" else ():
             base = by.get((system, name, cache))
             if base is not None:
+                same = at_same_ess(base, r["ess"])
                 print(f"{system} ({cache}): wall this/{name} {r['wall'] / base['wall']:.2f}, "
                       f"CPU {r['cpu'] / base['cpu']:.2f}, "
-                      f"compile {r['compile'] / max(base['compile'], 1e-9):.2f}")
+                      f"compile {r['compile'] / max(base['compile'], 1e-9):.2f}; "
+                      f"{name} at this tree's ESS {r['ess']:.0f} ≈ {same:.1f} s, "
+                      f"this/{name} at the same ESS {r['wall'] / same:.2f}")
+
+
+def at_same_ess(base: dict, ess: float) -> float:
+    """The wall time the run ``base`` would have taken to the ESS ``ess`` (an estimate):
+    its fixed costs (everything but sampling) plus its sampling time scaled by the share of
+    its ESS that ``ess`` is. ESS grows in proportion to the draws kept, so this assumes the
+    baseline's burn-in shrinks in proportion too: the estimate is low when it would not, and
+    the ratio printed beside it is then in the baseline's favour."""
+    share = min(1.0, ess / base["ess"]) if base["ess"] > 0 else 1.0
+    return base["wall"] - base["sampling"] * (1.0 - share)
 
 
 def _tree_name(src: Path, count: int) -> str:
