@@ -171,9 +171,9 @@ class BudgetMonitor:
         return (f"at the rate of its first {self.last_check:,} iterations per chain (min "
                 f"ESS {min(bulk, tail):.0f}), the sampler's targets need about {need:,} "
                 f"iterations per chain, beyond its cap of {cap:,}: the run will stop at the cap "
-                "before them. It goes on (its draws are kept if you stop it); a sampler that "
-                "mixes better here (sampler.method) or a larger sampler.max_iterations would "
-                "reach them")
+                "before them. It goes on (its draws are kept if you stop it); a larger "
+                "sampler.max_iterations would reach them, and another sampler.method may mix "
+                "better here")
 
     def has_draws(self, done: int) -> bool:
         """Whether the run has kept enough draws after ``done`` iterations to be checked (a
