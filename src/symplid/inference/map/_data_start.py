@@ -120,9 +120,18 @@ def position_rows(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
     return (rows, factors) if np.all(rows[: n // 2] >= 0) else None
 
 
+LOG_LAMBDA_TOL = 1e-10
+"""Absolute tolerance of the root search for log λ of the discrepancy principle."""
+
+
 def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     """A smoothing spline of y(t) over the finite values whose mean squared residual matches
-    the difference estimate of the noise (the discrepancy principle), and that variance."""
+    the difference estimate of the noise (the discrepancy principle), and that variance.
+
+    The residual grows with the roughness penalty λ: the root of mean squared residual −
+    target in log λ is bracketed by λ ∈ [1e-12, 1e6] × span³ and found by Brent's method
+    (:func:`scipy.optimize.brentq`) to :data:`LOG_LAMBDA_TOL`; a target outside the
+    bracket's residuals gives the spline at the nearer end."""
     ok = np.isfinite(y)
     if ok.sum() < MIN_POINTS:
         return None
@@ -133,21 +142,23 @@ def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     span = float(t[-1] - t[0])
     lo, hi = math.log(1e-12 * span**3), math.log(1e6 * span**3)
 
-    def fit(log_lam: float) -> tuple[Any, float]:
+    def excess(log_lam: float) -> float:
+        """Mean squared residual − target at λ = exp(log_lam), a non-finite one taken as
+        below the target (what a bisection on its sign does)."""
         spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
-        return spline, float(np.mean((y - spline(t)) ** 2))
+        value = float(np.mean((y - spline(t)) ** 2)) - target
+        return value if math.isfinite(value) else -target
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            for _ in range(40):  # residual variance grows with λ: bisect on log λ
-                mid = 0.5 * (lo + hi)
-                if fit(mid)[1] > target:
-                    hi = mid
-                else:
-                    lo = mid
-            spline, _ = fit(lo)
-        except (ValueError, np.linalg.LinAlgError):
+            at_lo, at_hi = excess(lo), excess(hi)
+            if at_lo > 0 or at_hi <= 0:  # no sign change: the end nearer the target
+                log_lam = lo if at_lo > 0 else hi
+            else:
+                log_lam = scipy.optimize.brentq(excess, lo, hi, xtol=LOG_LAMBDA_TOL)
+            spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
+        except (ValueError, np.linalg.LinAlgError, RuntimeError):
             return None
     return spline, target
 
