@@ -11,8 +11,9 @@ reads both from the data, in three cheap steps that use no filter:
    curved path). Each measured position component of each trajectory is then
    fitted by a cubic smoothing spline (:func:`scipy.interpolate.make_smoothing_spline`) whose
    roughness penalty is set so that its mean squared residual equals that variance (the
-   discrepancy principle; cross-validation interpolates a coarsely sampled orbit). The
-   spline gives the path q(t) and the velocity q̇(t) at the observation times.
+   discrepancy principle, solved for log λ by Brent's method; cross-validation interpolates a
+   coarsely sampled orbit). The spline gives the path q(t) and the velocity q̇(t) at the
+   observation times.
 2. **Collocation fit.** With the smoothed q_i and q̇_i at the observation times t_i held
    fixed, the dynamic parameters φ (the potential's or Hamiltonian's coefficients and a
    damping rate) and the unobserved momenta p_i are fitted together by nonlinear least
@@ -131,7 +132,7 @@ def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     The residual grows with the roughness penalty λ: the root of mean squared residual −
     target in log λ is bracketed by λ ∈ [1e-12, 1e6] × span³ and found by Brent's method
     (:func:`scipy.optimize.brentq`) to :data:`LOG_LAMBDA_TOL`; a target outside the
-    bracket's residuals gives the spline at the nearer end."""
+    bracket's residuals gives the spline at the nearer end (as a bisection would)."""
     ok = np.isfinite(y)
     if ok.sum() < MIN_POINTS:
         return None
@@ -153,8 +154,12 @@ def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
         warnings.simplefilter("ignore")
         try:
             at_lo, at_hi = excess(lo), excess(hi)
-            if at_lo > 0 or at_hi <= 0:  # no sign change: the end nearer the target
-                log_lam = lo if at_lo > 0 else hi
+            if at_lo > 0:  # no sign change: the bracket's end nearer the target
+                log_lam = lo
+            elif at_hi <= 0:  # where 40 halvings towards it end: a near-linear fit, whose
+                log_lam = lo  # values depend on λ's last digits, kept as it was
+                for _ in range(40):
+                    log_lam = 0.5 * (log_lam + hi)
             else:
                 log_lam = scipy.optimize.brentq(excess, lo, hi, xtol=LOG_LAMBDA_TOL)
             spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
