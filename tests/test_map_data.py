@@ -152,6 +152,41 @@ def test_a_target_outside_the_bracket_gives_the_bisections_end(target, monkeypat
                                atol=1e-9)
 
 
+def test_collocation_program_is_hamiltons_equations_and_their_jacobian():
+    """The one compiled program against Kepler's equations written out in NumPy (∂H/∂p = p,
+    −∂H/∂q = −GM q/|q|³) and its Jacobian against central differences."""
+    post, gm = kepler("days", learn=True)
+    rng = np.random.default_rng(3)
+    n, d = 8, 2
+    times = np.sort(rng.uniform(0.0, 100.0, n))
+    q = rng.uniform(0.5, 1.0, (n, d))
+    qdot = rng.normal(0.0, 0.02, (n, d))
+    p_obs = np.full((n, d), np.nan)
+    p_obs[2, 1] = 0.01
+    path = _data_start._Smoothed(times, q, qdot, p_obs, 0.0)
+    dyn = np.array([0])
+    program = _data_start._collocation_program(post.model, dyn, d)
+    scales, data = _data_start._collocation_data([path])
+    z = np.concatenate([[gm], rng.normal(0.0, 0.02, n * d)])
+    r, jac, (g,) = (np.asarray(x) for x in program(z, np.array([1.0]), scales, data))
+
+    p = z[1:].reshape(n, d)
+    force = -z[0] * q / np.linalg.norm(q, axis=1, keepdims=True) ** 3
+    h = np.diff(times)[:, None]
+    v_scale, a_scale = scales
+    expected = np.concatenate([((qdot - p) / v_scale).ravel(),
+                               ((p[1:] - p[:-1] - 0.5 * h * (force[1:] + force[:-1]))
+                                / (h * a_scale)).ravel(), [(p[2, 1] - 0.01) / v_scale]])
+    np.testing.assert_allclose(r, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(g, force, rtol=1e-12)
+    step = 1e-6 * np.maximum(np.abs(z), 1e-3)
+    numeric = np.column_stack([
+        (np.asarray(program(z + e, np.array([1.0]), scales, data)[0])
+         - np.asarray(program(z - e, np.array([1.0]), scales, data)[0])) / (2 * e[k])
+        for k, e in enumerate(np.diag(step))])
+    np.testing.assert_allclose(jac, numeric, rtol=1e-6, atol=1e-6 * np.abs(numeric).max())
+
+
 # ----------------------------------------------------------------------------- the targets
 @pytest.mark.slow
 @pytest.mark.parametrize("unit", ["days", "years"])
