@@ -145,10 +145,12 @@ def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     lo, hi = math.log(1e-12 * span**3), math.log(1e6 * span**3)
 
     def excess(log_lam: float) -> float:
-        """Mean squared residual − target at λ = exp(log_lam), a non-finite one taken as
-        below the target (what a bisection on its sign does)."""
+        """Mean squared residual − target at λ = exp(log_lam): an infinite one above the
+        target, a NaN below it (as a bisection on ``residual > target`` reads them)."""
         spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
         value = float(np.mean((y - spline(t)) ** 2)) - target
+        if value > 0:
+            return min(value, 1e300)
         return value if math.isfinite(value) else -target
 
     with warnings.catch_warnings():
