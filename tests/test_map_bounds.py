@@ -227,3 +227,33 @@ def test_a_bound_that_holds_its_parameter_is_converged():
     off = mode + np.array([0.05, 0.0, 0.0])
     judged = judge_with_hessian(_start_result(post, off), _hessian(post, off), objective)
     assert not judged.success
+
+
+def test_the_objective_remembers_its_last_values_and_run_start_reads_them():
+    """log π at a θ asked again is the value computed before (against the posterior's own
+    log density), with one evaluation; the oldest of more than ``REMEMBERED`` is forgotten;
+    a search started at a checked θ evaluates it once (for its gradient), not twice."""
+    from symplid.inference.map._search import run_start
+
+    posterior = InflatedRegression()
+    space = SearchSpace.of(ParameterSpace.of(posterior), 1e-14)
+    calls = []
+    inner = jax.jit(jax.value_and_grad(lambda u: -posterior.log_density(space.to_theta(u))))
+    objective = Objective(space, lambda u: calls.append(np.asarray(u)) or inner(u))
+    thetas = [np.array([0.1 * k, -0.2, 1e-4]) for k in range(Objective.REMEMBERED + 1)]
+    for theta in thetas[:2]:
+        value = objective.log_density(theta)
+        assert value == pytest.approx(float(posterior.log_density(jnp.asarray(theta))),
+                                      rel=1e-12)
+        assert objective.log_density(theta.copy()) == value
+    assert len(calls) == 2
+    for theta in thetas:
+        objective.log_density(theta)
+    assert len(calls) == Objective.REMEMBERED + 1  # all but the two already known
+    objective.log_density(thetas[0])  # the oldest, forgotten
+    assert len(calls) == Objective.REMEMBERED + 2
+    before = len(calls)
+    result = run_start(thetas[-1], objective, {"maxiter": 50})  # known: not the evicted
+    assert np.isfinite(result.log_posterior)
+    at_start = [u for u in calls[before:] if np.array_equal(u, space.to_u(thetas[-1]))]
+    assert len(at_start) == 1  # L-BFGS-B's own first evaluation, not a second one before it

@@ -21,6 +21,7 @@ import symplid
 from symplid.cli import main
 from symplid.dynamics._potentials import FunctionPotential
 from symplid.inference.map import _checks as map_checks
+from symplid.inference.map import _data_start
 from symplid.inference.map._data_start import data_start, difference_variance, position_rows
 from symplid.inference.map._result import MapConvergenceWarning, StartResult
 from symplid.inference.map._space import SearchSpace
@@ -89,6 +90,101 @@ def test_data_start_reads_only_models_that_measure_every_position():
     assert position_rows(symplid.HamiltonianModel(pot, observation=lambda x: x[:2])) is None
     only_q1 = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
     assert position_rows(symplid.HamiltonianModel(pot, observation=only_q1)) is None
+
+
+def _bisected_spline(t: np.ndarray, y: np.ndarray, target: float):
+    """The discrepancy principle's spline by 40 bisection steps on log λ over the same
+    bracket (λ ∈ [1e-12, 1e6] × span³), the largest λ whose residual is within the target."""
+    from scipy.interpolate import make_smoothing_spline
+
+    span = t[-1] - t[0]
+    lo, hi = math.log(1e-12 * span**3), math.log(1e6 * span**3)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        spline = make_smoothing_spline(t, y, lam=math.exp(mid))
+        if np.mean((y - spline(t)) ** 2) > target:
+            hi = mid
+        else:
+            lo = mid
+    return make_smoothing_spline(t, y, lam=math.exp(lo))
+
+
+def _series():
+    """(t, y) of an orbit's coordinate (25 points), a noisy sine at irregular times (60) and
+    a population cycle's logarithm (50)."""
+    rng = np.random.default_rng(2)
+    post, _ = kepler("days")
+    orbit = (np.asarray(post.datasets[0].times), np.asarray(post.datasets[0].values)[:, 0])
+    t = np.sort(rng.uniform(0.0, 12.0, 60))
+    sine = (t, np.sin(t) + 0.05 * rng.standard_normal(t.size))
+    t = np.linspace(0.6, 30.0, 50)
+    cycle = (t, np.log(2.0 + np.sin(0.7 * t)) + 0.05 * rng.standard_normal(t.size))
+    return [orbit, sine, cycle]
+
+
+@pytest.mark.parametrize("which", [0, 1, 2])
+def test_the_discrepancy_spline_is_the_bisections_with_fewer_fits(which, monkeypatch):
+    """Brent's method on log λ gives the spline of a 40-step bisection (values and velocity
+    within 1e-7 of the data's range) with at most 25 spline fits, not 41."""
+    from scipy.interpolate import make_smoothing_spline
+
+    t, y = _series()[which]
+    fits = []
+    monkeypatch.setattr(_data_start, "make_smoothing_spline",
+                        lambda *a, **k: fits.append(1) or make_smoothing_spline(*a, **k))
+    spline, target = _data_start._spline(t, y)
+    reference = _bisected_spline(t, y, target)
+    size = np.ptp(y)
+    np.testing.assert_allclose(spline(t), reference(t), rtol=0, atol=1e-7 * size)
+    np.testing.assert_allclose(spline.derivative()(t), reference.derivative()(t), rtol=0,
+                               atol=1e-7 * size / np.ptp(t))
+    assert len(fits) <= 25
+
+
+@pytest.mark.parametrize("target", [1e-300, 1e6])
+def test_a_target_outside_the_bracket_gives_the_bisections_end(target, monkeypatch):
+    """A noise target below every spline's residual gives the roughest spline of the bracket,
+    one above them the smoothest: where the bisection ends."""
+    t, y = _series()[1]
+    monkeypatch.setattr(_data_start, "noise_variance", lambda *_: target)
+    spline, _ = _data_start._spline(t, y)
+    np.testing.assert_allclose(spline(t), _bisected_spline(t, y, target)(t), rtol=0,
+                               atol=1e-9)
+
+
+def test_collocation_program_is_hamiltons_equations_and_their_jacobian():
+    """The one compiled program against Kepler's equations written out in NumPy (∂H/∂p = p,
+    −∂H/∂q = −GM q/|q|³) and its Jacobian against central differences."""
+    post, gm = kepler("days", learn=True)
+    rng = np.random.default_rng(3)
+    n, d = 8, 2
+    times = np.sort(rng.uniform(0.0, 100.0, n))
+    q = rng.uniform(0.5, 1.0, (n, d))
+    qdot = rng.normal(0.0, 0.02, (n, d))
+    p_obs = np.full((n, d), np.nan)
+    p_obs[2, 1] = 0.01
+    path = _data_start._Smoothed(times, q, qdot, p_obs, 0.0)
+    dyn = np.array([0])
+    program = _data_start._collocation_program(post.model, dyn, d)
+    scales, data = _data_start._collocation_data([path])
+    z = np.concatenate([[gm], rng.normal(0.0, 0.02, n * d)])
+    r, jac, (g,) = (np.asarray(x) for x in program(z, np.array([1.0]), scales, data))
+
+    p = z[1:].reshape(n, d)
+    force = -z[0] * q / np.linalg.norm(q, axis=1, keepdims=True) ** 3
+    h = np.diff(times)[:, None]
+    v_scale, a_scale = scales
+    expected = np.concatenate([((qdot - p) / v_scale).ravel(),
+                               ((p[1:] - p[:-1] - 0.5 * h * (force[1:] + force[:-1]))
+                                / (h * a_scale)).ravel(), [(p[2, 1] - 0.01) / v_scale]])
+    np.testing.assert_allclose(r, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(g, force, rtol=1e-12)
+    step = 1e-6 * np.maximum(np.abs(z), 1e-3)
+    numeric = np.column_stack([
+        (np.asarray(program(z + e, np.array([1.0]), scales, data)[0])
+         - np.asarray(program(z - e, np.array([1.0]), scales, data)[0])) / (2 * e[k])
+        for k, e in enumerate(np.diag(step))])
+    np.testing.assert_allclose(jac, numeric, rtol=1e-6, atol=1e-6 * np.abs(numeric).max())
 
 
 # ----------------------------------------------------------------------------- the targets

@@ -11,8 +11,9 @@ reads both from the data, in three cheap steps that use no filter:
    curved path). Each measured position component of each trajectory is then
    fitted by a cubic smoothing spline (:func:`scipy.interpolate.make_smoothing_spline`) whose
    roughness penalty is set so that its mean squared residual equals that variance (the
-   discrepancy principle; cross-validation interpolates a coarsely sampled orbit). The
-   spline gives the path q(t) and the velocity q̇(t) at the observation times.
+   discrepancy principle, solved for log λ by Brent's method; cross-validation interpolates a
+   coarsely sampled orbit). The spline gives the path q(t) and the velocity q̇(t) at the
+   observation times.
 2. **Collocation fit.** With the smoothed q_i and q̇_i at the observation times t_i held
    fixed, the dynamic parameters φ (the potential's or Hamiltonian's coefficients and a
    damping rate) and the unobserved momenta p_i are fitted together by nonlinear least
@@ -27,7 +28,8 @@ reads both from the data, in three cheap steps that use no filter:
    The fit starts at the prior medians and p_i = q̇_i. The positions being held fixed, a
    separable H whose potential is linear in its parameters (Kepler's GM, a polynomial)
    makes every residual linear in (φ, p): one linear least-squares problem; a general H
-   gives a small nonlinear one.
+   gives a small nonlinear one. The residuals, their Jacobian and the force g are one
+   compiled program whose arguments are the data (:func:`_collocation_program`).
 3. **Scales.** The least-squares covariance s²(JᵀJ)⁻¹ gives each parameter's standard error.
    Starts after the first are spread by max(3 × that error, 10 % of the value) for the dynamic
    parameters, by the noise's standard deviation (positions) and the momenta's standard
@@ -120,9 +122,18 @@ def position_rows(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
     return (rows, factors) if np.all(rows[: n // 2] >= 0) else None
 
 
+LOG_LAMBDA_TOL = 1e-10
+"""Absolute tolerance of the root search for log λ of the discrepancy principle."""
+
+
 def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     """A smoothing spline of y(t) over the finite values whose mean squared residual matches
-    the difference estimate of the noise (the discrepancy principle), and that variance."""
+    the difference estimate of the noise (the discrepancy principle), and that variance.
+
+    The residual grows with the roughness penalty λ: the root of mean squared residual −
+    target in log λ is bracketed by λ ∈ [1e-12, 1e6] × span³ and found by Brent's method
+    (:func:`scipy.optimize.brentq`) to :data:`LOG_LAMBDA_TOL`; a target outside the
+    bracket's residuals gives the spline at the nearer end (as a bisection would)."""
     ok = np.isfinite(y)
     if ok.sum() < MIN_POINTS:
         return None
@@ -133,21 +144,29 @@ def _spline(t: np.ndarray, y: np.ndarray) -> tuple[Any, float] | None:
     span = float(t[-1] - t[0])
     lo, hi = math.log(1e-12 * span**3), math.log(1e6 * span**3)
 
-    def fit(log_lam: float) -> tuple[Any, float]:
+    def excess(log_lam: float) -> float:
+        """Mean squared residual − target at λ = exp(log_lam): an infinite one above the
+        target, a NaN below it (as a bisection on ``residual > target`` reads them)."""
         spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
-        return spline, float(np.mean((y - spline(t)) ** 2))
+        value = float(np.mean((y - spline(t)) ** 2)) - target
+        if value > 0:
+            return min(value, 1e300)
+        return value if math.isfinite(value) else -target
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            for _ in range(40):  # residual variance grows with λ: bisect on log λ
-                mid = 0.5 * (lo + hi)
-                if fit(mid)[1] > target:
-                    hi = mid
-                else:
-                    lo = mid
-            spline, _ = fit(lo)
-        except (ValueError, np.linalg.LinAlgError):
+            at_lo, at_hi = excess(lo), excess(hi)
+            if at_lo > 0:  # no sign change: the bracket's end nearer the target
+                log_lam = lo
+            elif at_hi <= 0:  # where 40 halvings towards it end: a near-linear fit, whose
+                log_lam = lo  # values depend on λ's last digits, kept as it was
+                for _ in range(40):
+                    log_lam = 0.5 * (log_lam + hi)
+            else:
+                log_lam = scipy.optimize.brentq(excess, lo, hi, xtol=LOG_LAMBDA_TOL)
+            spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
+        except (ValueError, np.linalg.LinAlgError, RuntimeError):
             return None
     return spline, target
 
@@ -201,51 +220,82 @@ def _vector_field(model: Any):
     return field
 
 
-def _residual_fn(posterior: Any, paths: list[_Smoothed], dyn: np.ndarray, base: np.ndarray):
-    """The stacked, scaled collocation residuals as a function of z = (φ, p of every path)."""
-    model = posterior.model
-    field = _vector_field(model)
-    d = paths[0].q.shape[1]
-    v_scale = max(float(np.sqrt(np.mean(np.concatenate([p.qdot for p in paths]) ** 2))), 1e-300)
-    a_scale = max(v_scale / float(np.median(np.concatenate([np.diff(p.times) for p in paths]))),
-                  1e-300)
-    sizes = [p.times.size * d for p in paths]
-    num_dyn = dyn.size
-    base_m = jnp.asarray(base[: model.num_params])
-    consts = [(jnp.asarray(p.q), jnp.asarray(p.qdot), jnp.asarray(np.diff(p.times))[:, None],
-               np.isfinite(p.p_obs), jnp.asarray(np.nan_to_num(p.p_obs))) for p in paths]
+def _collocation_program(model: Any, dyn: np.ndarray, d: int) -> Callable:
+    """One compiled program (z, base, scales, data) ↦ (the stacked, scaled collocation
+    residuals, their Jacobian in z, g at the nodes of each path), z = (φ, p of every path).
 
-    def residuals(z: Array) -> Array:
+    The data (smoothed path, gaps, measured momenta and where they are) and the scales are
+    arguments, not constants of the program: another data set of the same shape runs the
+    same program (from the persistent compilation cache in a new process). The residuals
+    are the Jacobian's primal output, and g at the fit's end gives the momentum-step defects,
+    so no second program is compiled."""
+    field = _vector_field(model)
+    num_dyn = dyn.size
+
+    def residuals(z: Array, base_m: Array, scales: Array, data: tuple) -> tuple[Array, Any]:
+        v_scale, a_scale = scales[0], scales[1]
         theta_m = base_m.at[dyn].set(z[:num_dyn])
-        out, offset = [], num_dyn
-        for (q, qdot, h, measured, p_obs), size in zip(consts, sizes, strict=True):
-            p = z[offset: offset + size].reshape(-1, d)
-            offset += size
+        out, gs, offset = [], [], num_dyn
+        for q, qdot, h, p_obs, measured in data:
+            p = z[offset: offset + q.size].reshape(-1, d)
+            offset += q.size
             velocity, g = field(theta_m, jnp.concatenate([q, p], axis=1))
             out.append(((qdot - velocity) / v_scale).ravel())
             step = p[1:] - p[:-1] - 0.5 * h * (g[1:] + g[:-1])
             out.append((step / (h * a_scale)).ravel())
-            if measured.any():
-                out.append(((p - p_obs) / v_scale)[measured])
-        return jnp.concatenate(out)
+            out.append(((p - p_obs) / v_scale).ravel()[measured])
+            gs.append(g)
+        r = jnp.concatenate(out)
+        return r, (r, gs)
 
-    # the field compiled for the defects after the fit (eagerly, a dozen programs of its own)
-    return jax.jit(residuals), jax.jit(jax.jacfwd(residuals)), jax.jit(field), a_scale
+    def program(z: Array, base_m: Array, scales: Array, data: tuple):
+        jac, (r, gs) = jax.jacfwd(residuals, has_aux=True)(z, base_m, scales, data)
+        return r, jac, gs
+
+    return jax.jit(program)
+
+
+def _collocation_data(paths: list[_Smoothed]) -> tuple[np.ndarray, tuple]:
+    """(velocity and acceleration scales, each path's (q, q̇, gaps, measured p, flat indices
+    of the measured p)) for :func:`_collocation_program`."""
+    v_scale = max(float(np.sqrt(np.mean(np.concatenate([p.qdot for p in paths]) ** 2))), 1e-300)
+    a_scale = max(v_scale / float(np.median(np.concatenate([np.diff(p.times) for p in paths]))),
+                  1e-300)
+    data = tuple((p.q, p.qdot, np.diff(p.times)[:, None], np.nan_to_num(p.p_obs),
+                  np.flatnonzero(np.isfinite(p.p_obs))) for p in paths)
+    return np.array([v_scale, a_scale]), data
+
+
+def _evaluator(program: Callable, *args: Any) -> Callable[[np.ndarray], tuple]:
+    """z ↦ the program's (residuals, Jacobian, g per path) as NumPy arrays, the last point's
+    kept: the least-squares search asks for the residuals and then the Jacobian at a point."""
+    last: dict[str, Any] = {}
+
+    def at(z: np.ndarray) -> tuple:
+        key = np.asarray(z, dtype=float).tobytes()
+        if last.get("key") != key:
+            r, jac, gs = program(jnp.asarray(z, dtype=float), *args)
+            last.update(key=key, value=(np.asarray(r), np.asarray(jac),
+                                        [np.asarray(g) for g in gs]))
+        return last["value"]
+
+    return at
 
 
 def _collocate(posterior: Any, paths: list[_Smoothed], base: np.ndarray):
     """(φ, momenta per path, standard errors of z, momentum-step defect variance) or None."""
     groups = tuple(posterior.param_groups)
     dyn = np.array([i for i, g in enumerate(groups) if g in DYNAMIC_GROUPS], dtype=int)
-    fun, jac, field, _ = _residual_fn(posterior, paths, dyn, base)
+    program = _collocation_program(posterior.model, dyn, paths[0].q.shape[1])
+    scales, data = _collocation_data(paths)
+    at = _evaluator(program, base[: posterior.model.num_params], scales, data)
     z0 = np.concatenate([base[dyn]] + [p.qdot.ravel() for p in paths])
     lower = np.concatenate([posterior.lower[dyn], np.full(z0.size - dyn.size, -np.inf)])
     upper = np.concatenate([posterior.upper[dyn], np.full(z0.size - dyn.size, np.inf)])
     with np.errstate(all="ignore"):
         try:
             fit = scipy.optimize.least_squares(
-                lambda z: np.asarray(fun(jnp.asarray(z))),
-                np.clip(z0, lower, upper), jac=lambda z: np.asarray(jac(jnp.asarray(z))),
+                lambda z: at(z)[0].copy(), np.clip(z0, lower, upper), jac=lambda z: at(z)[1].copy(),
                 bounds=(lower, upper), method="trf", x_scale="jac", max_nfev=200)
         except (ValueError, np.linalg.LinAlgError):
             return None
@@ -257,15 +307,11 @@ def _collocate(posterior: Any, paths: list[_Smoothed], base: np.ndarray):
     with np.errstate(all="ignore"):
         cov = s2 * np.linalg.pinv(fit.jac.T @ fit.jac)
     stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    theta_m = jnp.asarray(base[: posterior.model.num_params]).at[dyn].set(z[: dyn.size])
     momenta, defects, offset = [], [], dyn.size
-    for p in paths:
-        size = p.q.size
-        mom = z[offset: offset + size].reshape(-1, p.q.shape[1])
-        offset += size
-        _, g = field(theta_m, jnp.concatenate([jnp.asarray(p.q), jnp.asarray(mom)], axis=1))
+    for p, g in zip(paths, at(z)[2], strict=True):
+        mom = z[offset: offset + p.q.size].reshape(-1, p.q.shape[1])
+        offset += p.q.size
         h = np.diff(p.times)[:, None]
-        g = np.asarray(g)
         defects.append((mom[1:] - mom[:-1] - 0.5 * h * (g[1:] + g[:-1])).ravel())
         momenta.append((mom, g))
     return dyn, z[: dyn.size], momenta, stderr, float(np.mean(np.concatenate(defects) ** 2))

@@ -23,15 +23,26 @@ from symplid.inference.map._space import SearchSpace
 
 
 class Objective:
-    """−log π in the search space (compiled) and log π of θ through it."""
+    """−log π in the search space (compiled) and log π of θ through it.
+
+    The last ``REMEMBERED`` values of log π are kept by θ: the starts are checked for a
+    finite log π and then searched from, which asks for the same value again."""
+
+    REMEMBERED = 8
 
     def __init__(self, space: SearchSpace, value_and_grad: Callable) -> None:
         self.space = space
         self.value_and_grad = value_and_grad
+        self._known: dict[bytes, float] = {}
 
     def log_density(self, theta: np.ndarray) -> float:
-        # through the compiled search function: no second compilation for plain values
-        return -float(self.value_and_grad(jnp.asarray(self.space.to_u(theta)))[0])
+        key = np.asarray(theta, dtype=float).tobytes()
+        if key not in self._known:
+            if len(self._known) >= self.REMEMBERED:
+                del self._known[next(iter(self._known))]
+            # through the compiled search function: no second compilation for plain values
+            self._known[key] = -float(self.value_and_grad(jnp.asarray(self.space.to_u(theta)))[0])
+        return self._known[key]
 
     def is_finite(self, theta: np.ndarray) -> bool:
         return bool(np.isfinite(self.log_density(theta)))
@@ -67,7 +78,7 @@ def run_start(theta0: np.ndarray, objective: Objective, options: dict[str, Any])
     t0 = time.perf_counter()
     space, value_and_grad = objective.space, objective.value_and_grad
     u0 = space.to_u(theta0)
-    f0 = float(value_and_grad(jnp.asarray(u0))[0])
+    f0 = -objective.log_density(theta0)  # the same value, checked at the start already
     penalty = 1e10 + 1e3 * abs(f0)
     bounds = space.bounds()
 
