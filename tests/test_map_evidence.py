@@ -401,3 +401,52 @@ def test_an_inner_maximum_on_a_bound_falls_back_to_lbfgsb(monkeypatch):
     exact = (math.log(2.0) - 0.5 * math.log(2.0 * math.pi)
              - math.log(0.5 * math.sqrt(2.0 * math.pi)) + 3.0)
     assert log_post == pytest.approx(exact, abs=1e-9)
+
+
+class _InBox:
+    """x in a box 0 < a < b (searched as log x within [log a, log b]), s = log v ~ N(−3, 0.5²),
+    y ~ N(0.3 s, 1), and x given s either N(2 + 0.2 s, 0.3²) (``inside``: its maximum well
+    inside [0.01, 100], the box's mass outside 1e-11) or λ e^{λx} / (e^{2λ} − e^{0.01λ}) on
+    [0.01, 2], λ = 20 + s (its maximum on the upper bound): normalised, log evidence 0."""
+
+    num_params = 3
+    param_names = ("x", "y", "obs_var")
+    param_groups = ("coefficients", "coefficients", "obs_var")
+
+    def __init__(self, inside: bool) -> None:
+        self.inside = inside
+        self.lower = np.array([0.01, -np.inf, 0.0])
+        self.upper = np.array([100.0 if inside else 2.0, np.inf, np.inf])
+
+    def log_density(self, theta):
+        x, y, v = theta[0], theta[1], theta[2]
+        s = jnp.log(v)
+        if self.inside:
+            log_x = (-0.5 * ((x - 2.0 - 0.2 * s) / 0.3) ** 2
+                     - math.log(0.3 * math.sqrt(2.0 * math.pi)))
+        else:
+            rate = 20.0 + s
+            log_x = (jnp.log(rate) + rate * x
+                     - jnp.log(jnp.exp(2.0 * rate) - jnp.exp(0.01 * rate)))
+        log_s = -0.5 * ((s + 3.0) / 0.5) ** 2 - math.log(0.5 * math.sqrt(2.0 * math.pi))
+        return log_x - 0.5 * (y - 0.3 * s) ** 2 - 0.5 * math.log(2.0 * math.pi) + log_s - s
+
+
+@pytest.mark.parametrize("inside", [True, False])
+def test_a_box_entry_on_its_log_scale(inside, monkeypatch):
+    """A coefficient in a box 0 < a < b is searched as log x between log a and log b: Newton
+    is used where its maximum lies inside (every node), L-BFGS-B where it is on a bound
+    (every node), and the evidence is the exact 0 and L-BFGS-B's own to 1e-6."""
+    posterior = _InBox(inside)
+    space = ParameterSpace.of(posterior)
+    search = SearchSpace.of(space, 1e-14)
+    assert search.log_box[0]
+    fns = _compiled(posterior, search)
+    theta = np.array([1.4 if inside else 2.0, -0.9, math.exp(-3.0)])
+    args = (fns["value_and_grad"], fns["hessian"], search, space.groups, space.names, theta)
+    old, _ = _evidence_by(True, monkeypatch, args)
+    new, counting = _evidence_by(False, monkeypatch, args)
+    fits = counting.profile.calls
+    assert fits["newton" if inside else "lbfgsb"] == new.details["inner_fits"]
+    assert abs(new.log_evidence - old.log_evidence) < 1e-6
+    assert new.log_evidence == pytest.approx(0.0, abs=2e-3)

@@ -21,12 +21,20 @@ The rule
    searched on a log scale by the MAP); a variance with an upper bound too stays in c.
    The damping rate γ of a damped model is in that tuple too and is integrated the same way
    (positive, and on data with little friction piled against 0 like a process variance).
-2. **Profile.** For fixed s, c is maximised by Newton's method with the compiled MAP
-   Hessian (L-BFGS-B when c has bounds or Newton fails; the MAP search's compiled objective
-   with the variances held; warm-started from a neighbouring node), and
+2. **Profile** (:mod:`symplid.inference.map._profile`). For fixed s, c is maximised in the
+   MAP search's coordinates u (θ itself, u = log(θ − a) or u = log θ in a box) by Newton's
+   method with ∇²_u(−log π) = D H_θ D + diag(∂(−log π)/∂u on the logarithmic coordinates),
+   D = ∂θ/∂u, from the compiled MAP θ-Hessian of the neighbouring node, carried between
+   θ-Hessians by BFGS updates (the MAP search's compiled objective with the variances held;
+   warm-started from a neighbouring node). Newton's answer is kept when it is an interior
+   maximum: no step leaves L-BFGS-B's bounds on u (the log floor, a box), the end is on none
+   of them and its Newton decrement in θ is small too. Otherwise, and whenever the
+   neighbour's maximum sat on a bound, L-BFGS-B runs (before, Newton ran only when every
+   entry of c was searched as itself without bounds, so never for a user's half-normal
+   coefficients: on the Kepler example 5.7 value-and-gradient calls a node instead of 38). Then
    ``g(s) = log ∫ exp(log π(c, v(s))) dc + Σ s_j`` is the Gaussian integral over c from the
-   Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for any entry
-   of c on a bound. No new program is compiled.
+   θ-Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for
+   any entry of c on a bound. No new program is compiled.
 3. **Centre and axes.** The joint mode of log π + Σ s over (c, s) is the centre s̄: L-BFGS-B
    from the MAP and from the MAP with the variances of the default start (a process variance
    as large as the data's; ``find_map`` passes it as ``other_starts``), the higher end kept.
