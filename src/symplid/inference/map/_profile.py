@@ -15,12 +15,12 @@ The Hessian of −log π in u is
 term). Newton's steps start from it with the θ-Hessian of the neighbouring node (the Gaussian
 integral of step 2 needs one θ-Hessian per node anyway, so the steps should need no other),
 and the u-Hessian is carried from step to step by the BFGS update (Nocedal & Wright,
-*Numerical Optimization*, eq. 6.19), which keeps the chord's convergence superlinear where D
-and the gradient move. A new θ-Hessian is computed when a step is cut, when the rate of the
-steps (the ratio of successive Newton decrements) promises more further steps than three
-times θ's entries (a θ-Hessian costs a few gradients per entry; on the Kepler example, far out
-in the process variance, a plain chord crawled at a factor 2 a step and ran out of its 30
-steps), and at the end, where the answer is checked with it and it is the Hessian returned.
+*Numerical Optimization*, eq. 6.19), which keeps the convergence superlinear where the
+neighbour's curvature is off (on the Kepler example, far out in the process variance, the
+plain chord crawled at a factor 2 a step and ran out of its 30 steps). A new θ-Hessian is
+computed when a step is cut, when a step promises no less than the last one (its Newton
+decrement), and at the end, where the answer is checked with it and it is the Hessian
+returned.
 Its answer is kept only when it is an interior maximum: every step stays
 strictly inside L-BFGS-B's bounds on u (the log floor, a box), the end is on none of them, and
 the Newton decrement in θ (gradient ∂(−log π)/∂θ = D⁻¹ ∂(−log π)/∂u) is small as well; the last
@@ -173,20 +173,12 @@ class Profile:
             if found is None:
                 return None
             moved, (u, value, grad, t) = found[0][free] - u[free], found
-            if t < 1.0 or (not fresh and self._slow(-0.5 * slope, last)):
-                full = None
+            if t < 1.0 or (not fresh and -0.5 * slope >= last):
+                full = None  # a cut step, or BFGS's curvature no help: a new θ-Hessian
             else:
                 chord = _bfgs(chord, moved, grad[free] - g)
             fresh, last = False, -0.5 * slope
         return None
-
-    def _slow(self, gain: float, last: float) -> bool:
-        """Whether the steps, their promised gain falling from ``last`` to ``gain``, need more
-        steps to reach 1e-11 at that rate than three times θ's entries (a θ-Hessian costs a
-        few gradients per entry)."""
-        if not math.isfinite(last) or gain >= last:
-            return math.isfinite(last)
-        return math.log(1e-11 / gain) / math.log(gain / last) > 3 * self.space.lower.size
 
     def _line_search(self, u: np.ndarray, value: float, step: np.ndarray, slope: float
                      ) -> tuple[np.ndarray, float, np.ndarray, float] | None:
