@@ -31,7 +31,7 @@ The rule
    of them and its Newton decrement in θ is small too. Otherwise, and whenever the
    neighbour's maximum sat on a bound, L-BFGS-B runs (before, Newton ran only when every
    entry of c was searched as itself without bounds, so never for a user's half-normal
-   coefficients: on the Kepler example 5.7 value-and-gradient calls a node instead of 38). Then
+   coefficients: on the Kepler example 7.7 value-and-gradient calls a node instead of 38). Then
    ``g(s) = log ∫ exp(log π(c, v(s))) dc + Σ s_j`` is the Gaussian integral over c from the
    θ-Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for
    any entry of c on a bound. No new program is compiled.

@@ -31,9 +31,9 @@ bound) L-BFGS-B runs from the same start, and the entries on a bound get the 1-D
 step 2.
 
 On the examples' user models (``examples/user_models/``, half-normal coefficients, so searched
-on the log scale) and a Duffing oscillator, an inner fit took 2.6–7.8 value-and-gradient calls
+on the log scale) and a Duffing oscillator, an inner fit took 2.6–8.0 value-and-gradient calls
 where L-BFGS-B's took 12–38, with the same g at every node to 4e-6 and the same evidence to
-4e-8 nats (``benchmarks/evidence_newton.py``).
+5e-8 nats (``benchmarks/evidence_newton.py``).
 """
 
 from __future__ import annotations
