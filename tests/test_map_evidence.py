@@ -21,6 +21,7 @@ from scipy.special import logsumexp
 
 import symplid
 from symplid import FunctionPotential, HamiltonianModel, Observations, Posterior, find_map
+from symplid.inference.map import _evidence, _profile
 from symplid.inference.map._evidence import EvidenceSettings, quadrature_evidence
 from symplid.inference.map._find import _compiled
 from symplid.inference.map._result import MapResult, MultipleOptimaWarning
@@ -259,3 +260,193 @@ def test_evidence_integrates_the_heavier_mode_of_the_variances(rule):
     assert alone.log_evidence == pytest.approx(math.log(0.2), abs=1e-3)
     assert raised.log_evidence == pytest.approx(math.log(0.8), abs=1e-3)
     assert raised.details["log_variance_centre"][0] == pytest.approx(-3.0, abs=1e-4)
+
+
+# ----------------------------------------------------------------------------- Newton in u
+class _Counting:
+    """Counts the value-and-gradient calls of the profile's inner fits and records g at every
+    node, by wrapping :class:`~symplid.inference.map._profile.Profile` where the evidence
+    builds it."""
+
+    def __init__(self, monkeypatch) -> None:
+        self.calls, self.in_fits, self.nodes, self.profile = 0, 0, {}, None
+        recorder, base = self, _profile.Profile
+
+        class Counting(base):
+            def __init__(self, value_and_grad, *args, **kwargs):
+                def counted(u):
+                    recorder.calls += 1
+                    return value_and_grad(u)
+
+                super().__init__(counted, *args, **kwargs)
+                recorder.profile = self
+
+            def fit(self, s, warm):
+                before = recorder.calls
+                found = super().fit(s, warm)
+                recorder.in_fits += recorder.calls - before
+                return found
+
+            def value(self, s, warm):
+                g, nxt = super().value(s, warm)
+                recorder.nodes[tuple(np.round(s, 12))] = g
+                return g, nxt
+
+        monkeypatch.setattr(_evidence, "Profile", Counting)
+
+
+def _evidence_by(rule_lbfgsb: bool, monkeypatch, args: tuple, **kwargs):
+    """The evidence with the inner fits by L-BFGS-B alone or by the default rule, counted."""
+    monkeypatch.setattr(_profile, "_LBFGSB_ONLY", rule_lbfgsb)
+    counting = _Counting(monkeypatch)
+    found = quadrature_evidence(*args, **kwargs)
+    return found, counting
+
+
+def half_normal_oscillator(process_sd: float) -> Posterior:
+    """The oscillator with k ~ HalfNormal(2): k > 0, so the MAP searches log k."""
+    posterior = oscillator(process_sd)
+    return Posterior(posterior.model, posterior.datasets[0], x0=X0,
+                     prior={"coefficients": symplid.HalfNormal(2.0)})
+
+
+@pytest.mark.parametrize("process_sd", [0.0, 0.1])
+def test_newton_in_log_coordinates_matches_lbfgsb_and_brute_force(process_sd, monkeypatch):
+    """k searched as log k: every inner fit is Newton's (before, none could be), each node's
+    g and the evidence equal those of L-BFGS-B's fits, with under half of its
+    value-and-gradient calls, and the evidence equals the brute-force integral with the
+    half-normal prior (the reference grid's k in [0.55, 1.65] holds all the mass)."""
+    posterior = half_normal_oscillator(process_sd)
+    result = find_map(posterior, num_starts=1, evidence="laplace", warn=False)
+    space = ParameterSpace.of(posterior)
+    search = SearchSpace.of(space, 1e-14)
+    assert search.log[0]  # k is on the log scale
+    fns = _compiled(posterior, search)
+    args = (fns["value_and_grad"], fns["hessian"], search, space.groups, space.names,
+            result.theta)
+    old, old_count = _evidence_by(True, monkeypatch, args)
+    new, new_count = _evidence_by(False, monkeypatch, args)
+    fits = new_count.profile.calls
+    assert fits["lbfgsb"] == 0 and fits["newton"] == new.details["inner_fits"]
+    assert old_count.profile.calls["newton"] == 0
+    assert abs(new.log_evidence - old.log_evidence) < 1e-6
+    assert new_count.nodes.keys() == old_count.nodes.keys()
+    gaps = [abs(new_count.nodes[k] - old_count.nodes[k]) for k in old_count.nodes]
+    assert max(gaps) < 1e-6
+    per_fit_new = new_count.in_fits / new.details["inner_fits"]
+    per_fit_old = old_count.in_fits / old.details["inner_fits"]
+    # measured: 3.4 against 9.9 calls (on the floor)
+    assert per_fit_new < 0.5 * per_fit_old, (per_fit_new, per_fit_old)
+    reference = _brute_force_half_normal(posterior.datasets[0])
+    assert abs(new.log_evidence - reference) < 1e-2, (new.log_evidence, reference)
+
+
+def _brute_force_half_normal(obs: Observations) -> float:
+    """:func:`brute_force_log_evidence` with the prior of k HalfNormal(2) instead of N(1, 1)."""
+    ks, ss = np.linspace(0.55, 1.65, 101), np.linspace(-26.0, 1.0, 37)
+    k, s1, s2 = (a.ravel() for a in np.meshgrid(ks, ss, ss, indexing="ij"))
+    q, r = np.exp(s1), np.exp(s2)
+    normal_k = -0.5 * (k - 1.0) ** 2 - 0.5 * math.log(2.0 * math.pi)
+    half_normal_k = math.log(math.sqrt(2.0 / math.pi) / 2.0) - k**2 / 8.0
+    lp = (kalman_loglik(k, q, r, obs) + log_prior(k, q, r) - normal_k + half_normal_k
+          + s1 + s2)
+    cell = (ks[1] - ks[0]) * (ss[1] - ss[0]) ** 2
+    return float(logsumexp(lp) + math.log(cell))
+
+
+class _OnFloor:
+    """x ≥ 0 with the exponential density λ(s) e^{−λ(s) x} (its maximum on the bound x = 0 at
+    every s), y ~ N(0.3 s, 1) and s = log v ~ N(−3, 0.5²): normalised, log evidence 0."""
+
+    num_params = 3
+    param_names = ("x", "y", "obs_var")
+    param_groups = ("coefficients", "coefficients", "obs_var")
+    lower = np.array([0.0, -np.inf, 0.0])
+    upper = np.array([np.inf, np.inf, np.inf])
+
+    @staticmethod
+    def log_density(theta):
+        x, y, v = theta[0], theta[1], theta[2]
+        s = jnp.log(v)
+        rate = 2.0 * jnp.exp(0.2 * (s + 3.0))
+        log_s = -0.5 * ((s + 3.0) / 0.5) ** 2 - math.log(0.5 * math.sqrt(2.0 * math.pi))
+        return (jnp.log(rate) - rate * x - 0.5 * (y - 0.3 * s) ** 2
+                - 0.5 * math.log(2.0 * math.pi) + log_s - s)
+
+
+def test_an_inner_maximum_on_a_bound_falls_back_to_lbfgsb(monkeypatch):
+    """x's maximum sits on its bound at every node: the fits are L-BFGS-B's, x on its floor,
+    the bound's 1-D scan integrates it, and the evidence is the exact 0. Newton in log x
+    would slide towards x = 0 with a vanishing gradient in u and stop short of the floor, its
+    decrement in u below 1e-11; the decrement in θ rejects that end."""
+    posterior = _OnFloor()
+    space = ParameterSpace.of(posterior)
+    search = SearchSpace.of(space, 1e-14)
+    fns = _compiled(posterior, search)
+    theta = np.array([0.0, -0.9, math.exp(-3.0)])
+    args = (fns["value_and_grad"], fns["hessian"], search, space.groups, space.names, theta)
+    found, counting = _evidence_by(False, monkeypatch, args)
+    assert counting.profile.calls["newton"] == 0
+    assert found.log_evidence == pytest.approx(0.0, abs=2e-3)
+    # from inside (x = 1e-6) Newton slides down log x by about 1 a step and is rejected:
+    # without the test in θ it would end ~1e-11 from the bound (not on it, so without the
+    # bound's scan) and be kept
+    profile = counting.profile
+    u0 = search.to_u(np.array([1e-6, -0.9, math.exp(-3.0)]))
+    assert profile._newton(u0.copy(), None) is None
+    monkeypatch.setattr(_profile, "THETA_DECREMENT", math.inf)
+    log_post, u, _ = profile._newton(u0.copy(), None)
+    assert 1e-14 < math.exp(u[0]) < 1e-9 and not search.at_bounds(u)[0]
+    assert u[1] == pytest.approx(-0.9, abs=1e-6)
+    exact = (math.log(2.0) - 0.5 * math.log(2.0 * math.pi)
+             - math.log(0.5 * math.sqrt(2.0 * math.pi)) + 3.0)
+    assert log_post == pytest.approx(exact, abs=1e-9)
+
+
+class _InBox:
+    """x in a box 0 < a < b (searched as log x within [log a, log b]), s = log v ~ N(−3, 0.5²),
+    y ~ N(0.3 s, 1), and x given s either N(2 + 0.2 s, 0.3²) (``inside``: its maximum well
+    inside [0.01, 100], the box's mass outside 1e-11) or λ e^{λx} / (e^{2λ} − e^{0.01λ}) on
+    [0.01, 2], λ = 20 + s (its maximum on the upper bound): normalised, log evidence 0."""
+
+    num_params = 3
+    param_names = ("x", "y", "obs_var")
+    param_groups = ("coefficients", "coefficients", "obs_var")
+
+    def __init__(self, inside: bool) -> None:
+        self.inside = inside
+        self.lower = np.array([0.01, -np.inf, 0.0])
+        self.upper = np.array([100.0 if inside else 2.0, np.inf, np.inf])
+
+    def log_density(self, theta):
+        x, y, v = theta[0], theta[1], theta[2]
+        s = jnp.log(v)
+        if self.inside:
+            log_x = (-0.5 * ((x - 2.0 - 0.2 * s) / 0.3) ** 2
+                     - math.log(0.3 * math.sqrt(2.0 * math.pi)))
+        else:
+            rate = 20.0 + s
+            log_x = (jnp.log(rate) + rate * x
+                     - jnp.log(jnp.exp(2.0 * rate) - jnp.exp(0.01 * rate)))
+        log_s = -0.5 * ((s + 3.0) / 0.5) ** 2 - math.log(0.5 * math.sqrt(2.0 * math.pi))
+        return log_x - 0.5 * (y - 0.3 * s) ** 2 - 0.5 * math.log(2.0 * math.pi) + log_s - s
+
+
+@pytest.mark.parametrize("inside", [True, False])
+def test_a_box_entry_on_its_log_scale(inside, monkeypatch):
+    """A coefficient in a box 0 < a < b is searched as log x between log a and log b: Newton
+    is used where its maximum lies inside (every node), L-BFGS-B where it is on a bound
+    (every node), and the evidence is the exact 0 and L-BFGS-B's own to 1e-6."""
+    posterior = _InBox(inside)
+    space = ParameterSpace.of(posterior)
+    search = SearchSpace.of(space, 1e-14)
+    assert search.log_box[0]
+    fns = _compiled(posterior, search)
+    theta = np.array([1.4 if inside else 2.0, -0.9, math.exp(-3.0)])
+    args = (fns["value_and_grad"], fns["hessian"], search, space.groups, space.names, theta)
+    old, _ = _evidence_by(True, monkeypatch, args)
+    new, counting = _evidence_by(False, monkeypatch, args)
+    fits = counting.profile.calls
+    assert fits["newton" if inside else "lbfgsb"] == new.details["inner_fits"]
+    assert abs(new.log_evidence - old.log_evidence) < 1e-6
+    assert new.log_evidence == pytest.approx(0.0, abs=2e-3)

@@ -21,12 +21,20 @@ The rule
    searched on a log scale by the MAP); a variance with an upper bound too stays in c.
    The damping rate γ of a damped model is in that tuple too and is integrated the same way
    (positive, and on data with little friction piled against 0 like a process variance).
-2. **Profile.** For fixed s, c is maximised by Newton's method with the compiled MAP
-   Hessian (L-BFGS-B when c has bounds or Newton fails; the MAP search's compiled objective
-   with the variances held; warm-started from a neighbouring node), and
+2. **Profile** (:mod:`symplid.inference.map._profile`). For fixed s, c is maximised in the
+   MAP search's coordinates u (θ itself, u = log(θ − a) or u = log θ in a box) by Newton's
+   method with ∇²_u(−log π) = D H_θ D + diag(∂(−log π)/∂u on the logarithmic coordinates),
+   D = ∂θ/∂u, from the compiled MAP θ-Hessian of the neighbouring node, carried between
+   θ-Hessians by BFGS updates (the MAP search's compiled objective with the variances held;
+   warm-started from a neighbouring node). Newton's answer is kept when it is an interior
+   maximum: no step leaves L-BFGS-B's bounds on u (the log floor, a box), the end is on none
+   of them and its Newton decrement in θ is small too. Otherwise, and whenever the
+   neighbour's maximum sat on a bound, L-BFGS-B runs (before, Newton ran only when every
+   entry of c was searched as itself without bounds, so never for a user's half-normal
+   coefficients: on the Kepler example 7.7 value-and-gradient calls a node instead of 38). Then
    ``g(s) = log ∫ exp(log π(c, v(s))) dc + Σ s_j`` is the Gaussian integral over c from the
-   Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for any entry
-   of c on a bound. No new program is compiled.
+   θ-Hessian block there (the compiled MAP Hessian), with the Laplace module's 1-D scan for
+   any entry of c on a bound. No new program is compiled.
 3. **Centre and axes.** The joint mode of log π + Σ s over (c, s) is the centre s̄: L-BFGS-B
    from the MAP and from the MAP with the variances of the default start (a process variance
    as large as the data's; ``find_map`` passes it as ``other_starts``), the higher end kept.
@@ -91,16 +99,13 @@ import scipy.optimize
 from scipy.special import logsumexp
 
 from symplid._stopping import check as check_stop
-from symplid.inference.map._laplace import laplace_covariance, repaired_eigenvalues, scan_from_bound
+from symplid.inference.map._laplace import repaired_eigenvalues
+from symplid.inference.map._profile import Profile, Warm, u_hessian
 from symplid.inference.map._space import SearchSpace
 from symplid.model._params import POSITIVE_GROUPS
 
 EVIDENCE_RULES = ("quadrature", "log-laplace")
 """Choices of :func:`quadrature_evidence`'s ``rule`` (module docstring, steps 4–6)."""
-
-Warm = tuple[np.ndarray, np.ndarray | None]
-"""A warm start: u at a neighbouring node's inner maximum and the Hessian there (or None)."""
-
 
 @dataclass(frozen=True)
 class EvidenceSettings:
@@ -133,122 +138,7 @@ def variance_indices(groups: tuple[str, ...], space: SearchSpace) -> np.ndarray:
     )
 
 
-class _Profile:
-    """g(s) of step 2, with the compiled search objective and Hessian of the MAP search."""
-
-    def __init__(self, value_and_grad: Callable, hessian: Callable, space: SearchSpace,
-                 var: np.ndarray, settings: EvidenceSettings) -> None:
-        self.vg, self.hessian, self.space, self.var = value_and_grad, hessian, space, var
-        self.free = np.setdiff1d(np.arange(space.lower.size), var)
-        self.bounds = [space.bounds()[i] for i in self.free]
-        self.options = {"ftol": settings.inner_ftol, "gtol": settings.inner_gtol,
-                        "maxiter": 2000, "maxcor": 30}
-        self.num_fits = 0
-        # Newton for c searched as itself without bounds (coefficients, initial states)
-        self.newton_ok = bool(np.all(~space.log[self.free])
-                              and np.all(~np.isfinite(space.lower[self.free]))
-                              and np.all(~np.isfinite(space.upper[self.free])))
-        self.max_newton = settings.max_newton
-
-    def u_of_theta(self, theta: np.ndarray) -> np.ndarray:
-        """θ ↦ u of the search space without its floor (s may lie below it)."""
-        return self.space.to_u(theta, floor=False)
-
-    def log_density(self, theta: np.ndarray) -> float:
-        value = float(self.vg(jnp.asarray(self.u_of_theta(theta)))[0])
-        return -value if np.isfinite(value) else -math.inf
-
-    def fit(self, s: np.ndarray, warm: Warm) -> tuple[float, np.ndarray, np.ndarray | None]:
-        """(max over c of log π, u at the maximum, ∇²(−log π) there or None) with the
-        variances at v(s): Newton's method, else L-BFGS-B."""
-        u = np.array(warm[0], dtype=float)
-        u[self.var] = s
-        self.num_fits += 1
-        if self.free.size == 0:
-            return self.log_density(np.asarray(self.space.to_theta(jnp.asarray(u)))), u, None
-        # the joint mode's Hessian, passed for the centre node, is this point's own
-        fresh = warm[1] is not None and np.array_equal(u, warm[0])
-        found = self._newton(u, warm[1], fresh) if self.newton_ok else None
-        return found if found is not None else (*self._lbfgs(u), None)
-
-    def _newton(self, u: np.ndarray, start_hessian: np.ndarray | None, fresh: bool = False
-                ) -> tuple[float, np.ndarray, np.ndarray] | None:
-        """Newton's method with the (repaired) Hessian and a backtracking line search, for
-        unbounded c. The steps start with the Hessian of the neighbouring node (a chord
-        method: one Hessian per node, which the Gaussian integral needs anyway), and the
-        Hessian is recomputed when a step is cut or at the end. None when it fails (then
-        L-BFGS-B runs)."""
-        free, u = self.free, u.copy()
-        value, grad = (np.asarray(x, dtype=float) for x in self.vg(jnp.asarray(u)))
-        full = start_hessian
-        for _ in range(self.max_newton):
-            if full is None:
-                full = np.asarray(self.hessian(self.space.to_theta(jnp.asarray(u))), dtype=float)
-                fresh = True
-            g = grad[free]
-            if not (np.isfinite(value) and np.all(np.isfinite(g)) and np.all(np.isfinite(full))):
-                return None
-            _, vecs, fixed, _ = repaired_eigenvalues(full[np.ix_(free, free)])
-            step = -(vecs @ ((vecs.T @ g) / fixed))
-            slope = float(g @ step)
-            if -0.5 * slope < 1e-11:
-                if fresh:
-                    return -float(value), u, full
-                full = None  # converged with the neighbour's Hessian: check with this one's
-                continue
-            t = 1.0
-            while t > 1e-6:
-                trial = u.copy()
-                trial[free] += t * step
-                v, gr = (np.asarray(x, dtype=float) for x in self.vg(jnp.asarray(trial)))
-                if np.isfinite(v) and v <= value + 1e-4 * t * slope:
-                    u, value, grad = trial, v, gr
-                    break
-                t *= 0.5
-            else:
-                return None
-            if t < 1.0:
-                full = None
-            fresh = False
-        return None
-
-    def _lbfgs(self, u: np.ndarray) -> tuple[float, np.ndarray]:
-        penalty = 1e10 + 1e3 * abs(float(self.vg(jnp.asarray(u))[0]))
-
-        def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
-            check_stop()  # a safe point (symplid._stopping)
-            u[self.free] = x
-            value, grad = self.vg(jnp.asarray(u))
-            value, grad = float(value), np.asarray(grad, dtype=float)[self.free]
-            if not (np.isfinite(value) and np.all(np.isfinite(grad))):
-                return penalty, np.zeros_like(x)
-            return value, grad
-
-        res = scipy.optimize.minimize(fun, u[self.free], jac=True, method="L-BFGS-B",
-                                      bounds=self.bounds, options=self.options)
-        u[self.free] = res.x
-        value = float(self.vg(jnp.asarray(u))[0])
-        return (-value if np.isfinite(value) else -math.inf), u
-
-    def value(self, s: np.ndarray, warm: Warm) -> tuple[float, Warm]:
-        """(g(s), (u, Hessian) at the inner maximum, the warm start of the next node)."""
-        log_post, u, full = self.fit(s, warm)
-        if not np.isfinite(log_post):
-            return -math.inf, (u, None)
-        theta = np.asarray(self.space.to_theta(jnp.asarray(u)), dtype=float)
-        if self.free.size == 0:
-            return log_post + float(np.sum(s)), (u, None)
-        if full is None:
-            full = np.asarray(self.hessian(jnp.asarray(theta)), dtype=float)
-        block = full[np.ix_(self.free, self.free)]
-        on_bound = np.flatnonzero(self.space.at_bounds(u)[self.free])
-        scans = [scan_from_bound(self.log_density, theta, int(self.free[j]), self.space, u,
-                                 log_post) for j in on_bound]
-        _, _, log_mass = laplace_covariance(block, log_post, list(on_bound), scans)
-        return (log_mass + float(np.sum(s)) if np.isfinite(log_mass) else -math.inf), (u, full)
-
-
-def _joint_mode(profile: _Profile, starts: list[np.ndarray]
+def _joint_mode(profile: Profile, starts: list[np.ndarray]
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(u at the mode of log π + Σ s over (c, s), axes A with A Aᵀ the covariance of s
     there, ∇²_θ(−log π) there): step 3. L-BFGS-B runs from each of ``starts`` (u) and the
@@ -272,11 +162,8 @@ def _joint_mode(profile: _Profile, starts: list[np.ndarray]
                                     options=profile.options) for u0 in starts]
     u = np.asarray(min(ends, key=lambda r: float(r.fun)).x, dtype=float)
     theta = np.asarray(space.to_theta(jnp.asarray(u)), dtype=float)
-    # ∇²_u(−log π) = D H_θ D + diag(∂(−log π)/∂u on the log coordinates), D = ∂θ/∂u.
     h_theta = np.asarray(profile.hessian(jnp.asarray(theta)), dtype=float)
-    grad_u = np.asarray(vg(jnp.asarray(u))[1], dtype=float)
-    scale = space.reparameterisation.jacobian_diagonal(u)  # D = ∂θ/∂u
-    h_u = scale[:, None] * h_theta * scale[None, :] + np.diag(np.where(space.log, grad_u, 0.0))
+    h_u = u_hessian(space, h_theta, u, np.asarray(vg(jnp.asarray(u))[1], dtype=float))
     cov_s = np.eye(var.size)
     if np.all(np.isfinite(h_u)):
         _, vecs, fixed, _ = repaired_eigenvalues(h_u)
@@ -292,7 +179,7 @@ class _Grid:
     """g on the nodes s̄ + h·A·k (k an integer vector), each fit warm-started from the node
     that reached it."""
 
-    def __init__(self, profile: _Profile, u_centre: np.ndarray, axes: np.ndarray,
+    def __init__(self, profile: Profile, u_centre: np.ndarray, axes: np.ndarray,
                  step: float, hessian: np.ndarray | None = None) -> None:
         self.profile, self.axes, self.step = profile, axes, step
         self.centre = u_centre[profile.var].copy()
@@ -398,7 +285,9 @@ def quadrature_evidence(
     var = variance_indices(tuple(groups), space)
     if var.size == 0:
         return None
-    profile = _Profile(value_and_grad, hessian, space, var, settings)
+    options = {"ftol": settings.inner_ftol, "gtol": settings.inner_gtol, "maxiter": 2000,
+               "maxcor": 30}
+    profile = Profile(value_and_grad, hessian, space, var, options, settings.max_newton)
     starts = [space.to_u(theta_map)] + [space.to_u(np.asarray(t, dtype=float))
                                         for t in other_starts]
     u_centre, axes, h_centre = _joint_mode(profile, starts)
