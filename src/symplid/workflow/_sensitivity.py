@@ -49,6 +49,7 @@ from symplid.workflow._scaling import scaling_for
 __all__ = [
     "DYNAMICS_GROUPS",
     "THRESHOLD_SD",
+    "fit_posterior",
     "process_noise_check",
     "refit_map",
     "sensitivity_checks",
@@ -85,7 +86,7 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
     """
     scaling = scaling_for(settings, obs)
     if posterior is None:
-        posterior = _fit_posterior(settings, obs, scaling, plan)
+        posterior = fit_posterior(settings, obs, scaling, plan)
     groups = posterior.param_groups
     start = None
     if init is not None:
@@ -103,7 +104,7 @@ def refit_map(settings: Any, obs: Any, init: np.ndarray | None = None,
     return result, posterior
 
 
-def _fit_posterior(settings: Any, obs: Any, scaling: Any, plan: Any) -> Any:
+def fit_posterior(settings: Any, obs: Any, scaling: Any, plan: Any) -> Any:
     """The posterior of ``settings`` on ``obs`` in the fit's coordinates (standardised when
     ``scaling`` is given)."""
     fit_settings = settings if scaling is None else scaling.settings(settings)

@@ -13,7 +13,13 @@ above the first candidate:
    observations does not set the step of every gap (measured: a pair 0.0045 apart among
    gaps of median 0.48 put 600 substeps into the longest gap, where the check passes at
    0.15); the gaps shorter than the step are integrated in one step of their own length,
-   and the halving check below decides as for any candidate. Its MAP is the fit's whole search
+   and the halving check below decides as for any candidate. That step is then halved
+   until it resolves the fastest motion the data show (:func:`resolving_step`: rate × dt
+   ≤ :data:`RESOLVE`, the rate read from the MAP's data starts without a filter). The
+   halving check cannot see a step that is too long for the motion: a Morse oscillator
+   sampled 3.5 times a period was searched at its gap, 0.8, where leapfrog is unstable at
+   the true parameters (ω·dt = 2.1), so every start found a slow motion instead, and dt/2
+   warm-started from there agreed with it. Its MAP is the fit's whole search
    (``map.num_starts`` starts and the Laplace sds). If that search fails, the step is halved
    and searched again (up to :data:`MAX_FIRST_TRIES` times);
 2. the MAP at dt/2 is found from the MAP at dt (one warm start, no Hessian) and each
@@ -45,19 +51,22 @@ import numpy as np
 from symplid.dynamics._integrators import get_integrator
 from symplid.io import as_list
 from symplid.workflow._model_builder import model_family
-from symplid.workflow._sensitivity import DYNAMICS_GROUPS, refit_map
+from symplid.workflow._scaling import scaling_for
+from symplid.workflow._sensitivity import DYNAMICS_GROUPS, fit_posterior, refit_map
 
 __all__ = [
     "MAX_FIRST_TRIES",
     "MAX_HALVINGS",
     "MAX_JUMP",
     "MEDIAN_FRACTION",
+    "RESOLVE",
     "THRESHOLD_SD",
     "UNSEARCHED_STEP",
     "StepChoice",
     "choose_step",
     "first_candidate",
     "map_at_step",
+    "resolving_step",
     "smallest_gap",
     "step_check",
     "step_line",
@@ -78,6 +87,11 @@ MEDIAN_FRACTION = 4
 
 MAX_JUMP = 3
 """The most halvings the order's prediction may skip at once."""
+
+RESOLVE = 1.0
+"""The first candidate is halved until the fastest rate the data show times the step is at
+most this (:func:`resolving_step`): an oscillation of angular frequency ω gets at least 2π
+steps a period, inside leapfrog's stability limit ω·dt < 2 with a margin of two."""
 
 MAX_FIRST_TRIES = 3
 """How many steps (each half the last) the first, whole MAP search is tried at."""
@@ -127,6 +141,24 @@ def first_candidate(obs: Any, t0: float | str = "first") -> float:
     :data:`MEDIAN_FRACTION` where that is larger (irregular times; module docstring)."""
     gaps = _gaps(obs, t0)
     return float(max(np.min(gaps), np.median(gaps) / MEDIAN_FRACTION))
+
+
+def resolving_step(settings: Any, obs: Any, gap: float, plan: Any = None
+                   ) -> tuple[float, float]:
+    """(the first candidate ``gap`` halved until it resolves the fastest motion the data
+    show, that rate): while rate × dt > :data:`RESOLVE`, dt is halved (at most
+    :data:`MAX_HALVINGS` times); the rate is :func:`~symplid.inference.map.fastest_rate` of the
+    data start (NaN, and ``gap`` itself, when the data start cannot be read)."""
+    from symplid.inference.map import fastest_rate
+
+    at = dataclasses.replace(settings, model=dataclasses.replace(settings.model, dt=float(gap)))
+    rate = fastest_rate(fit_posterior(at, obs, scaling_for(at, obs), plan))
+    dt = gap
+    for _ in range(MAX_HALVINGS):
+        if not rate * dt > RESOLVE:
+            break
+        dt /= 2
+    return dt, rate
 
 
 def map_at_step(settings: Any, obs: Any, dt: float, init: np.ndarray | None = None,
@@ -290,9 +322,10 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     if model_family(settings.model).neural:
         return unchecked_step(settings, obs, "a neural family's MAP is its whole Adam + L-BFGS "
                               "fit, too costly to refit")
-    gap = first_candidate(obs, settings.initial_state.t0)
+    gap, rate = resolving_step(settings, obs, first_candidate(obs, settings.initial_state.t0),
+                               plan)
     base = {**_base(settings, smallest_gap(obs, settings.initial_state.t0)),
-            "first_candidate": gap}
+            "first_candidate": gap, "fastest_rate": rate}
     order = base["order"]
     dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),

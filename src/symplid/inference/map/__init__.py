@@ -34,6 +34,7 @@ import importlib
 from typing import Any
 
 from symplid.inference.map._checks import MapFailedError, failure_message
+from symplid.inference.map._data_start import fastest_rate
 from symplid.inference.map._evidence import EvidenceSettings, quadrature_evidence
 from symplid.inference.map._find import EVIDENCE_METHODS, default_start, find_map
 from symplid.inference.map._homotopy import (
@@ -78,6 +79,7 @@ __all__ = [
     "StartResult",
     "default_start",
     "failure_message",
+    "fastest_rate",
     "filter_start",
     "find_map",
     "find_map_neural",
