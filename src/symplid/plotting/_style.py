@@ -210,23 +210,32 @@ def energy_limits(truth: np.ndarray, *arrays: np.ndarray, pad: float = 0.08):
 
 class CompactFormatter(Formatter):
     """Tick labels with just enough significant digits to tell neighbouring ticks apart
-    (``2.5e-06``, ``0.12125``), and no offset text to collide with axis labels."""
+    (``2.5e-06``, ``0.12125``), and no offset text to collide with axis labels.
+
+    The digits depend on the ticks alone; they are worked out once per set of ticks
+    (:meth:`set_locs`), not once per label."""
 
     _ticks: tuple[float, ...] = ()
+    _step: float = 1.0
+    _digits: int | None = None  # None: fewer than two finite ticks, "%.3g"
 
     def set_locs(self, locs) -> None:
         self._ticks = tuple(float(v) for v in locs)
+        finite = np.asarray([v for v in self._ticks if np.isfinite(v)], dtype=float)
+        if finite.size < 2:
+            self._digits = None
+            return
+        self._step = float(np.min(np.abs(np.diff(np.sort(finite))))) or 1.0
+        scale = float(np.max(np.abs(finite)))
+        self._digits = int(min(max(np.ceil(np.log10(max(scale / self._step, 1.0))) + 2, 2),
+                               10))
 
     def __call__(self, x: float, pos: int | None = None) -> str:
-        locs = np.asarray([v for v in self._ticks if np.isfinite(v)], dtype=float)
-        if locs.size < 2:
+        if self._digits is None:
             return f"{x:.3g}"
-        step = float(np.min(np.abs(np.diff(np.sort(locs))))) or 1.0
-        scale = float(np.max(np.abs(locs)))
-        if abs(x) < 1e-9 * step:
+        if abs(x) < 1e-9 * self._step:
             return "0"
-        digits = int(min(max(np.ceil(np.log10(max(scale / step, 1.0))) + 2, 2), 10))
-        return f"{x:.{digits}g}"
+        return f"{x:.{self._digits}g}"
 
 
 def compact_ticks(ax, axis: str = "both") -> None:
