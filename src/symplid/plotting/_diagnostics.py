@@ -183,7 +183,7 @@ def plot_traces(
         compact_ticks(ax_t, "y")
         compact_ticks(ax_h, "x")
         if k < p - 1:
-            ax_t.set_xticklabels([])
+            ax_t.tick_params(labelbottom=False)
     axes[0, 0].set_title("trace", fontsize=10, loc="left")
     axes[0, 1].set_title("marginal per chain", fontsize=10)
     axes[-1, 0].set_xlabel("draw")
