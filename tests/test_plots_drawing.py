@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 
+import matplotlib
 import numpy as np
 import pytest
 from matplotlib.patches import StepPatch
@@ -155,3 +156,9 @@ def test_write_figure_has_savefigs_pixels():
     svg = io.BytesIO()
     write_figure(fig, svg, fmt="svg")
     assert svg.getvalue().lstrip().startswith(b"<?xml")
+    # a matplotlibrc asking savefig for a tight box is honoured, as savefig would
+    with matplotlib.rc_context({"savefig.bbox": "tight"}):
+        tight, theirs = io.BytesIO(), io.BytesIO()
+        write_figure(fig, tight)
+        fig.savefig(theirs, format="png", dpi=fig.dpi, facecolor="white")
+    np.testing.assert_array_equal(pixels(tight), pixels(theirs))

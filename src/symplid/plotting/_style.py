@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib import rcParams
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
@@ -145,10 +146,12 @@ def write_figure(fig: Figure, target: Any, fmt: str = "png", dpi: int = DPI) -> 
     layout, and once to render. A PNG at the figure's own dpi is rendered here by the canvas
     in one draw, which runs the same layout with the same renderer first: the same pixels
     without the output-less draw (a fifth to a third of saving the trace and pair plots).
-    Other formats and dpis take ``savefig``.
+    Other formats and dpis, and a matplotlibrc that asks ``savefig`` for a tight or
+    transparent image, take ``savefig``.
     """
     canvas = FigureCanvasAgg(fig)
-    if fmt != "png" or dpi != fig.dpi:
+    plain = rcParams["savefig.bbox"] in (None, "standard") and not rcParams["savefig.transparent"]
+    if fmt != "png" or dpi != fig.dpi or not plain:
         fig.savefig(target, format=fmt, dpi=dpi, facecolor="white")
         return
     face = fig.get_facecolor()
