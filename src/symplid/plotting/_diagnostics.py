@@ -19,7 +19,7 @@ from symplid.plotting._style import (
     new_figure,
 )
 
-__all__ = ["plot_pair", "plot_traces", "truncation_note"]
+__all__ = ["envelope_indices", "plot_pair", "plot_traces", "truncation_note"]
 
 
 def _as_draws(draws: Any, names: Sequence[str] | None) -> tuple[np.ndarray, list[str]]:
@@ -70,6 +70,32 @@ def _select(arr: np.ndarray, names: list[str], params: Sequence[str | int] | Non
     return arr[:, :, idx], [names[i] for i in idx]
 
 
+def envelope_indices(values: np.ndarray, most: int) -> np.ndarray:
+    """Indices of at most ``most`` (≥ 4) entries of the 1-D ``values`` that keep its envelope:
+    the first and the last, and, with ``values`` cut into runs of equal length (the last one
+    shorter), each run's lowest and highest entry, in order.
+
+    A line through them spans the same range as the line through every value, run by run:
+    every excursion of a trace stays in view (thinning to every k-th draw would drop a lone
+    spike), while the line has a few thousand vertices instead of every draw. All indices
+    when there are at most ``most``, or when a value is not finite.
+    """
+    n = values.shape[0]
+    if most < 4:
+        raise ValueError(f"most must be ≥ 4, got {most}")
+    if n <= most or not np.all(np.isfinite(values)):
+        return np.arange(n)
+    length = -(-n // ((most - 2) // 2))  # ceil: at most (most - 2) // 2 runs
+    runs = -(-n // length)
+    padded = np.full(runs * length, np.nan)
+    padded[:n] = values
+    padded = padded.reshape(runs, length)
+    starts = np.arange(runs) * length
+    kept = np.concatenate([[0, n - 1], starts + np.nanargmin(padded, axis=1),
+                           starts + np.nanargmax(padded, axis=1)])
+    return np.unique(kept)
+
+
 def truncation_note(shown: int, total: int, option: str) -> str | None:
     """"showing the first k of P parameters (option)" when a figure leaves some out."""
     if shown >= total:
@@ -105,6 +131,7 @@ def plot_traces(
     *,
     params: Sequence[str | int] | None = None,
     max_params: int = 16,
+    max_points: int = 2000,
     path: str | Path | None = None,
     option: str = "max_params",
 ) -> Figure:
@@ -120,6 +147,10 @@ def plot_traces(
     params
         Names or indices to draw (default: the first ``max_params``; when that leaves some
         out, a note at the top says so, naming ``option``).
+    max_points
+        The most points of a chain's trace line (:func:`envelope_indices`: the first and
+        last draw and the lowest and highest of each run of consecutive draws, so the line
+        covers the same range run by run; the histograms count every draw).
 
     Returns
     -------
@@ -138,10 +169,11 @@ def plot_traces(
         edges = np.histogram_bin_edges(finite if finite.size else [0.0, 1.0], bins=40)
         for c in range(arr.shape[0]):
             color = CYCLE[c % len(CYCLE)]
-            ax_t.plot(iters, col[c], lw=0.4, alpha=0.8, color=color,
+            kept = envelope_indices(col[c], max_points)
+            ax_t.plot(iters[kept], col[c][kept], lw=0.4, alpha=0.8, color=color,
                       label=f"chain {c}" if k == 0 else None)
-            ax_h.hist(col[c][np.isfinite(col[c])], bins=edges, histtype="step", color=color,
-                      lw=1.0)
+            counts, _ = np.histogram(col[c][np.isfinite(col[c])], bins=edges)
+            ax_h.stairs(counts, edges, color=color, lw=1.0)
         ax_t.set_ylabel(labels[k], fontsize=9)
         ax_t.grid(alpha=0.25)
         ax_h.set_yticks([])
@@ -151,7 +183,7 @@ def plot_traces(
         compact_ticks(ax_t, "y")
         compact_ticks(ax_h, "x")
         if k < p - 1:
-            ax_t.set_xticklabels([])
+            ax_t.tick_params(labelbottom=False)
     axes[0, 0].set_title("trace", fontsize=10, loc="left")
     axes[0, 1].set_title("marginal per chain", fontsize=10)
     axes[-1, 0].set_xlabel("draw")
@@ -219,7 +251,8 @@ def plot_pair(
             ax = fig.add_subplot(grid[i, j], sharex=axes.get((j, j)) if j < i else share_x)
             axes[i, j] = ax
             if i == j:
-                ax.hist(flat[:, i], bins=40, color=COLORS["leapfrog"], alpha=0.75)
+                counts, edges = np.histogram(flat[:, i], bins=40)
+                ax.stairs(counts, edges, fill=True, color=COLORS["leapfrog"], alpha=0.75)
                 ax.set_yticks([])
                 for ref, st in marks:
                     if ref[i] is not None:

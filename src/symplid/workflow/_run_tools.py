@@ -14,7 +14,7 @@ from symplid.inference.map import MapResult
 from symplid.io import as_list
 from symplid.io._files import write_with
 from symplid.plotting import plot_predictive
-from symplid.plotting._style import DPI
+from symplid.plotting._style import DPI, write_figure
 from symplid.sampling import draws_array
 from symplid.sampling._restart import restart_threshold, restarted_message
 from symplid.workflow._driven import is_driven, power_balance_lines, predicted_inputs
@@ -54,11 +54,8 @@ def _draws(folder: RunFolder, wanted: bool, what: str) -> np.ndarray | None:
 def save_atomically(figure: Any, path: Path) -> Path:
     """Write a figure as :func:`symplid.plotting.save_figure` does, made in memory and
     written atomically (:func:`symplid.io._files.write_with`: never a half-written PNG)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    FigureCanvasAgg(figure)
-    return write_with(path, lambda buffer: figure.savefig(
-        buffer, format=path.suffix.lstrip(".") or "png", dpi=DPI, facecolor="white"))
+    return write_with(path, lambda buffer: write_figure(
+        figure, buffer, path.suffix.lstrip(".") or "png", DPI))
 
 
 def _prediction_args(settings, obs, t_end, dt, num_paths) -> tuple[float, float, int, float]:
