@@ -18,10 +18,10 @@ above the first candidate:
    ≤ :data:`RESOLVE`, the rate read from the MAP's data starts without a filter). The
    halving check cannot see a step that is too long for the motion: a Morse oscillator
    sampled 3.5 times a period was searched at its gap, 0.8, where leapfrog is unstable at
-   the true parameters (ω·dt = 2.1), so every start found a slow motion instead, and dt/2
-   warm-started from there agreed with it. Its MAP is the fit's whole search
-   (``map.num_starts`` starts and the Laplace sds). If that search fails, the step is halved
-   and searched again (up to :data:`MAX_FIRST_TRIES` times);
+   the true parameters (ω·dt from 2.1 to 3.8 along the path), so every start found a slow
+   motion instead, and dt/2 warm-started from there agreed with it. Its MAP is the fit's
+   whole search (``map.num_starts`` starts and the Laplace sds). If that search fails, the
+   step is halved and searched again (up to :data:`MAX_FIRST_TRIES` times);
 2. the MAP at dt/2 is found from the MAP at dt (one warm start, no Hessian) and each
    parameter's move is measured in the sds of the last Laplace covariance;
 3. a move above the threshold: the integrator's order p predicts how many halvings bring it
@@ -325,7 +325,7 @@ def choose_step(settings: Any, obs: Any, search: Callable | None = None,
     gap, rate = resolving_step(settings, obs, first_candidate(obs, settings.initial_state.t0),
                                plan)
     base = {**_base(settings, smallest_gap(obs, settings.initial_state.t0)),
-            "first_candidate": gap, "fastest_rate": rate}
+            "first_candidate": gap, "fastest_rate": rate if math.isfinite(rate) else None}
     order = base["order"]
     dt, first, posterior, tries = _first_search(settings, obs, gap, search, status, plan)
     state = _Search(settings, obs, list(posterior.param_names), list(posterior.param_groups),
