@@ -156,14 +156,14 @@ def searches(name: str, folder: Path) -> dict:
     from symplid.workflow._fit import find_map_for
     from symplid.workflow._plan import resolve_for_data
     from symplid.workflow._scaling import scaling_for
-    from symplid.workflow._sensitivity import _fit_posterior, refit_map
+    from symplid.workflow._sensitivity import fit_posterior, refit_map
     from symplid.workflow._settings import load_settings
 
     config, data = system_files(name, folder)
     obs = read_observations(data)
     settings = resolve_for_data(load_settings(config), obs)
     scaling = scaling_for(settings, obs)
-    posterior = _fit_posterior(settings, obs, scaling, None)
+    posterior = fit_posterior(settings, obs, scaling, None)
     fit_settings = settings if scaling is None else scaling.settings(settings)
     result = find_map_for(fit_settings, posterior)  # compiles; the refit's start
     if scaling is not None:
