@@ -49,10 +49,11 @@ non-separable H that the model can evaluate; otherwise :func:`data_start` return
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import jax
@@ -94,13 +95,18 @@ class DataStart:
         The fastest rate of the fitted motion (:func:`fastest_rate`): the largest modulus of
         an eigenvalue of the flow's Jacobian ∂ẋ/∂x at the collocation's nodes, in 1/time
         (ω for an oscillation of angular frequency ω); NaN when it cannot be computed.
+        Computed when first read (a compiled Jacobian: the MAP's starts do not need it).
     """
 
     theta: np.ndarray
     scale: np.ndarray
     noise_var: np.ndarray
     data_var: float
-    rate: float = math.nan
+    _rate_of: Callable[[], float] = field(default=lambda: math.nan, repr=False, compare=False)
+
+    @functools.cached_property
+    def rate(self) -> float:
+        return self._rate_of()
 
 
 @dataclass(frozen=True)
@@ -375,7 +381,8 @@ def data_start(posterior: Any, default: np.ndarray,
     if not np.all(np.isfinite(theta)):
         return None
     return DataStart(_lifted(theta, dyn, lift, is_finite), scale, noise_var, data_var,
-                     _rate(model, theta[: model.num_params], paths, momenta))
+                     functools.partial(_rate, model, theta[: model.num_params].copy(), paths,
+                                       momenta))
 
 
 def _rate(model: Any, theta_m: np.ndarray, paths: list[_Smoothed], momenta: list) -> float:
