@@ -226,7 +226,7 @@ class Profile:
         if self.free.size == 0:
             return log_post + float(np.sum(s)), (u, None)
         if full is None:
-            full = np.asarray(self.hessian(jnp.asarray(theta)), dtype=float)
+            full = self.theta_hessian(u)
         block = full[np.ix_(self.free, self.free)]
         on_bound = np.flatnonzero(self.space.at_bounds(u)[self.free])
         scans = [scan_from_bound(self.log_density, theta, int(self.free[j]), self.space, u,
