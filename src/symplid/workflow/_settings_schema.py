@@ -134,8 +134,9 @@ class ModelSettings:
             "Learning step: each observation gap is split into ⌈gap/dt⌉ equal substeps; "
             "``\"auto\"`` (the default): the fit chooses the largest step whose halving moves "
             "no dynamics parameter by more than 0.1 posterior sds at the MAP, at most the "
-            "data's smallest gap or, where larger, a quarter of the median gap (a few "
-            "warm-started MAP refits)."
+            "data's smallest gap or, where larger, a quarter of the median gap, halved until "
+            "it resolves the fastest motion the MAP's data starts show (a few warm-started MAP "
+            "refits)."
         ),
     )
     process_noise_per: str = setting(
