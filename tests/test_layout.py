@@ -230,7 +230,7 @@ def test_every_consumer_selects_from_the_one_object():
     np.testing.assert_array_equal(u, [0.3, np.log(0.25), np.log(1e-14), 0.4])
     np.testing.assert_allclose(search.to_theta(jnp.asarray(u))[:2], theta[:2], rtol=1e-15)
 
-    class Target:  # DRAM: only LOG_SCALE_GROUPS entries bounded below only
+    class Target:  # DRAM: by default the variances bounded below only
         def __init__(self):
             self.space = space
 

@@ -47,11 +47,10 @@ Array = jax.Array
 POSITIVE_GROUPS = ("damping", "process_var", "obs_var", "obs_rel_var")
 """Groups bounded below by 0 whatever their prior: the damping rate and the variances."""
 
-LOG_SCALE_GROUPS = (*POSITIVE_GROUPS, "parameters")
-"""Groups whose parameters, when bounded below only, DRAM moves on a log scale: the positive
-groups and the declared parameters of a user's model (``[model.parameters]``)."""
-
-"""How far inside [log a, log b] the MAP search keeps a parameter searched as log θ."""
+USER_GROUP = "parameters"
+"""The group of a user model's declared parameters (``[model.parameters]``) and of a
+generalised force's: DRAM moves those bounded below only on the scale of their prior, or on
+one chosen for them (``DRAMSettings.parameter_scale``)."""
 
 MAX_UNCONSTRAINED_VARIANCE = 4.0
 """Cap on each variance of a covariance pushed to the unconstrained space."""
@@ -109,7 +108,8 @@ class Reparameterisation:
     * NUTS and the Laplace push-forward: every entry (:meth:`ParameterSpace.reparameterisation`);
     * the MAP search: the entries bounded below only (its search space,
       ``symplid.inference.map``), u = log(θ − a);
-    * DRAM with ``variance_scale = "log"``: those of them in :data:`LOG_SCALE_GROUPS`
+    * DRAM: those of them its settings put on a log scale, by default the entries of
+      :data:`POSITIVE_GROUPS` and the user's parameters with a log-normal prior
       (:meth:`ParameterSpace.log_scale`; its mask, :attr:`transformed`, is DRAM's);
     * standardisation (``symplid.workflow._scaling``): no entry, D the unit factors
       (:meth:`linear`).
@@ -359,12 +359,14 @@ class ParameterSpace:
         boolean mask; None: all) and the identity on the others (:class:`Reparameterisation`)."""
         return Reparameterisation(self.lower, self.upper, select)
 
-    def log_scale(self) -> Reparameterisation:
-        """DRAM's map with ``variance_scale = "log"``: the entries of :data:`LOG_SCALE_GROUPS`
-        bounded below only as log(θ − a), the others as they are. Which entries move on the
-        log scale is the result's :attr:`~Reparameterisation.transformed` mask (none: DRAM
-        moves in θ)."""
-        chosen = np.array([g in LOG_SCALE_GROUPS for g in self.groups], dtype=bool)
+    def log_scale(self, chosen: Any = None) -> Reparameterisation:
+        """DRAM's map: the entries ``chosen`` picks (a boolean mask; None: those of
+        :data:`POSITIVE_GROUPS`, the variances and the damping rate) that are bounded below
+        only, as log(θ − a); the others as they are. Which entries move on the log scale is
+        the result's :attr:`~Reparameterisation.transformed` mask (none: DRAM moves in θ)."""
+        if chosen is None:
+            chosen = [g in POSITIVE_GROUPS for g in self.groups]
+        chosen = np.asarray(chosen, dtype=bool)
         return self.reparameterisation(chosen & self.lower_only)
 
     def from_unconstrained(self, z: Array) -> Array:
@@ -422,9 +424,9 @@ def pushforward_covariance(
 
 __all__ = [
     "BIJECTORS",
-    "LOG_SCALE_GROUPS",
     "MAX_UNCONSTRAINED_VARIANCE",
     "POSITIVE_GROUPS",
+    "USER_GROUP",
     "ParameterProperties",
     "ParameterSpace",
     "Reparameterisation",

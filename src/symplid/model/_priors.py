@@ -61,6 +61,9 @@ class Prior:
     """Base class of the prior families (see the module docstring for the interface)."""
 
     family: ClassVar[str] = ""
+    log_scale: ClassVar[bool] = False
+    """Whether the family is a law of log x (log-normal, log-uniform): DRAM's default
+    ``parameter_scale = "prior"`` moves such a parameter as log x."""
 
     def log_density(self, x: Array) -> Array:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -260,6 +263,7 @@ class LogNormal(Prior):
     mu: float = 0.0
     sigma: float = 1.0
     family: ClassVar[str] = "log-normal"
+    log_scale: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mu", _finite("mu", self.mu, self.family))
@@ -308,6 +312,7 @@ class LogUniform(Prior):
     low: float = 1e-8
     high: float = 1.0
     family: ClassVar[str] = "log-uniform"
+    log_scale: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         low = _positive("low", self.low, self.family)

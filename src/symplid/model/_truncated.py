@@ -103,6 +103,11 @@ class Truncated(Prior):
         return self._cdfs[1] - self._cdfs[0]
 
     @property
+    def log_scale(self) -> bool:  # type: ignore[override]
+        """The base family's: bounds do not change the scale a law is written on."""
+        return self.base.log_scale
+
+    @property
     def support(self) -> tuple[float, float]:
         lo, hi = self.base.support
         return (max(lo, self.lower), min(hi, self.upper))

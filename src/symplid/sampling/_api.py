@@ -24,8 +24,9 @@ Layout of the result
   ``chain``, ``from_chain``, ``lp_median``, ``best_lp_median``), and the sampler's own
   (``final_attrs``):
   for DRAM ``dram_adapted_covariance`` (each chain's final running covariance, nested
-  lists, in the coordinates the chain moves in: log(v) for the variances when
-  ``dram_variance_scale`` is ``"log"``, the default); for NUTS
+  lists, in the coordinates the chain moves in: log(θ − a) for the entries named in
+  ``dram_log_scale``, by default the variances), ``dram_variance_scale`` and
+  ``dram_parameter_scale`` (the settings that chose them); for NUTS
   ``unconstrained_map_covariance``, ``nuts_step_size`` and ``nuts_inverse_mass_matrix``.
   All survive ``to_netcdf``.
 

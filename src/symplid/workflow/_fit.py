@@ -148,7 +148,7 @@ def sample_for(
     # declares them (DRAM's γ and adaptation start); no branch on the method's name.
     accepted = {f.name for f in dataclasses.fields(SAMPLERS[s.method].settings_class)}
     offered = {"gamma": s.gamma, "adapt_start": max(1, s.adapt_start),
-               "variance_scale": s.variance_scale}
+               "variance_scale": s.variance_scale, "parameter_scale": s.parameter_scale}
     options_for_kernel = {key: value for key, value in offered.items() if key in accepted}
     # The settings count every iteration (burn-in included, as the paper's 200,000 with
     # 100,000 discarded); the sampler counts the draws it keeps. "auto": no fixed number.

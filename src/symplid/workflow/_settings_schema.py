@@ -21,7 +21,7 @@ from symplid.dynamics._user_models import MAX_EXPRESSION_SIZE, QUADRATIC, is_use
 from symplid.filters._noise import OBSERVATION_NOISE
 from symplid.inference.map import EVIDENCE_METHODS
 from symplid.inference.samplers import SAMPLERS
-from symplid.inference.samplers._dram import VARIANCE_SCALES
+from symplid.inference.samplers._dram import PARAMETER_SCALES, VARIANCE_SCALES
 from symplid.model._inputs import INTERPOLATIONS
 from symplid.model._prior_spec import PriorSpec
 from symplid.model._priors import HalfNormal, Laplace, Normal, Prior
@@ -363,7 +363,9 @@ class SamplerSettings:
     (``"auto"``: half of them, the paper's 100,000 of 200,000); the draws kept per chain are
     ``(num_iterations − burn_in) // thin`` (the property ``num_draws``).
     ``variance_scale`` is DRAM's: ``"log"`` (default) moves the variances as log(v) with the
-    Jacobian (no wall at their floor), ``"natural"`` as themselves (the paper's).
+    Jacobian (no wall at their floor), ``"natural"`` as themselves (the paper's);
+    ``parameter_scale`` the same for a user model's parameters, by default the scale of each
+    one's prior (log θ for a log-normal prior, θ for the others).
     """
 
     method: str = setting(
@@ -414,6 +416,13 @@ class SamplerSettings:
     variance_scale: str = setting(
         "log", choices=VARIANCE_SCALES,
         doc="DRAM moves the noise variances as log(v) (with the Jacobian) or as v (the paper's).",
+    )
+    parameter_scale: str = setting(
+        "prior", choices=PARAMETER_SCALES,
+        doc=("How DRAM moves a user model's parameters bounded below only: ``\"prior\"``, "
+             "as log(θ) for a log-normal prior and as θ for the others; ``\"natural\"``: "
+             "all as θ, along the straight ridges of a potential linear in its "
+             "coefficients; ``\"log\"``: all as log(θ), with the Jacobian."),
     )
     thin: int = setting(1, minimum=1, doc="Keep every thin-th draw.")
     seed: int = setting(0, minimum=0, doc="Seed of the sampler.")

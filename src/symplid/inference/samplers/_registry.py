@@ -37,7 +37,12 @@ from symplid.inference.samplers import dram, nuts
 from symplid.inference.samplers._dram import DRAMSettings
 from symplid.inference.samplers._nuts import NUTSSettings
 from symplid.model._backends import LIKELIHOOD_BACKENDS
-from symplid.model._params import ParameterSpace, pushforward_covariance
+from symplid.model._params import (
+    POSITIVE_GROUPS,
+    USER_GROUP,
+    ParameterSpace,
+    pushforward_covariance,
+)
 
 Array = jax.Array
 
@@ -137,16 +142,18 @@ class SamplerSpec:
 
 
 class LogVariances:
-    """θ ↔ w with the variances (bounded below only) as w = log(v − a), the rest as is,
-    and the log density of w (log π(θ(w)) + Σ w over the variances: the log-Jacobian).
-    A user model's declared parameters bounded below only move on the same log scale
-    (:data:`~symplid.model._params.LOG_SCALE_GROUPS`). The map, and with it the mask of the
+    """θ ↔ w with the entries :func:`log_scale_entries` picks (those bounded below only) as
+    w = log(θ − a), the rest as is, and the log density of w (log π(θ(w)) + Σ w over those
+    entries: the log-Jacobian). By default the variances and the damping rate, and a user
+    model's parameters whose prior is a law of log θ. The map, and with it the mask of the
     entries on the log scale, is the posterior's one
     :class:`~symplid.model._params.Reparameterisation` for DRAM
     (:meth:`~symplid.model._params.ParameterSpace.log_scale`)."""
 
-    def __init__(self, posterior: Any) -> None:
-        self.reparameterisation = ParameterSpace.of(posterior).log_scale()
+    def __init__(self, posterior: Any, settings: DRAMSettings | None = None) -> None:
+        space = ParameterSpace.of(posterior)
+        chosen = log_scale_entries(space, settings or DRAMSettings())
+        self.reparameterisation = space.log_scale(chosen)
         self.mask = self.reparameterisation.transformed  # the bounded-below-only ones
         self._log_density = posterior.log_density
 
@@ -163,12 +170,29 @@ class LogVariances:
         return self._log_density(self.to_theta(w)) + self.log_jacobian(w)
 
 
+def log_scale_entries(space: ParameterSpace, settings: DRAMSettings) -> np.ndarray:
+    """The entries DRAM's settings put on a log scale (the bounds then keep those bounded
+    below only): the variances and the damping rate with ``variance_scale = "log"``; a user
+    model's parameters with ``parameter_scale = "log"``, or with ``"prior"`` those whose
+    prior is a law of log θ (:attr:`~symplid.model._priors.Prior.log_scale`)."""
+    def chosen(group: str, prior: Any) -> bool:
+        if group in POSITIVE_GROUPS:
+            return settings.variance_scale == "log"
+        if group != USER_GROUP or settings.parameter_scale == "natural":
+            return False
+        return settings.parameter_scale == "log" or bool(getattr(prior, "log_scale", False))
+    return np.array([chosen(g, p) for g, p in zip(space.groups, space.priors, strict=True)],
+                    dtype=bool)
+
+
 def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
                batch_logdensity: Callable) -> SamplerKernel:
     """DRAM in θ, from the MAP covariance (the paper's sampler); with
-    ``variance_scale = "log"`` the variances move as log(v − a) (:class:`LogVariances`)."""
-    scale = LogVariances(posterior) if settings.variance_scale == "log" else None
-    if scale is not None and not scale.mask.any():
+    ``variance_scale = "log"`` the variances move as log(v − a), and a user model's
+    parameters by ``parameter_scale`` (:class:`LogVariances`)."""
+    scale: LogVariances | None = LogVariances(posterior, settings)
+    on_log_scale = [str(n) for n, m in zip(posterior.param_names, scale.mask, strict=True) if m]
+    if not on_log_scale:
         scale = None
     logdensity_fn = posterior.log_density if scale is None else scale.log_density
     to_theta = (lambda w: w) if scale is None else scale.to_theta
@@ -200,7 +224,9 @@ def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
 
     def final_attrs(states: dram.DRAMState) -> dict[str, Any]:
         return {"dram_adapted_covariance": np.asarray(states.cov).tolist(),
-                "dram_variance_scale": "natural" if scale is None else "log"}
+                "dram_variance_scale": settings.variance_scale,
+                "dram_parameter_scale": settings.parameter_scale,
+                "dram_log_scale": list(on_log_scale)}
 
     covariance_at = None if scale is None else (
         lambda theta, cov: pushforward_covariance(scale.to_w, theta, cov))
