@@ -34,8 +34,13 @@ the **rougher data start**: the same fit to splines that follow the positions to
 of the noise estimate (:data:`~._data_start.ROUGHER`). The estimate is an upper bound that a
 fast motion sampled a few times a period inflates; the spline it sets then smooths the
 motion away, and starts 0 and 1 see a slower one (a Morse oscillator sampled 3.5 times a
-period: every other start ended 38 nats below the mode this one finds). Starts 3, ... (2,
-... with ``init``) perturb start 0 on each parameter's own scale: by max(3 × its
+period: every other start ended 38 nats below the mode this one finds). Start 3 (without
+``init``) is the **spectral data start**: the same fit to a sum of sinusoids through the
+positions, collocated between the observations too (:mod:`._spectral`). Sparse samples of an
+oscillation at uneven times defeat the splines (two coupled oscillators seen about five
+times a period: every spline start ended 70 nats or more below the mode this one finds); it
+is start 0 when the spline's start cannot be evaluated. Starts 4, ... (2, ... with
+``init``) perturb start 0 on each parameter's own scale: by max(3 × its
 least-squares standard error, 10 % of its value) for the dynamic parameters and the initial
 state, and by a factor exp(N(0, 1)) for the variances; a start with a non-finite log
 posterior is drawn again with half the step.
@@ -351,9 +356,16 @@ def _starts(
     ("Starting points" in the module docstring)."""
     default = default_start(posterior)
     partial = isinstance(init, Mapping)  # declared starts of some parameters: the rest read
-    found = data_start(posterior, default, objective.is_finite) if init is None or partial else None
-    if found is not None and not objective.is_finite(found.theta):
-        found = None
+
+    def read(smoother: str) -> Any:
+        found = data_start(posterior, default, objective.is_finite, smoother=smoother)
+        return found if found is not None and objective.is_finite(found.theta) else None
+
+    found, used = None, ""
+    for smoother in ("spline", "spectral") if init is None else ("spline",) if partial else ():
+        if (found := read(smoother)) is not None:
+            used = smoother
+            break
     if init is not None:
         first = as_theta(init, posterior, default if found is None else found.theta)
     else:
@@ -376,10 +388,10 @@ def _starts(
     homotopy = homotopy_start(posterior, first, default)
     if num_starts > 1 and objective.is_finite(homotopy):
         starts.append(homotopy)
-    if init is None and num_starts > 2:
-        rough = data_start(posterior, default, objective.is_finite, rough=True)
-        if rough is not None and objective.is_finite(rough.theta):
-            starts.append(rough.theta)
+    for smoother in ("rough", "spectral") if init is None else ():
+        if len(starts) < num_starts and smoother != used and (
+                other := read(smoother)) is not None:
+            starts.append(other.theta)
     while len(starts) < num_starts:
         key = jax.random.fold_in(root, len(starts))
         starts.append(scaled_start(key, objective.space, first, found.scale,
