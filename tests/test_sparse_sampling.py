@@ -62,7 +62,7 @@ def test_the_rougher_data_start_sees_the_fast_motion(morse):
     posterior = fit_posterior(at, obs, None, None)
     default = default_start(posterior)
     smooth = data_start(posterior, default)
-    rough = data_start(posterior, default, rough=True)
+    rough = data_start(posterior, default, smoother="rough")
     assert smooth.rate < 0.7 * A * np.sqrt(2 * D)  # slower than the small oscillations
     assert 0.75 < rough.rate / true_rate < 1.3
     assert fastest_rate(posterior) == max(smooth.rate, rough.rate)

@@ -36,6 +36,12 @@ reads both from the data, in three cheap steps that use no filter:
    error (momenta) for a learned initial state, and by a factor exp(N(0, 1)) for the
    variances.
 
+Sparse samples of an oscillation (a few per period, at uneven times) defeat the spline,
+which flattens what it cannot follow. The **spectral** data start (``smoother="spectral"``)
+reads the path as a sum of sinusoids with frequencies from the data's periodogram
+(:mod:`._spectral`) and, the path being exact between the observations, collocates on nodes
+between them too.
+
 The noise variances start from the data: each observation variance at its difference
 estimate, the process variance at the mean squared defect of the collocation's momentum step
 (what the fitted dynamics leave unexplained over one gap). A learned initial state starts on
@@ -63,6 +69,7 @@ import scipy.optimize
 from scipy.interpolate import make_smoothing_spline
 
 from symplid.inference.map._noise import difference_variance, noise_variance
+from symplid.inference.map._spectral import spectral_path, subdivided
 from symplid.inference.map._starts import default_start
 
 Array = jax.Array
@@ -134,10 +141,12 @@ def position_rows(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
     return (rows, factors) if np.all(rows[: n // 2] >= 0) else None
 
 
+SMOOTHERS = ("spline", "rough", "spectral")
+"""The paths a data start can read the positions by (:func:`data_start`)."""
 LOG_LAMBDA_TOL = 1e-10
 """Absolute tolerance of the root search for log λ of the discrepancy principle."""
 ROUGHER = 1.0 / 30.0
-"""The noise target of the rougher data start (:func:`data_start`'s ``rough``), as a share of
+"""The noise target of the rougher data start (``smoother="rough"``), as a share of
 the model-free estimate. That estimate is an upper bound that the signal inflates: on a
 Morse oscillator sampled 3.5 times a period (25 positions, noise sd 0.04) it was 37 times the
 noise variance, the spline it sets was nearly flat, and every start fitted the slow motion
@@ -190,30 +199,70 @@ def _spline(t: np.ndarray, y: np.ndarray, share: float = 1.0) -> tuple[Any, floa
     return spline, target
 
 
-def _smooth(posterior: Any, rows: np.ndarray, factors: np.ndarray, share: float = 1.0):
-    """Each trajectory's smoothed path, and the noise variance per observed component (the
-    positions' splines at ``share`` times their model-free noise: :func:`_spline`)."""
+def _spline_positions(t: np.ndarray, positions: np.ndarray, share: float, most: int):
+    """(nodes, q, q̇, noise variances) of cubic smoothing splines through each position
+    component (:func:`_spline`), at most ``most`` of the observation times; None when a
+    spline cannot be fitted."""
+    keep = _nodes(t.size, most)
+    q, qdot = np.empty((keep.size, positions.shape[1])), np.empty((keep.size,
+                                                                   positions.shape[1]))
+    var = np.empty(positions.shape[1])
+    for i in range(positions.shape[1]):
+        fitted = _spline(t, positions[:, i], share)
+        if fitted is None:
+            return None
+        q[:, i], qdot[:, i] = fitted[0](t[keep]), fitted[0].derivative()(t[keep])
+        var[i] = fitted[1]
+    return t[keep], q, qdot, var
+
+
+def _spectral_positions(t: np.ndarray, positions: np.ndarray, most: int):
+    """(nodes, q, q̇, noise variances) of a sum of sinusoids through all the position
+    components (:func:`~._spectral.spectral_path`), on the observation times and nodes
+    between them (:func:`~._spectral.subdivided`); None when it cannot be fitted."""
+    path = spectral_path(t, positions)
+    if path is None:
+        return None
+    nodes = subdivided(t, most) if t.size <= most else t[_nodes(t.size, most)]
+    return nodes, path.values(nodes), path.derivative(nodes), path.residual_var
+
+
+def _at_nodes(nodes: np.ndarray, times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` (one row per observation time) on the nodes: a node that is an
+    observation time takes its row, the others NaN."""
+    out = np.full((nodes.size, values.shape[1]), np.nan)
+    index = np.minimum(np.searchsorted(times, nodes), times.size - 1)
+    match = times[index] == nodes
+    out[match] = values[index[match]]
+    return out
+
+
+def _smooth(posterior: Any, rows: np.ndarray, factors: np.ndarray, smoother: str = "spline"):
+    """Each trajectory's smoothed path, and the noise variance per observed component: the
+    positions by ``smoother`` (:data:`SMOOTHERS`), the measured momenta at their
+    model-free noise."""
     d = rows.size // 2
+    most = max(MIN_POINTS, MAX_NODES // len(posterior.datasets))
     paths, noise = [], []
     for k, obs in enumerate(posterior.datasets):
         t = np.asarray(obs.times, dtype=float)
         values = np.where(obs.mask, obs.values, np.nan)
-        q, qdot = np.empty((t.size, d)), np.empty((t.size, d))
-        p_obs = np.full((t.size, d), np.nan)
+        positions = values[:, rows[:d]] / factors[:d]
+        fitted = (_spectral_positions(t, positions, most) if smoother == "spectral" else
+                  _spline_positions(t, positions, ROUGHER if smoother == "rough" else 1.0,
+                                    most))
+        if fitted is None:
+            return None
+        nodes, q, qdot, q_var = fitted
         var = np.full(obs.dim, np.nan)
-        for i in range(d):
-            fitted = _spline(t, values[:, rows[i]] / factors[i], share)
-            if fitted is None:
-                return None
-            q[:, i], qdot[:, i] = fitted[0](t), fitted[0].derivative()(t)
-            var[rows[i]] = fitted[1] * factors[i] ** 2
+        var[rows[:d]] = q_var * factors[:d] ** 2
+        p_obs = np.full((t.size, d), np.nan)
         for i in range(d):
             if rows[d + i] >= 0:
                 p_obs[:, i] = values[:, rows[d + i]] / factors[d + i]
                 var[rows[d + i]] = noise_variance(t, p_obs[:, i]) * factors[d + i] ** 2
         t0 = getattr(posterior, "t0", [None] * len(posterior.datasets))[k]
-        keep = _nodes(t.size, max(MIN_POINTS, MAX_NODES // len(posterior.datasets)))
-        paths.append(_Smoothed(t[keep], q[keep], qdot[keep], p_obs[keep],
+        paths.append(_Smoothed(nodes, q, qdot, _at_nodes(nodes, t, p_obs),
                                float(t[0] if t0 is None else t0)))
         noise.append(var)
     return paths, np.nanmean(np.vstack(noise), axis=0)
@@ -340,15 +389,17 @@ def _collocate(posterior: Any, paths: list[_Smoothed], base: np.ndarray):
 # ----------------------------------------------------------------------------- the start
 def data_start(posterior: Any, default: np.ndarray,
                is_finite: Callable[[np.ndarray], bool] | None = None,
-               rough: bool = False) -> DataStart | None:
+               smoother: str = "spline") -> DataStart | None:
     """A MAP start and per-parameter scales read from the data (module docstring), or None
     when the model or the data do not allow it. ``default`` supplies what the data cannot
     (e.g. relative variances) and the centre of the collocation's first step; ``is_finite``
     (θ ↦ whether log π is finite there) lets a parameter lifted off its bound be brought
-    back towards it until the start can be evaluated (:func:`_lift_off_bound`). ``rough``:
-    the positions' splines follow the data to :data:`ROUGHER` of the noise estimate (and the
-    observation variances start there), the start of a fast motion that the estimate's
-    spline smooths away."""
+    back towards it until the start can be evaluated (:func:`_lift_off_bound`).
+    ``smoother`` (:data:`SMOOTHERS`) reads the path: ``"spline"``, smoothing splines to the
+    noise estimate; ``"rough"``, splines that follow the data to :data:`ROUGHER` of it (and
+    the observation variances start there), the start of a fast motion that the estimate's
+    spline smooths away; ``"spectral"``, a sum of sinusoids through sparse samples of an
+    oscillation (:mod:`._spectral`), collocated between the observations too."""
     model = getattr(posterior, "model", None)
     if model is None or not getattr(posterior, "datasets", None) or not hasattr(
             model, "hamiltonian"):
@@ -356,7 +407,10 @@ def data_start(posterior: Any, default: np.ndarray,
     found = position_rows(model)
     if found is None:
         return None
-    smoothed = _smooth(posterior, *found, ROUGHER if rough else 1.0)
+    if smoother not in SMOOTHERS:
+        raise ValueError(f"smoother must be one of {', '.join(map(repr, SMOOTHERS))}, "
+                         f"got {smoother!r}")
+    smoothed = _smooth(posterior, *found, smoother)
     if smoothed is None:
         return None
     paths, noise_var = smoothed
@@ -414,8 +468,8 @@ def fastest_rate(posterior: Any) -> float:
     few times a period shows only in the rougher spline); NaN when neither can be read.
     The learning step's search (``model.dt = "auto"``) starts at a step that resolves it."""
     default = default_start(posterior)
-    rates = [found.rate for rough in (False, True)
-             if (found := data_start(posterior, default, rough=rough)) is not None]
+    rates = [found.rate for smoother in SMOOTHERS
+             if (found := data_start(posterior, default, smoother=smoother)) is not None]
     finite = [r for r in rates if math.isfinite(r)]
     return max(finite) if finite else math.nan
 
@@ -488,5 +542,5 @@ def _set_initial_states(posterior: Any, theta: np.ndarray, scale: np.ndarray,
         scale[sl] = np.concatenate([np.full(q0.size, sd_q), np.full(p0.size, sd_p)])
 
 
-__all__ = ["COEFFICIENT_GROUPS", "DYNAMIC_GROUPS", "MIN_POINTS", "ROUGHER", "DataStart",
-           "data_start", "difference_variance", "fastest_rate", "position_rows"]
+__all__ = ["COEFFICIENT_GROUPS", "DYNAMIC_GROUPS", "MIN_POINTS", "ROUGHER", "SMOOTHERS",
+           "DataStart", "data_start", "difference_variance", "fastest_rate", "position_rows"]

@@ -34,18 +34,25 @@ the **rougher data start**: the same fit to splines that follow the positions to
 of the noise estimate (:data:`~._data_start.ROUGHER`). The estimate is an upper bound that a
 fast motion sampled a few times a period inflates; the spline it sets then smooths the
 motion away, and starts 0 and 1 see a slower one (a Morse oscillator sampled 3.5 times a
-period: every other start ended 38 nats below the mode this one finds). Starts 3, ... (2,
-... with ``init``) perturb start 0 on each parameter's own scale: by max(3 × its
+period: every other start ended 38 nats below the mode this one finds). Start 3 (without
+``init``) is the **spectral data start**: the same fit to a sum of sinusoids through the
+positions, collocated between the observations too (:mod:`._spectral`), with the default
+start's variances (as start 1). Sparse samples of an oscillation at uneven times defeat the
+splines: two coupled oscillators seen about five times a period, whose spline starts could
+not even be evaluated, ended 70 nats below the mode this one finds. Starts 4, ... (2, ...
+with ``init``) perturb start 0 on each parameter's own scale: by max(3 × its
 least-squares standard error, 10 % of its value) for the dynamic parameters and the initial
 state, and by a factor exp(N(0, 1)) for the variances; a start with a non-finite log
 posterior is drawn again with half the step.
 
 When the model or the data do not allow a data start (a nonlinear observation operator,
-unmeasured positions, fewer than five observations), start 0 is the **default start**
+unmeasured positions, fewer than five observations), or the spline's start cannot be
+evaluated (the filter fails there), start 0 is the **default start**
 (:func:`~._starts.default_start`): coefficients at their prior median, the process
 variance at the data's variance and the observation variance at a tenth of it, a learned
 initial state at its prior's centre; starts 1, ... then perturb it by ``start_spread`` ×
-each prior's standard deviation (variances by a factor exp(N(0, 1))). Draws use
+each prior's standard deviation (variances by a factor exp(N(0, 1))), and the last start
+(without ``init``) is the spectral data start when the model allows one. Draws use
 ``jax.random.fold_in(jax.random.key(seed), k)`` for start k.
 
 A non-finite objective (a failed filter, an overflow) is returned to L-BFGS-B as a large
@@ -351,9 +358,12 @@ def _starts(
     ("Starting points" in the module docstring)."""
     default = default_start(posterior)
     partial = isinstance(init, Mapping)  # declared starts of some parameters: the rest read
-    found = data_start(posterior, default, objective.is_finite) if init is None or partial else None
-    if found is not None and not objective.is_finite(found.theta):
-        found = None
+
+    def read(smoother: str) -> Any:
+        found = data_start(posterior, default, objective.is_finite, smoother=smoother)
+        return found if found is not None and objective.is_finite(found.theta) else None
+
+    found = read("spline") if init is None or partial else None
     if init is not None:
         first = as_theta(init, posterior, default if found is None else found.theta)
     else:
@@ -366,20 +376,25 @@ def _starts(
             "pass init=... at a point where the model can be evaluated"
         )
     root = jax.random.key(int(seed))
+    spectral = read("spectral") if init is None and num_starts > 1 else None
+    if spectral is not None:  # with the default start's variances, as the homotopy start
+        spectral = homotopy_start(posterior, spectral.theta, default)
+        spectral = spectral if objective.is_finite(spectral) else None
     if found is None:
-        return [first] + [
+        starts = [first] + [
             perturbed_start(jax.random.fold_in(root, k), posterior, objective.space, first,
                             spread, objective.is_finite)
             for k in range(1, num_starts)
         ]
+        return starts if spectral is None else [*starts[:-1], spectral]
     starts = [first]
     homotopy = homotopy_start(posterior, first, default)
     if num_starts > 1 and objective.is_finite(homotopy):
         starts.append(homotopy)
-    if init is None and num_starts > 2:
-        rough = data_start(posterior, default, objective.is_finite, rough=True)
-        if rough is not None and objective.is_finite(rough.theta):
-            starts.append(rough.theta)
+    if init is None and num_starts > 2 and (rough := read("rough")) is not None:
+        starts.append(rough.theta)
+    if spectral is not None and len(starts) < num_starts:
+        starts.append(spectral)
     while len(starts) < num_starts:
         key = jax.random.fold_in(root, len(starts))
         starts.append(scaled_start(key, objective.space, first, found.scale,
