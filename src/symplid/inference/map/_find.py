@@ -381,12 +381,12 @@ def _starts(
         spectral = homotopy_start(posterior, spectral.theta, default)
         spectral = spectral if objective.is_finite(spectral) else None
     if found is None:
-        starts = [first] + [
+        perturbed = num_starts if spectral is None else num_starts - 1
+        return [first] + [
             perturbed_start(jax.random.fold_in(root, k), posterior, objective.space, first,
                             spread, objective.is_finite)
-            for k in range(1, num_starts)
-        ]
-        return starts if spectral is None else [*starts[:-1], spectral]
+            for k in range(1, perturbed)
+        ] + ([] if spectral is None else [spectral])
     starts = [first]
     homotopy = homotopy_start(posterior, first, default)
     if num_starts > 1 and objective.is_finite(homotopy):
