@@ -21,8 +21,10 @@ import symplid
 from symplid.cli import main
 from symplid.dynamics._potentials import FunctionPotential
 from symplid.inference.map import _checks as map_checks
-from symplid.inference.map import _data_start
-from symplid.inference.map._data_start import data_start, difference_variance, position_rows
+from symplid.inference.map import _data_start, _paths
+from symplid.inference.map._data_start import data_start
+from symplid.inference.map._noise import difference_variance
+from symplid.inference.map._paths import position_rows
 from symplid.inference.map._result import MapConvergenceWarning, StartResult
 from symplid.inference.map._space import SearchSpace
 from symplid.inference.map._starts import default_start
@@ -130,9 +132,9 @@ def test_the_discrepancy_spline_is_the_bisections_with_fewer_fits(which, monkeyp
 
     t, y = _series()[which]
     fits = []
-    monkeypatch.setattr(_data_start, "make_smoothing_spline",
+    monkeypatch.setattr(_paths, "make_smoothing_spline",
                         lambda *a, **k: fits.append(1) or make_smoothing_spline(*a, **k))
-    spline, target = _data_start._spline(t, y)
+    spline, target = _paths.spline_fit(t, y)
     reference = _bisected_spline(t, y, target)
     size = np.ptp(y)
     np.testing.assert_allclose(spline(t), reference(t), rtol=0, atol=1e-7 * size)
@@ -146,8 +148,8 @@ def test_a_target_outside_the_bracket_gives_the_bisections_end(target, monkeypat
     """A noise target below every spline's residual gives the roughest spline of the bracket,
     one above them the smoothest: where the bisection ends."""
     t, y = _series()[1]
-    monkeypatch.setattr(_data_start, "noise_variance", lambda *_: target)
-    spline, _ = _data_start._spline(t, y)
+    monkeypatch.setattr(_paths, "noise_variance", lambda *_: target)
+    spline, _ = _paths.spline_fit(t, y)
     np.testing.assert_allclose(spline(t), _bisected_spline(t, y, target)(t), rtol=0,
                                atol=1e-9)
 
@@ -163,7 +165,7 @@ def test_collocation_program_is_hamiltons_equations_and_their_jacobian():
     qdot = rng.normal(0.0, 0.02, (n, d))
     p_obs = np.full((n, d), np.nan)
     p_obs[2, 1] = 0.01
-    path = _data_start._Smoothed(times, q, qdot, p_obs, 0.0)
+    path = _paths.Smoothed(times, q, qdot, p_obs, 0.0)
     dyn = np.array([0])
     program = _data_start._collocation_program(post.model, dyn, d)
     scales, data = _data_start._collocation_data([path])

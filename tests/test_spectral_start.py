@@ -20,7 +20,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from symplid.inference.map import find_map
-from symplid.inference.map._data_start import SMOOTHERS, data_start
+from symplid.inference.map._data_start import data_start
+from symplid.inference.map._paths import SMOOTHERS
 from symplid.inference.map._spectral import SUBDIVISIONS, spectral_path, subdivided
 from symplid.inference.map._starts import default_start
 from symplid.io._datafiles import read_observations

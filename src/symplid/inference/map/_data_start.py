@@ -24,7 +24,7 @@ reads both from the data, in three cheap steps that use no filter:
 
    with g = −∂H/∂q − γ ∂H/∂p (γ: the damping rate of a damped model), h_i = t_{i+1} − t_i,
    each residual divided by the typical size of its term; measured momenta add
-   p_i − y_i residuals. A long record is thinned evenly to at most :data:`MAX_NODES` nodes.
+   p_i − y_i residuals. A long record is thinned evenly to at most :data:`~._paths.MAX_NODES` nodes.
    The fit starts at the prior medians and p_i = q̇_i. The positions being held fixed, a
    separable H whose potential is linear in its parameters (Kepler's GM, a polynomial)
    makes every residual linear in (φ, p): one linear least-squares problem; a general H
@@ -57,7 +57,6 @@ from __future__ import annotations
 
 import functools
 import math
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -66,17 +65,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
-from scipy.interpolate import make_smoothing_spline
 
-from symplid.inference.map._noise import difference_variance, noise_variance
-from symplid.inference.map._spectral import spectral_path, subdivided
+from symplid.inference.map._paths import SMOOTHERS, Smoothed, position_rows, smoothed_paths
 from symplid.inference.map._starts import default_start
 
 Array = jax.Array
-MIN_POINTS = 5
-"""Fewest observations of a trajectory the smoothing spline is fitted to."""
-MAX_NODES = 300
-"""Most collocation nodes over all trajectories (a longer record is thinned evenly)."""
 COEFFICIENT_GROUPS = ("coefficients", "parameters")
 """Groups of the dynamics' coefficients: a built-in family's, a user model's declared ones."""
 DYNAMIC_GROUPS = (*COEFFICIENT_GROUPS, "damping")
@@ -114,165 +107,6 @@ class DataStart:
     @functools.cached_property
     def rate(self) -> float:
         return self._rate_of()
-
-
-@dataclass(frozen=True)
-class _Smoothed:
-    times: np.ndarray  # (n,)
-    q: np.ndarray  # (n, d)
-    qdot: np.ndarray  # (n, d)
-    p_obs: np.ndarray  # (n, d), NaN where a momentum is not measured
-    t0: float  # time of the initial state
-
-
-def position_rows(model: Any) -> tuple[np.ndarray, np.ndarray] | None:
-    """For each state component, the observation row that measures it alone and its factor
-    c (−1 where none does); None when a position is not measured or h is a function."""
-    matrix = getattr(model, "observation_matrix", None)
-    if matrix is None:
-        return None
-    H = np.asarray(matrix, dtype=float)
-    n = H.shape[1]
-    rows, factors = -np.ones(n, dtype=int), np.ones(n)
-    for j in range(H.shape[0]):
-        nz = np.flatnonzero(H[j])
-        if nz.size == 1 and rows[nz[0]] < 0:
-            rows[nz[0]], factors[nz[0]] = j, H[j, nz[0]]
-    return (rows, factors) if np.all(rows[: n // 2] >= 0) else None
-
-
-SMOOTHERS = ("spline", "rough", "spectral")
-"""The paths a data start can read the positions by (:func:`data_start`)."""
-LOG_LAMBDA_TOL = 1e-10
-"""Absolute tolerance of the root search for log λ of the discrepancy principle."""
-ROUGHER = 1.0 / 30.0
-"""The noise target of the rougher data start (``smoother="rough"``), as a share of
-the model-free estimate. That estimate is an upper bound that the signal inflates: on a
-Morse oscillator sampled 3.5 times a period (25 positions, noise sd 0.04) it was 37 times the
-noise variance, the spline it sets was nearly flat, and every start fitted the slow motion
-that the smoothed path showed (log π 5.4 against 43.7 at the true parameters' mode)."""
-
-
-def _spline(t: np.ndarray, y: np.ndarray, share: float = 1.0) -> tuple[Any, float] | None:
-    """A smoothing spline of y(t) over the finite values whose mean squared residual matches
-    ``share`` times the model-free estimate of the noise (the discrepancy principle), and
-    that variance.
-
-    The residual grows with the roughness penalty λ: the root of mean squared residual −
-    target in log λ is bracketed by λ ∈ [1e-12, 1e6] × span³ and found by Brent's method
-    (:func:`scipy.optimize.brentq`) to :data:`LOG_LAMBDA_TOL`; a target outside the
-    bracket's residuals gives the spline at the nearer end (as a bisection would)."""
-    ok = np.isfinite(y)
-    if ok.sum() < MIN_POINTS:
-        return None
-    t, y = t[ok], y[ok]
-    target = share * noise_variance(t, y)
-    if not (math.isfinite(target) and target > 0):
-        return None
-    span = float(t[-1] - t[0])
-    lo, hi = math.log(1e-12 * span**3), math.log(1e6 * span**3)
-
-    def excess(log_lam: float) -> float:
-        """Mean squared residual − target at λ = exp(log_lam): an infinite one above the
-        target, a NaN below it (as a bisection on ``residual > target`` reads them)."""
-        spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
-        value = float(np.mean((y - spline(t)) ** 2)) - target
-        if value > 0:
-            return min(value, 1e300)
-        return value if math.isfinite(value) else -target
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            at_lo, at_hi = excess(lo), excess(hi)
-            if at_lo > 0:  # no sign change: the bracket's end nearer the target
-                log_lam = lo
-            elif at_hi <= 0:  # where 40 halvings towards it end: a near-linear fit, whose
-                log_lam = lo  # values depend on λ's last digits, kept as it was
-                for _ in range(40):
-                    log_lam = 0.5 * (log_lam + hi)
-            else:
-                log_lam = scipy.optimize.brentq(excess, lo, hi, xtol=LOG_LAMBDA_TOL)
-            spline = make_smoothing_spline(t, y, lam=math.exp(log_lam))
-        except (ValueError, np.linalg.LinAlgError, RuntimeError):
-            return None
-    return spline, target
-
-
-def _spline_positions(t: np.ndarray, positions: np.ndarray, share: float, most: int):
-    """(nodes, q, q̇, noise variances) of cubic smoothing splines through each position
-    component (:func:`_spline`), at most ``most`` of the observation times; None when a
-    spline cannot be fitted."""
-    keep = _nodes(t.size, most)
-    q, qdot = np.empty((keep.size, positions.shape[1])), np.empty((keep.size,
-                                                                   positions.shape[1]))
-    var = np.empty(positions.shape[1])
-    for i in range(positions.shape[1]):
-        fitted = _spline(t, positions[:, i], share)
-        if fitted is None:
-            return None
-        q[:, i], qdot[:, i] = fitted[0](t[keep]), fitted[0].derivative()(t[keep])
-        var[i] = fitted[1]
-    return t[keep], q, qdot, var
-
-
-def _spectral_positions(t: np.ndarray, positions: np.ndarray, most: int):
-    """(nodes, q, q̇, noise variances) of a sum of sinusoids through all the position
-    components (:func:`~._spectral.spectral_path`), on the observation times and nodes
-    between them (:func:`~._spectral.subdivided`); None when it cannot be fitted."""
-    path = spectral_path(t, positions)
-    if path is None:
-        return None
-    nodes = subdivided(t, most) if t.size <= most else t[_nodes(t.size, most)]
-    return nodes, path.values(nodes), path.derivative(nodes), path.residual_var
-
-
-def _at_nodes(nodes: np.ndarray, times: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``values`` (one row per observation time) on the nodes: a node that is an
-    observation time takes its row, the others NaN."""
-    out = np.full((nodes.size, values.shape[1]), np.nan)
-    index = np.minimum(np.searchsorted(times, nodes), times.size - 1)
-    match = times[index] == nodes
-    out[match] = values[index[match]]
-    return out
-
-
-def _smooth(posterior: Any, rows: np.ndarray, factors: np.ndarray, smoother: str = "spline"):
-    """Each trajectory's smoothed path, and the noise variance per observed component: the
-    positions by ``smoother`` (:data:`SMOOTHERS`), the measured momenta at their
-    model-free noise."""
-    d = rows.size // 2
-    most = max(MIN_POINTS, MAX_NODES // len(posterior.datasets))
-    paths, noise = [], []
-    for k, obs in enumerate(posterior.datasets):
-        t = np.asarray(obs.times, dtype=float)
-        values = np.where(obs.mask, obs.values, np.nan)
-        positions = values[:, rows[:d]] / factors[:d]
-        fitted = (_spectral_positions(t, positions, most) if smoother == "spectral" else
-                  _spline_positions(t, positions, ROUGHER if smoother == "rough" else 1.0,
-                                    most))
-        if fitted is None:
-            return None
-        nodes, q, qdot, q_var = fitted
-        var = np.full(obs.dim, np.nan)
-        var[rows[:d]] = q_var * factors[:d] ** 2
-        p_obs = np.full((t.size, d), np.nan)
-        for i in range(d):
-            if rows[d + i] >= 0:
-                p_obs[:, i] = values[:, rows[d + i]] / factors[d + i]
-                var[rows[d + i]] = noise_variance(t, p_obs[:, i]) * factors[d + i] ** 2
-        t0 = getattr(posterior, "t0", [None] * len(posterior.datasets))[k]
-        paths.append(_Smoothed(nodes, q, qdot, _at_nodes(nodes, t, p_obs),
-                               float(t[0] if t0 is None else t0)))
-        noise.append(var)
-    return paths, np.nanmean(np.vstack(noise), axis=0)
-
-
-def _nodes(n: int, most: int) -> np.ndarray:
-    """At most ``most`` evenly spread indices of n times, the first one always included."""
-    if n <= most:
-        return np.arange(n)
-    return np.unique(np.round(np.linspace(0, n - 1, most)).astype(int))
 
 
 # ----------------------------------------------------------------------------- collocation
@@ -324,7 +158,7 @@ def _collocation_program(model: Any, dyn: np.ndarray, d: int) -> Callable:
     return jax.jit(program)
 
 
-def _collocation_data(paths: list[_Smoothed]) -> tuple[np.ndarray, tuple]:
+def _collocation_data(paths: list[Smoothed]) -> tuple[np.ndarray, tuple]:
     """(velocity and acceleration scales, each path's (q, q̇, gaps, measured p, flat indices
     of the measured p)) for :func:`_collocation_program`."""
     v_scale = max(float(np.sqrt(np.mean(np.concatenate([p.qdot for p in paths]) ** 2))), 1e-300)
@@ -351,7 +185,7 @@ def _evaluator(program: Callable, *args: Any) -> Callable[[np.ndarray], tuple]:
     return at
 
 
-def _collocate(posterior: Any, paths: list[_Smoothed], base: np.ndarray):
+def _collocate(posterior: Any, paths: list[Smoothed], base: np.ndarray):
     """(φ, momenta per path, standard errors of z, momentum-step defect variance) or None."""
     groups = tuple(posterior.param_groups)
     dyn = np.array([i for i, g in enumerate(groups) if g in DYNAMIC_GROUPS], dtype=int)
@@ -395,8 +229,8 @@ def data_start(posterior: Any, default: np.ndarray,
     (e.g. relative variances) and the centre of the collocation's first step; ``is_finite``
     (θ ↦ whether log π is finite there) lets a parameter lifted off its bound be brought
     back towards it until the start can be evaluated (:func:`_lift_off_bound`).
-    ``smoother`` (:data:`SMOOTHERS`) reads the path: ``"spline"``, smoothing splines to the
-    noise estimate; ``"rough"``, splines that follow the data to :data:`ROUGHER` of it (and
+    ``smoother`` (:data:`~._paths.SMOOTHERS`) reads the path: ``"spline"``, smoothing splines to the
+    noise estimate; ``"rough"``, splines that follow the data to :data:`~._paths.ROUGHER` of it (and
     the observation variances start there), the start of a fast motion that the estimate's
     spline smooths away; ``"spectral"``, a sum of sinusoids through sparse samples of an
     oscillation (:mod:`._spectral`), collocated between the observations too."""
@@ -410,7 +244,7 @@ def data_start(posterior: Any, default: np.ndarray,
     if smoother not in SMOOTHERS:
         raise ValueError(f"smoother must be one of {', '.join(map(repr, SMOOTHERS))}, "
                          f"got {smoother!r}")
-    smoothed = _smooth(posterior, *found, smoother)
+    smoothed = smoothed_paths(posterior, *found, smoother)
     if smoothed is None:
         return None
     paths, noise_var = smoothed
@@ -439,7 +273,7 @@ def data_start(posterior: Any, default: np.ndarray,
                                        momenta))
 
 
-def _rate(model: Any, theta_m: np.ndarray, paths: list[_Smoothed], momenta: list) -> float:
+def _rate(model: Any, theta_m: np.ndarray, paths: list[Smoothed], momenta: list) -> float:
     """The largest |eigenvalue| of the flow's Jacobian at the collocation's nodes (the states
     (q, p) of the smoothed paths with the fitted momenta), at model parameters θ_m."""
     field = _vector_field(model)
@@ -464,11 +298,11 @@ def _rate(model: Any, theta_m: np.ndarray, paths: list[_Smoothed], momenta: list
 
 def fastest_rate(posterior: Any) -> float:
     """The fastest rate of the motion the data show (:attr:`DataStart.rate`), the larger of
-    the data start's and the rougher data start's (:data:`ROUGHER`: a fast motion sampled a
+    the data start's and the rougher data start's (:data:`~._paths.ROUGHER`: a fast motion sampled a
     few times a period shows only in the rougher spline); NaN when neither can be read.
     The learning step's search (``model.dt = "auto"``) starts at a step that resolves it."""
     default = default_start(posterior)
-    rates = [found.rate for smoother in SMOOTHERS
+    rates = [found.rate for smoother in ("spline", "rough")
              if (found := data_start(posterior, default, smoother=smoother)) is not None]
     finite = [r for r in rates if math.isfinite(r)]
     return max(finite) if finite else math.nan
@@ -529,7 +363,7 @@ def _set_variances(posterior: Any, theta: np.ndarray, noise_var: np.ndarray, def
 
 
 def _set_initial_states(posterior: Any, theta: np.ndarray, scale: np.ndarray,
-                        paths: list[_Smoothed], momenta: list, noise_var: np.ndarray) -> None:
+                        paths: list[Smoothed], momenta: list, noise_var: np.ndarray) -> None:
     """Each learned x0 on the smoothed path at t0 with the fitted momentum there."""
     for k, (path, (mom, g)) in enumerate(zip(paths, momenta, strict=True)):
         sl = posterior.initial_state_slice(k)
@@ -542,5 +376,4 @@ def _set_initial_states(posterior: Any, theta: np.ndarray, scale: np.ndarray,
         scale[sl] = np.concatenate([np.full(q0.size, sd_q), np.full(p0.size, sd_p)])
 
 
-__all__ = ["COEFFICIENT_GROUPS", "DYNAMIC_GROUPS", "MIN_POINTS", "ROUGHER", "SMOOTHERS",
-           "DataStart", "data_start", "difference_variance", "fastest_rate", "position_rows"]
+__all__ = ["COEFFICIENT_GROUPS", "DYNAMIC_GROUPS", "DataStart", "data_start", "fastest_rate"]
