@@ -126,8 +126,8 @@ def _spline_positions(t: np.ndarray, positions: np.ndarray, share: float, most: 
     component (:func:`spline_fit`), at most ``most`` of the observation times; None when a
     spline cannot be fitted."""
     keep = _nodes(t.size, most)
-    q, qdot = np.empty((keep.size, positions.shape[1])), np.empty((keep.size,
-                                                                   positions.shape[1]))
+    shape = (keep.size, positions.shape[1])
+    q, qdot = np.empty(shape), np.empty(shape)
     var = np.empty(positions.shape[1])
     for i in range(positions.shape[1]):
         fitted = spline_fit(t, positions[:, i], share)
@@ -159,7 +159,8 @@ def _at_nodes(nodes: np.ndarray, times: np.ndarray, values: np.ndarray) -> np.nd
     return out
 
 
-def smoothed_paths(posterior: Any, rows: np.ndarray, factors: np.ndarray, smoother: str = "spline"):
+def smoothed_paths(posterior: Any, rows: np.ndarray, factors: np.ndarray,
+                   smoother: str = "spline"):
     """Each trajectory's smoothed path, and the noise variance per observed component: the
     positions by ``smoother`` (:data:`SMOOTHERS`), the measured momenta at their
     model-free noise."""
@@ -185,7 +186,7 @@ def smoothed_paths(posterior: Any, rows: np.ndarray, factors: np.ndarray, smooth
                 var[rows[d + i]] = noise_variance(t, p_obs[:, i]) * factors[d + i] ** 2
         t0 = getattr(posterior, "t0", [None] * len(posterior.datasets))[k]
         paths.append(Smoothed(nodes, q, qdot, _at_nodes(nodes, t, p_obs),
-                               float(t[0] if t0 is None else t0)))
+                              float(t[0] if t0 is None else t0)))
         noise.append(var)
     return paths, np.nanmean(np.vstack(noise), axis=0)
 
