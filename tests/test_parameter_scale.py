@@ -16,6 +16,7 @@ Two targets with known answers, each in the group of a user's declared parameter
 
 from __future__ import annotations
 
+import json
 import math
 
 import jax.numpy as jnp
@@ -32,6 +33,8 @@ from symplid.model._priors import HalfNormal, LogNormal
 from symplid.model._truncated import bounded
 from symplid.sampling import RunOptions, sample
 from symplid.sampling._api import draws_array
+from symplid.sampling._resume import checkpoint_arrays, resume_sampling
+from symplid.sampling._run import SamplingInterrupted
 from symplid.workflow._settings import Settings, merge_overrides
 
 
@@ -134,3 +137,29 @@ def test_the_settings_choose_the_entries():
     np.testing.assert_array_equal(LogVariances(target).mask, [False, True])
     np.testing.assert_array_equal(
         LogVariances(target, DRAMSettings(parameter_scale="log")).mask, [True, True])
+
+
+def test_a_run_recorded_before_the_setting_resumes_on_the_log_scale(tmp_path):
+    """A run written before ``parameter_scale`` existed moved a user's parameters as log θ,
+    and its checkpoint holds log θ: resumed without the setting in its record, it continues
+    on that scale, bit for bit the uninterrupted run."""
+    init = MapResult(np.array([1.0, 2e-3]), np.diag([0.75, 2e-6]), None, 0.0)
+    budget = {"num_draws": 150, "num_chains": 2, "seed": 3, "burn_in": 90, "init": init,
+              "settings": {"parameter_scale": "log"}}
+
+    def stop_at_120(report):
+        if report.iterations_done == 120:
+            raise KeyboardInterrupt
+
+    full = sample(GammaTarget(), "dram", **budget,
+                  options=RunOptions(chunk_size=40, progress=False))
+    with pytest.warns(SamplingInterrupted):
+        part, checkpoint = sample(GammaTarget(), "dram", **budget,
+                                  options=RunOptions(chunk_size=40, progress=False,
+                                                     callback=stop_at_120, return_state=True))
+    record = json.loads(part.attrs["settings"])
+    del record["kernel"]["parameter_scale"]
+    part.attrs["settings"] = json.dumps(record)
+    resumed = resume_sampling(GammaTarget(), part, checkpoint_arrays(checkpoint),
+                              options=RunOptions(chunk_size=40, progress=False))
+    np.testing.assert_array_equal(draws_array(resumed), draws_array(full))
