@@ -118,6 +118,9 @@ def _grid(s: np.ndarray) -> np.ndarray:
 
 def _next_frequency(s: np.ndarray, resid: np.ndarray, ok: np.ndarray, grid: np.ndarray,
                     chosen: list[float], span: float) -> float | None:
+    """The grid's frequency of the largest summed periodogram of the residuals, at least one
+    resolution π/T from those already chosen (module docstring, step 1); None when the
+    residuals are flat."""
     power = np.zeros(grid.size)
     for j in range(resid.shape[1]):
         rows = ok[:, j]
