@@ -124,8 +124,9 @@ def _next_frequency(s: np.ndarray, resid: np.ndarray, ok: np.ndarray, grid: np.n
     power = np.zeros(grid.size)
     for j in range(resid.shape[1]):
         rows = ok[:, j]
-        if np.ptp(resid[rows, j]) > 0:
-            power += lombscargle(s[rows], resid[rows, j], grid, precenter=True)
+        centred = resid[rows, j] - np.mean(resid[rows, j])
+        if np.ptp(centred) > 0:
+            power += lombscargle(s[rows], centred, grid)
     for w in chosen:
         power[np.abs(grid - w) < math.pi / span] = 0.0
     return float(grid[np.argmax(power)]) if np.any(power > 0) else None
