@@ -90,38 +90,26 @@ def system_files(name: str, folder: Path) -> tuple[Path, Path]:
 
 
 class Recorder:
-    """Wraps the evidence's profile: value-and-gradient calls and g at every node."""
+    """Wraps the evidence's profile: g at every node, and each profile built (their counts)."""
 
     def __init__(self) -> None:
         from symplid.inference.map import _evidence
 
         self.module, self.original = _evidence, _evidence.Profile
-        self.calls, self.fit_calls, self.nodes, self.profile = 0, 0, {}, None
+        self.nodes, self.profiles = {}, []
 
     def __enter__(self) -> Recorder:
-        recorder, base = self, self.original
+        recorder = self
 
-        class Counting(base):
-            def __init__(self, value_and_grad, *args, **kwargs):
-                def counted(u):
-                    recorder.calls += 1
-                    return value_and_grad(u)
-
-                super().__init__(counted, *args, **kwargs)
-                recorder.profile = self
-
-            def fit(self, s, warm):
-                before = recorder.calls
-                found = super().fit(s, warm)
-                recorder.fit_calls += recorder.calls - before
-                return found
-
+        class Recording(self.original):
             def value(self, s, warm):
                 g, nxt = super().value(s, warm)
+                if not any(p is self for p in recorder.profiles):
+                    recorder.profiles.append(self)
                 recorder.nodes[tuple(np.round(s, 12))] = g
                 return g, nxt
 
-        self.module.Profile = Counting
+        self.module.Profile = Recording
         return self
 
     def __exit__(self, *exc) -> None:
@@ -141,10 +129,11 @@ def one_run(search, lbfgsb_only: bool) -> dict:
     finally:
         _profile._LBFGSB_ONLY = False
     details = result.evidence
-    fits = rec.profile.calls if rec.profile is not None else {"newton": 0, "lbfgsb": 0}
+    fits = rec.profiles[-1].calls if rec.profiles else {"newton": 0, "lbfgsb": 0}
     return {"map": wall, "evidence": details.get("seconds", float("nan")),
             "log_evidence": float(result.log_evidence), "nodes": rec.nodes,
-            "calls": rec.fit_calls, "num_nodes": details.get("nodes", 0),
+            "calls": sum(p.fit_evaluations for p in rec.profiles),
+            "num_nodes": details.get("nodes", 0),
             "newton": fits["newton"], "fits": fits["newton"] + fits["lbfgsb"],
             "error": details.get("error_estimate", float("nan"))}
 

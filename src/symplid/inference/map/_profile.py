@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -90,7 +91,15 @@ class Profile:
 
     def __init__(self, value_and_grad: Callable, hessian: Callable, space: SearchSpace,
                  var: np.ndarray, options: dict, max_newton: int) -> None:
-        self.vg, self.hessian, self.space, self.var = value_and_grad, hessian, space, var
+        self.hessian, self.space, self.var = hessian, space, var
+        self.evaluations = 0  # value-and-gradient calls, and those of the inner fits
+        self.fit_evaluations = 0
+
+        def vg(u: Any) -> Any:
+            self.evaluations += 1
+            return value_and_grad(u)
+
+        self.vg = vg
         self.free = np.setdiff1d(np.arange(space.lower.size), var)
         self.bounds = [space.bounds()[i] for i in self.free]
         self.low = np.array([-math.inf if b[0] is None else b[0] for b in self.bounds])
@@ -113,6 +122,13 @@ class Profile:
     def fit(self, s: np.ndarray, warm: Warm) -> tuple[float, np.ndarray, np.ndarray | None]:
         """(max over c of log π, u at the maximum, ∇²_θ(−log π) there or None) with the
         variances at v(s): Newton's method in u, else L-BFGS-B."""
+        before = self.evaluations
+        try:
+            return self._fit(s, warm)
+        finally:
+            self.fit_evaluations += self.evaluations - before
+
+    def _fit(self, s: np.ndarray, warm: Warm) -> tuple[float, np.ndarray, np.ndarray | None]:
         u = np.array(warm[0], dtype=float)
         u[self.var] = s
         self.num_fits += 1
