@@ -52,7 +52,7 @@ from symplid.inference._convergence import (
 from symplid.sampling._options import Targets
 
 __all__ = ["SHORTFALL", "STOPPED_BY", "BudgetMonitor", "TargetsOutOfReach", "draw_statistics",
-           "kept_after_burn_in"]
+           "kept_after_burn_in", "two_figures"]
 
 #: What ended a run (``attrs["stopped_by"]``): the targets, a cap, a fixed budget, a stop.
 STOPPED_BY = ("target", "iterations", "wall time", "fixed budget", "interrupted")
@@ -60,6 +60,11 @@ _PREFIX = "budget_"
 #: How far beyond the cap the projected iterations must be for the runner to say, before the
 #: cap, that the targets are out of reach (module docstring).
 SHORTFALL = 2.0
+
+
+def two_figures(x: float) -> int:
+    """``x`` rounded to two significant figures: a projection is no more precise."""
+    return int(float(f"{x:.2g}"))
 
 
 class TargetsOutOfReach(UserWarning):
@@ -167,7 +172,7 @@ class BudgetMonitor:
             return None
         self.warned = True
         bulk, tail, _ = self.stats
-        need = int(float(f"{projected:.2g}"))  # two figures: an estimate
+        need = two_figures(projected)
         return (f"at the rate of its first {self.last_check:,} iterations per chain (min "
                 f"ESS {min(bulk, tail):.0f}), the sampler's targets need about {need:,} "
                 f"iterations per chain, beyond its cap of {cap:,}: the run will stop at the cap "

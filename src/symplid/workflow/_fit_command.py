@@ -101,18 +101,15 @@ def _stopped_words(summary: dict[str, Any]) -> str:
                 f"{t.get('ess_bulk', 0):g}, R-hat ≤ {t.get('rhat', 0):g}; burn-in "
                 f"{summary.get('burn_in', 0):,})")
     if stopped in ("iterations", "wall time"):
+        from symplid.sampling._budget import two_figures
+
         projected = summary.get("projected_iterations")
         need = ("" if projected is None else
-                f"; at the rate seen they need about {_two_figures(projected):,}")
+                f"; at the rate seen they need about {two_figures(projected):,}")
         return (f"; cap reached ({stopped}) after {iterations:,} iterations per chain, before "
                 f"the targets{need} (raise sampler.max_iterations or sampler.max_seconds, or "
                 "try another sampler.method)")
     return ""
-
-
-def _two_figures(x: float) -> int:
-    """``x`` rounded to two significant figures (a projection is no more precise)."""
-    return int(float(f"{x:.2g}"))
 
 
 def _convergence_words(rhat: float, ess: float, chains: int) -> str:
