@@ -175,9 +175,8 @@ def resume_sampling(
 
 def _kernel(posterior: Any, spec: SamplerSpec, method: str, record: dict) -> SamplerKernel:
     """The run's kernel, built from its recorded settings (or the one kept on the posterior)."""
-    recorded = dict(record["kernel"])
-    if "variance_scale" in recorded:  # DRAM: a run recorded before ``parameter_scale``
-        recorded.setdefault("parameter_scale", "log")  # moved a user's parameters as log θ
+    # a setting newer than the record: the value the run ran with, not today's default
+    recorded = {**getattr(spec.settings_class, "RECORD_DEFAULTS", {}), **record["kernel"]}
     kernel_settings = make_settings(method, spec.settings_class, recorded)
     return built_kernel(posterior, spec, method, kernel_settings, int(record["burn_in"]))[1]
 

@@ -63,7 +63,7 @@ import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -179,6 +179,10 @@ class DRAMSettings:
     parameter_scale: str = "prior"
     paired_stages: bool | None = None
     linalg: str | None = None
+
+    #: What a run recorded before a setting existed ran with (a resumed run reads its record
+    #: with these in place of today's defaults): a user's parameters on the log scale.
+    RECORD_DEFAULTS: ClassVar[dict[str, Any]] = {"parameter_scale": "log"}
 
     def __post_init__(self) -> None:
         for name, choices in (("variance_scale", VARIANCE_SCALES),
