@@ -18,7 +18,7 @@ import symplid  # noqa: F401  (float64)
 from symplid import HamiltonianModel, Observations, Polynomial, Posterior
 from symplid.dynamics._user_models import UserPotential
 from symplid.inference.map._space import SearchSpace
-from symplid.inference.samplers._registry import LogVariances
+from symplid.inference.samplers._registry import LogScale
 from symplid.model._layout import Block, ParameterLayout
 from symplid.model._params import ParameterProperties, ParameterSpace, Reparameterisation
 from symplid.model._priors import HalfNormal, Laplace, Normal, Uniform
@@ -237,7 +237,7 @@ def test_every_consumer_selects_from_the_one_object():
         def log_density(self, theta):
             return -0.5 * jnp.sum(theta**2)
 
-    dram = LogVariances(Target())
+    dram = LogScale(Target())
     np.testing.assert_array_equal(dram.mask, [False, False, True, False])
     # the mask is data on the space's one map for DRAM, usable without a sampler
     np.testing.assert_array_equal(space.log_scale().transformed, dram.mask)

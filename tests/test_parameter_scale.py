@@ -27,7 +27,7 @@ from scipy.special import digamma
 from sampler_targets import MapResult
 from symplid.inference._diagnostics import import_arviz
 from symplid.inference.samplers._dram import DRAMSettings
-from symplid.inference.samplers._registry import LogVariances, log_scale_entries
+from symplid.inference.samplers._registry import LogScale, log_scale_entries
 from symplid.model._params import USER_GROUP, ParameterSpace
 from symplid.model._priors import HalfNormal, LogNormal
 from symplid.model._truncated import bounded
@@ -134,9 +134,9 @@ def test_the_settings_choose_the_entries():
         chosen = DRAMSettings(parameter_scale=parameters, variance_scale=variances)
         np.testing.assert_array_equal(log_scale_entries(space, chosen), mask)
     target = GammaTarget()  # no priors: a declared parameter stays natural under "prior"
-    np.testing.assert_array_equal(LogVariances(target).mask, [False, True])
+    np.testing.assert_array_equal(LogScale(target).mask, [False, True])
     np.testing.assert_array_equal(
-        LogVariances(target, DRAMSettings(parameter_scale="log")).mask, [True, True])
+        LogScale(target, DRAMSettings(parameter_scale="log")).mask, [True, True])
 
 
 def test_a_run_recorded_before_the_setting_resumes_on_the_log_scale(tmp_path):

@@ -68,9 +68,10 @@ import scipy.optimize
 
 from symplid.inference.map._paths import SMOOTHERS, Smoothed, position_rows, smoothed_paths
 from symplid.inference.map._starts import default_start
+from symplid.model._params import USER_GROUP
 
 Array = jax.Array
-COEFFICIENT_GROUPS = ("coefficients", "parameters")
+COEFFICIENT_GROUPS = ("coefficients", USER_GROUP)
 """Groups of the dynamics' coefficients: a built-in family's, a user model's declared ones."""
 DYNAMIC_GROUPS = (*COEFFICIENT_GROUPS, "damping")
 

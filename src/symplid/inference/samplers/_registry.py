@@ -141,7 +141,7 @@ class SamplerSpec:
     description: str = ""
 
 
-class LogVariances:
+class LogScale:
     """θ ↔ w with the entries :func:`log_scale_entries` picks (those bounded below only) as
     w = log(θ − a), the rest as is, and the log density of w (log π(θ(w)) + Σ w over those
     entries: the log-Jacobian). By default the variances and the damping rate, and a user
@@ -189,8 +189,8 @@ def build_dram(posterior: Any, settings: DRAMSettings, num_warmup: int,
                batch_logdensity: Callable) -> SamplerKernel:
     """DRAM in θ, from the MAP covariance (the paper's sampler); with
     ``variance_scale = "log"`` the variances move as log(v − a), and a user model's
-    parameters by ``parameter_scale`` (:class:`LogVariances`)."""
-    scale: LogVariances | None = LogVariances(posterior, settings)
+    parameters by ``parameter_scale`` (:class:`LogScale`)."""
+    scale: LogScale | None = LogScale(posterior, settings)
     on_log_scale = [str(n) for n, m in zip(posterior.param_names, scale.mask, strict=True) if m]
     if not on_log_scale:
         scale = None
@@ -265,7 +265,7 @@ def _backend(posterior: Any) -> Any:
     return LIKELIHOOD_BACKENDS.get_entry(name)
 
 
-def _dram_step(posterior: Any, settings: DRAMSettings, scale: LogVariances | None) -> Callable:
+def _dram_step(posterior: Any, settings: DRAMSettings, scale: LogScale | None) -> Callable:
     """DRAM's transition (in θ, or in w with the variances on a log scale); one that takes
     the observations as an argument (:class:`DataStep`) when the posterior offers
     ``log_density_with`` and ``data``, so that the compiled chunk is the same program for
@@ -343,7 +343,7 @@ SAMPLERS.register(
 __all__ = [
     "SAMPLERS",
     "DataStep",
-    "LogVariances",
+    "LogScale",
     "SamplerKernel",
     "SamplerSpec",
     "adaptation_length",
